@@ -1,0 +1,53 @@
+# exabricks: set-up, the main job on the embedded dataset, tests, benchmarks.
+# `make demo` and `make test` work on a fresh Debian/Ubuntu machine (they install
+# what they need); SLURM job scripts can call the same stage commands.
+
+PYTHON ?= python3
+VENV   ?= .venv
+EB      = $(VENV)/bin/exabricks
+PY      = $(VENV)/bin/python
+OUT    ?= out
+DATA    = exabricks/data/gerris-plume
+SUDO   := $(shell [ "$$(id -u)" = 0 ] || echo sudo)
+
+.PHONY: setup system-deps demo test bench clean
+
+system-deps:
+	@if ! ls /etc/OpenCL/vendors/*.icd >/dev/null 2>&1; then \
+	  $(SUDO) apt-get update -qq && \
+	  $(SUDO) env DEBIAN_FRONTEND=noninteractive apt-get install -y -qq pocl-opencl-icd ocl-icd-libopencl1 >/dev/null; \
+	fi
+
+$(VENV)/.installed: pyproject.toml
+	$(PYTHON) -m venv $(VENV)
+	$(VENV)/bin/pip install -q --upgrade pip
+	$(VENV)/bin/pip install -q -e '.[dev]'
+	touch $@
+
+setup: system-deps $(VENV)/.installed
+
+# The main job: the embedded Gerris plume through every stage.
+$(OUT)/cells.npz: $(VENV)/.installed
+	@mkdir -p $(OUT)
+	$(EB) ingest $(DATA)/plume7-1.cells -o $@
+
+$(OUT)/bricks.npz: $(OUT)/cells.npz
+	$(EB) brick $< -o $@
+
+$(OUT)/regions.npz: $(OUT)/bricks.npz
+	$(EB) regions $< -o $@
+
+$(OUT)/bvh.npz: $(OUT)/regions.npz
+	$(EB) bvh $< -o $@
+
+demo: setup $(OUT)/bvh.npz
+	$(EB) info $(OUT)/bvh.npz
+
+test: setup
+	$(PY) -m pytest -q
+
+bench: setup
+	$(PY) workflows/bench_ingest.py
+
+clean:
+	rm -rf $(OUT)

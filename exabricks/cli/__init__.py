@@ -1,0 +1,1 @@
+"""The `exabricks` command line: one thin module per command, shared options in options.py."""

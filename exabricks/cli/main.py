@@ -1,0 +1,106 @@
+"""The `exabricks` click group and the one place where errors become exit statuses."""
+
+from __future__ import annotations
+
+import logging
+import os
+import sys
+
+import click
+
+from .. import __version__
+from ..errors import ExabricksError
+
+COMMANDS = (
+    "ingest",
+    "brick",
+    "regions",
+    "bvh",
+    "render",
+    "probe",
+    "compare",
+    "info",
+    "devices",
+)
+
+
+class LazyGroup(click.Group):
+    """Imports a command's module only when it runs (keeps `--help` and `info` fast)."""
+
+    def list_commands(self, ctx):
+        return [c for c in COMMANDS if self._module(c) is not None]
+
+    def get_command(self, ctx, name):
+        module = self._module(name)
+        return getattr(module, name.replace("-", "_"), None) if module else None
+
+    @staticmethod
+    def _module(name):
+        import importlib
+
+        try:
+            return importlib.import_module(f"exabricks.cli.{name.replace('-', '_')}")
+        except ModuleNotFoundError as e:
+            if e.name == f"exabricks.cli.{name}":
+                return None
+            raise
+
+
+@click.group(cls=LazyGroup, context_settings={"help_option_names": ["-h", "--help"]})
+@click.version_option(__version__, prog_name="exabricks")
+@click.option("-v", "--verbose", count=True, help="More log output (repeatable).")
+@click.option("-q", "--quiet", is_flag=True, help="Only errors; no progress bars.")
+@click.option("--debug", is_flag=True, envvar="EXABRICKS_DEBUG",
+              help="Show Python tracebacks (also EXABRICKS_DEBUG=1).")
+@click.pass_context
+def cli(ctx, verbose, quiet, debug):
+    """Render adaptive-mesh-refinement data with the ExaBricks method.
+
+    Stages chain through versioned .npz files:
+    ingest -> brick -> regions -> bvh -> render / probe.
+    """
+    level = logging.ERROR if quiet else (logging.WARNING, logging.INFO, logging.DEBUG)[min(verbose, 2)]
+    logging.basicConfig(level=level, format="%(message)s", stream=sys.stderr)
+    ctx.obj = {"quiet": quiet, "debug": debug}
+    if quiet:
+        os.environ["EXABRICKS_QUIET"] = "1"
+
+
+def main(argv=None) -> None:
+    """Console entry point: exit 0 on success, 1 on bad data or failure, 2 on bad usage."""
+    debug = os.environ.get("EXABRICKS_DEBUG", "") not in ("", "0") or "--debug" in (
+        argv if argv is not None else sys.argv[1:]
+    )
+    try:
+        cli.main(args=argv, prog_name="exabricks", standalone_mode=False)
+    except click.exceptions.Abort:
+        click.echo("error: interrupted", err=True)
+        sys.exit(1)
+    except click.exceptions.Exit as e:
+        sys.exit(e.exit_code)
+    except click.ClickException as e:
+        e.show()
+        sys.exit(e.exit_code)
+    except ExabricksError as e:
+        if debug:
+            raise
+        click.echo(f"error: {e}", err=True)
+        sys.exit(1)
+    except MemoryError:
+        if debug:
+            raise
+        click.echo("error: out of memory", err=True)
+        sys.exit(1)
+    except KeyboardInterrupt:
+        click.echo("error: interrupted", err=True)
+        sys.exit(1)
+    except Exception as e:  # the last line of defence: one line, no traceback
+        if debug:
+            raise
+        click.echo(f"error: internal error: {type(e).__name__}: {e} (rerun with --debug for a traceback)", err=True)
+        sys.exit(1)
+    sys.exit(0)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,20 @@
+"""Dtypes chosen once for every array the stages exchange."""
+
+import numpy as np
+
+# Lattice coordinates are in finest-cell units; int32 covers 2**31 finest cells per axis.
+LATTICE_DTYPE = np.dtype(np.int32)
+# Level 0 is the finest; a level-l cell is 2**l lattice units wide. 31 levels is plenty.
+LEVEL_DTYPE = np.dtype(np.int8)
+MAX_LEVEL = 30
+# Every scalar field is stored and rendered in float32 (the paper's choice).
+VALUE_DTYPE = np.dtype(np.float32)
+# Offsets into flat per-brick value arrays and CSR arrays may exceed 2**31.
+OFFSET_DTYPE = np.dtype(np.int64)
+# Brick, region and node ids: 2**31 of each is far beyond one machine's memory.
+INDEX_DTYPE = np.dtype(np.int32)
+# Region and BVH bounds sit on half-lattice positions (a support extends w/2 past a
+# cell), which float32 represents exactly up to 2**23 lattice units.
+BOUNDS_DTYPE = np.dtype(np.float32)
+# Origin and spacing of the world frame, taken from the simulation file.
+WORLD_DTYPE = np.dtype(np.float64)

@@ -1,0 +1,66 @@
+"""Shared fixtures: paths of the real datasets, the CLI runner, tiny hand-built inputs."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+PACKAGE_DATA = ROOT / "exabricks" / "data"
+
+
+def _data_dir() -> Path:
+    for candidate in (os.environ.get("EXABRICKS_TEST_DATA"), ROOT / "tests" / "data",
+                      ROOT.parent / "shared" / "data"):
+        if candidate and Path(candidate, "amrex-advection3d").is_dir():
+            return Path(candidate)
+    raise RuntimeError("real test datasets not found (tests/data or ../shared/data)")
+
+
+DATA = _data_dir()
+AMREX = DATA / "amrex-advection3d" / "plt00020"
+ATHENA = DATA / "athena-blast3d" / "Blast.out2.00001.athdf"
+ENZO = DATA / "enzo-moving7" / "moving7_0010"
+GERRIS = PACKAGE_DATA / "gerris-plume" / "plume7-1.cells"
+
+# Leaf-cell counts read with yt 4.4.3 (shared/data/README.md).
+LEAF_COUNTS = {"amrex": 505_856, "athena": 491_520, "gerris": 67_712, "enzo": 27_077}
+
+
+def run_cli(*args, check=None, env=None):
+    """Run `exabricks ARGS` in a subprocess; returns CompletedProcess with text output."""
+    proc = subprocess.run(
+        [sys.executable, "-m", "exabricks.cli.main", *map(str, args)],
+        capture_output=True, text=True, env={**os.environ, **(env or {})},
+    )
+    if check is not None and proc.returncode != check:
+        raise AssertionError(
+            f"exit {proc.returncode} (expected {check}) for {args}\n"
+            f"stdout: {proc.stdout}\nstderr: {proc.stderr}"
+        )
+    return proc
+
+
+def assert_one_error_line(proc, *needles):
+    """Exit 1, exactly one `error: ...` line on stderr mentioning every needle, no traceback."""
+    assert proc.returncode == 1, (proc.returncode, proc.stderr)
+    lines = [l for l in proc.stderr.splitlines() if l.strip()]
+    assert len(lines) == 1 and lines[0].startswith("error: "), proc.stderr
+    assert "Traceback" not in proc.stderr
+    for n in needles:
+        assert str(n) in lines[0], (n, lines[0])
+
+
+@pytest.fixture
+def cli():
+    return run_cli
+
+
+@pytest.fixture(scope="session")
+def rng():
+    return np.random.default_rng(12345)

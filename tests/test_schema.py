@@ -1,0 +1,114 @@
+"""The schema module: round trips, atomic writes, and refusals with clear messages."""
+
+from __future__ import annotations
+
+import json
+import zipfile
+
+import numpy as np
+import pytest
+
+from exabricks import schema
+from exabricks.errors import ExabricksError
+
+from conftest import assert_one_error_line
+
+
+def two_level_cells() -> schema.Cells:
+    """A 2x2x2 block of level-1 cells with one corner refined into 8 level-0 cells."""
+    lower, level = [], []
+    for k in range(2):
+        for j in range(2):
+            for i in range(2):
+                if (i, j, k) == (0, 0, 0):
+                    for kk in range(2):
+                        for jj in range(2):
+                            for ii in range(2):
+                                lower.append((ii, jj, kk)); level.append(0)
+                else:
+                    lower.append((2 * i, 2 * j, 2 * k)); level.append(1)
+    n = len(level)
+    values = np.stack([np.arange(n, dtype=np.float32), -np.arange(n, dtype=np.float32)])
+    return schema.Cells(
+        fields=("a", "b"), origin_world=np.array([1.0, 2.0, 3.0]),
+        spacing_world=np.array([0.5, 0.5, 0.5]), meta=schema.make_meta(),
+        lower_lattice=np.array(lower, np.int32), level=np.array(level, np.int8), values=values,
+    )
+
+
+def test_round_trip(tmp_path):
+    cells = two_level_cells()
+    path = tmp_path / "cells.npz"
+    schema.save(path, cells)
+    back = schema.load(path, "cells")
+    assert back.fields == ("a", "b")
+    for name in cells.SPECS:
+        np.testing.assert_array_equal(getattr(back, name), getattr(cells, name))
+    assert back.meta["software"].startswith("exabricks")
+    assert [p.name for p in tmp_path.iterdir()] == ["cells.npz"]  # no temporary left
+    with np.load(path, allow_pickle=False) as z:  # plain arrays only
+        assert str(z["format"]) == "exabricks" and str(z["kind"]) == "cells"
+
+
+def test_summary_counts_and_bounds():
+    s = schema.summary(two_level_cells())
+    assert s["counts"] == {"cells": 15, "cells_per_level": {"0": 8, "1": 7}}
+    assert s["world_bounds"] == {"lower": [1.0, 2.0, 3.0], "upper": [3.0, 4.0, 5.0]}
+    assert s["fields"][0] == {"name": "a", "min": 0.0, "max": 14.0}
+
+
+def _rewrite(src, dst, drop=(), **replace):
+    with np.load(src, allow_pickle=False) as z:
+        arrays = {k: z[k] for k in z.files if k not in drop}
+    arrays.update(replace)
+    with open(dst, "wb") as f:
+        np.savez(f, **arrays)
+
+
+@pytest.mark.parametrize(
+    "change, message",
+    [
+        (dict(kind=np.array("bricks")), "expected a cells file, found a bricks file"),
+        (dict(version=np.array(99, np.int32)), "version 99 is newer"),
+        (dict(drop=("level",)), "array 'level' is missing"),
+        (dict(level=np.zeros(15, np.float64)), "dtype float64, expected int8"),
+        (dict(format=np.array("other")), "format is 'other'"),
+        (dict(drop=("meta",)), "not an exabricks file"),
+        (dict(kind=np.array("pictures")), "unknown kind 'pictures'"),
+        (dict(values=np.zeros((2, 14), np.float32)), "inconsistent"),
+        (dict(lower_lattice=np.ones((15, 3), np.int32)), "not aligned"),
+    ],
+)
+def test_refusals(tmp_path, change, message):
+    good = tmp_path / "good.npz"
+    schema.save(good, two_level_cells())
+    bad = tmp_path / "bad.npz"
+    _rewrite(good, bad, **change)
+    with pytest.raises(ExabricksError, match=message.replace("(", r"\(")) as e:
+        schema.load(bad, "cells")
+    assert str(bad) in str(e.value)
+
+
+def test_truncated_and_missing(tmp_path, cli):
+    good = tmp_path / "good.npz"
+    schema.save(good, two_level_cells())
+    bad = tmp_path / "trunc.npz"
+    bad.write_bytes(good.read_bytes()[: good.stat().st_size // 2])
+    assert_one_error_line(cli("info", bad), str(bad), "not a readable exabricks")
+    assert_one_error_line(cli("info", tmp_path / "nope.npz"), "no such file")
+
+
+def test_write_refuses_invalid_and_leaves_nothing(tmp_path):
+    cells = two_level_cells().replace(level=np.full(15, -1, np.int8))
+    with pytest.raises(ExabricksError, match="levels"):
+        schema.save(tmp_path / "x.npz", cells)
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_info_cli_json(tmp_path, cli):
+    path = tmp_path / "cells.npz"
+    schema.save(path, two_level_cells())
+    out = json.loads(cli("info", path, "--json", check=0).stdout)
+    assert out["kind"] == "cells" and out["counts"]["cells"] == 15
+    text = cli("info", path, check=0).stdout
+    assert "cells per level: level 0: 8, level 1: 7" in text
