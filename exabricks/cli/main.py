@@ -72,7 +72,8 @@ def main(argv=None) -> None:
         argv if argv is not None else sys.argv[1:]
     )
     try:
-        cli.main(args=argv, prog_name="exabricks", standalone_mode=False)
+        # Without standalone mode click *returns* the status of ctx.exit(N) instead of raising.
+        status = cli.main(args=argv, prog_name="exabricks", standalone_mode=False)
     except click.exceptions.Abort:
         click.echo("error: interrupted", err=True)
         sys.exit(1)
@@ -99,7 +100,7 @@ def main(argv=None) -> None:
             raise
         click.echo(f"error: internal error: {type(e).__name__}: {e} (rerun with --debug for a traceback)", err=True)
         sys.exit(1)
-    sys.exit(0)
+    sys.exit(status if isinstance(status, int) else 0)
 
 
 if __name__ == "__main__":

@@ -1,0 +1,348 @@
+"""Transfer functions: data value -> RGBA, piecewise linear, as in ParaView presets.
+
+A `TransferFunction` holds RGB knots ``[x, r, g, b]`` and opacity knots
+``[x, alpha]``; each is piecewise linear in the data value ``x`` and clamps to
+its first/last knot outside its range (docs/design.md, "Transfer function").
+`evaluate` is the float64 reference; `merged_knots` is the exact representation
+the OpenCL kernel interpolates; `max_alpha` bounds opacity over value intervals
+so the renderer can skip transparent BVH nodes and regions (the majorant idea of
+paper §3.3/§4.1).
+
+Opacity unit: ``alpha`` is the opacity of a slab of thickness
+``unit_distance`` (world units); a step of length ``dt`` has opacity
+``1 - (1 - alpha) ** (dt / unit_distance)`` (paper §4.3) -- `opacity_correct`.
+
+Reading ParaView presets (``File > Export`` of a colour map, or the files in
+ParaView's ``ColorMaps.json``): the ``Points`` midpoint/sharpness values are
+ignored (linear between knots), ``ColorSpace`` is ignored (RGB interpolation,
+as ParaView does for ``"RGB"``), knots must be strictly increasing in x, and a
+preset without ``Points`` gets an opacity ramp from 0 at its first RGB x to 1
+at its last.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import dataclass
+from importlib import resources
+from pathlib import Path
+
+import numpy as np
+
+from .errors import ExabricksError
+
+# Knots of a matplotlib colormap shortcut: matplotlib's own lookup tables have 256
+# entries, so 256 evenly spaced knots reproduce them (`from_colormap`).
+COLORMAP_KNOTS = 256
+
+DEFAULT_PRESET = "default"
+
+
+def opacity_correct(alpha, dt, unit_distance):
+    """Opacity of a step of length `dt` given slab opacity `alpha` per `unit_distance`.
+
+    Float64 reference of paper §4.3: ``1 - (1 - alpha) ** (dt / unit_distance)``.
+    `alpha` in [0, 1], `dt` >= 0 and `unit_distance` > 0 in world units;
+    arrays broadcast.
+    """
+    alpha = np.asarray(alpha, dtype=np.float64)
+    exponent = np.asarray(dt, dtype=np.float64) / np.asarray(unit_distance, dtype=np.float64)
+    return 1.0 - np.power(1.0 - alpha, exponent)
+
+
+def _knots(points, width: int, what: str, where: str) -> np.ndarray:
+    """Knots as (n, width) float64 from a flat list or (n, width) rows, checked.
+
+    x (column 0) must be strictly increasing and column 1 (the first colour
+    channel or alpha) onwards in [0, 1] -- except the ParaView ``Points``
+    midpoint/sharpness columns 2-3, which are ignored. ExabricksError otherwise.
+    """
+    if isinstance(points, (list, tuple)) and points and all(isinstance(p, (list, tuple)) for p in points):
+        try:  # rows given as nested lists (Python callers; presets are flat)
+            points = np.asarray(points, dtype=np.float64)
+        except (TypeError, ValueError):
+            raise ExabricksError(f"{where}: {what} rows must all be {width} numbers") from None
+    if isinstance(points, np.ndarray) and points.ndim == 2:
+        if points.shape[1] != width:
+            raise ExabricksError(f"{where}: {what} must have {width} columns, got shape {points.shape}")
+        array = points.astype(np.float64)
+    else:
+        if isinstance(points, np.ndarray):
+            points = points.reshape(-1).tolist()
+        if not isinstance(points, (list, tuple)) or not all(
+            isinstance(p, (int, float)) and not isinstance(p, bool) for p in points
+        ):
+            raise ExabricksError(f"{where}: {what} must be a flat list of numbers")
+        if len(points) == 0 or len(points) % width:
+            raise ExabricksError(f"{where}: {what} length {len(points)} is not a positive multiple of {width}")
+        array = np.asarray(points, dtype=np.float64).reshape(-1, width)
+    if len(array) == 0:
+        raise ExabricksError(f"{where}: {what} is empty")
+    if not np.isfinite(array).all():
+        bad = int(np.argwhere(~np.isfinite(array))[0, 0])
+        raise ExabricksError(f"{where}: {what} knot {bad} has a non-finite value: {array[bad].tolist()}")
+    x = array[:, 0]
+    step = np.diff(x)
+    if (step <= 0).any():
+        i = int(np.argmax(step <= 0)) + 1
+        raise ExabricksError(
+            f"{where}: {what} x values must be strictly increasing (knot {i}: x = {x[i]:g} after {x[i - 1]:g})"
+        )
+    is_opacity = what == "Points"
+    values = array[:, 1:2] if is_opacity else array[:, 1:]
+    outside = (values < 0) | (values > 1)
+    if outside.any():
+        i = int(np.argwhere(outside)[0, 0])
+        name = "alpha" if is_opacity else "colour"
+        raise ExabricksError(f"{where}: {what} knot {i} has {name} outside [0, 1]: {array[i].tolist()}")
+    return np.ascontiguousarray(array)
+
+
+@dataclass(frozen=True, eq=False)
+class TransferFunction:
+    """Piecewise-linear RGBA of the data value.
+
+    rgb_points:   (n, 4) float64 ``[x, r, g, b]``, x strictly increasing, colour in [0, 1].
+    alpha_points: (m, 2) float64 ``[x, alpha]``, x strictly increasing, alpha in [0, 1]
+                  (the opacity of a slab of thickness ``unit_distance``).
+    x is in the units of the rendered field.
+    """
+
+    rgb_points: np.ndarray
+    alpha_points: np.ndarray
+    name: str = "custom"
+
+    def __post_init__(self):
+        rgb = _knots(self.rgb_points, 4, "RGBPoints", f"transfer function {self.name!r}")
+        alpha = _knots(self.alpha_points, 2, "Points", f"transfer function {self.name!r}")
+        rgb.setflags(write=False)
+        alpha.setflags(write=False)
+        object.__setattr__(self, "rgb_points", rgb)
+        object.__setattr__(self, "alpha_points", alpha)
+
+    def __eq__(self, other):
+        if not isinstance(other, TransferFunction):
+            return NotImplemented
+        return (self.name == other.name and np.array_equal(self.rgb_points, other.rgb_points)
+                and np.array_equal(self.alpha_points, other.alpha_points))
+
+    __hash__ = None
+
+    # -- construction -------------------------------------------------------------------
+
+    @classmethod
+    def from_paraview_dict(cls, preset, *, source: str = "transfer function") -> TransferFunction:
+        """From a parsed ParaView preset: an object, or a list whose first element is used."""
+        if isinstance(preset, list):
+            if not preset:
+                raise ExabricksError(f"{source}: empty list, expected a ParaView colour-map preset")
+            preset = preset[0]
+        if not isinstance(preset, dict):
+            raise ExabricksError(f"{source}: expected a ParaView colour-map preset object, got {type(preset).__name__}")
+        if "RGBPoints" not in preset:
+            raise ExabricksError(f"{source}: ParaView preset has no 'RGBPoints'")
+        name = preset.get("Name", Path(source).stem)
+        if not isinstance(name, str):
+            name = str(name)
+        rgb = _knots(preset["RGBPoints"], 4, "RGBPoints", source)
+        if "Points" in preset:
+            alpha = _knots(preset["Points"], 4, "Points", source)[:, :2]
+        elif len(rgb) == 1:
+            alpha = np.array([[rgb[0, 0], 1.0]])
+        else:
+            # No opacity in the preset: a linear ramp over the colour range (module docstring).
+            alpha = np.array([[rgb[0, 0], 0.0], [rgb[-1, 0], 1.0]])
+        return cls(rgb, alpha, name)
+
+    @classmethod
+    def from_paraview(cls, path) -> TransferFunction:
+        """Read a ParaView colour-map preset JSON file; ExabricksError naming the file if bad."""
+        try:
+            text = Path(path).read_text(encoding="utf-8")
+        except (OSError, UnicodeDecodeError) as e:
+            raise ExabricksError(
+                f"{path}: cannot read transfer function: {getattr(e, 'strerror', None) or e}"
+            ) from None
+        try:
+            preset = json.loads(text, parse_constant=_reject_constant)
+        except (json.JSONDecodeError, ValueError) as e:
+            msg = f"{e.msg} (line {e.lineno})" if isinstance(e, json.JSONDecodeError) else str(e)
+            raise ExabricksError(f"{path}: transfer function is not valid JSON: {msg}") from None
+        return cls.from_paraview_dict(preset, source=str(path))
+
+    @classmethod
+    def from_colormap(cls, name: str, value_range, *, opacity=(0.0, 1.0)) -> TransferFunction:
+        """A matplotlib colormap over `value_range` with opacity knots evenly spaced over it.
+
+        The colours are the colormap sampled at `COLORMAP_KNOTS` evenly spaced
+        knots from ``value_range[0]`` to ``value_range[1]`` (matplotlib's own
+        256-entry tables, reproduced exactly), so this is the same
+        piecewise-linear function as a preset holding those knots. `opacity`:
+        alpha values at evenly spaced knots over the range ((0, 1) is a linear
+        ramp; one value is a constant).
+        """
+        lo, hi = _range(value_range, f"colormap {name!r}")
+        try:
+            import matplotlib
+
+            cmap = matplotlib.colormaps[name]
+        except KeyError:
+            raise ExabricksError(
+                f"unknown colormap {name!r} (any matplotlib colormap name, e.g. viridis, inferno, magma, coolwarm)"
+            ) from None
+        t = np.linspace(0.0, 1.0, COLORMAP_KNOTS)
+        xs = lo + (hi - lo) * t
+        rgb = np.column_stack([xs, np.asarray(cmap(t), dtype=np.float64)[:, :3]])
+        alphas = np.atleast_1d(np.asarray(opacity, dtype=np.float64))
+        if alphas.ndim != 1 or alphas.size == 0:
+            raise ExabricksError(f"colormap {name!r}: opacity must be a non-empty list of alpha values")
+        ax = np.linspace(lo, hi, alphas.size) if alphas.size > 1 else np.array([lo])
+        return cls(rgb, np.column_stack([ax, alphas]), name)
+
+    def rescaled(self, value_range) -> TransferFunction:
+        """The same shape stretched so its knot span [first x, last x] becomes `value_range`.
+
+        (ParaView's "rescale to data range"; used for presets stored over [0, 1].)
+        """
+        lo, hi = _range(value_range, f"transfer function {self.name!r}")
+        x0 = min(self.rgb_points[0, 0], self.alpha_points[0, 0])
+        x1 = max(self.rgb_points[-1, 0], self.alpha_points[-1, 0])
+        scale = 0.0 if x1 == x0 else (hi - lo) / (x1 - x0)  # one knot: move it to lo
+
+        def remap(points):
+            out = points.copy()
+            out[:, 0] = lo + (points[:, 0] - x0) * scale
+            return out
+
+        return TransferFunction(remap(self.rgb_points), remap(self.alpha_points), self.name)
+
+    def to_paraview_dict(self) -> dict:
+        """ParaView preset form (for image metadata and `from_paraview_dict`)."""
+        points = np.column_stack([self.alpha_points, np.full((len(self.alpha_points), 2), (0.5, 0.0))])
+        return {
+            "Name": self.name,
+            "ColorSpace": "RGB",
+            "RGBPoints": self.rgb_points.reshape(-1).tolist(),
+            "Points": points.reshape(-1).tolist(),
+        }
+
+    # -- evaluation ---------------------------------------------------------------------
+
+    @property
+    def value_range(self) -> tuple[float, float]:
+        """(lowest, highest) knot x over colour and opacity."""
+        return (float(min(self.rgb_points[0, 0], self.alpha_points[0, 0])),
+                float(max(self.rgb_points[-1, 0], self.alpha_points[-1, 0])))
+
+    def evaluate(self, values) -> np.ndarray:
+        """RGBA (..., 4) float64 at data `values` (any shape); NaN values give NaN."""
+        v = np.asarray(values, dtype=np.float64)
+        out = np.empty(v.shape + (4,))
+        for c in range(3):
+            out[..., c] = np.interp(v, self.rgb_points[:, 0], self.rgb_points[:, c + 1])
+        out[..., 3] = np.interp(v, self.alpha_points[:, 0], self.alpha_points[:, 1])
+        return out
+
+    def merged_knots(self, dtype=np.float32):
+        """Knots of the whole RGBA function: ``(xs (K,), rgba (K, 4))`` in `dtype`.
+
+        xs is the sorted union of the colour and opacity knots and rgba the
+        function evaluated there, so interpolating linearly between consecutive
+        knots (and clamping outside) is exactly `evaluate` -- each channel is
+        linear between its own knots, hence between any finer set of knots.
+        """
+        xs = np.union1d(self.rgb_points[:, 0], self.alpha_points[:, 0])
+        return xs.astype(dtype), self.evaluate(xs).astype(dtype)
+
+    def max_alpha(self, lo, hi) -> np.ndarray:
+        """Exact maximum of alpha over each value interval ``[lo_i, hi_i]``.
+
+        `lo`, `hi`: arrays of the same shape (data units; swapped where lo > hi).
+        Returns float64 of that shape. A piecewise-linear function peaks at an
+        end point or at a knot inside the interval; knot maxima come from a
+        sparse table (O(1) per query).
+        """
+        lo = np.asarray(lo, dtype=np.float64)
+        hi = np.asarray(hi, dtype=np.float64)
+        lo, hi = np.minimum(lo, hi), np.maximum(lo, hi)
+        x, a = self.alpha_points[:, 0], self.alpha_points[:, 1]
+        ends = np.maximum(np.interp(lo, x, a), np.interp(hi, x, a))
+        first = np.searchsorted(x, lo, side="left")
+        stop = np.searchsorted(x, hi, side="right")
+        return np.maximum(ends, _range_max(self._sparse_table(), first, stop))
+
+    def _sparse_table(self) -> np.ndarray:
+        """table[k, i] = max(alpha[i : i + 2**k]) (padded with -inf); shape (levels, m)."""
+        a = self.alpha_points[:, 1]
+        m = len(a)
+        levels = max(1, m.bit_length())
+        table = np.full((levels, m), -np.inf)
+        table[0] = a
+        for k in range(1, levels):
+            half = 1 << (k - 1)
+            table[k, : m - (1 << k) + 1] = np.maximum(table[k - 1, : m - (1 << k) + 1],
+                                                       table[k - 1, half : m - half + 1])
+        return table
+
+
+def _range_max(table: np.ndarray, first: np.ndarray, stop: np.ndarray) -> np.ndarray:
+    """max(alpha[first:stop]) per query from a sparse table; -inf where empty."""
+    count = stop - first
+    nonempty = count > 0
+    k = np.zeros_like(count)
+    k[nonempty] = np.floor(np.log2(count[nonempty])).astype(count.dtype)
+    m = table.shape[1]
+    i0 = np.clip(first, 0, m - 1)
+    i1 = np.clip(stop - (1 << k), 0, m - 1)
+    best = np.maximum(table[k, i0], table[k, i1])
+    return np.where(nonempty, best, -np.inf)
+
+
+def _range(value_range, what: str) -> tuple[float, float]:
+    try:
+        lo, hi = (float(v) for v in value_range)
+    except (TypeError, ValueError):
+        raise ExabricksError(f"{what}: value range must be two numbers, got {value_range!r}") from None
+    if not (math.isfinite(lo) and math.isfinite(hi)) or not lo < hi:
+        raise ExabricksError(f"{what}: value range must be finite with low < high, got [{lo:g}, {hi:g}]")
+    return lo, hi
+
+
+def _reject_constant(name):
+    raise ValueError(f"{name} is not a number")
+
+
+def preset_path(name: str) -> Path:
+    """Path of a preset shipped in exabricks/data/transfer_functions (NAME.json)."""
+    path = Path(str(resources.files("exabricks") / "data" / "transfer_functions" / f"{name}.json"))
+    if not path.is_file():
+        raise ExabricksError(f"no built-in transfer function {name!r} (available: {', '.join(builtin_presets())})")
+    return path
+
+
+def builtin_presets() -> list[str]:
+    """Names of the presets shipped with exabricks."""
+    folder = Path(str(resources.files("exabricks") / "data" / "transfer_functions"))
+    return sorted(p.stem for p in folder.glob("*.json"))
+
+
+def widen_degenerate_range(value_range) -> tuple[float, float]:
+    """`value_range`, or for a constant field (low == high = v) ``v -+ max(1, |v|) / 2``."""
+    lo, hi = (float(v) for v in value_range)
+    if not (math.isfinite(lo) and math.isfinite(hi)):
+        raise ExabricksError(f"value range must be finite, got [{lo:g}, {hi:g}]")
+    if lo == hi:
+        half = 0.5 * max(1.0, abs(lo))
+        return lo - half, hi + half
+    return lo, hi
+
+
+def default_transfer_function(value_range) -> TransferFunction:
+    """The built-in ``default`` preset (viridis, opacity ramp 0 -> 1) over `value_range`.
+
+    `value_range` is usually the field's (min, max); a constant field is
+    widened (`widen_degenerate_range`) so its value sits mid-ramp.
+    """
+    return TransferFunction.from_paraview(preset_path(DEFAULT_PRESET)).rescaled(
+        widen_degenerate_range(value_range))
