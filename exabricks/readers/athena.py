@@ -1,0 +1,228 @@
+"""Native reader of Athena++ `.athdf` (HDF5) outputs on uniform Cartesian meshes.
+
+An Athena++ mesh is an octree of equal-sized mesh blocks (MeshBlockSize cells each);
+the file holds only the leaf blocks, each with its refinement level (`Levels`,
+0 = root) and its position in blocks of that level (`LogicalLocations`).  Variables
+live in datasets named by `DatasetNames`, each of shape (nvar, nblocks, nz, ny, nx)
+(x fastest), their names in `VariableNames`, concatenated in dataset order.
+
+Lattice: exabricks level 0 is the finest level present (max `Levels`); a block of
+level L holds cells of exabricks level (max - L), its lower corner at
+LogicalLocations * MeshBlockSize * 2**(max - L).  The origin is the domain's lower
+corner, the spacing the root cell size / 2**max.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from pathlib import Path
+
+import numpy as np
+
+from .. import schema
+from ..constants import LATTICE_DTYPE, LEVEL_DTYPE, MAX_LEVEL, VALUE_DTYPE, WORLD_DTYPE
+from ..errors import ExabricksError
+
+_ROOT_ATTRS = ("RootGridSize", "MeshBlockSize", "RootGridX1", "RootGridX2", "RootGridX3",
+               "VariableNames", "DatasetNames", "NumVariables")
+
+
+def read(path: Path, *, fields: Sequence[str] | None = None) -> schema.Cells:
+    """Leaf cells of an Athena++ .athdf file, variables as float32.
+
+    Returns Cells with lower_lattice int32 (N, 3) in finest-cell units, level int8 (N,),
+    values float32 (F, N) in code units, origin_world = (x1min, x2min, x3min) and
+    spacing_world = root cell size / 2**(finest level).
+    """
+    import h5py  # a core dependency; imported here so `exabricks --help` stays fast
+
+    path = Path(path)
+    if not path.is_file():
+        raise ExabricksError(f"{path}: no such file" if not path.exists() else f"{path}: not a file")
+    try:
+        f = h5py.File(path, "r")
+    except OSError as e:
+        raise ExabricksError(
+            f"{path}: not a readable HDF5 file (truncated or another format: {e})"
+        ) from e
+    try:
+        with f:
+            return _read(f, path, fields)
+    except ExabricksError:
+        raise
+    except (OSError, KeyError, ValueError, TypeError) as e:  # damaged datasets inside a valid file
+        raise ExabricksError(f"{path}: cannot read the Athena++ data ({e})") from e
+
+
+def _attr(f, path: Path, name: str) -> np.ndarray:
+    if name not in f.attrs:
+        raise ExabricksError(f"{path}: not an Athena++ .athdf file (no root attribute {name!r})")
+    return np.atleast_1d(np.asarray(f.attrs[name]))
+
+
+def _dataset(f, path: Path, name: str):
+    if name not in f:
+        raise ExabricksError(f"{path}: dataset {name!r} is missing")
+    return f[name]
+
+
+def _text(values: np.ndarray) -> list[str]:
+    return [v.decode("ascii") if isinstance(v, bytes) else str(v) for v in values]
+
+
+def _read(f, path: Path, fields: Sequence[str] | None) -> schema.Cells:
+    for name in _ROOT_ATTRS:
+        _attr(f, path, name)
+    coords = _text(_attr(f, path, "Coordinates")) if "Coordinates" in f.attrs else ["cartesian"]
+    if coords[0] != "cartesian":
+        raise ExabricksError(f"{path}: {coords[0]} coordinates; only Cartesian meshes are supported")
+    root = _attr(f, path, "RootGridSize").astype(np.int64)
+    block = _attr(f, path, "MeshBlockSize").astype(np.int64)
+    if root.shape != (3,) or block.shape != (3,) or np.any(root < 2) or np.any(block < 2):
+        raise ExabricksError(
+            f"{path}: root grid {root.tolist()} / mesh blocks {block.tolist()}: exabricks reads "
+            f"3D meshes only"
+        )
+    extents = np.array([_attr(f, path, f"RootGridX{a}").astype(np.float64) for a in (1, 2, 3)])
+    if extents.shape != (3, 3):
+        raise ExabricksError(f"{path}: RootGridX1..3 must be (min, max, ratio)")
+    if np.any(extents[:, 2] != 1.0):
+        a = int(np.flatnonzero(extents[:, 2] != 1.0)[0]) + 1
+        raise ExabricksError(
+            f"{path}: non-uniform mesh (x{a}rat = {extents[a - 1, 2]}); exabricks needs uniform "
+            f"spacing (x1rat = x2rat = x3rat = 1)"
+        )
+    lower_world, upper_world = extents[:, 0], extents[:, 1]
+    if not np.all(upper_world > lower_world):
+        raise ExabricksError(f"{path}: RootGridX max must exceed min")
+
+    names = _text(_attr(f, path, "VariableNames"))
+    datasets = _text(_attr(f, path, "DatasetNames"))
+    counts = _attr(f, path, "NumVariables").astype(np.int64)
+    if counts.shape[0] != len(datasets) or int(counts.sum()) != len(names):
+        raise ExabricksError(f"{path}: VariableNames, DatasetNames and NumVariables disagree")
+    if fields is None:
+        fields = names
+    for name in fields:
+        if name not in names:
+            raise ExabricksError(f"{path}: no variable {name!r} (variables: {', '.join(names)})")
+    if len(set(fields)) != len(fields):
+        raise ExabricksError(f"{path}: field listed twice in {list(fields)}")
+
+    levels = np.asarray(_dataset(f, path, "Levels")[()], dtype=np.int64)
+    loc = np.asarray(_dataset(f, path, "LogicalLocations")[()], dtype=np.int64)
+    nb = levels.shape[0]
+    if levels.ndim != 1 or loc.shape != (nb, 3):
+        raise ExabricksError(f"{path}: Levels {levels.shape} and LogicalLocations {loc.shape} disagree")
+    if nb == 0:
+        raise ExabricksError(f"{path}: no mesh blocks")
+    finest = int(levels.max())
+    if levels.min() < 0 or finest > MAX_LEVEL - 1:
+        raise ExabricksError(f"{path}: block levels must lie in 0..{MAX_LEVEL - 1}")
+    if np.any(root % block):
+        raise ExabricksError(f"{path}: root grid {root.tolist()} is not a multiple of the mesh block")
+    if int(root.max()) << finest >= 2**31:
+        raise ExabricksError(f"{path}: the finest grid exceeds the int32 lattice")
+    blocks_per_axis = (root // block)[None, :] << levels[:, None]
+    if np.any(loc < 0) or np.any(loc >= blocks_per_axis):
+        b = int(np.flatnonzero(np.any((loc < 0) | (loc >= blocks_per_axis), axis=1))[0])
+        raise ExabricksError(
+            f"{path}: block {b} at {loc[b].tolist()} lies outside its level-{levels[b]} grid"
+        )
+    _check_leaves(levels, loc, path)
+
+    spacing = (upper_world - lower_world) / (root << finest)
+    _check_faces(f, path, levels, loc, block, finest, lower_world, spacing)
+
+    # Built in int32 directly (checked above to fit): large files have 10^8+ cells.
+    width = (np.int64(1) << (finest - levels)).astype(LATTICE_DTYPE)       # (B,)
+    corner = (loc * block[None, :] * width[:, None]).astype(LATTICE_DTYPE)  # (B, 3)
+    cz, cy, cx = np.meshgrid(*(np.arange(n, dtype=LATTICE_DTYPE) for n in block[::-1]),
+                             indexing="ij")
+    cell = np.stack([cx.ravel(), cy.ravel(), cz.ravel()], axis=1)           # (V, 3), x fastest
+    lattice = (corner[:, None, :] + cell[None, :, :] * width[:, None, None]).reshape(-1, 3)
+
+    nv = int(np.prod(block))
+    values = np.empty((len(fields), nb * nv), dtype=VALUE_DTYPE)
+    first = np.concatenate([[0], np.cumsum(counts)])
+    for i, name in enumerate(fields):
+        v = names.index(name)
+        d = int(np.searchsorted(first, v, side="right") - 1)
+        ds = _dataset(f, path, datasets[d])
+        want = (int(counts[d]), nb, *block[::-1].tolist())
+        if ds.shape != want:
+            raise ExabricksError(
+                f"{path}: dataset {datasets[d]!r} has shape {ds.shape}, expected {want}"
+            )
+        values[i] = ds[v - first[d]].reshape(-1)
+
+    return schema.Cells(
+        fields=tuple(fields),
+        origin_world=lower_world.astype(WORLD_DTYPE),
+        spacing_world=spacing.astype(WORLD_DTYPE),
+        meta={"source": {"format": "athena++", "time": float(_attr(f, path, "Time")[0])
+                         if "Time" in f.attrs else None, "max_level": finest}},
+        lower_lattice=lattice,
+        level=np.repeat((finest - levels).astype(LEVEL_DTYPE), nv),
+        values=values,
+    )
+
+
+def _check_leaves(levels: np.ndarray, loc: np.ndarray, path: Path) -> None:
+    """Raise unless the blocks are disjoint: no duplicate and no block inside another.
+
+    Blocks sit on an octree of blocks, so block (L, loc) overlaps a coarser block
+    (l, loc') exactly when loc >> (L - l) == loc'; looking every ancestor up in the
+    sorted block keys costs O(B log B * levels).
+    """
+    finest = int(levels.max())
+    bits = max(int(loc.max()).bit_length(), 1)
+    if 3 * bits + 5 > 63:
+        raise ExabricksError(f"{path}: block coordinates too large")
+
+    def key(lv, lc):
+        return (((lv << bits | lc[:, 2]) << bits | lc[:, 1]) << bits) | lc[:, 0]
+
+    keys = key(levels, loc)
+    order = np.argsort(keys)
+    sorted_keys = keys[order]
+    dup = np.flatnonzero(sorted_keys[1:] == sorted_keys[:-1])
+    if dup.size:
+        b = int(order[dup[0]])
+        raise ExabricksError(
+            f"{path}: mesh block {b} (level {levels[b]}, {loc[b].tolist()}) appears twice"
+        )
+    for up in range(1, finest + 1):
+        fine = np.flatnonzero(levels >= up)
+        ancestors = key(levels[fine] - up, loc[fine] >> up)
+        hit = np.searchsorted(sorted_keys, ancestors)
+        hit = np.minimum(hit, sorted_keys.shape[0] - 1)
+        found = sorted_keys[hit] == ancestors
+        if np.any(found):
+            i = int(np.flatnonzero(found)[0])
+            b, a = int(fine[i]), int(order[hit[i]])
+            raise ExabricksError(
+                f"{path}: mesh blocks overlap: block {b} (level {levels[b]}, {loc[b].tolist()}) "
+                f"lies inside block {a} (level {levels[a]}, {loc[a].tolist()})"
+            )
+
+
+def _check_faces(f, path, levels, loc, block, finest, lower_world, spacing) -> None:
+    """Check x1f/x2f/x3f against the lattice, so a mislabelled block cannot slip through."""
+    width = (1 << (finest - levels)).astype(np.float64)
+    for a, name in enumerate(("x1f", "x2f", "x3f")):
+        faces = np.asarray(_dataset(f, path, name)[()], dtype=np.float64)
+        if faces.shape != (levels.shape[0], block[a] + 1):
+            raise ExabricksError(f"{path}: dataset {name!r} has shape {faces.shape}")
+        expect = lower_world[a] + spacing[a] * width[:, None] * (
+            loc[:, a:a + 1] * block[a] + np.arange(block[a] + 1)[None, :]
+        )
+        # The faces are stored in float32: allow its rounding, relative to the cell width.
+        tol = 1e-3 * spacing[a] * width[:, None] + 4 * np.finfo(np.float32).eps * np.abs(expect)
+        bad = np.abs(faces - expect) > tol
+        if np.any(bad):
+            b = int(np.flatnonzero(bad.any(axis=1))[0])
+            raise ExabricksError(
+                f"{path}: block {b}: {name} faces do not match a uniform mesh at its level and "
+                f"logical location (non-uniform spacing is not supported)"
+            )

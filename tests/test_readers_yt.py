@@ -1,0 +1,491 @@
+"""Readers of block-structured AMR (AMReX, Athena++, anything via yt), checked cell by cell.
+
+The reference is yt 4.4.3 walking its own grid hierarchy (grid.child_mask, LeftEdge,
+Level, raw on-disk fields), a path independent of our readers and of ds.all_data().
+Synthetic plotfiles written here cover what the real data does not: 32-bit and
+big-endian reals, refinement ratio 4, ghost cells, VisMF headers without FAB lines.
+"""
+
+from __future__ import annotations
+
+import os
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import h5py
+import numpy as np
+import pytest
+
+from exabricks import schema
+from exabricks.errors import ExabricksError
+from exabricks.readers import _blocks, amrex, athena, yt_bridge
+
+from conftest import AMREX, ATHENA, ENZO, LEAF_COUNTS
+
+
+# ---------------------------------------------------------------------------
+# helpers
+
+
+def _sorted(lattice: np.ndarray, level: np.ndarray) -> np.ndarray:
+    """Permutation sorting cells by (z, y, x, level)."""
+    return np.lexsort((level, lattice[:, 0], lattice[:, 1], lattice[:, 2]))
+
+
+def yt_leaves(path, ftype: str, names) -> tuple[object, np.ndarray, np.ndarray, dict]:
+    """(ds, lattice int64 (N, 3), exabricks level (N,), {name: float64 (N,)}) from yt's grids."""
+    yt = pytest.importorskip("yt")
+    from yt.config import ytcfg
+
+    yt.set_log_level(40)
+    ytcfg.set("yt", "suppress_stream_logging", True)
+    ds = yt.load(str(path))
+    finest = ds.index.get_smallest_dx().to("code_length").d
+    left = ds.domain_left_edge.to("code_length").d
+    top = ds.index.max_level
+    lattice, level, values = [], [], {n: [] for n in names}
+    for g in ds.index.grids:
+        keep = g.child_mask
+        ijk = np.argwhere(keep)  # (i, j, k) index order, same as g[field][keep]
+        width = int(round(g.dds.to("code_length").d[0] / finest))
+        corner = np.rint((g.LeftEdge.to("code_length").d - left) / finest).astype(np.int64)
+        lattice.append(corner + ijk * width)
+        level.append(np.full(len(ijk), top - g.Level))
+        assert width == 2 ** (top - g.Level)
+        for n in names:
+            values[n].append(g[ftype, n].d[keep])
+    return (ds, np.concatenate(lattice), np.concatenate(level),
+            {n: np.concatenate(v) for n, v in values.items()})
+
+
+def assert_same_cells(cells: schema.Cells, ref_lattice, ref_level, ref_values) -> None:
+    """Same leaf set (lattice, level) and float32(yt value) == our value for every cell."""
+    assert cells.n_cells == ref_level.shape[0]
+    np.testing.assert_array_equal(np.bincount(cells.level), np.bincount(ref_level))
+    a = _sorted(cells.lower_lattice, cells.level)
+    b = _sorted(ref_lattice, ref_level)
+    np.testing.assert_array_equal(cells.lower_lattice[a], ref_lattice[b])
+    np.testing.assert_array_equal(cells.level[a], ref_level[b])
+    for i, name in enumerate(cells.fields):
+        np.testing.assert_array_equal(cells.values[i][a], ref_values[name][b].astype(np.float32),
+                                      err_msg=name)
+
+
+# ---------------------------------------------------------------------------
+# _blocks: leaf masks against a brute-force dense paint
+
+
+def test_leaf_mask_matches_dense_paint(rng):
+    n = 40
+    for _ in range(20):
+        def boxes(k, size):
+            lo = rng.integers(0, n - size, (k, 3))
+            return lo, lo + rng.integers(0, size, (k, 3))
+        lo, hi = boxes(int(rng.integers(1, 30)), 12)
+        cover_lo, cover_hi = boxes(int(rng.integers(0, 30)), int(rng.integers(1, 25)))
+        mask = _blocks.leaf_mask(lo, hi, cover_lo, cover_hi)
+        dense = np.ones((n, n, n), bool)  # (x, y, z)
+        for c0, c1 in zip(cover_lo, cover_hi):
+            dense[c0[0]:c1[0] + 1, c0[1]:c1[1] + 1, c0[2]:c1[2] + 1] = False
+        expect = np.concatenate([
+            dense[l[0]:h[0] + 1, l[1]:h[1] + 1, l[2]:h[2] + 1].ravel(order="F")
+            for l, h in zip(lo, hi)
+        ])
+        np.testing.assert_array_equal(mask, expect)
+        lattice = _blocks.leaf_lattice(lo, hi, mask, np.array([0, 0, 0]), 4)
+        cells = np.concatenate([  # every box's cells, x fastest (Fortran order)
+            np.stack([g.ravel(order="F") for g in np.meshgrid(
+                *(np.arange(l[a], h[a] + 1) for a in range(3)), indexing="ij")], axis=1)
+            for l, h in zip(lo, hi)
+        ])
+        np.testing.assert_array_equal(lattice, 4 * cells[expect])
+
+
+# ---------------------------------------------------------------------------
+# AMReX
+
+
+@pytest.fixture(scope="module")
+def amrex_cells():
+    return amrex.read(AMREX)
+
+
+def test_amrex_matches_yt_cell_by_cell(amrex_cells):
+    ds, lattice, level, values = yt_leaves(AMREX, "boxlib", ["phi"])
+    assert amrex_cells.n_cells == LEAF_COUNTS["amrex"]
+    assert amrex_cells.fields == ("phi",)
+    assert_same_cells(amrex_cells, lattice, level, values)
+    np.testing.assert_array_equal(amrex_cells.origin_world, ds.domain_left_edge.d)
+    np.testing.assert_array_equal(amrex_cells.spacing_world,
+                                  ds.index.get_smallest_dx().d * np.ones(3))
+    assert amrex_cells.meta["source"]["format"] == "amrex"
+    schema.validate(amrex_cells)
+
+
+def test_amrex_field_selection(amrex_cells):
+    again = amrex.read(AMREX, fields=["phi"])
+    np.testing.assert_array_equal(again.values, amrex_cells.values)
+    with pytest.raises(ExabricksError, match="no field 'rho'.*phi"):
+        amrex.read(AMREX, fields=["rho"])
+    with pytest.raises(ExabricksError, match="listed twice"):
+        amrex.read(AMREX, fields=["phi", "phi"])
+
+
+_RD64 = {"<": "((8, (64 11 52 0 1 12 0 1023)),(8, (8 7 6 5 4 3 2 1)))",
+         ">": "((8, (64 11 52 0 1 12 0 1023)),(8, (1 2 3 4 5 6 7 8)))"}
+_RD32 = {"<": "((8, (32 8 23 0 1 9 0 127)),(4, (4 3 2 1)))",
+         ">": "((8, (32 8 23 0 1 9 0 127)),(4, (1 2 3 4)))"}
+
+
+def _box(lo, hi) -> str:
+    return f"(({lo[0]},{lo[1]},{lo[2]}) ({hi[0]},{hi[1]},{hi[2]}) (0,0,0))"
+
+
+def write_plotfile(root: Path, boxes, ratios, names, rng, *, real="<f8", ngrow=0,
+                   vismf=1, base=8, prob_lo=(0.0, 0.0, 0.0), prob_hi=(1.0, 1.0, 1.0)):
+    """A tiny AMReX plotfile; returns {level: [(lo, hi, data (ncomp, nz, ny, nx))]}.
+
+    boxes: per level a list of (lo, hi) inclusive index boxes; level 0 has domain base^3.
+    """
+    dt = np.dtype(real)
+    rd = (_RD64 if dt.itemsize == 8 else _RD32)[dt.byteorder if dt.byteorder in "<>" else "<"]
+    root.mkdir()
+    finest = len(boxes) - 1
+    n = [base * int(np.prod(ratios[:L])) for L in range(finest + 1)]
+    dx = [(np.array(prob_hi) - prob_lo) / n[L] for L in range(finest + 1)]
+    lines = ["HyperCLaw-V1.1", str(len(names)), *names, "3", "1.5", str(finest),
+             " ".join(map(str, prob_lo)), " ".join(map(str, prob_hi)),
+             " ".join(map(str, ratios)),
+             " ".join(_box((0, 0, 0), (m - 1,) * 3) for m in n),
+             " ".join("0" for _ in n), *(" ".join(repr(float(v)) for v in d) for d in dx), "0", "0"]
+    written = {}
+    for L, level_boxes in enumerate(boxes):
+        lines += [f"{L} {len(level_boxes)} 1.5", "0"]
+        for lo, hi in level_boxes:
+            for a in range(3):
+                lines.append(f"{float(prob_lo[a] + lo[a] * dx[L][a])!r} "
+                             f"{float(prob_lo[a] + (hi[a] + 1) * dx[L][a])!r}")
+        lines.append(f"Level_{L}/Cell")
+        d = root / f"Level_{L}"
+        d.mkdir()
+        fods, written[L] = [], []
+        with open(d / "Cell_D_00000", "wb") as f:
+            for lo, hi in level_boxes:
+                glo, ghi = np.array(lo) - ngrow, np.array(hi) + ngrow
+                shape = (len(names), *(ghi - glo + 1)[::-1])
+                data = rng.standard_normal(shape)
+                fods.append(f.tell())
+                if vismf == 1:
+                    f.write(f"FAB {rd}{_box(glo, ghi)} {len(names)}\n".encode())
+                f.write(data.astype(dt).tobytes())
+                g = slice(ngrow, -ngrow or None)
+                written[L].append((np.array(lo), np.array(hi), data[:, g, g, g]))
+        cell_h = [str(vismf), "1", str(len(names)), str(ngrow), f"({len(level_boxes)} 0",
+                  *(_box(lo, hi) for lo, hi in level_boxes), ")", str(len(level_boxes)),
+                  *(f"FabOnDisk: Cell_D_00000 {o}" for o in fods), ""]
+        if vismf in (1, 3):
+            for stat in (np.min, np.max):
+                cell_h.append(f"{len(level_boxes)},{len(names)}")
+                cell_h += ["".join(f"{stat(w[2][c]):.17e}," for c in range(len(names)))
+                           for w in written[L]]
+                cell_h.append("")
+        if vismf != 1:
+            cell_h.append(rd)
+        (d / "Cell_H").write_text("\n".join(cell_h) + "\n")
+    (root / "Header").write_text("\n".join(lines) + "\n")
+    return written
+
+
+def brute_force_leaves(written, ratios):
+    """Leaves of a written plotfile by checking every cell against every finer box."""
+    finest = len(written) - 1
+    widths = [int(np.prod(ratios[L:])) for L in range(finest + 1)]
+    lattice, level, values = [], [], []
+    for L, entries in written.items():
+        for lo, hi, data in entries:
+            for k in range(lo[2], hi[2] + 1):
+                for j in range(lo[1], hi[1] + 1):
+                    for i in range(lo[0], hi[0] + 1):
+                        fine_lo = np.array([i, j, k]) * widths[L]
+                        covered = any(
+                            np.all(fine_lo >= flo * widths[F]) and np.all(fine_lo <= fhi * widths[F]
+                                                                         + widths[F] - 1)
+                            for F in range(L + 1, finest + 1) for flo, fhi, _ in written[F]
+                        )
+                        if not covered:
+                            lattice.append(fine_lo)
+                            level.append(int(np.log2(widths[L])))
+                            values.append(data[:, k - lo[2], j - lo[1], i - lo[0]])
+    return np.array(lattice), np.array(level), np.array(values).T
+
+
+_TWO_LEVEL = ([((0, 0, 0), (7, 7, 3)), ((0, 0, 4), (7, 7, 7))],
+              [((2, 2, 2), (9, 5, 9)), ((10, 2, 2), (13, 9, 5))],
+              [((8, 8, 8), (15, 15, 11)), ((40, 8, 20), (43, 15, 23))])
+
+
+@pytest.mark.parametrize("real", ["<f8", ">f8", "<f4", ">f4"])
+@pytest.mark.parametrize("vismf, ngrow", [(1, 0), (1, 2), (2, 0), (3, 1), (4, 0)])
+def test_amrex_synthetic_formats(tmp_path, rng, real, vismf, ngrow):
+    ratios = [2, 4]
+    written = write_plotfile(tmp_path / "plt", _TWO_LEVEL, ratios, ["a", "b", "c"], rng,
+                             real=real, ngrow=ngrow, vismf=vismf, prob_lo=(-1.0, 0.0, 2.0),
+                             prob_hi=(1.0, 0.5, 6.0))
+    cells = amrex.read(tmp_path / "plt", fields=["c", "a"])
+    schema.validate(cells)
+    lattice, level, values = brute_force_leaves(written, ratios)
+    assert cells.fields == ("c", "a")
+    ref = {"a": values[0].astype(np.dtype(real)), "c": values[2].astype(np.dtype(real))}
+    assert_same_cells(cells, lattice, level, ref)
+    assert set(np.unique(cells.level).tolist()) == {0, 2, 3}
+    np.testing.assert_array_equal(cells.origin_world, [-1.0, 0.0, 2.0])
+    np.testing.assert_array_equal(cells.spacing_world, [2.0 / 64, 0.5 / 64, 4.0 / 64])
+
+
+def test_amrex_improper_nesting_never_overlaps(tmp_path, rng):
+    """A level-2 box outside every level-1 box still hides the level-0 cell under it."""
+    boxes = (_TWO_LEVEL[0], _TWO_LEVEL[1], [*_TWO_LEVEL[2], ((0, 0, 0), (3, 3, 3))])
+    written = write_plotfile(tmp_path / "plt", boxes, [2, 4], ["a"], rng)
+    cells = amrex.read(tmp_path / "plt")
+    lattice, level, values = brute_force_leaves(written, [2, 4])
+    assert_same_cells(cells, lattice, level, {"a": values[0]})
+    # No overlap: the leaves fill the domain except the rest of that level-0 cell (a
+    # hole of 8^3 - 4^3 finest cells, as nothing at level 1 is there to fill it).
+    volume = (1 << (3 * cells.level.astype(np.int64))).sum()
+    assert volume == 64**3 - (8**3 - 4**3)
+
+
+def test_amrex_pure_python_matches_compiled(tmp_path, rng):
+    """NUMBA_DISABLE_JIT=1 runs the leaf masking as plain Python: identical cells."""
+    write_plotfile(tmp_path / "plt", _TWO_LEVEL, [2, 4], ["a"], rng, ngrow=1)
+    script = ("import sys; from exabricks import schema; from exabricks.readers import amrex;"
+              "schema.save(sys.argv[2], amrex.read(sys.argv[1]))")
+    subprocess.run([sys.executable, "-c", script, tmp_path / "plt", tmp_path / "py.npz"],
+                   check=True, env={**os.environ, "NUMBA_DISABLE_JIT": "1"})
+    python = schema.load(tmp_path / "py.npz", "cells")
+    compiled = amrex.read(tmp_path / "plt")
+    for name in schema.Cells.SPECS:
+        np.testing.assert_array_equal(getattr(python, name), getattr(compiled, name))
+
+
+def test_amrex_synthetic_matches_yt(tmp_path, rng):
+    """Our writer is a real plotfile: yt reads it to the same leaves (32-bit big-endian)."""
+    write_plotfile(tmp_path / "plt", _TWO_LEVEL[:2], [2], ["a", "b"], rng, real=">f4")
+    _, lattice, level, values = yt_leaves(tmp_path / "plt", "boxlib", ["a", "b"])
+    assert_same_cells(amrex.read(tmp_path / "plt"), lattice, level, values)
+
+
+def _copy_amrex(tmp_path) -> Path:
+    dest = tmp_path / "plt"
+    shutil.copytree(AMREX, dest)
+    return dest
+
+
+def test_amrex_truncated_cell_d(tmp_path):
+    p = _copy_amrex(tmp_path)
+    data = p / "Level_2" / "Cell_D_00000"
+    data.write_bytes(data.read_bytes()[: data.stat().st_size // 2])
+    with pytest.raises(ExabricksError, match=r"Cell_D_00000: truncated"):
+        amrex.read(p)
+
+
+def test_amrex_missing_cell_h(tmp_path):
+    p = _copy_amrex(tmp_path)
+    (p / "Level_1" / "Cell_H").unlink()
+    with pytest.raises(ExabricksError, match=r"Level_1/Cell_H: missing"):
+        amrex.read(p)
+
+
+def test_amrex_missing_cell_d(tmp_path):
+    p = _copy_amrex(tmp_path)
+    (p / "Level_0" / "Cell_D_00000").unlink()
+    with pytest.raises(ExabricksError, match=r"Level_0/Cell_D_00000: missing"):
+        amrex.read(p)
+
+
+def test_amrex_corrupt_fab_header(tmp_path):
+    p = _copy_amrex(tmp_path)
+    data = p / "Level_1" / "Cell_D_00000"
+    raw = bytearray(data.read_bytes())
+    raw[0:3] = b"BAF"
+    data.write_bytes(bytes(raw))
+    with pytest.raises(ExabricksError, match=r"Cell_D_00000: byte 0: no FAB header"):
+        amrex.read(p)
+
+
+def test_amrex_unknown_byte_order(tmp_path):
+    p = _copy_amrex(tmp_path)
+    data = p / "Level_0" / "Cell_D_00000"
+    raw = data.read_bytes().replace(b"(8 7 6 5 4 3 2 1)", b"(2 1 4 3 6 5 8 7)", 1)
+    data.write_bytes(raw)
+    with pytest.raises(ExabricksError, match="neither big- nor little-endian"):
+        amrex.read(p)
+
+
+def test_amrex_truncated_and_missing_header(tmp_path):
+    p = _copy_amrex(tmp_path)
+    header = p / "Header"
+    text = header.read_text().splitlines()
+    header.write_text("\n".join(text[:12]) + "\n")
+    with pytest.raises(ExabricksError, match=r"Header: ends early"):
+        amrex.read(p)
+    header.unlink()
+    with pytest.raises(ExabricksError, match=r"not an AMReX plotfile \(no Header"):
+        amrex.read(p)
+    with pytest.raises(ExabricksError, match="not an AMReX plotfile directory"):
+        amrex.read(tmp_path / "nothing")
+
+
+def test_amrex_non_power_of_two_ratio(tmp_path, rng):
+    write_plotfile(tmp_path / "plt", _TWO_LEVEL[:2], [3], ["a"], rng)
+    with pytest.raises(ExabricksError, match="ratio 3 is not a power of two"):
+        amrex.read(tmp_path / "plt")
+
+
+# ---------------------------------------------------------------------------
+# Athena++
+
+
+@pytest.fixture(scope="module")
+def athena_cells():
+    return athena.read(ATHENA)
+
+
+def test_athena_matches_yt_cell_by_cell(athena_cells):
+    names = ["rho", "press", "vel1", "vel2", "vel3"]
+    ds, lattice, level, values = yt_leaves(ATHENA, "athena_pp", names)
+    assert athena_cells.n_cells == LEAF_COUNTS["athena"]
+    assert athena_cells.fields == tuple(names)
+    assert_same_cells(athena_cells, lattice, level, values)
+    np.testing.assert_array_equal(athena_cells.origin_world, ds.domain_left_edge.d)
+    np.testing.assert_array_equal(athena_cells.spacing_world,
+                                  ds.index.get_smallest_dx().d * np.ones(3))
+    schema.validate(athena_cells)
+
+
+def test_athena_field_selection(athena_cells):
+    sub = athena.read(ATHENA, fields=["vel2", "rho"])
+    assert sub.fields == ("vel2", "rho")
+    np.testing.assert_array_equal(sub.values, athena_cells.values[[3, 0]])
+    with pytest.raises(ExabricksError, match="no variable 'phi'"):
+        athena.read(ATHENA, fields=["phi"])
+    with pytest.raises(ExabricksError, match="listed twice"):
+        athena.read(ATHENA, fields=["rho", "rho"])
+
+
+def _edit_athena(tmp_path, edit) -> Path:
+    p = tmp_path / "copy.athdf"
+    shutil.copy(ATHENA, p)
+    with h5py.File(p, "r+") as f:
+        edit(f)
+    return p
+
+
+def test_athena_missing_dataset(tmp_path):
+    p = _edit_athena(tmp_path, lambda f: f.__delitem__("prim"))
+    with pytest.raises(ExabricksError, match=r"copy.athdf: dataset 'prim' is missing"):
+        athena.read(p)
+    p = _edit_athena(tmp_path, lambda f: f.__delitem__("LogicalLocations"))
+    with pytest.raises(ExabricksError, match="'LogicalLocations' is missing"):
+        athena.read(p)
+
+
+def test_athena_not_hdf5_and_truncated(tmp_path):
+    p = tmp_path / "text.athdf"
+    p.write_text("not an HDF5 file\n")
+    with pytest.raises(ExabricksError, match=r"text.athdf: not a readable HDF5 file"):
+        athena.read(p)
+    p = tmp_path / "cut.athdf"
+    p.write_bytes(ATHENA.read_bytes()[: ATHENA.stat().st_size // 2])
+    with pytest.raises(ExabricksError, match=r"cut.athdf"):
+        athena.read(p)
+    with pytest.raises(ExabricksError, match="no such file"):
+        athena.read(tmp_path / "absent.athdf")
+
+
+def test_athena_overlapping_blocks(tmp_path):
+    def nest(f):  # move a finest block onto the children of its level-1 ancestor
+        levels, loc = f["Levels"][()], f["LogicalLocations"][()]
+        fine = int(np.flatnonzero(levels == levels.max())[0])
+        coarse = int(np.flatnonzero(levels == levels.max() - 1)[0])
+        loc[fine] = loc[coarse] * 2
+        f["LogicalLocations"][...] = loc
+    with pytest.raises(ExabricksError, match="mesh blocks overlap"):
+        athena.read(_edit_athena(tmp_path, nest))
+
+    def twice(f):
+        loc = f["LogicalLocations"][()]
+        levels = f["Levels"][()]
+        same = np.flatnonzero(levels == levels[0])
+        loc[same[1]] = loc[same[0]]
+        f["LogicalLocations"][...] = loc
+    with pytest.raises(ExabricksError, match="appears twice"):
+        athena.read(_edit_athena(tmp_path, twice))
+
+
+def test_athena_non_uniform_mesh(tmp_path):
+    def stretch(f):
+        f.attrs["RootGridX1"] = np.array([-0.5, 0.5, 1.05])
+    with pytest.raises(ExabricksError, match="non-uniform mesh.*x1rat"):
+        athena.read(_edit_athena(tmp_path, stretch))
+
+
+def test_athena_faces_must_match_locations(tmp_path):
+    def shift(f):
+        x = f["x1f"][()]
+        x[7] += 0.125
+        f["x1f"][...] = x
+    with pytest.raises(ExabricksError, match="block 7: x1f faces"):
+        athena.read(_edit_athena(tmp_path, shift))
+
+
+# ---------------------------------------------------------------------------
+# yt bridge
+
+
+def test_yt_bridge_enzo_matches_yt_grids():
+    pytest.importorskip("yt")
+    cells = yt_bridge.read(ENZO)
+    names = list(cells.fields)
+    assert names == ["Dark_Matter_Density", "Density", "Temperature", "TotalEnergy",
+                     "x-velocity", "y-velocity", "z-velocity"]
+    ds, lattice, level, values = yt_leaves(ENZO, "enzo", names)
+    assert cells.n_cells == LEAF_COUNTS["enzo"]
+    assert np.unique(cells.level).tolist() == list(range(8))
+    assert_same_cells(cells, lattice, level, values)
+    np.testing.assert_array_equal(cells.origin_world, ds.domain_left_edge.d)
+    np.testing.assert_array_equal(cells.spacing_world, ds.index.get_smallest_dx().d * np.ones(3))
+    schema.validate(cells)
+
+
+def test_yt_bridge_agrees_with_native_amrex_reader(amrex_cells):
+    pytest.importorskip("yt")
+    cells = yt_bridge.read(AMREX, fields=["phi"])
+    a = _sorted(cells.lower_lattice, cells.level)
+    b = _sorted(amrex_cells.lower_lattice, amrex_cells.level)
+    np.testing.assert_array_equal(cells.lower_lattice[a], amrex_cells.lower_lattice[b])
+    np.testing.assert_array_equal(cells.values[:, a], amrex_cells.values[:, b])
+
+
+def test_yt_bridge_is_quiet(capfd):
+    pytest.importorskip("yt")
+    yt_bridge.read(ENZO, fields=["Density"])
+    out, err = capfd.readouterr()
+    assert out == "" and err == ""
+
+
+def test_yt_bridge_errors(tmp_path, monkeypatch):
+    pytest.importorskip("yt")
+    with pytest.raises(ExabricksError, match="no field 'rho'.*Density"):
+        yt_bridge.read(ENZO, fields=["rho"])
+    junk = tmp_path / "junk.dat"
+    junk.write_text("nothing yt knows\n")
+    with pytest.raises(ExabricksError, match=r"junk.dat: yt cannot load it"):
+        yt_bridge.read(junk)
+    with pytest.raises(ExabricksError, match="no such file"):
+        yt_bridge.read(tmp_path / "absent")
+    monkeypatch.setitem(__import__("sys").modules, "yt", None)
+    with pytest.raises(ExabricksError, match=r"yt is not installed: pip install 'exabricks\[yt\]'"):
+        yt_bridge.read(ENZO)
