@@ -1,0 +1,110 @@
+"""Readers that turn AMR files of many codes into leaf `Cells`, one module per format.
+
+Every reader module exposes ``read(path, *, fields=None, **options) -> schema.Cells``
+and raises ExabricksError naming the file for bad input.  This package picks the
+reader (`detect_format` for ``--format auto``) and imports it only when used, so
+formats whose dependencies are missing (yt) cost nothing until asked for.
+"""
+
+from __future__ import annotations
+
+import importlib
+import re
+from pathlib import Path
+
+from ..errors import ExabricksError
+from ..schema import Cells
+
+FORMATS = ("exajet", "amrex", "athena", "raw", "yt")
+
+# File names that yt's front ends own, checked before asking yt itself (importing yt
+# takes seconds).  FLASH: base_hdf5_plt_cnt_0100 / _chk_; Chombo: x.3d.hdf5.
+_YT_NAME_PATTERNS = (
+    re.compile(r"_hdf5_(plt_cnt|chk)_\d+$"),
+    re.compile(r"\.[23]d\.hdf5$"),
+)
+
+
+def detect_format(path: str | Path, *, dims=None) -> str:
+    """The format of `path` for ``--format auto``: one of FORMATS.
+
+    A directory with ``Header`` and ``Level_0/`` is an AMReX plotfile; ``*.athdf``
+    is Athena++; ``*.cells`` is ExaJet; ``*.raw``/``*.bin`` is a raw volume (which
+    needs `dims`); an Enzo output (``NAME`` with a ``NAME.hierarchy`` sibling), a
+    FLASH or Chombo file, or anything else one of yt's front ends claims, is yt.
+    """
+    path = Path(path)
+    if not path.exists():
+        raise ExabricksError(f"{path}: no such file or directory")
+    name = path.name
+    if path.is_dir():
+        if (path / "Header").is_file() and (path / "Level_0").is_dir():
+            return "amrex"
+    elif name.endswith(".athdf"):
+        return "athena"
+    elif name.endswith(".cells"):
+        return "exajet"
+    elif name.endswith((".raw", ".bin")):
+        if dims is None:
+            raise ExabricksError(f"{path}: a raw volume needs its size: give --dims X Y Z")
+        return "raw"
+    if path.with_name(name + ".hierarchy").is_file() or any(p.search(name) for p in _YT_NAME_PATTERNS):
+        return "yt"
+    if _yt_claims(path):
+        return "yt"
+    raise ExabricksError(f"cannot tell the format of {path}; use --format")
+
+
+def _yt_claims(path: Path) -> bool:
+    """Whether any yt front end says it can load `path` (False when yt is missing)."""
+    try:
+        from yt.data_objects.static_output import Dataset  # noqa: F401  (registers the registry)
+        from yt.frontends import _all  # noqa: F401  (imports every front end)
+        from yt.utilities.object_registries import output_type_registry
+    except ImportError:
+        return False
+    for cls in output_type_registry.values():
+        try:
+            if cls._is_valid(str(path)):
+                return True
+        except Exception:  # a front end's probe failing on a foreign file means "not mine"
+            continue
+    return False
+
+
+def read(path: str | Path, *, format: str = "auto", fields=None, **options) -> Cells:
+    """Leaf cells of `path` read by the reader of `format` (``auto``: `detect_format`).
+
+    fields: names to keep, in that order (None: all); an unknown name is an error
+    that lists the available ones.  options go to the reader (``scalars`` for
+    exajet; ``dims``, ``dtype``, ``name``, ``max_level``, ``threshold``,
+    ``byte_order`` for raw).
+    """
+    path = Path(path)
+    if format == "auto":
+        format = detect_format(path, dims=options.get("dims"))
+    elif format not in FORMATS:
+        raise ExabricksError(f"unknown format {format!r} (known: auto, {', '.join(FORMATS)})")
+    elif not path.exists():
+        raise ExabricksError(f"{path}: no such file or directory")
+    module = importlib.import_module(f"{__name__}.{'yt_bridge' if format == 'yt' else format}")
+    cells = module.read(path, fields=list(fields) if fields else None, **options)
+    return select_fields(cells, fields, source=str(path))
+
+
+def select_fields(cells: Cells, fields, *, source: str) -> Cells:
+    """`cells` with only `fields`, in that order (None or empty: unchanged)."""
+    if not fields:
+        return cells
+    fields = list(fields)
+    missing = [f for f in fields if f not in cells.fields]
+    if missing:
+        raise ExabricksError(
+            f"{source}: no field {missing[0]!r} (fields: {', '.join(cells.fields) or 'none'})"
+        )
+    if len(set(fields)) != len(fields):
+        raise ExabricksError(f"{source}: field listed twice in {fields}")
+    if tuple(fields) == cells.fields:
+        return cells
+    rows = [cells.fields.index(f) for f in fields]
+    return cells.replace(fields=tuple(fields), values=cells.values[rows])

@@ -1,0 +1,516 @@
+"""`exabricks ingest`: ExaJet and raw readers, format detection, cell validation, errors.
+
+Checks against independent references: the raw ExaJet bytes read with NumPy, a
+brute-force pairwise overlap test, and a NumPy block-reshape version of the
+uniform-to-AMR merge.
+"""
+
+from __future__ import annotations
+
+import itertools
+import shutil
+
+import numpy as np
+import pytest
+from conftest import AMREX, ATHENA, ENZO, GERRIS, LEAF_COUNTS, assert_one_error_line, run_cli
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from amr_strategies import amr_cells
+from exabricks import schema
+from exabricks.errors import ExabricksError
+from exabricks.readers import FORMATS, detect_format
+from exabricks.readers.exajet import scalar_files
+from exabricks.stages.ingest import amr_from_uniform, find_overlap, validate_cells
+
+GERRIS_FIELDS = ("P", "T", "U", "V", "W")
+
+
+# ---------------------------------------------------------------------------
+# helpers
+
+
+def write_exajet(directory, stem, lower, level, fields):
+    """Write STEM.cells and STEM.NAME.scalars; returns the .cells path."""
+    directory.mkdir(parents=True, exist_ok=True)
+    raw = np.empty((len(level), 4), "<i4")
+    raw[:, :3] = lower
+    raw[:, 3] = level
+    path = directory / f"{stem}.cells"
+    raw.tofile(path)
+    for name, v in fields.items():
+        np.asarray(v, "<f4").tofile(directory / f"{stem}.{name}.scalars")
+    return path
+
+
+def tiny_layout():
+    """A level-1 cell at the origin and the 8 level-0 cells of the box [2,4)x[0,2)x[0,2)."""
+    lower = [(0, 0, 0)] + [(2 + dx, dy, dz) for dz in (0, 1) for dy in (0, 1) for dx in (0, 1)]
+    level = [1] + [0] * 8
+    a = np.arange(9, dtype=np.float32) * 0.5
+    b = -np.arange(9, dtype=np.float32)
+    return np.array(lower, np.int32), np.array(level, np.int32), {"a": a, "b": b}
+
+
+def brute_overlap(lower, level):
+    """Whether any two cells' boxes intersect, by testing all pairs (float64-free, int64)."""
+    lo = lower.astype(np.int64)
+    hi = lo + (np.int64(1) << level.astype(np.int64))[:, None]
+    inter = np.all(
+        (lo[:, None, :] < hi[None, :, :]) & (lo[None, :, :] < hi[:, None, :]), axis=2
+    )
+    np.fill_diagonal(inter, False)
+    return bool(inter.any())
+
+
+def cells_of(lower, level, values=None):
+    n = len(level)
+    values = np.zeros((1, n), np.float32) if values is None else np.asarray(values, np.float32)
+    return schema.Cells(
+        fields=tuple(f"f{i}" for i in range(values.shape[0])),
+        origin_world=np.zeros(3), spacing_world=np.ones(3),
+        lower_lattice=np.asarray(lower, np.int32).reshape(-1, 3),
+        level=np.asarray(level, np.int8), values=values,
+    )
+
+
+# ---------------------------------------------------------------------------
+# the embedded Gerris plume through the CLI
+
+
+def test_gerris_plume_ingests_exactly(tmp_path):
+    out = tmp_path / "cells.npz"
+    run_cli("ingest", GERRIS, "-o", out, check=0)
+    cells = schema.load(out, "cells")
+    raw = np.fromfile(GERRIS, "<i4").reshape(-1, 4)
+    assert cells.n_cells == LEAF_COUNTS["gerris"] == 67_712
+    assert cells.fields == GERRIS_FIELDS
+    np.testing.assert_array_equal(cells.lower_lattice, raw[:, :3])
+    np.testing.assert_array_equal(cells.level, raw[:, 3])
+    for i, name in enumerate(GERRIS_FIELDS):
+        expected = np.fromfile(GERRIS.with_name(f"plume7-1.{name}.scalars"), "<f4")
+        np.testing.assert_array_equal(cells.values[i], expected)
+    np.testing.assert_array_equal(cells.origin_world, [0, 0, 0])
+    np.testing.assert_array_equal(cells.spacing_world, [1, 1, 1])
+    inputs = [e["path"] for e in cells.meta["inputs"]]
+    assert inputs[0] == str(GERRIS) and len(inputs) == 6
+    assert all(e["sha256"] for e in cells.meta["inputs"])
+    per_level = np.bincount(raw[:, 3])
+    assert cells.meta["statistics"]["cells_per_level"] == {
+        str(l): int(c) for l, c in enumerate(per_level) if c
+    }
+    # the plume's leaves tile its 128^3 lattice exactly
+    assert int((8 ** raw[:, 3].astype(np.int64)).sum()) == 128 ** 3
+
+
+def test_field_subset_keeps_requested_order(tmp_path):
+    out = tmp_path / "cells.npz"
+    run_cli("ingest", GERRIS, "-o", out, "--field", "T", "--field", "P", check=0)
+    cells = schema.load(out, "cells")
+    assert cells.fields == ("T", "P")
+    np.testing.assert_array_equal(cells.values[0], np.fromfile(GERRIS.with_name("plume7-1.T.scalars"), "<f4"))
+    np.testing.assert_array_equal(cells.values[1], np.fromfile(GERRIS.with_name("plume7-1.P.scalars"), "<f4"))
+
+
+def test_magnitude_field(tmp_path):
+    out = tmp_path / "cells.npz"
+    run_cli("ingest", GERRIS, "-o", out, "--magnitude", "speed=U,V,W",
+            "--field", "T", "--field", "speed", check=0)
+    cells = schema.load(out, "cells")
+    assert cells.fields == ("T", "speed")
+    u, v, w = (np.fromfile(GERRIS.with_name(f"plume7-1.{c}.scalars"), "<f4").astype(np.float64)
+               for c in "UVW")
+    np.testing.assert_array_equal(cells.values[1], np.sqrt(u * u + v * v + w * w).astype(np.float32))
+
+
+def test_explicit_scalars_and_sibling_discovery(tmp_path):
+    lower, level, fields = tiny_layout()
+    path = write_exajet(tmp_path / "in", "tiny", lower, level, fields)
+    assert list(scalar_files(path)) == ["a", "b"]
+    out = tmp_path / "cells.npz"
+    run_cli("ingest", path, "-o", out, "--scalars", f"temp={path.with_name('tiny.b.scalars')}", check=0)
+    cells = schema.load(out, "cells")
+    assert cells.fields == ("temp",)
+    np.testing.assert_array_equal(cells.values[0], fields["b"])
+    assert [e["path"] for e in cells.meta["inputs"]] == [str(path), str(path.with_name("tiny.b.scalars"))]
+
+
+# ---------------------------------------------------------------------------
+# every error path: one `error:` line naming the file and the problem, exit 1, no output
+
+
+def _case_missing(d):
+    return [d / "nothere.cells"], [d / "nothere.cells", "no such file"]
+
+
+def _case_missing_scalars(d):
+    p = write_exajet(d, "t", *tiny_layout())
+    return [p, "--scalars", f"a={d / 'gone.scalars'}"], [d / "gone.scalars", "no such file"]
+
+
+def _case_no_scalars(d):
+    lower, level, _ = tiny_layout()
+    p = write_exajet(d, "t", lower, level, {})
+    return [p], [p, "no scalar files"]
+
+
+def _case_truncated_cells(d):
+    p = write_exajet(d, "t", *tiny_layout())
+    p.write_bytes(p.read_bytes()[:-3])
+    return [p], [p, "truncated", "not a multiple of 16"]
+
+
+def _case_truncated_scalars(d):
+    p = write_exajet(d, "t", *tiny_layout())
+    s = d / "t.b.scalars"
+    s.write_bytes(s.read_bytes()[:-2])
+    return [p], [s, "truncated"]
+
+
+def _case_count_mismatch(d):
+    lower, level, fields = tiny_layout()
+    fields["b"] = np.append(fields["b"], 1.0)
+    p = write_exajet(d, "t", lower, level, fields)
+    return [p], [d / "t.b.scalars", "10 values", p, "9 cells"]
+
+
+def _case_negative_level(d):
+    lower, level, fields = tiny_layout()
+    level[3] = -1
+    p = write_exajet(d, "t", lower, level, fields)
+    return [p], [p, "cell 3", "level -1"]
+
+
+def _case_misaligned(d):
+    lower, level, fields = tiny_layout()
+    lower[0] = (0, 1, 0)
+    p = write_exajet(d, "t", lower, level, fields)
+    return [p], [p, "cell 0", "[0, 1, 0]", "misaligned"]
+
+
+def _case_duplicate(d):
+    lower, level, fields = tiny_layout()
+    lower, level = np.vstack([lower, lower[4:5]]), np.append(level, level[4])
+    fields = {k: np.append(v, v[4]) for k, v in fields.items()}
+    p = write_exajet(d, "t", lower, level, fields)
+    return [p], [p, "cell 9", "duplicates cell 4", str(lower[4].tolist())]
+
+
+def _case_coarse_covers_fine(d):
+    lower, level, fields = tiny_layout()
+    lower, level = np.vstack([lower, [(2, 0, 0)]]), np.append(level, 1)
+    fields = {k: np.append(v, 0.0) for k, v in fields.items()}
+    p = write_exajet(d, "t", lower, level, fields)
+    return [p], [p, "cell 9 at [2, 0, 0] (level 1) overlaps cell"]
+
+
+def _case_nan(d):
+    lower, level, fields = tiny_layout()
+    fields["a"][5] = np.nan
+    p = write_exajet(d, "t", lower, level, fields)
+    return [p], [p, "field 'a'", "nan", "cell 5"]
+
+
+def _case_inf(d):
+    lower, level, fields = tiny_layout()
+    fields["b"][2] = -np.inf
+    p = write_exajet(d, "t", lower, level, fields)
+    return [p], [p, "field 'b'", "-inf", "cell 2"]
+
+
+def _case_empty(d):
+    lower, level, fields = tiny_layout()
+    p = write_exajet(d, "t", lower[:0], level[:0], {k: v[:0] for k, v in fields.items()})
+    return [p], [p, "no cells"]
+
+
+def _case_unknown_format(d):
+    d.mkdir(parents=True)
+    p = d / "mystery.dat"
+    p.write_bytes(b"\0" * 64)
+    return [p], [p, "cannot tell the format", "--format"]
+
+
+def _case_unknown_field(d):
+    p = write_exajet(d, "t", *tiny_layout())
+    return [p, "--field", "c"], [p, "no field 'c'", "a, b"]
+
+
+def _case_bad_dims(d):
+    d.mkdir(parents=True)
+    p = d / "v.raw"
+    np.zeros(60, "<f4").tofile(p)
+    return [p, "--dims", 4, 4, 4], [p, "240 bytes", "--dims 4 4 4", "256 bytes"]
+
+
+def _case_raw_without_dims(d):
+    d.mkdir(parents=True)
+    p = d / "v.raw"
+    np.zeros(64, "<f4").tofile(p)
+    return [p], [p, "--dims"]
+
+
+def _case_dims_for_exajet(d):
+    p = write_exajet(d, "t", *tiny_layout())
+    return [p, "--dims", 2, 2, 2], [p, "--dims", "raw"]
+
+
+ERROR_CASES = {name[len("_case_"):]: f for name, f in globals().items() if name.startswith("_case_")}
+
+
+@pytest.mark.parametrize("case", sorted(ERROR_CASES))
+def test_error_paths(tmp_path, case):
+    args, needles = ERROR_CASES[case](tmp_path / "in")
+    out_dir = tmp_path / "out"
+    out_dir.mkdir()
+    proc = run_cli("ingest", *args, "-o", out_dir / "cells.npz")
+    assert_one_error_line(proc, *needles)
+    assert list(out_dir.iterdir()) == []  # no output, not even a temporary
+
+
+def test_unknown_format_name_is_a_usage_error(tmp_path):
+    proc = run_cli("ingest", GERRIS, "--format", "vtk", "-o", tmp_path / "c.npz")
+    assert proc.returncode == 2 and "vtk" in proc.stderr
+    assert not (tmp_path / "c.npz").exists()
+
+
+@pytest.mark.parametrize("policy", ["zero", "drop", "keep"])
+def test_nan_policies(tmp_path, policy):
+    lower, level, fields = tiny_layout()
+    fields["a"][5] = np.nan
+    fields["b"][2] = np.inf
+    p = write_exajet(tmp_path, "t", lower, level, fields)
+    out = tmp_path / "cells.npz"
+    run_cli("ingest", p, "-o", out, "--nan", policy, check=0)
+    cells = schema.load(out, "cells")
+    a, b = fields["a"], fields["b"]
+    if policy == "zero":
+        assert cells.n_cells == 9
+        np.testing.assert_array_equal(cells.values[0], np.where(np.isfinite(a), a, 0))
+        np.testing.assert_array_equal(cells.values[1], np.where(np.isfinite(b), b, 0))
+    elif policy == "drop":
+        keep = np.array([i not in (2, 5) for i in range(9)])
+        assert cells.n_cells == 7
+        np.testing.assert_array_equal(cells.lower_lattice, lower[keep])
+        np.testing.assert_array_equal(cells.values, np.stack([a[keep], b[keep]]))
+        assert cells.meta["statistics"]["dropped_nonfinite_cells"] == 2
+    else:
+        np.testing.assert_array_equal(cells.values, np.stack([a, b]))
+
+
+def test_nan_drop_of_every_cell_is_an_error(tmp_path):
+    lower, level, fields = tiny_layout()
+    fields["a"][:] = np.nan
+    p = write_exajet(tmp_path / "in", "t", lower, level, fields)
+    (tmp_path / "out").mkdir()
+    proc = run_cli("ingest", p, "-o", tmp_path / "out" / "c.npz", "--nan", "drop")
+    assert_one_error_line(proc, p, "no cells left")
+    assert list((tmp_path / "out").iterdir()) == []
+
+
+# ---------------------------------------------------------------------------
+# validate_cells / find_overlap against brute force
+
+
+@settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(cells=amr_cells(max_cells=400), data=st.data())
+def test_valid_layouts_pass_and_added_overlaps_are_found(cells, data):
+    assert find_overlap(cells.lower_lattice, cells.level) is None
+    assert validate_cells(cells, source="x") is cells
+    # add a cell that duplicates one, or that covers one from a coarser level
+    i = data.draw(st.integers(0, cells.n_cells - 1))
+    up = data.draw(st.integers(0, 2))
+    l = int(cells.level[i]) + up
+    corner = (cells.lower_lattice[i] >> l) << l
+    lower = np.vstack([cells.lower_lattice, corner[None]]).astype(np.int32)
+    level = np.append(cells.level, np.int8(l))
+    pair = find_overlap(lower, level)
+    assert pair is not None and pair[1] == cells.n_cells
+    a, b = pair
+    assert brute_overlap(lower[[a, b]], level[[a, b]])
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.lists(st.tuples(st.integers(0, 7), st.integers(0, 7), st.integers(0, 7),
+                          st.integers(0, 3)), min_size=1, max_size=12),
+       st.sampled_from([0, 1 << 29]))
+def test_find_overlap_matches_brute_force(raw, shift):
+    # shift 2**29 on one axis forces the 96-bit Morton path (too many bits for one key)
+    level = np.array([r[3] for r in raw], np.int8)
+    lower = np.array([[(r[a] >> r[3]) << r[3] for a in range(3)] for r in raw], np.int32)
+    lower[0, 0] += shift
+    lower[1:, 0] += shift * (np.arange(1, len(raw)) % 2)
+    pair = find_overlap(lower, level)
+    assert (pair is not None) == brute_overlap(lower, level)
+    if pair is not None:
+        assert pair[0] < pair[1] and brute_overlap(lower[list(pair)], level[list(pair)])
+
+
+def test_validate_cells_errors_directly():
+    with pytest.raises(ExabricksError, match="src: cell 1 at \\[2, 0, 0\\] has level -1"):
+        validate_cells(cells_of([(0, 0, 0), (2, 0, 0)], [0, -1]), source="src")
+    with pytest.raises(ExabricksError, match="src: no cells"):
+        validate_cells(cells_of(np.zeros((0, 3)), []), source="src")
+    with pytest.raises(ExabricksError, match="unknown NaN policy"):
+        validate_cells(cells_of([(0, 0, 0)], [0]), source="src", nan_policy="ignore")
+
+
+# ---------------------------------------------------------------------------
+# raw volumes -> AMR
+
+
+def merge_reference(volume, max_level, threshold):
+    """NumPy reference: set of (x, y, z, level) -> float64 mean, from block reshapes of voxels."""
+    nz, ny, nx = volume.shape
+    top = min(max_level, int(min(volume.shape)).bit_length() - 1)
+    v = volume.astype(np.float64)
+    finite = np.isfinite(v)
+    ok = {0: np.ones(v.shape, bool)}  # every voxel is a cell; only finite ones merge
+    mean = {0: v}
+    for l in range(1, top + 1):
+        w = 1 << l
+        shape = (nz >> l, ny >> l, nx >> l)
+        blk = v[: shape[0] * w, : shape[1] * w, : shape[2] * w].reshape(
+            shape[0], w, shape[1], w, shape[2], w)
+        fin = finite[: shape[0] * w, : shape[1] * w, : shape[2] * w].reshape(blk.shape)
+        children = ok[l - 1][: shape[0] * 2, : shape[1] * 2, : shape[2] * 2].reshape(
+            shape[0], 2, shape[1], 2, shape[2], 2)
+        rng = blk.max(axis=(1, 3, 5)) - blk.min(axis=(1, 3, 5))
+        ok[l] = children.all(axis=(1, 3, 5)) & fin.all(axis=(1, 3, 5)) & (rng <= threshold)
+        mean[l] = blk.mean(axis=(1, 3, 5))
+    out = {}
+    for l in range(top + 1):
+        for k, j, i in zip(*np.nonzero(ok[l])):
+            parent = l < top and all(c >> 1 < s for c, s in zip((k, j, i), ok[l + 1].shape)) \
+                and ok[l + 1][k >> 1, j >> 1, i >> 1]
+            if not parent:
+                out[(int(i) << l, int(j) << l, int(k) << l, l)] = mean[l][k, j, i]
+    return out
+
+
+def as_dict(lower, level, values):
+    return {(*map(int, c), int(l)): v for c, l, v in zip(lower, level, values)}
+
+
+def test_hand_built_volume_merges_exactly():
+    v = np.zeros((4, 4, 4), np.float32)
+    v[3, 3, 3] = 5.0  # voxel x=3, y=3, z=3
+    lower, level, values = amr_from_uniform(v, threshold=0)
+    got = as_dict(lower, level, values)
+    expected = {(x, y, z, 1): 0.0 for x, y, z in itertools.product((0, 2), repeat=3) if (x, y, z) != (2, 2, 2)}
+    expected.update({(x, y, z, 0): (5.0 if (x, y, z) == (3, 3, 3) else 0.0)
+                     for x, y, z in itertools.product((2, 3), repeat=3)})
+    assert got == expected and len(level) == 15
+    # a threshold of 5 merges the whole volume into one level-2 cell holding the mean
+    lower, level, values = amr_from_uniform(v, threshold=5.0)
+    assert lower.tolist() == [[0, 0, 0]] and level.tolist() == [2]
+    assert values.tolist() == [5.0 / 64]
+
+
+def test_constant_volume_merges_to_coarsest_and_respects_max_level():
+    v = np.full((8, 8, 8), 2.5, np.float32)
+    lower, level, values = amr_from_uniform(v, threshold=0)
+    assert lower.tolist() == [[0, 0, 0]] and level.tolist() == [3] and values.tolist() == [2.5]
+    lower, level, values = amr_from_uniform(v, max_level=1, threshold=0)
+    assert len(level) == 64 and set(level.tolist()) == {1} and set(values.tolist()) == {2.5}
+
+
+def test_ragged_edge_stays_fine():
+    v = np.ones((4, 4, 5), np.float32)  # X = 5: the column x = 4 cannot form a group
+    lower, level, values = amr_from_uniform(v, threshold=0)
+    got = as_dict(lower, level, values)
+    expected = {(0, 0, 0, 2): 1.0}
+    expected.update({(4, y, z, 0): 1.0 for y in range(4) for z in range(4)})
+    assert got == expected
+
+
+def test_threshold_zero_on_noise_keeps_every_voxel():
+    v = np.random.default_rng(3).random((6, 8, 10)).astype(np.float32)
+    lower, level, values = amr_from_uniform(v, threshold=0)
+    assert len(level) == v.size and not level.any()
+    np.testing.assert_array_equal(values, v[lower[:, 2], lower[:, 1], lower[:, 0]])
+
+
+@settings(max_examples=80, deadline=None)
+@given(dims=st.tuples(st.integers(1, 11), st.integers(1, 11), st.integers(1, 11)),
+       n_values=st.integers(1, 3), threshold=st.sampled_from([0.0, 1.0, 2.0]),
+       max_level=st.integers(0, 4), seed=st.integers(0, 2**32 - 1), nan=st.booleans())
+def test_merge_covers_volume_once_with_block_means(dims, n_values, threshold, max_level, seed, nan):
+    rng = np.random.default_rng(seed)
+    x, y, z = dims
+    # few distinct small integers: merges happen, and float64 sums of them are exact
+    v = rng.integers(0, n_values + 1, (z, y, x)).astype(np.float32)
+    if rng.random() < 0.5:  # two constant halves: large merged patches
+        v[:] = rng.integers(0, 2) + (np.arange(x) >= x // 2)
+    if nan:
+        v[tuple(rng.integers(0, s) for s in v.shape)] = np.nan
+    lower, level, values = amr_from_uniform(v, max_level=max_level, threshold=threshold)
+    # covers every voxel exactly once
+    count = np.zeros(v.shape, np.int64)
+    for (cx, cy, cz), l in zip(lower, level):
+        w = 1 << int(l)
+        count[cz:cz + w, cy:cy + w, cx:cx + w] += 1
+    assert (count == 1).all() and int((8 ** level.astype(np.int64)).sum()) == v.size
+    # each value is the mean of the voxels it covers; the set equals the NumPy reference
+    ref = merge_reference(v, max_level, threshold)
+    got = as_dict(lower, level, values)
+    assert got.keys() == ref.keys()
+    for key, val in got.items():
+        cx, cy, cz, l = key
+        w = 1 << l
+        block = v[cz:cz + w, cy:cy + w, cx:cx + w].astype(np.float64)
+        np.testing.assert_array_equal(val, np.float32(block.mean()))
+        if l:
+            assert block.max() - block.min() <= threshold
+    cells = cells_of(lower, level, values[None])
+    validate_cells(cells, source="x", nan_policy="keep")
+
+
+def test_raw_volume_through_cli(tmp_path):
+    v = np.zeros((4, 4, 6), np.float32)  # X = 6, Y = 4, Z = 4, x fastest
+    v[:, :, 4:] = np.arange(32, dtype=np.float32).reshape(4, 4, 2)
+    path = tmp_path / "v.raw"
+    v.astype(">f4").tofile(path)
+    out = tmp_path / "cells.npz"
+    run_cli("ingest", path, "-o", out, "--dims", 6, 4, 4, "--byte-order", "big",
+            "--name", "rho", "--threshold", 0, check=0)
+    cells = schema.load(out, "cells")
+    lower, level, values = amr_from_uniform(v, threshold=0)
+    assert cells.fields == ("rho",)
+    assert as_dict(cells.lower_lattice, cells.level, cells.values[0]) == as_dict(lower, level, values)
+    # [0,4)^3 merges to one level-2 cell; x in [4,6) stays at level 0 (32 voxels)
+    assert sorted(np.bincount(cells.level).tolist()) == [0, 1, 32]
+    assert cells.meta["parameters"]["dims"] == [6, 4, 4]
+
+
+# ---------------------------------------------------------------------------
+# format detection, and the other readers through `--format auto`
+
+
+def test_detect_format_of_shared_datasets(tmp_path):
+    assert detect_format(AMREX) == "amrex"
+    assert detect_format(ATHENA) == "athena"
+    assert detect_format(GERRIS) == "exajet"
+    assert detect_format(ENZO) == "yt"
+    raw = tmp_path / "v.raw"
+    raw.write_bytes(b"")
+    assert detect_format(raw, dims=(1, 1, 1)) == "raw"
+    with pytest.raises(ExabricksError, match="--dims"):
+        detect_format(raw)
+    flash = tmp_path / "sedov_hdf5_plt_cnt_0001"
+    flash.write_bytes(b"")
+    assert detect_format(flash) == "yt"
+    with pytest.raises(ExabricksError, match="no such file"):
+        detect_format(tmp_path / "none.cells")
+    assert set(FORMATS) == {"exajet", "amrex", "athena", "raw", "yt"}
+
+
+@pytest.mark.parametrize("name, path", [("amrex", AMREX), ("athena", ATHENA),
+                                        pytest.param("enzo", ENZO, marks=pytest.mark.slow)])
+def test_auto_format_ingests_shared_datasets(tmp_path, name, path):
+    out = tmp_path / "cells.npz"
+    run_cli("ingest", path, "-o", out, check=0)
+    cells = schema.load(out, "cells")
+    assert cells.n_cells == LEAF_COUNTS[name]
+    assert cells.meta["parameters"]["format"] == {"enzo": "yt"}.get(name, name)
+    assert len(cells.meta["inputs"]) >= 1
