@@ -1,0 +1,411 @@
+"""Reorganise leaf cells into same-level, completely filled bricks (paper §3.1).
+
+A top-down k-d partition of the cells: a node becomes a brick when all its cells
+share one level, fill their bounding box and the box is at most
+`max_brick_width` cells wide on every axis; otherwise it is split across the
+longest axis of its bounding box at the middle, rounded to a multiple of the
+node's coarsest cell width so that no cell is cut (paper §3.1.2).  The cells
+are partitioned in place (like quicksort), so every brick ends up as one
+contiguous run of the partitioned cell array; the bricks are those runs in
+order, and because a brick is full its offset into the value array is simply
+the start of its run.
+
+Internally each cell is one row of an int32 (N, 5) array `rec`: lower corner
+x, y, z (lattice units), level, and the cell's index in the input.  A k-d node
+is one int64 row of 10: start and end of its run in `rec`, the lower and upper
+corner of its bounding box (lattice units, upper exclusive), and its finest and
+coarsest level.  Partitioning a node computes both children's rows in the same
+pass, so each tree level reads every cell once.
+"""
+
+from __future__ import annotations
+
+import numba
+import numpy as np
+
+from .. import schema
+from ..constants import LATTICE_DTYPE, LEVEL_DTYPE, OFFSET_DTYPE, VALUE_DTYPE
+from ..errors import ExabricksError
+
+# Columns of a cell row in `rec` and fields of a node row.
+_LEVEL, _ID = 3, 4
+_START, _END = 0, 1
+_NODE_SIZE = 10
+# Outcomes of _split.
+_LEAF, _SPLIT, _OVERLAP = 0, 1, -1
+# Below this many cells the build runs on one thread: the partition is already fast.
+_PARALLEL_MIN_CELLS = 200_000
+# Subtrees per thread for the depth-first parallel phase (more: better balance).
+_TASKS_PER_THREAD = 16
+
+
+@numba.njit(cache=True, inline="always")
+def _grow(st, x, y, z, level):
+    """Add one cell to node statistics (lo xyz, hi xyz, finest, coarsest level)."""
+    w = np.int64(1) << level
+    return (min(st[0], x), min(st[1], y), min(st[2], z),
+            max(st[3], x + w), max(st[4], y + w), max(st[5], z + w),
+            min(st[6], level), max(st[7], level))
+
+
+@numba.njit(cache=True, inline="always")
+def _empty_stats():
+    big = np.int64(1) << 62
+    return (big, big, big, -big, -big, -big, np.int64(127), np.int64(-1))
+
+
+@numba.njit(cache=True, inline="always")
+def _store(nodes, t, start, end, st):
+    nodes[t, 0] = start
+    nodes[t, 1] = end
+    for a in range(8):
+        nodes[t, 2 + a] = st[a]
+
+
+@numba.njit(cache=True, parallel=True)
+def _pack(lower, level, chunks):
+    """Cell rows and the root node row, in one parallel pass.
+
+    lower: int32 (N, 3); level: int8 (N,).  Returns rec, int32 (N, 5) (x, y, z,
+    level, input index), and the root node row, int64 (1, 10).
+    """
+    n = level.shape[0]
+    rec = np.empty((n, 5), np.int32)
+    part = np.empty((chunks, 8), np.int64)
+    for c in numba.prange(chunks):
+        st = _empty_stats()
+        for p in range(c * n // chunks, (c + 1) * n // chunks):
+            rec[p, 0] = lower[p, 0]
+            rec[p, 1] = lower[p, 1]
+            rec[p, 2] = lower[p, 2]
+            rec[p, 3] = level[p]
+            rec[p, 4] = p
+            st = _grow(st, np.int64(lower[p, 0]), np.int64(lower[p, 1]),
+                       np.int64(lower[p, 2]), np.int64(level[p]))
+        for a in range(8):
+            part[c, a] = st[a]
+    root = np.empty((1, _NODE_SIZE), np.int64)
+    root[0, 0] = 0
+    root[0, 1] = n
+    for a in range(8):
+        # lower corner and finest level are minima, the rest maxima
+        root[0, 2 + a] = part[:, a].min() if a < 3 or a == 6 else part[:, a].max()
+    return rec, root
+
+
+@numba.njit(cache=True)
+def _split(rec, nodes, t, max_width, brick_end):
+    """Make node `nodes[t]` a brick or split it into `nodes[t]` and `nodes[t + 1]`.
+
+    rec:       int32 (N, 5) cell rows, partitioned in place over the node's run.
+    nodes:     int64 (M, 10) node rows; row t + 1 must exist.
+    brick_end: int32 (N,), set to the run's end at a leaf's start.
+    Returns _LEAF, _SPLIT, or _OVERLAP when no plane separates the cells, which
+    only happens when cells overlap (the node's box is then its coarsest cell).
+    """
+    s = nodes[t, 0]
+    e = nodes[t, 1]
+    lmin = nodes[t, 8]
+    lmax = nodes[t, 9]
+    n = e - s
+    if lmin == lmax:
+        # Leaf test of §3.1.2: one level, full box, at most max_width cells per axis.
+        d0 = (nodes[t, 5] - nodes[t, 2]) >> lmin
+        d1 = (nodes[t, 6] - nodes[t, 3]) >> lmin
+        d2 = (nodes[t, 7] - nodes[t, 4]) >> lmin
+        if d0 <= max_width and d1 <= max_width and d2 <= max_width:
+            # d0 * d1 <= n first, so that the triple product cannot overflow.
+            if d0 * d1 <= n and d0 * d1 * d2 == n:
+                brick_end[s] = e
+                return _LEAF
+    # Split the longest axis at its middle rounded to a multiple of the coarsest
+    # width W: every cell is W-aligned at that plane, so none is cut (§3.1.2).
+    # A plane strictly inside the box always has cells on both sides.
+    big_w = np.int64(1) << lmax
+    ext0 = nodes[t, 5] - nodes[t, 2]
+    ext1 = nodes[t, 6] - nodes[t, 3]
+    ext2 = nodes[t, 7] - nodes[t, 4]
+    axis = -1
+    pos = np.int64(0)
+    first = _first_axis(ext0, ext1, ext2)
+    second = _second_axis(ext0, ext1, ext2)
+    for attempt in range(3):
+        # Axes in order of decreasing extent (ties: x before y before z).  For
+        # cells that do not overlap the longest axis always has a plane.
+        a = first if attempt == 0 else (second if attempt == 1 else 3 - first - second)
+        lo = nodes[t, 2 + a]
+        hi = nodes[t, 5 + a]
+        mid = (lo + hi) >> 1
+        # Nearest multiple of W (ties up); at a box edge, one W further inside.
+        p = ((mid + (big_w >> 1)) >> lmax) << lmax
+        if p <= lo:
+            p += big_w
+        if p >= hi:
+            p -= big_w
+        if lo < p < hi:
+            axis = a
+            pos = p
+            break
+    if axis < 0:
+        return _OVERLAP
+    # Hoare partition on rec[:, axis] < pos, accumulating both children's rows.
+    left = _empty_stats()
+    right = _empty_stats()
+    i = s
+    j = e - 1
+    while True:
+        while i <= j and rec[i, axis] < pos:
+            left = _grow(left, np.int64(rec[i, 0]), np.int64(rec[i, 1]),
+                         np.int64(rec[i, 2]), np.int64(rec[i, 3]))
+            i += 1
+        while i <= j and rec[j, axis] >= pos:
+            right = _grow(right, np.int64(rec[j, 0]), np.int64(rec[j, 1]),
+                          np.int64(rec[j, 2]), np.int64(rec[j, 3]))
+            j -= 1
+        if i > j:
+            break
+        for c in range(5):
+            tmp = rec[i, c]
+            rec[i, c] = rec[j, c]
+            rec[j, c] = tmp
+        left = _grow(left, np.int64(rec[i, 0]), np.int64(rec[i, 1]),
+                     np.int64(rec[i, 2]), np.int64(rec[i, 3]))
+        right = _grow(right, np.int64(rec[j, 0]), np.int64(rec[j, 1]),
+                      np.int64(rec[j, 2]), np.int64(rec[j, 3]))
+        i += 1
+        j -= 1
+    _store(nodes, t, s, i, left)
+    _store(nodes, t + 1, i, e, right)
+    return _SPLIT
+
+
+@numba.njit(cache=True, inline="always")
+def _first_axis(e0, e1, e2):
+    if e0 >= e1 and e0 >= e2:
+        return 0
+    return 1 if e1 >= e2 else 2
+
+
+@numba.njit(cache=True, inline="always")
+def _second_axis(e0, e1, e2):
+    first = _first_axis(e0, e1, e2)
+    if first == 0:
+        return 1 if e1 >= e2 else 2
+    if first == 1:
+        return 0 if e0 >= e2 else 2
+    return 0 if e0 >= e1 else 1
+
+
+@numba.njit(cache=True)
+def _build_subtree(rec, node, max_width, brick_end):
+    """Build every brick below one node, depth first with an explicit stack.
+
+    node: int64 (10,) node row.  Returns (start, end) of a node whose cells
+    overlap, or (-1, -1).
+    """
+    stack = np.empty((256, _NODE_SIZE), np.int64)
+    stack[0] = node
+    top = 1
+    while top > 0:
+        top -= 1
+        if top + 2 > stack.shape[0]:
+            bigger = np.empty((2 * stack.shape[0], _NODE_SIZE), np.int64)
+            bigger[: stack.shape[0]] = stack
+            stack = bigger
+        outcome = _split(rec, stack, top, max_width, brick_end)
+        if outcome == _SPLIT:
+            top += 2
+        elif outcome == _OVERLAP:
+            return stack[top, 0], stack[top, 1]
+    return np.int64(-1), np.int64(-1)
+
+
+@numba.njit(cache=True, parallel=True)
+def _build_top(rec, root, max_width, brick_end, target):
+    """Split breadth first, the nodes of each tree level in parallel, until at
+    least `target` nodes are unfinished.
+
+    root: int64 (1, 10).  Returns the unfinished nodes, int64 (K, 10), and the
+    (start, end) of a node whose cells overlap, or (-1, -1).
+    """
+    current = root.copy()
+    while 0 < current.shape[0] < target:
+        k_nodes = current.shape[0]
+        following = np.empty((2 * k_nodes, _NODE_SIZE), np.int64)
+        outcome = np.empty(k_nodes, np.int64)
+        for k in numba.prange(k_nodes):
+            for a in range(_NODE_SIZE):
+                following[2 * k, a] = current[k, a]
+            outcome[k] = _split(rec, following, 2 * k, max_width, brick_end)
+        m = 0
+        for k in range(k_nodes):
+            if outcome[k] == _OVERLAP:
+                return current, current[k, 0], current[k, 1]
+            if outcome[k] == _SPLIT:
+                m += 2
+        current = np.empty((m, _NODE_SIZE), np.int64)
+        m = 0
+        for k in range(k_nodes):
+            if outcome[k] == _SPLIT:
+                current[m] = following[2 * k]
+                current[m + 1] = following[2 * k + 1]
+                m += 2
+    return current, np.int64(-1), np.int64(-1)
+
+
+@numba.njit(cache=True, parallel=True)
+def _build_subtrees(rec, tasks, max_width, brick_end):
+    """Build the subtrees below the node rows `tasks` (int64 (K, 10)) in parallel.
+
+    Returns int64 (K, 2): per task, (start, end) of an overlapping node or -1.
+    """
+    overlap = np.empty((tasks.shape[0], 2), np.int64)
+    for k in numba.prange(tasks.shape[0]):
+        s, e = _build_subtree(rec, tasks[k], max_width, brick_end)
+        overlap[k, 0] = s
+        overlap[k, 1] = e
+    return overlap
+
+
+@numba.njit(cache=True, parallel=True)
+def _place(rec, starts, ends, lower, level, dims, source):
+    """Describe every brick and find where each cell's value goes.
+
+    starts, ends: int64 (B,), run of each brick in `rec`.
+    lower, dims:  int32 (B, 3) out, lattice corner and cells per axis.
+    level:        int8 (B,) out.
+    source:       int32 (N,) out, input index of the cell stored at each value slot.
+    """
+    for b in numba.prange(starts.shape[0]):
+        s = starts[b]
+        e = ends[b]
+        lvl = rec[s, _LEVEL]
+        lo0 = rec[s, 0]
+        lo1 = rec[s, 1]
+        lo2 = rec[s, 2]
+        hi0 = lo0
+        hi1 = lo1
+        hi2 = lo2
+        for p in range(s + 1, e):
+            lo0 = min(lo0, rec[p, 0])
+            lo1 = min(lo1, rec[p, 1])
+            lo2 = min(lo2, rec[p, 2])
+            hi0 = max(hi0, rec[p, 0])
+            hi1 = max(hi1, rec[p, 1])
+            hi2 = max(hi2, rec[p, 2])
+        d0 = ((np.int64(hi0) - lo0) >> lvl) + 1
+        d1 = ((np.int64(hi1) - lo1) >> lvl) + 1
+        d2 = ((np.int64(hi2) - lo2) >> lvl) + 1
+        lower[b, 0] = lo0
+        lower[b, 1] = lo1
+        lower[b, 2] = lo2
+        level[b] = lvl
+        dims[b, 0] = d0
+        dims[b, 1] = d1
+        dims[b, 2] = d2
+        for p in range(s, e):
+            i = (np.int64(rec[p, 0]) - lo0) >> lvl
+            j = (np.int64(rec[p, 1]) - lo1) >> lvl
+            k = (np.int64(rec[p, 2]) - lo2) >> lvl
+            # x fastest, then y, then z (schema.Bricks).
+            source[s + i + d0 * (j + d1 * k)] = rec[p, _ID]
+
+
+@numba.njit(cache=True, parallel=True)
+def _gather(values, source):
+    """values[:, source]: float32 (F, N) from float32 (F, N) and int32 (N,)."""
+    out = np.empty((values.shape[0], source.shape[0]), values.dtype)
+    for f in range(values.shape[0]):
+        row = values[f]
+        dest = out[f]
+        for p in numba.prange(source.shape[0]):
+            dest[p] = row[source[p]]
+    return out
+
+
+def build_bricks(cells: schema.Cells, *, max_brick_width: int = 32) -> schema.Bricks:
+    """Bricks of same-level cells that completely fill their box (paper §3.1).
+
+    cells: schema.Cells with N >= 1 non-overlapping cells.
+    max_brick_width: most cells per axis of a brick (the paper uses 32).
+    Returns schema.Bricks in k-d leaf order, with the same fields and world
+    frame; its values hold every cell's values once (V == N).  meta holds only
+    "statistics" (see `statistics`), for the command to merge into its meta.
+    Raises ExabricksError for no cells, a width below 1, or overlapping cells.
+    """
+    if max_brick_width < 1:
+        raise ExabricksError(f"max brick width must be at least 1, got {max_brick_width}")
+    n = cells.n_cells
+    if n == 0:
+        raise ExabricksError("no cells")
+    if n >= np.iinfo(np.int32).max:
+        raise ExabricksError(f"{n} cells: at most {np.iinfo(np.int32).max - 1} are supported")
+    threads = numba.get_num_threads()
+    rec, root = _pack(cells.lower_lattice, cells.level, 4 * threads)
+    brick_end = np.full(n, -1, np.int32)
+    width = np.int64(max_brick_width)
+    if threads > 1 and n >= _PARALLEL_MIN_CELLS:
+        # Split the top of the tree level by level, then build the subtrees in parallel.
+        pending, s, e = _build_top(rec, root, width, brick_end, threads * _TASKS_PER_THREAD)
+        if s < 0 and pending.shape[0]:
+            # Largest subtrees first, one at a time to whichever thread is free.
+            tasks = np.ascontiguousarray(pending[np.argsort(pending[:, _START] - pending[:, _END],
+                                                            kind="stable")])
+            with numba.parallel_chunksize(1):
+                overlap = _build_subtrees(rec, tasks, width, brick_end)
+            found = np.flatnonzero(overlap[:, 0] >= 0)
+            if found.size:
+                s, e = overlap[found[0]]
+    else:
+        s, e = _build_subtree(rec, root[0], width, brick_end)
+    if s >= 0:
+        raise ExabricksError(_overlap_message(rec[s:e]))
+
+    starts = np.flatnonzero(brick_end >= 0)
+    ends = brick_end[starts].astype(np.int64)
+    b = starts.shape[0]
+    lower = np.empty((b, 3), LATTICE_DTYPE)
+    level = np.empty(b, LEVEL_DTYPE)
+    dims = np.empty((b, 3), LATTICE_DTYPE)
+    source = np.empty(n, np.int32)
+    _place(rec, starts.astype(np.int64), ends, lower, level, dims, source)
+    del rec, brick_end
+    values = _gather(np.ascontiguousarray(cells.values, dtype=VALUE_DTYPE), source)
+    return schema.Bricks(
+        fields=cells.fields, origin_world=cells.origin_world, spacing_world=cells.spacing_world,
+        meta={"statistics": statistics(level, dims)},
+        lower_lattice=lower, level=level, dims=dims,
+        # A full brick holds exactly its run of cells, so its offset is the run's start.
+        offset=starts.astype(OFFSET_DTYPE), values=values,
+    )
+
+
+def statistics(level: np.ndarray, dims: np.ndarray) -> dict:
+    """Brick counts for meta: bricks, bricks per level, cells per brick.
+
+    level: int8 (B,); dims: int32 (B, 3).  `cells_per_brick_histogram` lists
+    [k, count] pairs for the powers of two k: count bricks hold k <= cells < 2k
+    (a list, so that it stays in order in sorted JSON).
+    """
+    cells = dims.astype(np.int64).prod(axis=1)
+    per_level = np.bincount(level.astype(np.int64))
+    bins = np.bincount(np.floor(np.log2(np.maximum(cells, 1))).astype(np.int64))
+    return {
+        "bricks": int(level.shape[0]),
+        "cells": int(cells.sum()),
+        "bricks_per_level": {str(l): int(c) for l, c in enumerate(per_level) if c},
+        "cells_per_brick_histogram": [[1 << k, int(c)] for k, c in enumerate(bins) if c],
+        "mean_cells_per_brick": float(cells.mean()) if cells.size else 0.0,
+        "max_cells_per_brick": int(cells.max()) if cells.size else 0,
+    }
+
+
+def _overlap_message(run: np.ndarray) -> str:
+    """Name two overlapping cells of a node that no plane can split (int32 (n, 5) rows)."""
+    coarse = int(np.argmax(run[:, _LEVEL]))
+    other = 1 if coarse == 0 else 0
+    a, b = run[coarse], run[other]
+    return (
+        f"cells overlap: cell {int(a[_ID])} at {a[:3].tolist()} level {int(a[_LEVEL])} and "
+        f"cell {int(b[_ID])} at {b[:3].tolist()} level {int(b[_LEVEL])}"
+    )

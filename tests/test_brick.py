@@ -1,0 +1,352 @@
+"""`exabricks brick` (paper §3.1): exact small cases, random layouts, real data, the CLI.
+
+Every result is checked against a brute-force NumPy expansion of the bricks
+back into cells (`check_bricks`), independent of the numba build.
+"""
+
+from __future__ import annotations
+
+import importlib
+import json
+import os
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from exabricks import schema
+from exabricks.errors import ExabricksError
+from exabricks.stages.brick import build_bricks
+
+from amr_strategies import amr_cells, make_cells, refine_octree
+from conftest import AMREX, ATHENA, ENZO, GERRIS, LEAF_COUNTS, assert_one_error_line, run_cli
+
+HYPOTHESIS_EXAMPLES = int(os.environ.get("EXABRICKS_HYPOTHESIS_EXAMPLES", "200"))
+
+
+# ---------------------------------------------------------------------------
+# independent reference checks
+
+
+def make(cells_lower, cells_level, values=None) -> schema.Cells:
+    """Cells from lists; one field "v" = 0, 1, 2, ... unless given."""
+    lower = np.array(cells_lower, np.int32).reshape(-1, 3)
+    level = np.array(cells_level, np.int8)
+    if values is None:
+        values = np.arange(len(level), dtype=np.float32)[None]
+    return schema.Cells(
+        fields=tuple(f"f{i}" for i in range(len(values))), origin_world=np.zeros(3),
+        spacing_world=np.ones(3), lower_lattice=lower, level=level,
+        values=np.asarray(values, np.float32),
+    )
+
+
+def expand(bricks: schema.Bricks) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Every cell stored in `bricks`: int64 (V, 4) (x, y, z, level), float32 (F, V), brick ids (V,)."""
+    n = bricks.dims.astype(np.int64).prod(axis=1)
+    brick = np.repeat(np.arange(bricks.n_bricks), n)
+    local = np.arange(n.sum()) - np.repeat(np.cumsum(n) - n, n)
+    d = bricks.dims.astype(np.int64)[brick]
+    ijk = np.stack([local % d[:, 0], (local // d[:, 0]) % d[:, 1], local // (d[:, 0] * d[:, 1])], 1)
+    width = (np.int64(1) << bricks.level.astype(np.int64))[brick]
+    xyz = bricks.lower_lattice.astype(np.int64)[brick] + ijk * width[:, None]
+    slot = bricks.offset[brick] + local  # x fastest, then y, then z
+    return np.column_stack([xyz, bricks.level[brick]]), bricks.values[:, slot], brick
+
+
+def by_key(keys: np.ndarray) -> np.ndarray:
+    return np.lexsort(keys.T[::-1])
+
+
+def assert_disjoint(lower: np.ndarray, upper: np.ndarray) -> None:
+    """No two boxes [lower, upper) share volume (sweep along x, then exact tests)."""
+    order = np.argsort(lower[:, 0], kind="stable")
+    lo, hi = lower[order], upper[order]
+    stop = np.searchsorted(lo[:, 0], hi[:, 0], side="left")
+    count = stop - np.arange(len(lo)) - 1
+    i = np.repeat(np.arange(len(lo)), count)
+    j = i + 1 + (np.arange(count.sum()) - np.repeat(np.cumsum(count) - count, count))
+    overlap = np.all((lo[i] < hi[j]) & (lo[j] < hi[i]), axis=1)
+    assert not overlap.any(), (order[i[overlap][:3]], order[j[overlap][:3]])
+
+
+def check_bricks(cells: schema.Cells, bricks: schema.Bricks, max_brick_width: int) -> None:
+    """The §3.1 contract: the bricks hold exactly the input cells, with their values."""
+    schema.validate(bricks)
+    assert bricks.fields == cells.fields
+    np.testing.assert_array_equal(bricks.origin_world, cells.origin_world)
+    np.testing.assert_array_equal(bricks.spacing_world, cells.spacing_world)
+    assert bricks.dims.min() >= 1 and bricks.dims.max() <= max_brick_width
+    # Each brick slot is one (x, y, z, level) cell; matching the input multiset
+    # one to one means: every cell lands in exactly one brick, every brick is
+    # completely full of same-level cells, and the bricks cover exactly the cells.
+    keys, values, _ = expand(bricks)
+    want = np.column_stack([cells.lower_lattice.astype(np.int64), cells.level])
+    assert keys.shape == want.shape
+    a, b = by_key(keys), by_key(want)
+    np.testing.assert_array_equal(keys[a], want[b])
+    np.testing.assert_array_equal(values[:, a], cells.values[:, b])
+    width = (np.int64(1) << bricks.level.astype(np.int64))[:, None]
+    assert_disjoint(bricks.lower_lattice.astype(np.int64),
+                    bricks.lower_lattice + bricks.dims.astype(np.int64) * width)
+    s = bricks.meta["statistics"]
+    assert s["bricks"] == bricks.n_bricks and s["cells"] == cells.n_cells
+    assert sum(s["bricks_per_level"].values()) == bricks.n_bricks
+    hist = np.array(s["cells_per_brick_histogram"]).reshape(-1, 2)
+    n_cells = bricks.dims.astype(np.int64).prod(axis=1)
+    for k, count in hist:  # bins [k, 2k), powers of two in increasing order
+        assert count == np.count_nonzero((n_cells >= k) & (n_cells < 2 * k)) > 0
+    assert hist[:, 1].sum() == bricks.n_bricks and np.all(np.diff(np.log2(hist[:, 0])) >= 1)
+    assert s["mean_cells_per_brick"] == pytest.approx(cells.n_cells / bricks.n_bricks)
+
+
+def brick_set(bricks: schema.Bricks) -> set:
+    """{(lower, level, dims, values of field 0 in storage order)} for exact comparisons."""
+    out = set()
+    for b in range(bricks.n_bricks):
+        n = int(bricks.dims[b].prod())
+        v = bricks.values[0, bricks.offset[b]: bricks.offset[b] + n]
+        out.add((tuple(bricks.lower_lattice[b].tolist()), int(bricks.level[b]),
+                 tuple(bricks.dims[b].tolist()), tuple(v.tolist())))
+    return out
+
+
+# ---------------------------------------------------------------------------
+# (1) tiny hand-built inputs with exact answers
+
+
+def two_level_cells() -> schema.Cells:
+    """A 2x2x2 block of level-1 cells whose (0,0,0) corner is refined into 8 level-0 cells.
+
+    Values: the 8 fine cells 0..7 (x fastest), then the coarse cells 8..14 in
+    x-fastest order: 8 (2,0,0), 9 (0,2,0), 10 (2,2,0), 11 (0,0,2), 12 (2,0,2),
+    13 (0,2,2), 14 (2,2,2).
+    """
+    lower = [(i, j, k) for k in range(2) for j in range(2) for i in range(2)]
+    lower += [(2 * i, 2 * j, 2 * k) for k in range(2) for j in range(2) for i in range(2)][1:]
+    return make(lower, [0] * 8 + [1] * 7)
+
+
+def test_two_levels_exact():
+    # Root box [0,4)^3, coarsest width 2: split x at 2 -> the x>=2 half is a full
+    # 1x2x2 level-1 brick.  The x<2 half splits y at 2 (longest axes y, z tie:
+    # y first) -> (0,2,0) and (0,2,2) make a 1x1x2 brick; the y<2 part splits z
+    # at 2 -> the 2x2x2 fine block and the lone (0,0,2) cell.
+    bricks = build_bricks(two_level_cells())
+    assert brick_set(bricks) == {
+        ((0, 0, 0), 0, (2, 2, 2), (0, 1, 2, 3, 4, 5, 6, 7)),
+        ((0, 0, 2), 1, (1, 1, 1), (11,)),
+        ((0, 2, 0), 1, (1, 1, 2), (9, 13)),
+        ((2, 0, 0), 1, (1, 2, 2), (8, 10, 12, 14)),
+    }
+    s = bricks.meta["statistics"]
+    assert s["bricks_per_level"] == {"0": 1, "1": 3}
+    assert s["cells_per_brick_histogram"] == [[1, 1], [2, 1], [4, 1], [8, 1]]
+    assert s["mean_cells_per_brick"] == 15 / 4
+    check_bricks(two_level_cells(), bricks, 32)
+
+
+def test_width_limit_and_rounded_split():
+    # Five level-1 cells in a row, box [0,10): middle 5 rounds to 6 (a multiple
+    # of the width 2); [0,6) is 3 cells wide > 2, so it splits at 4.
+    cells = make([(0, 0, 0), (2, 0, 0), (4, 0, 0), (6, 0, 0), (8, 0, 0)], [1] * 5)
+    assert brick_set(build_bricks(cells, max_brick_width=2)) == {
+        ((0, 0, 0), 1, (2, 1, 1), (0, 1)),
+        ((4, 0, 0), 1, (1, 1, 1), (2,)),
+        ((6, 0, 0), 1, (2, 1, 1), (3, 4)),
+    }
+    assert brick_set(build_bricks(cells)) == {((0, 0, 0), 1, (5, 1, 1), (0, 1, 2, 3, 4))}
+    single = brick_set(build_bricks(cells, max_brick_width=1))
+    assert single == {((2 * i, 0, 0), 1, (1, 1, 1), (i,)) for i in range(5)}
+
+
+def test_hole_is_not_bricked_over():
+    # Level-0 cells at x = 0, 1, 3: the box [0,4) is not full; split at 2.
+    cells = make([(3, 0, 0), (0, 0, 0), (1, 0, 0)], [0, 0, 0])
+    assert brick_set(build_bricks(cells)) == {
+        ((0, 0, 0), 0, (2, 1, 1), (1, 2)),
+        ((3, 0, 0), 0, (1, 1, 1), (0,)),
+    }
+
+
+def test_level_jump_of_two():
+    # A 4^3 block of level-0 cells next to one level-2 cell (width 4).
+    fine = [(i, j, k) for k in range(4) for j in range(4) for i in range(4)]
+    order = np.random.default_rng(1).permutation(65)
+    lower = np.array([(4, 0, 0)] + fine)[order]
+    level = np.array([2] + [0] * 64)[order]
+    bricks = build_bricks(make(lower, level, values=[order.astype(np.float32)]))
+    assert brick_set(bricks) == {
+        ((0, 0, 0), 0, (4, 4, 4), tuple(float(v) for v in range(1, 65))),
+        ((4, 0, 0), 2, (1, 1, 1), (0.0,)),
+    }
+
+
+def test_single_cell_and_negative_lattice():
+    bricks = build_bricks(make([(-8, 16, -24)], [3], values=[[2.5], [-1.0]]))
+    assert brick_set(bricks) == {((-8, 16, -24), 3, (1, 1, 1), (2.5,))}
+    assert bricks.values[:, 0].tolist() == [2.5, -1.0] and bricks.offset.tolist() == [0]
+
+
+def test_bad_input_raises():
+    with pytest.raises(ExabricksError, match="no cells"):
+        build_bricks(make(np.zeros((0, 3)), []))
+    with pytest.raises(ExabricksError, match="at least 1"):
+        build_bricks(two_level_cells(), max_brick_width=0)
+    # A fine cell inside a coarse one: no plane can separate them.
+    with pytest.raises(ExabricksError, match="overlap"):
+        build_bricks(make([(0, 0, 0), (2, 2, 2), (8, 0, 0)], [2, 0, 0]))
+    with pytest.raises(ExabricksError, match="overlap"):
+        build_bricks(make([(0, 0, 0), (1, 0, 0), (0, 0, 0)], [0, 0, 0]))
+
+
+# ---------------------------------------------------------------------------
+# (2) properties on random valid AMR layouts
+
+
+def test_generator_makes_valid_varied_layouts():
+    """The strategy's layouts are valid (aligned, disjoint) and cover the cases we want."""
+    rng = np.random.default_rng(7)
+    lower, level = refine_octree(
+        rng, root_level=4, root_grid=(3, 2, 2), root_fill=1.0, refine=0.5, hole=0.1,
+        clustered=False, base_depth=0, max_cells=3000, offset=(-1, 0, 2),
+    )
+    cells = make_cells(lower, level, rng)
+    schema.validate(cells)
+    width = (np.int64(1) << cells.level.astype(np.int64))[:, None]
+    assert_disjoint(cells.lower_lattice.astype(np.int64), cells.lower_lattice + width)
+    assert len(np.unique(cells.level)) >= 4 and 1000 < cells.n_cells <= 3000 + 12
+    assert cells.lower_lattice.min() < 0
+
+
+@settings(max_examples=HYPOTHESIS_EXAMPLES, deadline=None,
+          suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large])
+@given(cells=amr_cells(), max_brick_width=st.sampled_from([1, 2, 3, 4, 8, 32]))
+def test_random_layouts(cells, max_brick_width):
+    bricks = build_bricks(cells, max_brick_width=max_brick_width)
+    check_bricks(cells, bricks, max_brick_width)
+
+
+def test_parallel_build_matches_serial(monkeypatch):
+    """Above the parallel threshold the build runs in subtrees; same bricks as serial."""
+    rng = np.random.default_rng(3)
+    lower, level = refine_octree(
+        rng, root_level=5, root_grid=(6, 5, 4), root_fill=0.9, refine=0.6, hole=0.05,
+        clustered=True, base_depth=0, max_cells=60_000, offset=(0, 0, 0),
+    )
+    cells = make_cells(lower, level, rng)
+    brick = importlib.import_module("exabricks.stages.brick")
+    monkeypatch.setattr(brick, "_PARALLEL_MIN_CELLS", 1)
+    monkeypatch.setattr(brick.numba, "get_num_threads", lambda: 2)
+    parallel = build_bricks(cells, max_brick_width=8)
+    monkeypatch.setattr(brick, "_PARALLEL_MIN_CELLS", 1 << 40)
+    serial = build_bricks(cells, max_brick_width=8)
+    check_bricks(cells, parallel, 8)
+    for name in schema.Bricks.SPECS:
+        np.testing.assert_array_equal(getattr(parallel, name), getattr(serial, name))
+
+
+def test_pure_python_matches_compiled(tmp_path):
+    """NUMBA_DISABLE_JIT=1 runs the same code as plain Python: identical bricks."""
+    rng = np.random.default_rng(11)
+    lower, level = refine_octree(
+        rng, root_level=3, root_grid=(3, 3, 2), root_fill=0.8, refine=0.5, hole=0.1,
+        clustered=False, base_depth=0, max_cells=1500, offset=(0, 0, 0),
+    )
+    cells = make_cells(lower, level, rng)
+    schema.save(tmp_path / "cells.npz", cells)
+    script = (
+        "import sys; from exabricks import schema; from exabricks.stages.brick import build_bricks;"
+        "schema.save(sys.argv[2], build_bricks(schema.load(sys.argv[1], 'cells'), max_brick_width=4))"
+    )
+    subprocess.run([sys.executable, "-c", script, tmp_path / "cells.npz", tmp_path / "py.npz"],
+                   check=True, env={**os.environ, "NUMBA_DISABLE_JIT": "1"})
+    python = schema.load(tmp_path / "py.npz", "bricks")
+    compiled = build_bricks(cells, max_brick_width=4)
+    for name in schema.Bricks.SPECS:
+        np.testing.assert_array_equal(getattr(python, name), getattr(compiled, name))
+
+
+# ---------------------------------------------------------------------------
+# (3) real datasets
+
+
+def gerris_cells() -> schema.Cells:
+    """The Gerris plume read directly from its ExaJet files (independent of the readers)."""
+    raw = np.fromfile(GERRIS, dtype="<i4").reshape(-1, 4)
+    fields = ("T", "U", "V", "W", "P")
+    values = np.stack([np.fromfile(GERRIS.with_name(f"plume7-1.{f}.scalars"), dtype="<f4")
+                       for f in fields])
+    return schema.Cells(
+        fields=fields, origin_world=np.zeros(3), spacing_world=np.ones(3),
+        lower_lattice=np.ascontiguousarray(raw[:, :3]), level=raw[:, 3].astype(np.int8),
+        values=values,
+    )
+
+
+def test_gerris_plume():
+    cells = gerris_cells()
+    assert cells.n_cells == LEAF_COUNTS["gerris"]
+    bricks = build_bricks(cells)
+    check_bricks(cells, bricks, 32)
+    assert set(bricks.meta["statistics"]["bricks_per_level"]) == {"0", "1", "2", "3", "4"}
+    narrow = build_bricks(cells, max_brick_width=4)
+    check_bricks(cells, narrow, 4)
+    assert narrow.n_bricks > bricks.n_bricks
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name, path", [("gerris", GERRIS), ("amrex", AMREX),
+                                        ("athena", ATHENA), ("enzo", ENZO)])
+def test_real_datasets_through_readers(name, path):
+    if name == "enzo":
+        pytest.importorskip("yt")
+    from exabricks.readers import read
+
+    cells = read(path)
+    assert cells.n_cells == LEAF_COUNTS[name]
+    check_bricks(cells, build_bricks(cells), 32)
+    if name == "gerris":  # the reader and the direct read give the same bricks
+        direct = build_bricks(gerris_cells())
+        assert brick_set(direct) == brick_set(build_bricks(cells.replace(
+            values=cells.values[[cells.fields.index(f) for f in direct.fields]],
+            fields=direct.fields)))
+
+
+# ---------------------------------------------------------------------------
+# (4) the command
+
+
+def test_cli_round_trip(tmp_path):
+    schema.save(tmp_path / "cells.npz", gerris_cells().replace(meta=schema.make_meta()))
+    out = tmp_path / "bricks.npz"
+    run_cli("brick", tmp_path / "cells.npz", "-o", out, "--max-brick-width", "16", check=0)
+    bricks = schema.load(out, "bricks")
+    check_bricks(gerris_cells(), bricks, 16)
+    assert bricks.meta["parameters"] == {"max_brick_width": 16}
+    assert bricks.meta["inputs"][0]["path"].endswith("cells.npz")
+    assert bricks.meta["statistics"]["bricks"] == bricks.n_bricks
+    info = run_cli("info", out, "--json", check=0)
+    assert json.loads(info.stdout)["counts"]["bricks"] == bricks.n_bricks
+
+
+def test_cli_refuses_wrong_kind_and_bad_width(tmp_path):
+    cells = two_level_cells()
+    schema.save(tmp_path / "cells.npz", cells)
+    schema.save(tmp_path / "bricks.npz", build_bricks(cells))
+    proc = run_cli("brick", tmp_path / "bricks.npz", "-o", tmp_path / "out.npz")
+    assert_one_error_line(proc, "bricks.npz", "expected a cells file")
+    proc = run_cli("brick", tmp_path / "cells.npz", "-o", tmp_path / "out.npz",
+                   "--max-brick-width", "0")
+    assert proc.returncode == 2 and "max-brick-width" in proc.stderr
+    assert not (tmp_path / "out.npz").exists()
+
+
+def test_cli_empty_input_names_the_file(tmp_path):
+    schema.save(tmp_path / "empty.npz", make(np.zeros((0, 3)), []))
+    proc = run_cli("brick", tmp_path / "empty.npz", "-o", tmp_path / "out.npz")
+    assert_one_error_line(proc, "empty.npz", "no cells")
+    assert not (tmp_path / "out.npz").exists()
