@@ -1,0 +1,63 @@
+"""`exabricks bvh REGIONS -o BVH`: BVH over the Active Brick Regions (paper §3.3)."""
+
+from __future__ import annotations
+
+import click
+
+from .. import schema
+from ..errors import ExabricksError
+from .options import input_path, output_option
+
+
+@click.command()
+@input_path("regions_path", metavar="REGIONS")
+@output_option
+@click.option("--leaf-size", default=4, show_default=True, type=click.IntRange(min=1),
+              help="Most regions per BVH leaf.")
+@click.option("--bins", default=16, show_default=True, type=click.IntRange(min=2),
+              help="SAH bins per axis.")
+def bvh(regions_path, output, leaf_size, bins):
+    """Build a bounding-volume hierarchy with per-node value ranges over the regions."""
+    from ..stages.bvh import build_bvh
+
+    regions = schema.load(regions_path, "regions")
+    check_regions(regions, regions_path)
+    try:
+        result = build_bvh(regions, leaf_size=leaf_size, bins=bins)
+    except ExabricksError as e:
+        raise ExabricksError(f"{regions_path}: {e}") from e
+    upstream = regions.meta.get("consistency") or {}
+    meta = schema.make_meta(
+        inputs=[regions_path],
+        parameters={"leaf_size": leaf_size, "bins": bins},
+        statistics=result.meta["statistics"],
+        consistency={
+            "n_regions": regions.n_regions,
+            "n_bricks": upstream.get("n_bricks"),
+            # The bricks file the regions were built from (sha256 chain).
+            "bricks_inputs": regions.meta.get("inputs", []),
+        },
+    )
+    schema.save(output, result.replace(meta=meta))
+
+
+def check_regions(regions: schema.Regions, path) -> None:
+    """Refuse a regions file whose counts disagree with its own provenance."""
+    upstream = regions.meta.get("consistency")
+    if not isinstance(upstream, dict) or "n_bricks" not in upstream:
+        raise ExabricksError(
+            f"{path}: regions file has no meta['consistency']['n_bricks']; "
+            "rebuild it with `exabricks regions`"
+        )
+    n_bricks = upstream["n_bricks"]
+    if upstream.get("n_regions") != regions.n_regions:
+        raise ExabricksError(
+            f"{path}: holds {regions.n_regions} regions but its meta records "
+            f"{upstream.get('n_regions')}; the file is inconsistent"
+        )
+    ids = regions.brick_ids
+    if ids.size and (int(ids.min()) < 0 or int(ids.max()) >= n_bricks):
+        raise ExabricksError(
+            f"{path}: brick ids range over {int(ids.min())}..{int(ids.max())}, "
+            f"outside the {n_bricks} bricks its meta records"
+        )

@@ -1,0 +1,547 @@
+"""Active Brick Regions (paper §3.2.3): split space where brick supports begin or end.
+
+A brick's *support* is its box grown by half its cell width on every side (the
+region where the hat functions of its cells are non-zero, paper §3.2.2).  The
+superposition of all supports partitions space into pieces in which the set of
+active bricks is constant; a top-down partition along support faces cuts those
+pieces into disjoint boxes; boxes that touch face to face with the same active
+bricks are then merged again (the k-d cuts run through whole regions, also
+where nothing changes), giving the Active Brick Regions.  Each region records the
+bricks whose support overlaps it, the value range of every cell whose support
+overlaps it (space skipping, paper §4.1) and the finest level among its bricks
+(adaptive sampling, paper §4.2).
+
+All geometry here is in *doubled* lattice units (int64 for supports, int32 for
+region bounds, which are checked to stay within 2**24): a support bound sits on
+a half-integer lattice position, so twice it is an exact integer.
+"""
+
+from __future__ import annotations
+
+import numba
+import numpy as np
+
+from .. import schema
+from ..constants import BOUNDS_DTYPE, INDEX_DTYPE, OFFSET_DTYPE
+from ..errors import ExabricksError
+
+# float32 holds every half-integer exactly up to 2**23, i.e. doubled coordinates up to 2**24.
+_MAX_DOUBLED = 1 << 24
+
+
+def build_regions(bricks: schema.Bricks) -> schema.Regions:
+    """Active Brick Regions of `bricks`; statistics (paper Table 1) in meta["statistics"].
+
+    Returns a `schema.Regions` whose regions are disjoint, cover exactly the
+    union of brick supports, and list (ascending) exactly the bricks whose
+    support overlaps them.  Bounds are float32 lattice units (half-integers).
+    value_range (R, F, 2) float32 is the min/max over every cell whose support
+    overlaps the region (NaN values ignored; NaN if no cell has a number).
+    """
+    n = bricks.n_bricks
+    if n == 0:
+        raise ExabricksError("the bricks contain no cells; there is nothing to build regions for")
+    sup_lo, sup_hi = support_boxes_doubled(bricks)
+    if max(-int(sup_lo.min()), int(sup_hi.max())) > _MAX_DOUBLED:
+        raise ExabricksError(
+            f"brick supports reach lattice coordinate {max(-int(sup_lo.min()), int(sup_hi.max())) / 2}, "
+            f"beyond {_MAX_DOUBLED // 2}, where float32 region bounds stop being exact"
+        )
+    lo2, hi2, brick_start, brick_ids = partition(sup_lo, sup_hi)
+    n_partition = lo2.shape[0]
+    lo2, hi2, brick_start, brick_ids = _coalesce(lo2, hi2, brick_start, brick_ids)
+    lower = np.ascontiguousarray(bricks.lower_lattice, dtype=np.int64)
+    dims = np.ascontiguousarray(bricks.dims, dtype=np.int64)
+    width = np.left_shift(np.int64(1), bricks.level.astype(np.int64))
+    values = np.ascontiguousarray(bricks.values)
+    value_range, finest = _leaf_ranges(
+        lo2, hi2, brick_start, brick_ids, lower, dims, width,
+        bricks.offset, values, bricks.level,
+    )
+    regions = schema.Regions(
+        fields=bricks.fields,
+        origin_world=bricks.origin_world.copy(),
+        spacing_world=bricks.spacing_world.copy(),
+        lower_lattice=(lo2 * 0.5).astype(BOUNDS_DTYPE),
+        upper_lattice=(hi2 * 0.5).astype(BOUNDS_DTYPE),
+        brick_start=brick_start.astype(OFFSET_DTYPE, copy=False),
+        brick_ids=brick_ids.astype(INDEX_DTYPE, copy=False),
+        value_range=value_range,
+        finest_level=finest,
+    )
+    stats = region_statistics(regions, lo2, hi2)
+    stats["n_bricks"] = n
+    stats["n_partition_leaves"] = n_partition
+    return regions.replace(meta={"statistics": stats})
+
+
+def partition(sup_lo, sup_hi, *, threads: int | None = None):
+    """The k-d partition of the supports (paper §3.2.3), subtrees built on threads.
+
+    sup_lo, sup_hi: int64 (B, 3) support boxes, doubled lattice units.
+    Returns leaf bounds lo, hi int32 (R, 3) (doubled), CSR start int64 (R + 1,)
+    and ids int32 (K,).  The top of the tree is split breadth first here
+    until there are enough subtrees; those run in _partition (which releases
+    the GIL) and their leaves are concatenated in subtree order, so the result
+    does not depend on the number of threads.
+    """
+    threads = numba.get_num_threads() if threads is None else threads
+    n = sup_lo.shape[0]
+    # The task count depends only on the input size, never on the thread count.
+    want = 1 if n < 20_000 else 64
+    queue = [(sup_lo.min(axis=0), sup_hi.max(axis=0), np.arange(n, dtype=np.int32))]
+    tasks = []  # regions the top phase finds to be leaves stay tasks: _partition emits them
+    while queue and len(queue) + len(tasks) < want:
+        lo, hi, ids = queue.pop(0)
+        axis, plane = _split_plane(sup_lo, sup_hi, ids, lo, hi)
+        if axis < 0:
+            tasks.append((lo, hi, ids))
+            continue
+        right = ids[sup_hi[ids, axis] > plane]
+        left = ids[sup_lo[ids, axis] < plane]
+        if right.size:  # children with no fragment lie outside every support: dropped
+            rlo = lo.copy()
+            rlo[axis] = plane
+            queue.append((rlo, hi, right))
+        if left.size:
+            lhi = hi.copy()
+            lhi[axis] = plane
+            queue.append((lo, lhi, left))
+    tasks += queue
+
+    def run(task):
+        return _partition(sup_lo, sup_hi, *task)
+
+    if threads > 1 and len(tasks) > 1:
+        from concurrent.futures import ThreadPoolExecutor
+
+        with ThreadPoolExecutor(max_workers=threads) as pool:
+            # biggest first for load balance; results are put back in task order
+            order = sorted(range(len(tasks)), key=lambda t: -tasks[t][2].size)
+            futures = {t: pool.submit(run, tasks[t]) for t in order}
+            parts = [futures[t].result() for t in range(len(tasks))]
+    else:
+        parts = [run(t) for t in tasks]
+    if len(parts) == 1:
+        return parts[0]
+    lo2 = np.concatenate([p[0] for p in parts])
+    hi2 = np.concatenate([p[1] for p in parts])
+    ids = np.concatenate([p[3] for p in parts])
+    counts = np.concatenate([np.diff(p[2]) for p in parts])
+    start = np.zeros(counts.size + 1, np.int64)
+    np.cumsum(counts, out=start[1:])
+    return lo2, hi2, start, ids
+
+
+def _coalesce(lo2, hi2, start, ids):
+    """Merge face-adjacent regions with the same brick list into one box.
+
+    The k-d partition (paper §3.2.3) cuts every region crossing a split plane,
+    also where the active bricks do not change, so one ABR piece ends up in
+    several boxes.  Two boxes with the same brick list that share a whole face
+    form a box in which that list is still exactly the set of active bricks
+    (each listed support covers both halves, no other support reaches
+    either), so they are merged.  Sweeps along x, y, z repeat while they still
+    remove at least 5% of the regions (the first round does nearly all).
+    Arguments and result: doubled bounds int32 (R, 3) and the CSR brick lists;
+    `hi2` is updated in place.
+    """
+    alive = np.ones(lo2.shape[0], np.bool_)
+    set_hash = _list_hashes(start, ids)
+    n_alive = lo2.shape[0]
+    for _ in range(8):
+        merged = 0
+        for axis in range(3):
+            merged += _merge_axis(lo2, hi2, start, ids, set_hash, alive, axis)
+        n_alive -= merged
+        if merged < 0.05 * n_alive:
+            break
+    keep = np.flatnonzero(alive)
+    counts = np.diff(start)[keep]
+    new_start = np.zeros(keep.shape[0] + 1, np.int64)
+    np.cumsum(counts, out=new_start[1:])
+    new_ids = _gather_lists(keep, start, ids, new_start)
+    return lo2[keep], hi2[keep], new_start, new_ids
+
+
+def support_boxes_doubled(bricks: schema.Bricks) -> tuple[np.ndarray, np.ndarray]:
+    """Support box of every brick in doubled lattice units.
+
+    Returns (lo, hi), each int64 (B, 3): lo = 2*lower - w, hi = 2*(lower + dims*w) + w
+    with w = 2**level, i.e. the brick box grown by w/2 on every side.
+    """
+    w = np.left_shift(np.int64(1), bricks.level.astype(np.int64))[:, None]
+    lower = bricks.lower_lattice.astype(np.int64)
+    upper = lower + bricks.dims.astype(np.int64) * w
+    return 2 * lower - w, 2 * upper + w
+
+
+def region_statistics(regions: schema.Regions, lo2=None, hi2=None) -> dict:
+    """Paper Table 1: region count, bricks per region (by count, by volume, max), bytes."""
+    counts = np.diff(regions.brick_start)
+    if lo2 is None:
+        lo2 = regions.lower_lattice.astype(np.float64) * 2
+        hi2 = regions.upper_lattice.astype(np.float64) * 2
+    vol = np.prod((hi2 - lo2).astype(np.float64), axis=1)
+    total = float(vol.sum())
+    return {
+        "n_regions": regions.n_regions,
+        "avg_bricks_per_region_by_count": float(counts.mean()) if counts.size else 0.0,
+        "avg_bricks_per_region_by_volume": float((counts * vol).sum() / total) if total else 0.0,
+        "max_bricks_per_region": int(counts.max()) if counts.size else 0,
+        "region_brick_refs": int(regions.brick_ids.shape[0]),
+        "bytes": int(sum(a.nbytes for a in regions.arrays().values())),
+    }
+
+
+# ---------------------------------------------------------------------------
+# kernels
+
+
+@numba.njit(cache=True)
+def _grow(a, need):
+    """`a` with capacity at least `need` rows (doubling), contents kept."""
+    if need <= a.shape[0]:
+        return a
+    cap = max(need, 2 * a.shape[0])
+    out = np.empty((cap,) + a.shape[1:], a.dtype)
+    out[: a.shape[0]] = a
+    return out
+
+
+@numba.njit(cache=True, inline="always")
+def _choose_plane(sup_lo, sup_hi, buf, a, b, lo, hi, best, best_d, order):
+    """(axis, plane) to split region [lo, hi) with fragments buf[a:b]; axis -1: a leaf.
+
+    Candidates are the support faces strictly inside the region; per axis the
+    one closest to the centre (ties: the lower), and the widest axis that has
+    one, then the next widest (paper §3.2.3; ties by axis index).  Doubled
+    lattice units, distances doubled again to stay integer.  best, best_d,
+    order: int64 (3,) scratch arrays (no allocation per region).
+    """
+    for ax in range(3):
+        best_d[ax] = -1
+        order[ax] = ax
+    for k in range(a, b):
+        i = buf[k]
+        for ax in range(3):
+            c2 = lo[ax] + hi[ax]
+            for p in (sup_lo[i, ax], sup_hi[i, ax]):
+                if lo[ax] < p < hi[ax]:
+                    d = abs(2 * p - c2)
+                    if best_d[ax] < 0 or d < best_d[ax] or (d == best_d[ax] and p < best[ax]):
+                        best_d[ax] = d
+                        best[ax] = p
+    for s in range(3):
+        for t in range(2 - s):
+            if hi[order[t + 1]] - lo[order[t + 1]] > hi[order[t]] - lo[order[t]]:
+                tmp = order[t]
+                order[t] = order[t + 1]
+                order[t + 1] = tmp
+    for s in range(3):
+        if best_d[order[s]] >= 0:
+            return order[s], best[order[s]]
+    return -1, 0
+
+
+@numba.njit(cache=True)
+def _split_plane(sup_lo, sup_hi, ids, lo, hi):
+    """_choose_plane for one region with fragment list `ids` (int32): (axis, plane)."""
+    scratch = np.empty((3, 3), np.int64)
+    return _choose_plane(sup_lo, sup_hi, ids, 0, ids.shape[0], lo, hi,
+                         scratch[0], scratch[1], scratch[2])
+
+
+@numba.njit(cache=True, nogil=True)
+def _partition(sup_lo, sup_hi, root_lo, root_hi, root_ids):
+    """Top-down partition of one region into leaf regions (paper §3.2.3).
+
+    sup_lo, sup_hi: int64 (B, 3) support boxes in doubled lattice units;
+    root_lo, root_hi: int64 (3,) the region; root_ids: int32 the bricks whose
+    support overlaps it.  Releases the GIL, so subtrees build on threads.
+    Returns lo, hi int32 (R, 3) doubled region bounds, start int64 (R + 1,) and
+    ids int32 (K,) (CSR, ascending brick ids per region), all views of
+    over-allocated buffers.
+
+    A fragment is the part of a support inside the current region, so it is
+    kept as just the brick id: its faces strictly inside the region are the
+    support's own.  Fragment lists live in one buffer used as a stack: the
+    region popped last always owns the top of the buffer, and its children are
+    written back in its place (right list below, left list above), so the
+    buffer never holds more than the lists of the regions still pending.
+    """
+    n = root_ids.shape[0]
+    buf = np.empty(2 * n + 16, np.int32)
+    buf[:n] = root_ids
+    st_lo = np.empty((64, 3), np.int64)
+    st_hi = np.empty((64, 3), np.int64)
+    st_ab = np.empty((64, 2), np.int64)
+    st_lo[0] = root_lo
+    st_hi[0] = root_hi
+    st_ab[0, 0] = 0
+    st_ab[0, 1] = n
+    depth = 1
+
+    # int32 suffices: build_regions checks that doubled coordinates stay within 2**24
+    out_lo = np.empty((max(16, n), 3), np.int32)
+    out_hi = np.empty((max(16, n), 3), np.int32)
+    out_start = np.zeros(max(16, n) + 1, np.int64)
+    out_ids = np.empty(max(16, 4 * n), np.int32)
+    n_out = 0
+    n_ids = 0
+
+    lo = np.empty(3, np.int64)
+    hi = np.empty(3, np.int64)
+    best = np.empty(3, np.int64)
+    best_d = np.empty(3, np.int64)
+    order = np.empty(3, np.int64)
+    while depth > 0:
+        depth -= 1
+        for ax in range(3):
+            lo[ax] = st_lo[depth, ax]
+            hi[ax] = st_hi[depth, ax]
+        a = st_ab[depth, 0]
+        b = st_ab[depth, 1]
+
+        axis, plane = _choose_plane(sup_lo, sup_hi, buf, a, b, lo, hi, best, best_d, order)
+
+        if axis < 0:
+            # No support boundary inside: every listed support covers the whole region.
+            out_lo = _grow(out_lo, n_out + 1)
+            out_hi = _grow(out_hi, n_out + 1)
+            out_start = _grow(out_start, n_out + 2)
+            out_ids = _grow(out_ids, n_ids + (b - a))
+            for ax in range(3):
+                out_lo[n_out, ax] = lo[ax]
+                out_hi[n_out, ax] = hi[ax]
+            ids = np.sort(buf[a:b])
+            out_ids[n_ids : n_ids + (b - a)] = ids
+            n_ids += b - a
+            n_out += 1
+            out_start[n_out] = n_ids
+            continue
+
+        # Split at `plane`: right ids compacted in place at [a, a + nr), left ids
+        # collected above b, then moved down to follow the right ones.
+        buf = _grow(buf, b + (b - a))
+        nr = 0
+        nl = 0
+        for k in range(a, b):
+            i = buf[k]
+            if sup_lo[i, axis] < plane:
+                buf[b + nl] = i
+                nl += 1
+            if sup_hi[i, axis] > plane:
+                buf[a + nr] = i
+                nr += 1
+        for k in range(nl):
+            buf[a + nr + k] = buf[b + k]
+
+        # Children with no fragment lie outside every support: dropped.
+        st_lo = _grow(st_lo, depth + 2)
+        st_hi = _grow(st_hi, depth + 2)
+        st_ab = _grow(st_ab, depth + 2)
+        if nr > 0:
+            for ax in range(3):
+                st_lo[depth, ax] = lo[ax]
+                st_hi[depth, ax] = hi[ax]
+            st_lo[depth, axis] = plane
+            st_ab[depth, 0] = a
+            st_ab[depth, 1] = a + nr
+            depth += 1
+        if nl > 0:
+            for ax in range(3):
+                st_lo[depth, ax] = lo[ax]
+                st_hi[depth, ax] = hi[ax]
+            st_hi[depth, axis] = plane
+            st_ab[depth, 0] = a + nr
+            st_ab[depth, 1] = a + nr + nl
+            depth += 1
+    return out_lo[:n_out], out_hi[:n_out], out_start[: n_out + 1], out_ids[:n_ids]
+
+
+@numba.njit(cache=True)
+def _list_hashes(start, ids):
+    """FNV-1a hash of every region's brick list: int64 (R,)."""
+    r_count = start.shape[0] - 1
+    h = np.empty(r_count, np.int64)
+    for r in range(r_count):
+        x = np.uint64(1469598103934665603)
+        for k in range(start[r], start[r + 1]):
+            x = (x ^ np.uint64(ids[k])) * np.uint64(1099511628211)
+        h[r] = np.int64(x >> np.uint64(1))
+    return h
+
+
+@numba.njit(cache=True, inline="always")
+def _face_key(r, lo2, hi2, set_hash, axis, at):
+    """Hash of (brick list, bounds on the two other axes, coordinate `at` on `axis`)."""
+    x = np.uint64(set_hash[r])
+    for ax in range(3):
+        if ax != axis:
+            x = (x ^ np.uint64(lo2[r, ax])) * np.uint64(1099511628211)
+            x = (x ^ np.uint64(hi2[r, ax])) * np.uint64(1099511628211)
+    x = (x ^ np.uint64(at)) * np.uint64(1099511628211)
+    # splitmix64 finaliser: the table index takes the low bits, which FNV leaves
+    # poorly mixed when the coordinates are multiples of large powers of two.
+    x = (x ^ (x >> np.uint64(30))) * np.uint64(0xBF58476D1CE4E5B9)
+    x = (x ^ (x >> np.uint64(27))) * np.uint64(0x94D049BB133111EB)
+    return x ^ (x >> np.uint64(31))
+
+
+@numba.njit(cache=True)
+def _mergeable(a, q, lo2, hi2, start, ids, axis):
+    """Whether region q continues region a along `axis` with the same brick list."""
+    if lo2[q, axis] != hi2[a, axis]:
+        return False
+    for ax in range(3):
+        if ax != axis and (lo2[q, ax] != lo2[a, ax] or hi2[q, ax] != hi2[a, ax]):
+            return False
+    n = start[a + 1] - start[a]
+    if start[q + 1] - start[q] != n:
+        return False
+    for k in range(n):
+        if ids[start[a] + k] != ids[start[q] + k]:
+            return False
+    return True
+
+
+@numba.njit(cache=True, parallel=True)
+def _merge_axis(lo2, hi2, start, ids, set_hash, alive, axis):
+    """One sweep along `axis`: every chain of mergeable regions becomes its first region.
+
+    The successor of region a is the live region whose lower face is a's upper
+    face (same cross-section, same list; regions are disjoint, so there is at
+    most one), found through an open-addressing hash table of lower-face keys.
+    A table slot holds (key, region) side by side, so a probe touches one cache
+    line and a key mismatch needs no look at the region itself.  Returns the
+    number of regions merged away (marked dead in `alive`).
+    """
+    r_count = lo2.shape[0]
+    key_lo = np.empty(r_count, np.uint64)
+    key_hi = np.empty(r_count, np.uint64)
+    for r in numba.prange(r_count):
+        key_lo[r] = _face_key(r, lo2, hi2, set_hash, axis, lo2[r, axis])
+        key_hi[r] = _face_key(r, lo2, hi2, set_hash, axis, hi2[r, axis])
+    size = 1
+    while size < 2 * r_count:
+        size *= 2
+    mask = np.uint64(size - 1)
+    table = np.full((size, 2), -1, np.int64)
+    for r in range(r_count):
+        if alive[r]:
+            h = key_lo[r] & mask
+            while table[h, 1] >= 0:
+                h = (h + np.uint64(1)) & mask
+            table[h, 0] = np.int64(key_lo[r])
+            table[h, 1] = r
+    succ = np.full(r_count, -1, np.int64)
+    has_pred = np.zeros(r_count, np.bool_)
+    for a in numba.prange(r_count):
+        if alive[a]:
+            k = np.int64(key_hi[a])
+            h = key_hi[a] & mask
+            while table[h, 1] >= 0:
+                q = table[h, 1]
+                if table[h, 0] == k and _mergeable(a, q, lo2, hi2, start, ids, axis):
+                    succ[a] = q
+                    # at most one predecessor per region (disjointness): no race
+                    has_pred[q] = True
+                    break
+                h = (h + np.uint64(1)) & mask
+    merged = 0
+    for a in range(r_count):
+        if alive[a] and not has_pred[a] and succ[a] >= 0:
+            q = succ[a]
+            while q >= 0:
+                hi2[a, axis] = hi2[q, axis]
+                alive[q] = False
+                merged += 1
+                q = succ[q]
+    return merged
+
+
+@numba.njit(cache=True)
+def _gather_lists(keep, start, ids, new_start):
+    """Brick lists of the regions `keep`, concatenated: int32 (new_start[-1],)."""
+    out = np.empty(new_start[-1], np.int32)
+    for r in range(keep.shape[0]):
+        s = start[keep[r]]
+        for k in range(new_start[r + 1] - new_start[r]):
+            out[new_start[r] + k] = ids[s + k]
+    return out
+
+
+@numba.njit(cache=True)
+def _floor_div(a, b):
+    """Floor of a / b for b > 0 (explicit, independent of the integer division semantics)."""
+    q = a // b
+    if q * b > a:
+        q -= 1
+    return q
+
+
+@numba.njit(cache=True, parallel=True)
+def _leaf_ranges(lo2, hi2, start, ids, lower, dims, width, offset, values, level):
+    """Per-region value range and finest level.
+
+    lo2, hi2: int32 (R, 3) doubled region bounds; start/ids: CSR brick lists;
+    lower, dims: int64 (B, 3); width: int64 (B,) cell width; offset: int64 (B,);
+    values: float32 (F, V); level: int8 (B,).
+    Returns value_range float32 (R, F, 2) and finest_level int8 (R,).
+
+    Only the cells of a brick whose support (cell box grown by w/2) overlaps the
+    region count, not the whole brick (paper §3.2.2): along an axis, cell i of a
+    brick at lower L has doubled support (2L + (2i-1)w, 2L + (2i+3)w).
+    """
+    r_count = lo2.shape[0]
+    n_fields = values.shape[0]
+    vr = np.empty((r_count, n_fields, 2), np.float32)
+    finest = np.empty(r_count, np.int8)
+    for r in numba.prange(r_count):
+        mn = np.full(n_fields, np.inf, np.float32)
+        mx = np.full(n_fields, -np.inf, np.float32)
+        any_number = np.zeros(n_fields, np.bool_)
+        fl = 127
+        i0 = np.empty(3, np.int64)
+        i1 = np.empty(3, np.int64)
+        for k in range(start[r], start[r + 1]):
+            b = ids[k]
+            if level[b] < fl:
+                fl = level[b]
+            w = width[b]
+            for ax in range(3):
+                base = 2 * lower[b, ax]
+                # first i with 2L + (2i+3)w > lo  and  last i with 2L + (2i-1)w < hi
+                i0[ax] = max(0, _floor_div(lo2[r, ax] - base - 3 * w, 2 * w) + 1)
+                i1[ax] = min(dims[b, ax], -_floor_div(-(hi2[r, ax] - base + w), 2 * w))
+            dx = dims[b, 0]
+            dxy = dims[b, 0] * dims[b, 1]
+            o = offset[b]
+            for f in range(n_fields):
+                lo_f = mn[f]
+                hi_f = mx[f]
+                seen = any_number[f]
+                for z in range(i0[2], i1[2]):
+                    for y in range(i0[1], i1[1]):
+                        row = o + z * dxy + y * dx
+                        for x in range(i0[0], i1[0]):
+                            v = values[f, row + x]
+                            if v == v:
+                                seen = True
+                                if v < lo_f:
+                                    lo_f = v
+                                if v > hi_f:
+                                    hi_f = v
+                mn[f] = lo_f
+                mx[f] = hi_f
+                any_number[f] = seen
+        for f in range(n_fields):
+            if any_number[f]:
+                vr[r, f, 0] = mn[f]
+                vr[r, f, 1] = mx[f]
+            else:
+                vr[r, f, 0] = np.nan
+                vr[r, f, 1] = np.nan
+        finest[r] = fl
+    return vr, finest

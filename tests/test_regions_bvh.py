@@ -1,0 +1,465 @@
+"""Active Brick Regions and the BVH over them, checked against brute force.
+
+Every property is checked by an independent reference: coverage and
+disjointness by rasterising boxes on the doubled lattice (where every support
+and region bound is an integer), brick lists, value ranges and finest levels
+by testing every cell of every brick, point location by a linear scan.
+"""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from exabricks import schema
+from exabricks.errors import ExabricksError
+from exabricks.stages.brick import build_bricks
+from exabricks.stages.bvh import build_bvh
+from exabricks.stages.regions import build_regions, partition, support_boxes_doubled
+
+from amr_strategies import amr_cells
+from conftest import AMREX, ATHENA, ENZO, GERRIS, assert_one_error_line, run_cli
+
+
+# ---------------------------------------------------------------------------
+# inputs
+
+
+def make_cells(lower, level, values, fields=None) -> schema.Cells:
+    values = np.asarray(values, np.float32)
+    if values.ndim == 1:
+        values = values[None]
+    fields = fields or tuple(f"f{i}" for i in range(values.shape[0]))
+    return schema.Cells(
+        fields=tuple(fields), origin_world=np.zeros(3), spacing_world=np.ones(3),
+        lower_lattice=np.asarray(lower, np.int32).reshape(-1, 3),
+        level=np.asarray(level, np.int8), values=values,
+    )
+
+
+def bricks_one_per_cell(cells: schema.Cells) -> schema.Bricks:
+    """The simplest valid bricking: every cell its own 1x1x1 brick."""
+    n = cells.n_cells
+    return schema.Bricks(
+        fields=cells.fields, origin_world=cells.origin_world, spacing_world=cells.spacing_world,
+        lower_lattice=cells.lower_lattice, level=cells.level, dims=np.ones((n, 3), np.int32),
+        offset=np.arange(n, dtype=np.int64), values=cells.values,
+    )
+
+
+def brick_cells(bricks: schema.Bricks):
+    """Every cell of every brick: lower int64 (N, 3), width int64 (N,), values (F, N), brick (N,)."""
+    lower, width, brick = [], [], []
+    for b in range(bricks.n_bricks):
+        d = bricks.dims[b]
+        w = 1 << int(bricks.level[b])
+        z, y, x = np.meshgrid(*(np.arange(d[a]) for a in (2, 1, 0)), indexing="ij")
+        ijk = np.stack([x.ravel(), y.ravel(), z.ravel()], axis=1)  # x fastest
+        lower.append(bricks.lower_lattice[b].astype(np.int64) + w * ijk)
+        width.append(np.full(len(ijk), w, np.int64))
+        brick.append(np.full(len(ijk), b, np.int64))
+    return (np.concatenate(lower), np.concatenate(width), bricks.values,
+            np.concatenate(brick))
+
+
+def build_test_bricks(cells: schema.Cells, max_brick_width: int = 32) -> schema.Bricks:
+    return build_bricks(cells, max_brick_width=max_brick_width)
+
+
+# ---------------------------------------------------------------------------
+# brute-force references
+
+
+def raster_count(lo2, hi2, origin, shape):
+    """How many of the boxes (doubled integer bounds) cover each doubled-lattice voxel."""
+    diff = np.zeros(tuple(s + 1 for s in shape), np.int32)
+    lo = lo2 - origin
+    hi = hi2 - origin
+    for cx in (0, 1):
+        for cy in (0, 1):
+            for cz in (0, 1):
+                sign = (-1) ** (cx + cy + cz)
+                idx = tuple((hi if c else lo)[:, a] for a, c in enumerate((cx, cy, cz)))
+                np.add.at(diff, idx, sign)
+    return diff.cumsum(0).cumsum(1).cumsum(2)[:-1, :-1, :-1]
+
+
+def region_doubled(regions):
+    lo2 = regions.lower_lattice.astype(np.float64) * 2
+    hi2 = regions.upper_lattice.astype(np.float64) * 2
+    assert np.array_equal(lo2, np.round(lo2)) and np.array_equal(hi2, np.round(hi2))
+    return lo2.astype(np.int64), hi2.astype(np.int64)
+
+
+def check_coverage_raster(bricks, regions):
+    """Regions are disjoint and cover exactly the union of brick supports (voxel raster)."""
+    s_lo, s_hi = support_boxes_doubled(bricks)
+    r_lo, r_hi = region_doubled(regions)
+    origin = s_lo.min(axis=0)
+    shape = tuple(int(v) for v in s_hi.max(axis=0) - origin)
+    assert r_lo.min() >= 0 or np.all(r_lo >= origin)
+    assert np.all(r_hi <= s_hi.max(axis=0))
+    cover = raster_count(r_lo, r_hi, origin, shape)
+    union = raster_count(s_lo, s_hi, origin, shape) > 0
+    assert cover.max() <= 1, "regions overlap"
+    np.testing.assert_array_equal(cover == 1, union)
+
+
+def check_regions_brute_force(bricks, regions, which=None):
+    """Brick lists, value ranges and finest levels of `which` regions against every cell."""
+    s_lo, s_hi = support_boxes_doubled(bricks)
+    r_lo, r_hi = region_doubled(regions)
+    c_lower, c_w, c_values, c_brick = brick_cells(bricks)
+    c_lo = 2 * c_lower - c_w[:, None]
+    c_hi = 2 * (c_lower + c_w[:, None]) + c_w[:, None]
+    which = range(regions.n_regions) if which is None else which
+    for r in which:
+        overlap = np.all((s_lo < r_hi[r]) & (s_hi > r_lo[r]), axis=1)
+        listed = regions.brick_ids[regions.brick_start[r]:regions.brick_start[r + 1]]
+        np.testing.assert_array_equal(listed, np.flatnonzero(overlap))
+        # every listed support covers the whole region (the region lies in one ABR piece)
+        assert np.all(s_lo[listed] <= r_lo[r]) and np.all(s_hi[listed] >= r_hi[r])
+        cells = np.all((c_lo < r_hi[r]) & (c_hi > r_lo[r]), axis=1)
+        assert cells.any()
+        assert set(np.unique(c_brick[cells])) == set(listed.tolist())
+        v = c_values[:, cells]
+        np.testing.assert_array_equal(regions.value_range[r, :, 0], v.min(axis=1))
+        np.testing.assert_array_equal(regions.value_range[r, :, 1], v.max(axis=1))
+        assert regions.finest_level[r] == bricks.level[listed].min()
+
+
+def bvh_locate(bvh, regions, p):
+    """Region containing point p (lattice units) by traversing the BVH; -1 if none."""
+    stack = [0]
+    found = []
+    while stack:
+        node = stack.pop()
+        if np.any(p < bvh.lower_lattice[node]) or np.any(p >= bvh.upper_lattice[node]):
+            continue
+        if bvh.count[node] == 0:
+            stack += [bvh.first[node], bvh.first[node] + 1]
+            continue
+        for k in range(bvh.first[node], bvh.first[node] + bvh.count[node]):
+            r = bvh.region_index[k]
+            if np.all(p >= regions.lower_lattice[r]) and np.all(p < regions.upper_lattice[r]):
+                found.append(r)
+    assert len(found) <= 1
+    return found[0] if found else -1
+
+
+def check_bvh(regions, bvh, points):
+    m = bvh.n_nodes
+    inner = bvh.count == 0
+    # every node but the root is the child of exactly one inner node
+    children = np.concatenate([bvh.first[inner], bvh.first[inner] + 1])
+    assert sorted(children.tolist()) == list(range(1, m))
+    # every region in exactly one leaf; leaf ranges tile region_index
+    leaf_ranges = sorted((int(bvh.first[i]), int(bvh.count[i])) for i in np.flatnonzero(~inner))
+    pos = 0
+    for f, c in leaf_ranges:
+        assert f == pos and c >= 1
+        pos += c
+    assert pos == regions.n_regions
+    assert sorted(bvh.region_index.tolist()) == list(range(regions.n_regions))
+    # bounds, value ranges, levels: children nest in parents
+    par = np.flatnonzero(inner)
+    for c in (bvh.first[par], bvh.first[par] + 1):
+        assert np.all(bvh.lower_lattice[c] >= bvh.lower_lattice[par])
+        assert np.all(bvh.upper_lattice[c] <= bvh.upper_lattice[par])
+        assert np.all(bvh.finest_level[c] >= bvh.finest_level[par])
+        assert np.all(bvh.value_range[c, :, 0] >= bvh.value_range[par, :, 0])
+        assert np.all(bvh.value_range[c, :, 1] <= bvh.value_range[par, :, 1])
+    # a leaf is exactly the union of its regions (reduce over each leaf's run)
+    leaves = np.flatnonzero(~inner)
+    leaves = leaves[np.argsort(bvh.first[leaves])]
+    starts = bvh.first[leaves]
+    rs = bvh.region_index
+    for node_arr, reg_arr, ufunc in (
+        (bvh.lower_lattice, regions.lower_lattice, np.minimum),
+        (bvh.upper_lattice, regions.upper_lattice, np.maximum),
+        (bvh.value_range[:, :, 0], regions.value_range[:, :, 0], np.minimum),
+        (bvh.value_range[:, :, 1], regions.value_range[:, :, 1], np.maximum),
+        (bvh.finest_level, regions.finest_level, np.minimum),
+    ):
+        np.testing.assert_array_equal(node_arr[leaves], ufunc.reduceat(reg_arr[rs], starts, axis=0))
+    # the root covers everything
+    np.testing.assert_array_equal(bvh.lower_lattice[0], regions.lower_lattice.min(0))
+    np.testing.assert_array_equal(bvh.upper_lattice[0], regions.upper_lattice.max(0))
+    np.testing.assert_array_equal(bvh.value_range[0, :, 0], regions.value_range[:, :, 0].min(0))
+    np.testing.assert_array_equal(bvh.value_range[0, :, 1], regions.value_range[:, :, 1].max(0))
+    # point location: BVH traversal agrees with a linear scan over all regions
+    for p in points:
+        inside = np.flatnonzero(np.all((p >= regions.lower_lattice) & (p < regions.upper_lattice), axis=1))
+        assert len(inside) <= 1
+        assert bvh_locate(bvh, regions, p) == (inside[0] if len(inside) else -1)
+
+
+def query_points(regions, rng, n_random=200):
+    """Region centres plus random points in (and a little around) the root box."""
+    lo = regions.lower_lattice.min(0).astype(np.float64)
+    hi = regions.upper_lattice.max(0).astype(np.float64)
+    centres = 0.5 * (regions.lower_lattice + regions.upper_lattice)
+    pad = 0.1 * (hi - lo)
+    rand = rng.uniform(lo - pad, hi + pad, size=(n_random, 3))
+    return np.concatenate([centres, rand.astype(np.float32)])
+
+
+# ---------------------------------------------------------------------------
+# tiny inputs with exact answers
+
+
+def test_single_cell_regions_are_its_support():
+    cells = make_cells([(4, 8, 12)], [2], [[7.0]])
+    regions = build_regions(bricks_one_per_cell(cells))
+    assert regions.n_regions == 1
+    np.testing.assert_array_equal(regions.lower_lattice[0], [2, 6, 10])
+    np.testing.assert_array_equal(regions.upper_lattice[0], [10, 14, 18])
+    np.testing.assert_array_equal(regions.value_range[0, 0], [7, 7])
+    assert regions.brick_ids.tolist() == [0] and regions.finest_level.tolist() == [2]
+    assert regions.meta["statistics"]["n_regions"] == 1
+
+
+def test_two_cells_in_a_row_three_regions():
+    """Two unit cells side by side along x: supports [-.5,1.5] and [.5,2.5] overlap in [.5,1.5]."""
+    cells = make_cells([(0, 0, 0), (1, 0, 0)], [0, 0], [[1.0, 5.0]])
+    regions = build_regions(bricks_one_per_cell(cells))
+    order = np.argsort(regions.lower_lattice[:, 0])
+    assert regions.lower_lattice[order, 0].tolist() == [-0.5, 0.5, 1.5]
+    assert regions.upper_lattice[order, 0].tolist() == [0.5, 1.5, 2.5]
+    lists = [regions.brick_ids[regions.brick_start[r]:regions.brick_start[r + 1]].tolist() for r in order]
+    assert lists == [[0], [0, 1], [1]]
+    assert regions.value_range[order, 0].tolist() == [[1, 1], [1, 5], [5, 5]]
+    stats = regions.meta["statistics"]
+    assert stats["avg_bricks_per_region_by_count"] == pytest.approx(4 / 3)
+    assert stats["avg_bricks_per_region_by_volume"] == pytest.approx(4 / 3)
+    assert stats["max_bricks_per_region"] == 2
+
+
+def test_value_range_uses_only_cells_whose_support_overlaps():
+    """A 4x1x1 brick next to a cell: the shared region sees only the brick's last cell."""
+    bricks = schema.Bricks(
+        fields=("v",), origin_world=np.zeros(3), spacing_world=np.ones(3),
+        lower_lattice=np.array([[0, 0, 0], [4, 0, 0]], np.int32), level=np.array([0, 0], np.int8),
+        dims=np.array([[4, 1, 1], [1, 1, 1]], np.int32), offset=np.array([0, 4], np.int64),
+        values=np.array([[-10, 1, 2, 3, 100]], np.float32),
+    )
+    regions = build_regions(bricks)
+    check_coverage_raster(bricks, regions)
+    check_regions_brute_force(bricks, regions)
+    # the region shared by both bricks, x in [3.5, 4.5]: cells 3 of brick 0 and brick 1
+    r = int(np.flatnonzero(regions.lower_lattice[:, 0] == 3.5)[0])
+    # (the whole of brick 0 would give [-10, 100])
+    assert regions.value_range[r, 0].tolist() == [3, 100]
+
+
+def test_nan_values_are_ignored():
+    cells = make_cells([(0, 0, 0), (1, 0, 0)], [0, 0], [[np.nan, 2.0]])
+    regions = build_regions(bricks_one_per_cell(cells))
+    order = np.argsort(regions.lower_lattice[:, 0])
+    vr = regions.value_range[order, 0]
+    assert np.isnan(vr[0]).all() and vr[1].tolist() == [2, 2] and vr[2].tolist() == [2, 2]
+    bvh = build_bvh(regions, leaf_size=1)
+    assert bvh.value_range[0, 0].tolist() == [2, 2]
+
+
+def test_bvh_one_region_is_a_leaf_root():
+    cells = make_cells([(0, 0, 0)], [0], [[3.0]])
+    bvh = build_bvh(build_regions(bricks_one_per_cell(cells)))
+    assert bvh.n_nodes == 1 and bvh.count.tolist() == [1] and bvh.first.tolist() == [0]
+
+
+# ---------------------------------------------------------------------------
+# properties on random layouts
+
+
+@settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(cells=amr_cells(max_cells=1500, max_level=4), width=st.sampled_from([0, 1, 2, 3, 8, 32]),
+       leaf_size=st.integers(1, 6), seed=st.integers(0, 1000))
+def test_random_layouts(cells, width, leaf_size, seed):
+    """Width 0: one brick per cell; otherwise the brick builder with that maximum width."""
+    bricks = bricks_one_per_cell(cells) if width == 0 else build_test_bricks(cells, width)
+    regions = build_regions(bricks)
+    schema.validate(regions)
+    check_coverage_raster(bricks, regions)
+    check_regions_brute_force(bricks, regions)
+    stats = regions.meta["statistics"]
+    counts = np.diff(regions.brick_start)
+    assert stats["n_regions"] == regions.n_regions and stats["max_bricks_per_region"] == counts.max()
+    assert stats["n_regions"] <= stats["n_partition_leaves"] and stats["n_bricks"] == bricks.n_bricks
+    vol = np.prod((regions.upper_lattice - regions.lower_lattice).astype(np.float64), axis=1)
+    assert stats["avg_bricks_per_region_by_count"] == pytest.approx(counts.mean())
+    assert stats["avg_bricks_per_region_by_volume"] == pytest.approx((counts * vol).sum() / vol.sum())
+    bvh = build_bvh(regions, leaf_size=leaf_size, bins=4 + seed % 13)
+    schema.validate(bvh)
+    assert bvh.count.max() <= leaf_size
+    check_bvh(regions, bvh, query_points(regions, np.random.default_rng(seed)))
+
+
+# ---------------------------------------------------------------------------
+# real data
+
+
+def gerris_cells() -> schema.Cells:
+    """The Gerris plume read directly (little-endian int32 x, y, z, level; float32 per field)."""
+    raw = np.fromfile(GERRIS, dtype="<i4").reshape(-1, 4)
+    names = ("T", "U", "V", "W", "P")
+    values = np.stack([np.fromfile(GERRIS.with_name(f"plume7-1.{n}.scalars"), "<f4") for n in names])
+    return make_cells(raw[:, :3], raw[:, 3], values, names)
+
+
+def check_real(cells, n_regions_checked=300, n_points=400):
+    bricks = build_bricks(cells)
+    regions = build_regions(bricks)
+    s_lo, s_hi = support_boxes_doubled(bricks)
+    # exact coverage and disjointness by raster where the doubled lattice is small enough;
+    # always: every support is tiled exactly by the regions listing it
+    if np.prod((s_hi.max(0) - s_lo.min(0)).astype(np.float64)) <= 3e7:
+        check_coverage_raster(bricks, regions)
+    check_support_tiling(bricks, regions)
+    rng = np.random.default_rng(1)
+    which = rng.choice(regions.n_regions, min(n_regions_checked, regions.n_regions), replace=False)
+    check_regions_brute_force(bricks, regions, which)
+    bvh = build_bvh(regions)
+    pts = query_points(regions, rng, n_points)
+    pts = pts[rng.choice(len(pts), 2 * n_points, replace=False)]
+    check_bvh(regions, bvh, pts)  # also: no sampled point lies in two regions
+    return regions, bvh
+
+
+def test_gerris_plume():
+    regions, bvh = check_real(gerris_cells())
+    assert regions.meta["statistics"]["n_bricks"] > 0
+
+
+def test_gerris_one_brick_per_cell_threads():
+    """67,712 single-cell bricks: the partition splits into subtrees built on threads;
+    the result must not depend on the thread count and must still tile every support."""
+    bricks = bricks_one_per_cell(gerris_cells())
+    s_lo, s_hi = support_boxes_doubled(bricks)
+    one = partition(s_lo, s_hi, threads=1)
+    two = partition(s_lo, s_hi, threads=2)
+    for a, b in zip(one, two):
+        np.testing.assert_array_equal(a, b)
+    regions = build_regions(bricks)
+    assert regions.meta["statistics"]["n_partition_leaves"] == one[0].shape[0]
+    check_coverage_raster(bricks, regions)
+    check_support_tiling(bricks, regions)
+    rng = np.random.default_rng(2)
+    check_regions_brute_force(bricks, regions, rng.choice(regions.n_regions, 100, replace=False))
+
+
+@pytest.mark.parametrize("name", ["amrex", "athena", "enzo"])
+def test_real_datasets(name):
+    from exabricks import readers
+
+    path = {"amrex": AMREX, "athena": ATHENA, "enzo": ENZO}[name]
+    cells = readers.read(path)
+    regions, bvh = check_real(cells)
+    assert regions.fields == cells.fields and bvh.fields == cells.fields
+    np.testing.assert_array_equal(regions.origin_world, cells.origin_world)
+
+
+def check_support_tiling(bricks, regions):
+    s_lo, s_hi = support_boxes_doubled(bricks)
+    r_lo, r_hi = region_doubled(regions)
+    vol = np.prod(r_hi - r_lo, axis=1)
+    per_region = np.repeat(vol, np.diff(regions.brick_start))
+    tiled = np.bincount(regions.brick_ids, weights=per_region, minlength=bricks.n_bricks)
+    np.testing.assert_array_equal(tiled, np.prod(s_hi - s_lo, axis=1).astype(np.float64))
+
+
+# ---------------------------------------------------------------------------
+# command line
+
+
+def write_bricks(path, cells):
+    bricks = build_test_bricks(cells)
+    schema.save(path, bricks.replace(meta=schema.make_meta()))
+    return bricks
+
+
+def test_cli_regions_and_bvh(tmp_path):
+    cells = make_cells([(0, 0, 0), (1, 0, 0), (2, 0, 0)], [0, 0, 1], [[1, 2, 3]])
+    bricks = write_bricks(tmp_path / "bricks.npz", cells)
+    run_cli("regions", tmp_path / "bricks.npz", "-o", tmp_path / "regions.npz", check=0)
+    run_cli("bvh", tmp_path / "regions.npz", "-o", tmp_path / "bvh.npz", "--leaf-size", "2", check=0)
+    regions = schema.load(tmp_path / "regions.npz", "regions")
+    bvh = schema.load(tmp_path / "bvh.npz", "bvh")
+    assert regions.meta["consistency"]["n_bricks"] == bricks.n_bricks
+    assert regions.meta["inputs"][0]["sha256"] == schema.sha256_file(tmp_path / "bricks.npz")
+    assert regions.meta["statistics"]["n_regions"] == regions.n_regions
+    assert bvh.meta["consistency"]["n_regions"] == regions.n_regions
+    assert bvh.meta["consistency"]["n_bricks"] == bricks.n_bricks
+    assert bvh.meta["inputs"][0]["sha256"] == schema.sha256_file(tmp_path / "regions.npz")
+    assert bvh.meta["consistency"]["bricks_inputs"] == regions.meta["inputs"]
+    assert bvh.meta["parameters"]["leaf_size"] == 2 and bvh.count.max() <= 2
+    check_bvh(regions, bvh, query_points(regions, np.random.default_rng(0)))
+
+
+def test_cli_chain_gerris(tmp_path):
+    """ingest -> brick -> regions -> bvh through the CLI; info reads the outputs."""
+    cells, bricks, regions, bvh = (tmp_path / f"{k}.npz" for k in ("cells", "bricks", "regions", "bvh"))
+    run_cli("ingest", GERRIS, "-o", cells, check=0)
+    run_cli("brick", cells, "-o", bricks, check=0)
+    run_cli("regions", bricks, "-o", regions, check=0)
+    run_cli("bvh", regions, "-o", bvh, check=0)
+    b = schema.load(bricks, "bricks")
+    r = schema.load(regions, "regions")
+    v = schema.load(bvh, "bvh")
+    assert r.meta["consistency"] == {"n_bricks": b.n_bricks, "n_regions": r.n_regions}
+    assert v.meta["consistency"]["n_regions"] == r.n_regions
+    assert v.meta["consistency"]["bricks_inputs"][0]["sha256"] == schema.sha256_file(bricks)
+    assert r.fields == b.fields == v.fields and set(r.fields) == {"T", "U", "V", "W", "P"}
+    info = json.loads(run_cli("info", "--json", bvh, check=0).stdout)
+    assert info["counts"]["regions"] == r.n_regions
+    # the BVH root's value range is the range of all cell values (every cell is in some region)
+    np.testing.assert_array_equal(v.value_range[0, :, 0], b.values.min(axis=1))
+    np.testing.assert_array_equal(v.value_range[0, :, 1], b.values.max(axis=1))
+
+
+def test_cli_wrong_kind(tmp_path):
+    cells = make_cells([(0, 0, 0)], [0], [[1.0]])
+    write_bricks(tmp_path / "bricks.npz", cells)
+    proc = run_cli("bvh", tmp_path / "bricks.npz", "-o", tmp_path / "bvh.npz")
+    assert_one_error_line(proc, "bricks.npz", "expected a regions file")
+    proc = run_cli("regions", tmp_path / "nope.npz", "-o", tmp_path / "r.npz")
+    assert proc.returncode == 2  # click: missing input
+    assert not (tmp_path / "bvh.npz").exists() and not (tmp_path / "r.npz").exists()
+
+
+def test_cli_inconsistent_regions(tmp_path):
+    cells = make_cells([(0, 0, 0), (1, 0, 0)], [0, 0], [[1, 2]])
+    write_bricks(tmp_path / "bricks.npz", cells)
+    run_cli("regions", tmp_path / "bricks.npz", "-o", tmp_path / "regions.npz", check=0)
+    regions = schema.load(tmp_path / "regions.npz", "regions")
+    bad = regions.replace(brick_ids=regions.brick_ids + 5)
+    schema.save(tmp_path / "bad.npz", bad)
+    proc = run_cli("bvh", tmp_path / "bad.npz", "-o", tmp_path / "bvh.npz")
+    assert_one_error_line(proc, "bad.npz", "brick ids")
+    meta = dict(regions.meta, consistency={"n_bricks": 2, "n_regions": 99})
+    schema.save(tmp_path / "bad2.npz", regions.replace(meta=meta))
+    proc = run_cli("bvh", tmp_path / "bad2.npz", "-o", tmp_path / "bvh.npz")
+    assert_one_error_line(proc, "bad2.npz", "99")
+    assert not (tmp_path / "bvh.npz").exists()
+
+
+def test_cli_bricks_beyond_float32_bounds(tmp_path):
+    far = 1 << 24
+    cells = make_cells([(far, 0, 0)], [0], [[1.0]])
+    write_bricks(tmp_path / "bricks.npz", cells)
+    proc = run_cli("regions", tmp_path / "bricks.npz", "-o", tmp_path / "regions.npz")
+    assert_one_error_line(proc, "bricks.npz", "float32")
+    assert not (tmp_path / "regions.npz").exists()
+
+
+def test_stage_errors():
+    cells = make_cells(np.zeros((0, 3)), [], np.zeros((1, 0)))
+    with pytest.raises(ExabricksError, match="no cells"):
+        build_regions(build_test_bricks(cells))
+    regions = build_regions(build_test_bricks(make_cells([(0, 0, 0)], [0], [[1.0]])))
+    with pytest.raises(ExabricksError, match="leaf size"):
+        build_bvh(regions, leaf_size=0)
