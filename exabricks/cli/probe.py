@@ -1,0 +1,59 @@
+"""`exabricks probe BRICKS REGIONS BVH --points P.npy -o V.npy`: the reconstructed field at points."""
+
+from __future__ import annotations
+
+import os
+import tempfile
+from pathlib import Path
+
+import click
+import numpy as np
+
+from ..errors import ExabricksError
+from .options import device_option, field_option, input_path, output_option
+from .render import load_scene
+
+
+def _load_points(path) -> np.ndarray:
+    try:
+        points = np.load(path, allow_pickle=False)
+    except Exception as e:  # numpy raises ValueError, OSError, EOFError, UnpicklingError...
+        raise ExabricksError(f"{path}: not a readable .npy array ({e})") from None
+    if not isinstance(points, np.ndarray) or points.ndim != 2 or points.shape[1] != 3 \
+            or not (np.issubdtype(points.dtype, np.floating) or np.issubdtype(points.dtype, np.integer)):
+        shape = getattr(points, "shape", None)
+        raise ExabricksError(f"{path}: points must be a numeric (N, 3) array, got shape {shape} "
+                             f"and dtype {getattr(points, 'dtype', type(points).__name__)}")
+    return points
+
+
+def _save_npy(path, values) -> None:
+    path = Path(path)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent or ".")
+    try:
+        with os.fdopen(fd, "wb") as f:
+            np.save(f, values)
+        os.chmod(tmp, 0o644)
+        os.replace(tmp, path)
+    except BaseException:
+        os.unlink(tmp)
+        raise
+
+
+@click.command()
+@input_path("bricks_path", metavar="BRICKS")
+@input_path("regions_path", metavar="REGIONS")
+@input_path("bvh_path", metavar="BVH")
+@click.option("--points", "points_path", required=True, type=click.Path(exists=True, dir_okay=False),
+              help="World points, a .npy array of shape (N, 3).")
+@field_option
+@output_option
+@device_option
+def probe(bricks_path, regions_path, bvh_path, points_path, field, output, device):
+    """Reconstructed FIELD at world points (float32 .npy, NaN where no cell has support)."""
+    from ..stages.probe import probe as probe_points
+
+    points = _load_points(points_path)
+    bricks, regions, bvh = load_scene(bricks_path, regions_path, bvh_path)
+    values = probe_points(bricks, regions, bvh, points, field=field, device=device)
+    _save_npy(output, values)

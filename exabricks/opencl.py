@@ -1,0 +1,193 @@
+"""OpenCL devices, contexts and the compiled kernel program.
+
+Device choice (docs/design.md, "Devices") is explicit and never interactive: a
+``SPEC`` of ``"P:D"`` (platform and device indices as `exabricks devices` lists
+them) or a case-insensitive substring of the device or platform name, from
+``--device`` or ``EXABRICKS_DEVICE``; the default is the first GPU, else the
+first CPU, else the first device. On a machine without a GPU the kernels run on
+the CPU through PoCL (Debian package ``pocl-opencl-icd``).
+
+Kernel sources are the ``.cl``/``.h`` files of ``<checkout>/kernels`` or, in an
+installed wheel, ``exabricks/kernels``; the directory is passed to the compiler
+as an include path. The program is built once per context and process;
+pyopencl's on-disk binary cache (and PoCL's kernel cache) make later processes
+skip compilation.
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass
+from importlib import resources
+from pathlib import Path
+
+import numpy as np
+
+from .errors import ExabricksError
+
+# The source file holding the __kernel entry points; it #includes the rest.
+ENTRY_SOURCE = "render.cl"
+
+# No -cl-fast-relaxed-math: it implies finite-math-only, and the kernels rely on
+# IEEE infinities (ray slabs) and NaN (probe outside the data).
+BUILD_OPTIONS = ("-cl-mad-enable",)
+
+_NO_PLATFORM = (
+    "no OpenCL platform found; install an OpenCL driver "
+    "(on a CPU-only machine: the Debian/Ubuntu package pocl-opencl-icd)"
+)
+
+
+def _cl():
+    try:
+        import pyopencl as cl
+    except ImportError as e:  # pragma: no cover - pyopencl is a dependency
+        raise ExabricksError(f"pyopencl cannot be imported ({e}); reinstall exabricks") from None
+    return cl
+
+
+def kernel_dir() -> Path:
+    """The directory of the kernel sources: ``<checkout>/kernels``, else the wheel's copy."""
+    checkout = Path(__file__).resolve().parents[1] / "kernels"
+    if (checkout / ENTRY_SOURCE).is_file():
+        return checkout
+    packaged = Path(str(resources.files("exabricks") / "kernels"))
+    if (packaged / ENTRY_SOURCE).is_file():
+        return packaged
+    raise ExabricksError(f"kernel sources not found (looked in {checkout} and {packaged})")
+
+
+@dataclass(frozen=True)
+class DeviceInfo:
+    """One OpenCL device as `exabricks devices` shows it."""
+
+    spec: str          # "P:D", usable as --device
+    name: str
+    platform: str
+    type: str          # GPU, CPU, ACCELERATOR, ...
+    version: str       # the device's OpenCL version string
+    compute_units: int
+    global_memory_bytes: int
+
+    def to_dict(self) -> dict:
+        return dict(self.__dict__)
+
+
+def _platforms():
+    cl = _cl()
+    try:
+        platforms = cl.get_platforms()
+    except cl.LogicError:  # PLATFORM_NOT_FOUND_KHR: no ICD installed
+        platforms = []
+    if not platforms:
+        raise ExabricksError(_NO_PLATFORM)
+    return platforms
+
+
+def _devices():
+    """[(spec, platform, device)] over every platform, in index order."""
+    cl = _cl()
+    out = []
+    for p, platform in enumerate(_platforms()):
+        try:
+            devices = platform.get_devices()
+        except cl.Error:  # a platform with no devices raises DEVICE_NOT_FOUND
+            devices = []
+        for d, device in enumerate(devices):
+            out.append((f"{p}:{d}", platform, device))
+    if not out:
+        raise ExabricksError(_NO_PLATFORM.replace("platform", "device", 1))
+    return out
+
+
+def list_devices() -> list[DeviceInfo]:
+    """Every OpenCL device of every platform; ExabricksError if there is none."""
+    cl = _cl()
+    infos = []
+    for spec, platform, device in _devices():
+        infos.append(DeviceInfo(
+            spec=spec,
+            name=device.name.strip(),
+            platform=platform.name.strip(),
+            type=cl.device_type.to_string(device.type),
+            version=device.version.strip(),
+            compute_units=int(device.max_compute_units),
+            global_memory_bytes=int(device.global_mem_size),
+        ))
+    return infos
+
+
+def choose_device(spec: str | None = None):
+    """The pyopencl Device for `spec` (module docstring); None uses EXABRICKS_DEVICE or the default."""
+    cl = _cl()
+    if spec is None:
+        spec = os.environ.get("EXABRICKS_DEVICE") or None
+    devices = _devices()
+    if spec is None:
+        for wanted in (cl.device_type.GPU, cl.device_type.CPU):
+            for _, _, device in devices:
+                if device.type & wanted:
+                    return device
+        return devices[0][2]
+    spec = str(spec).strip()
+    for s, _, device in devices:
+        if s == spec:
+            return device
+    matches = [device for _, platform, device in devices
+               if spec.lower() in device.name.lower() or spec.lower() in platform.name.lower()]
+    if matches:
+        return matches[0]
+    known = "; ".join(f"{s} {device.name.strip()}" for s, _, device in devices)
+    raise ExabricksError(f"no OpenCL device matches --device {spec!r} (devices: {known})")
+
+
+_CONTEXTS: dict = {}
+_PROGRAMS: dict = {}
+
+
+def context_for(device):
+    """One context (and in-order queue) per device and process: (context, queue)."""
+    cl = _cl()
+    key = device.int_ptr
+    if key not in _CONTEXTS:
+        context = cl.Context([device])
+        _CONTEXTS[key] = (context, cl.CommandQueue(context))
+    return _CONTEXTS[key]
+
+
+def program_for(context):
+    """The built kernel program of `context`, compiled once per process."""
+    cl = _cl()
+    key = context.int_ptr
+    if key not in _PROGRAMS:
+        directory = kernel_dir()
+        source = (directory / ENTRY_SOURCE).read_text(encoding="utf-8")
+        options = [*BUILD_OPTIONS, f"-I{directory}"]
+        try:
+            _PROGRAMS[key] = cl.Program(context, source).build(options=options)
+        except cl.RuntimeError as e:
+            raise ExabricksError(f"{directory / ENTRY_SOURCE}: OpenCL build failed: {e}") from None
+    return _PROGRAMS[key]
+
+
+def to_device(queue, array, dtype=None):
+    """A read-only device buffer holding `array` (at least one element: OpenCL forbids 0 bytes)."""
+    cl = _cl()
+    host = np.ascontiguousarray(array, dtype=dtype)
+    if host.nbytes == 0:
+        host = np.zeros(1, dtype=host.dtype)
+    return cl.Buffer(queue.context, cl.mem_flags.READ_ONLY | cl.mem_flags.COPY_HOST_PTR, hostbuf=host)
+
+
+def empty_buffer(queue, nbytes: int):
+    """A device buffer of `nbytes` (at least 1) for kernel output."""
+    cl = _cl()
+    return cl.Buffer(queue.context, cl.mem_flags.READ_WRITE, size=max(int(nbytes), 1))
+
+
+def read_back(queue, buffer, out: np.ndarray) -> np.ndarray:
+    """Copy `buffer` into the host array `out` (blocking) and return it."""
+    cl = _cl()
+    if out.nbytes:
+        cl.enqueue_copy(queue, out, buffer)
+    return out

@@ -1,0 +1,161 @@
+"""Volume rendering of bricks/regions/BVH with the OpenCL integrator (paper §4).
+
+`Renderer` uploads one dataset once and renders many frames (cameras,
+transfer functions, settings); `render` is the one-frame convenience. The
+kernels (kernels/integrator.cl) march every ray front to back through the
+Active Brick Regions in lattice space with t in world distance, sample each
+region at `sampling_rate` samples per finest cell width of that region with
+the interval-midpoint scheme of paper §4.3 (Fig. 5), reconstruct with the basis
+method from the region's brick list (eq. 1-2), and composite emission and
+absorption. Conventions the design leaves open, chosen here:
+
+* dt of a region with finest level l is ``2**l * min(spacing_world) /
+  sampling_rate`` (world units; min over axes for anisotropic spacing).
+* Interleaved sampling: the per-ray offset rho is a seeded hash of (pixel,
+  sample index, seed); with ``jitter=False`` rho = 0.5 (delimiters halfway
+  between the points k * dt).
+* ``spp = 1``: the ray goes through the pixel centre. ``spp > 1``: each of the
+  spp rays goes through a sub-pixel position drawn uniformly from the seeded
+  hash (jitter on or off) and the frame is their average.
+* ``unit_distance`` default: the finest cell width of the dataset in world
+  units, ``2**min(level) * min(spacing_world)``.
+* ``shading="headlight"``: emitted rgb *= 0.3 + 0.7 |n . v| with n the
+  normalised analytic gradient (paper §5.1.2) and v the ray direction; a zero
+  gradient is unshaded. ``"none"``: pure emission-absorption.
+* depth: world distance along the ray at which the accumulated opacity first
+  reaches 0.5 (smallest over the pixel's samples); +inf where it never does.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field as dataclass_field
+
+import numpy as np
+
+from .. import opencl, schema
+from ..errors import ExabricksError
+from .scene import DeviceScene, _float4
+
+SHADING_MODES = ("headlight", "none")
+
+# Pixels per work-group side: 8 x 8 tiles keep neighbouring rays (which walk the
+# same regions and bricks) together on one core.
+TILE = 8
+
+
+@dataclass(frozen=True)
+class RenderResult:
+    """One frame.
+
+    rgba:  float32 (H, W, 4), premultiplied colour and opacity, row 0 at the top.
+    depth: float32 (H, W) world distance where opacity reached 0.5 (inf: never), or None.
+    stats: samples (reconstructions), ms (kernel wall time per frame),
+           samples_per_second, visible_regions, and the settings used.
+    """
+
+    rgba: np.ndarray
+    depth: np.ndarray | None
+    stats: dict = dataclass_field(default_factory=dict)
+
+
+def _check_settings(width, height, sampling_rate, spp, max_opacity, unit_distance, shading):
+    if int(width) < 1 or int(height) < 1:
+        raise ExabricksError(f"image size must be positive, got {width}x{height}")
+    if not (math.isfinite(sampling_rate) and sampling_rate > 0):
+        raise ExabricksError(f"sampling rate must be positive, got {sampling_rate:g}")
+    if int(spp) < 1:
+        raise ExabricksError(f"samples per pixel must be at least 1, got {spp}")
+    if not (0.0 < max_opacity <= 1.0):
+        raise ExabricksError(f"max opacity must be in (0, 1], got {max_opacity:g}")
+    if unit_distance is not None and not (math.isfinite(unit_distance) and unit_distance > 0):
+        raise ExabricksError(f"unit distance must be positive, got {unit_distance:g}")
+    if shading not in SHADING_MODES:
+        raise ExabricksError(f"unknown shading {shading!r} (one of {', '.join(SHADING_MODES)})")
+
+
+class Renderer:
+    """A dataset on an OpenCL device, ready to render frames of one field."""
+
+    def __init__(self, bricks: schema.Bricks, regions: schema.Regions, bvh: schema.Bvh,
+                 *, field: str | None = None, device=None):
+        self.scene = DeviceScene(bricks, regions, bvh, field=field, device=device)
+        self.kernel = self.scene.program.eb_render
+
+    @property
+    def field(self) -> str:
+        return self.scene.field
+
+    @property
+    def device_name(self) -> str:
+        return self.scene.device.name.strip()
+
+    def render(self, *, camera, transfer_function, width: int = 512, height: int = 512,
+               sampling_rate: float = 2.0, spp: int = 1, seed: int = 0, jitter: bool = True,
+               max_opacity: float = 0.98, unit_distance: float | None = None,
+               shading: str = "headlight", depth: bool = False) -> RenderResult:
+        """Render one frame; see the module docstring for the conventions."""
+        _check_settings(width, height, sampling_rate, spp, max_opacity, unit_distance, shading)
+        width, height, spp = int(width), int(height), int(spp)
+        s = self.scene
+        unit = s.finest_width_world if unit_distance is None else float(unit_distance)
+        origin, forward, du, dv = camera.frame(width, height)
+        node_vis, region_vis = s.visibility(transfer_function)
+        xs, rgba_knots = transfer_function.merged_knots()
+        stats = {
+            "field": self.field, "width": width, "height": height, "spp": spp,
+            "sampling_rate": float(sampling_rate), "seed": int(seed), "jitter": bool(jitter),
+            "max_opacity": float(max_opacity), "unit_distance": unit, "shading": shading,
+            "device": self.device_name,
+            "visible_regions": int(region_vis.sum()), "regions": s.regions.n_regions,
+        }
+        n_pixels = width * height
+        if s.empty or not node_vis[0]:
+            stats.update(samples=0, ms=0.0, samples_per_second=0.0)
+            rgba = np.zeros((height, width, 4), np.float32)
+            d = np.full((height, width), np.inf, np.float32) if depth else None
+            return RenderResult(rgba, d, stats)
+
+        q = s.queue
+        up = opencl.to_device
+        rgba_buf = opencl.empty_buffer(q, n_pixels * 16)
+        depth_buf = opencl.empty_buffer(q, n_pixels * 4)
+        samples_buf = opencl.empty_buffer(q, n_pixels * 4)
+        scene_args = s.scene_args(up(q, node_vis), up(q, region_vis))
+        tf_args = [up(q, xs, np.float32), up(q, rgba_knots, np.float32), np.int32(xs.shape[0])]
+        fixed = [
+            _float4(origin), _float4(forward), _float4(du), _float4(dv),
+            s.origin_world4, s.inv_spacing4,
+            np.float32(s.min_spacing_world / sampling_rate), np.float32(1.0 / unit),
+            np.float32(max_opacity), np.int32(shading != "none"),
+            *scene_args, *tf_args, rgba_buf, depth_buf, samples_buf,
+        ]
+        global_size = (-(-width // TILE) * TILE, -(-height // TILE) * TILE)
+        q.finish()
+        start = time.perf_counter()
+        for sample in range(spp):
+            self.kernel(q, global_size, (TILE, TILE),
+                        np.int32(width), np.int32(height), np.int32(sample), np.int32(spp),
+                        np.uint32(int(seed) & 0xFFFFFFFF), np.int32(bool(jitter)), *fixed)
+        q.finish()
+        seconds = time.perf_counter() - start
+        rgba = opencl.read_back(q, rgba_buf, np.empty((height, width, 4), np.float32))
+        samples = opencl.read_back(q, samples_buf, np.empty(n_pixels, np.uint32))
+        d = opencl.read_back(q, depth_buf, np.empty((height, width), np.float32)) if depth else None
+        total = int(samples.sum(dtype=np.int64))
+        stats.update(samples=total, ms=1e3 * seconds / spp,
+                     samples_per_second=total / seconds if seconds > 0 else 0.0)
+        return RenderResult(rgba, d, stats)
+
+
+def render(bricks: schema.Bricks, regions: schema.Regions, bvh: schema.Bvh, *, camera,
+           transfer_function, field: str | None = None, width: int = 512, height: int = 512,
+           sampling_rate: float = 2.0, spp: int = 1, seed: int = 0, jitter: bool = True,
+           max_opacity: float = 0.98, unit_distance: float | None = None,
+           shading: str = "headlight", depth: bool = False, device=None) -> RenderResult:
+    """Render one frame of `field` (default: the first); see `Renderer.render`."""
+    return Renderer(bricks, regions, bvh, field=field, device=device).render(
+        camera=camera, transfer_function=transfer_function, width=width, height=height,
+        sampling_rate=sampling_rate, spp=spp, seed=seed, jitter=jitter,
+        max_opacity=max_opacity, unit_distance=unit_distance, shading=shading, depth=depth)

@@ -1,0 +1,136 @@
+"""Bricks, regions and BVH checked against each other and uploaded to an OpenCL device.
+
+`check_inputs` is the consistency test shared by render and probe;
+`DeviceScene` holds one dataset's buffers on one device (uploaded once, reused
+for every frame or probe) and lays out kernel arguments in the order of the
+EB_BVH_ARGS / EB_REGION_ARGS / EB_BRICK_ARGS macros of kernels/render.cl.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .. import opencl, schema
+from ..errors import ExabricksError
+
+
+def check_inputs(bricks: schema.Bricks, regions: schema.Regions, bvh: schema.Bvh) -> None:
+    """ExabricksError unless `regions` were built from `bricks` and `bvh` from `regions`.
+
+    Checks what a mix-up of files breaks: field names, world frame, region brick
+    ids in range, the BVH's region count and ids, and region/BVH nesting.
+    """
+    if not isinstance(bricks, schema.Bricks) or not isinstance(regions, schema.Regions) \
+            or not isinstance(bvh, schema.Bvh):
+        raise ExabricksError("render/probe need a bricks, a regions and a bvh input, in that order")
+    for name, other in (("regions", regions), ("bvh", bvh)):
+        if tuple(other.fields) != tuple(bricks.fields):
+            raise ExabricksError(
+                f"the {name} input has fields {list(other.fields)} but the bricks have "
+                f"{list(bricks.fields)}: they were not built from the same dataset")
+        if not (np.array_equal(other.origin_world, bricks.origin_world)
+                and np.array_equal(other.spacing_world, bricks.spacing_world)):
+            raise ExabricksError(
+                f"the {name} input has another world frame (origin/spacing) than the bricks: "
+                "they were not built from the same dataset")
+    if regions.brick_ids.size and (regions.brick_ids.min() < 0
+                                   or regions.brick_ids.max() >= bricks.n_bricks):
+        raise ExabricksError(
+            f"the regions refer to brick {int(regions.brick_ids.max())} but there are only "
+            f"{bricks.n_bricks} bricks: the regions were built from other bricks")
+    n = regions.n_regions
+    if bvh.region_index.shape[0] != n:
+        raise ExabricksError(
+            f"the bvh indexes {bvh.region_index.shape[0]} regions but the regions input has {n}: "
+            "the bvh was built from other regions")
+    if n and not np.array_equal(np.sort(bvh.region_index), np.arange(n, dtype=bvh.region_index.dtype)):
+        raise ExabricksError("the bvh does not list every region exactly once: it is corrupt "
+                             "or was built from other regions")
+    if n and bvh.n_nodes:
+        root_lo = bvh.lower_lattice[0]
+        root_hi = bvh.upper_lattice[0]
+        if np.any(regions.lower_lattice < root_lo) or np.any(regions.upper_lattice > root_hi):
+            raise ExabricksError("the regions lie outside the bvh's bounds: "
+                                 "the bvh was built from other regions")
+    if n and not bvh.n_nodes:
+        raise ExabricksError("the bvh has no nodes but there are regions to render")
+
+
+def finest_cell_width_world(bricks: schema.Bricks) -> float:
+    """World width of the dataset's finest cell: 2**min(level) * min(spacing)."""
+    level = int(bricks.level.min()) if bricks.n_bricks else 0
+    return float(2.0 ** level * bricks.spacing_world.min())
+
+
+def _float4(xyz, w=0.0) -> np.ndarray:
+    import pyopencl.cltypes as cltypes
+
+    x, y, z = (float(v) for v in xyz)
+    return cltypes.make_float4(x, y, z, float(w))
+
+
+def _boxes4(lower, upper):
+    """(n, 3) bounds -> two (n, 4) float32 arrays (OpenCL float4 is 16 bytes)."""
+    pad = np.zeros((lower.shape[0], 1), np.float32)
+    return (np.hstack([lower.astype(np.float32), pad]), np.hstack([upper.astype(np.float32), pad]))
+
+
+class DeviceScene:
+    """One dataset (one field) resident on one OpenCL device."""
+
+    def __init__(self, bricks: schema.Bricks, regions: schema.Regions, bvh: schema.Bvh,
+                 *, field: str | None = None, device=None):
+        check_inputs(bricks, regions, bvh)
+        self.bricks, self.regions, self.bvh = bricks, regions, bvh
+        self.field = bricks.fields[bricks.field_index(field)] if bricks.fields else field
+        self.field_index = bricks.field_index(field)
+        self.device = device if device is not None and not isinstance(device, str) \
+            else opencl.choose_device(device)
+        self.context, self.queue = opencl.context_for(self.device)
+        self.program = opencl.program_for(self.context)
+        q = self.queue
+        up = opencl.to_device
+
+        b = bricks
+        width = np.ldexp(1.0, b.level.astype(np.int32))
+        box = np.hstack([b.lower_lattice.astype(np.float32),
+                         (1.0 / width).astype(np.float32)[:, None]])
+        dims = np.hstack([b.dims, b.level.astype(np.int32)[:, None]]).astype(np.int32)
+        self.brick_args = [up(q, box, np.float32), up(q, dims, np.int32),
+                           up(q, b.offset, np.int64), up(q, b.values[self.field_index], np.float32)]
+
+        r = regions
+        lo, hi = _boxes4(r.lower_lattice, r.upper_lattice)
+        self._region_static = [up(q, lo), up(q, hi), up(q, r.brick_start, np.int64),
+                               up(q, r.brick_ids, np.int32), up(q, r.finest_level, np.int8)]
+        lo, hi = _boxes4(bvh.lower_lattice, bvh.upper_lattice)
+        link = np.column_stack([bvh.first, bvh.count]).astype(np.int32)
+        self._bvh_static = [up(q, lo), up(q, hi), up(q, link), up(q, bvh.region_index, np.int32)]
+        self._all_visible = (up(q, np.ones(max(bvh.n_nodes, 1), np.uint8)),
+                             up(q, np.ones(max(r.n_regions, 1), np.uint8)))
+
+        self.origin_world4 = _float4(b.origin_world)
+        self.inv_spacing4 = _float4(1.0 / b.spacing_world)
+        self.finest_width_world = finest_cell_width_world(b)
+        self.min_spacing_world = float(b.spacing_world.min())
+
+    @property
+    def empty(self) -> bool:
+        return self.bvh.n_nodes == 0 or self.regions.n_regions == 0
+
+    def visibility(self, transfer_function):
+        """Per node and per region: 1 where the transfer function's maximum alpha over
+        the value range is above 0 (paper §4.1 space skipping), uint8 (M,), (R,)."""
+        f = self.field_index
+        node_range = self.bvh.value_range[:, f]
+        region_range = self.regions.value_range[:, f]
+        node = transfer_function.max_alpha(node_range[:, 0], node_range[:, 1]) > 0
+        region = transfer_function.max_alpha(region_range[:, 0], region_range[:, 1]) > 0
+        return node.astype(np.uint8), region.astype(np.uint8)
+
+    def scene_args(self, node_visible=None, region_visible=None) -> list:
+        """Kernel arguments EB_BVH_ARGS, EB_REGION_ARGS, EB_BRICK_ARGS (visibility buffers
+        given, or all visible)."""
+        nv = self._all_visible[0] if node_visible is None else node_visible
+        rv = self._all_visible[1] if region_visible is None else region_visible
+        return [*self._bvh_static, nv, *self._region_static, rv, *self.brick_args]

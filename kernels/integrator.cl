@@ -1,0 +1,103 @@
+/* The integrator: front-to-back emission-absorption along one ray through the
+ * Active Brick Regions (paper §4; docs/design.md "Integration and images").
+ *
+ * Adaptive sampling (paper §4.2-4.3, Fig. 5): in a region whose finest
+ * influencing level is l, the step is dt = 2**l * min(spacing) / sampling_rate
+ * (world units). The points t_k = (k + rho) dt, k integer, rho the ray's
+ * interleaved-sampling offset in [0, 1), are delimiters: they split the
+ * region's interval [t_in, t_out] into sub-intervals [t_in, t_a], [t_a, t_b],
+ * ..., [t_z, t_out], each sampled once at its midpoint and weighted by its
+ * length. Every region hit is sampled at least once, and consecutive regions
+ * never leave gaps or overlaps.
+ * Opacity (paper §4.3): a = 1 - (1 - alpha)^(len / unit_distance).
+ * Compositing: C += T a rgb, T *= 1 - a (premultiplied), stopping once the
+ * accumulated opacity 1 - T reaches max_opacity. */
+#pragma once
+#include "common.h"
+#include "traversal.cl"
+#include "reconstruction.cl"
+#include "transfer_function.cl"
+
+/* Headlight shading constants: emitted rgb *= AMBIENT + DIFFUSE |n . v|, with
+ * n the normalised analytic gradient and v the view direction. A zero gradient
+ * (constant field) leaves the colour unshaded (factor 1). */
+#define EB_AMBIENT 0.3f
+#define EB_DIFFUSE 0.7f
+
+/* Accumulated opacity at which the depth output records the distance. */
+#define EB_DEPTH_OPACITY 0.5f
+
+typedef struct {
+    __global const float *xs;
+    __global const float4 *rgba;
+    int n;
+} eb_transfer;
+
+typedef struct {
+    float step_base;          /* min(spacing) / sampling_rate: dt of a level-0 region */
+    float inv_unit_distance;  /* 1 / unit_distance (world units)                       */
+    float max_opacity;        /* early ray termination threshold                       */
+    float3 inv_spacing;       /* lattice units per world unit, per axis                */
+} eb_integration;
+
+/* Premultiplied RGBA of one ray. org_lattice, dir_lattice: the ray in lattice
+ * space with t in world distance (dir_world unit length); rho: interleaving
+ * offset; *samples counts reconstructions; *depth is the world distance where
+ * the accumulated opacity first reaches EB_DEPTH_OPACITY (infinity if never). */
+inline float4 eb_integrate(eb_bvh bvh, eb_regions regions, eb_bricks bricks,
+                           eb_transfer tf, eb_integration in,
+                           float3 org_lattice, float3 dir_lattice, float3 dir_world,
+                           float rho, const int shade, uint *samples, float *depth)
+{
+    float3 inv_dir = 1.0f / dir_lattice;
+    float3 color = (float3)(0.0f);
+    float transmittance = 1.0f;
+    float t_cur = 0.0f;
+    float t_depth = EB_INF;
+    uint n = 0;
+    float t_in, t_out;
+    int r;
+    while ((r = eb_next_region(bvh, regions, org_lattice, inv_dir, t_cur, EB_INF, &t_in, &t_out)) >= 0) {
+        long b0 = regions.brick_start[r], b1 = regions.brick_start[r + 1];
+        float dt = ldexp(in.step_base, (int)regions.finest_level[r]);
+        /* First delimiter at or after t_in on this region's grid (k + rho) dt. */
+        float t_first = (ceil(t_in / dt - rho) + rho) * dt;
+        float ta = t_in;
+        for (int j = 0; ta < t_out; ++j) {
+            float tb = fmin(t_first + (float)j * dt, t_out);
+            if (tb <= ta)
+                continue;
+            float len = tb - ta;
+            float tm = 0.5f * (ta + tb);
+            ta = tb;
+            float3 p = org_lattice + tm * dir_lattice;
+            eb_basis_sums s = shade ? eb_reconstruct(bricks, regions.brick_ids, b0, b1, p, 1)
+                                    : eb_reconstruct(bricks, regions.brick_ids, b0, b1, p, 0);
+            ++n;
+            if (!(s.weight > 0.0f))
+                continue;  /* no cell has support here: transparent */
+            float4 c = eb_transfer_function(s.weighted / s.weight, tf.xs, tf.rgba, tf.n);
+            if (!(c.w > 0.0f))
+                continue;
+            float a = eb_opacity_correct(c.w, len, in.inv_unit_distance);
+            float3 rgb = c.xyz;
+            if (shade) {
+                float3 g = eb_basis_gradient(s) * in.inv_spacing;  /* world units */
+                float gl = length(g);
+                if (gl > 0.0f)
+                    rgb *= EB_AMBIENT + EB_DIFFUSE * fabs(dot(g, dir_world)) / gl;
+            }
+            color += (transmittance * a) * rgb;
+            transmittance *= 1.0f - a;
+            if (t_depth == EB_INF && 1.0f - transmittance >= EB_DEPTH_OPACITY)
+                t_depth = tm;
+            if (1.0f - transmittance >= in.max_opacity)
+                goto done;
+        }
+        t_cur = t_out;
+    }
+done:
+    *samples = n;
+    *depth = t_depth;
+    return (float4)(color, 1.0f - transmittance);
+}

@@ -1,0 +1,103 @@
+/* Kernel entry points: `eb_render` (one frame sample per pixel) and `eb_probe`
+ * (field values at points). Everything else lives in one file per concept. */
+#include "common.h"
+#include "sampler.cl"
+#include "camera.cl"
+#include "transfer_function.cl"
+#include "reconstruction.cl"
+#include "traversal.cl"
+#include "integrator.cl"
+
+#define EB_BVH_ARGS                                                             \
+    __global const float4 *bvh_lower, __global const float4 *bvh_upper,         \
+    __global const int2 *bvh_link, __global const int *bvh_region_index,        \
+    __global const uchar *bvh_visible
+#define EB_REGION_ARGS                                                          \
+    __global const float4 *region_lower, __global const float4 *region_upper,   \
+    __global const long *region_brick_start, __global const int *region_brick_ids, \
+    __global const char *region_finest_level, __global const uchar *region_visible
+#define EB_BRICK_ARGS                                                           \
+    __global const float4 *brick_box, __global const int4 *brick_dims,          \
+    __global const long *brick_offset, __global const float *brick_values
+#define EB_BVH_STRUCT                                                           \
+    {bvh_lower, bvh_upper, bvh_link, bvh_region_index, bvh_visible}
+#define EB_REGION_STRUCT                                                        \
+    {region_lower, region_upper, region_brick_start, region_brick_ids,          \
+     region_finest_level, region_visible}
+#define EB_BRICK_STRUCT {brick_box, brick_dims, brick_offset, brick_values}
+
+/* Sample `sample_index` of `spp` of every pixel of a width x height frame,
+ * averaged into rgba (sample 0 overwrites, so the buffer needs no clearing).
+ * Sub-pixel position: the pixel centre for spp == 1, else uniform from the
+ * seeded hash. Interleaving offset rho: from the hash with jitter, else 0.5.
+ * samples[pixel] and depth[pixel] collect the reconstruction count and the
+ * smallest depth over the pixel's samples. */
+__kernel void eb_render(int width, int height, int sample_index, int spp, uint seed, int jitter,
+                        float4 cam_origin, float4 cam_forward, float4 cam_du, float4 cam_dv,
+                        float4 origin_world, float4 inv_spacing,
+                        float step_base, float inv_unit_distance, float max_opacity, int shading,
+                        EB_BVH_ARGS, EB_REGION_ARGS, EB_BRICK_ARGS,
+                        __global const float *tf_xs, __global const float4 *tf_rgba, int tf_n,
+                        __global float4 *rgba, __global float *depth, __global uint *samples)
+{
+    int col = get_global_id(0), row = get_global_id(1);
+    if (col >= width || row >= height)
+        return;
+    uint pixel = (uint)row * (uint)width + (uint)col;
+    eb_bvh bvh = EB_BVH_STRUCT;
+    eb_regions regions = EB_REGION_STRUCT;
+    eb_bricks bricks = EB_BRICK_STRUCT;
+    eb_transfer tf = {tf_xs, tf_rgba, tf_n};
+    eb_integration in = {step_base, inv_unit_distance, max_opacity, inv_spacing.xyz};
+
+    float jx = 0.5f, jy = 0.5f;
+    if (spp > 1) {
+        jx = eb_random(pixel, (uint)sample_index, seed, 1u);
+        jy = eb_random(pixel, (uint)sample_index, seed, 2u);
+    }
+    float rho = jitter ? eb_random(pixel, (uint)sample_index, seed, 0u) : 0.5f;
+    float3 dir_world = eb_camera_direction(cam_forward.xyz, cam_du.xyz, cam_dv.xyz,
+                                           col, row, width, height, jx, jy);
+    float3 org_lattice = eb_world_to_lattice(cam_origin.xyz, origin_world.xyz, inv_spacing.xyz);
+    float3 dir_lattice = dir_world * inv_spacing.xyz;
+    uint n;
+    float t_depth;
+    float4 c = shading
+        ? eb_integrate(bvh, regions, bricks, tf, in, org_lattice, dir_lattice, dir_world, rho, 1, &n, &t_depth)
+        : eb_integrate(bvh, regions, bricks, tf, in, org_lattice, dir_lattice, dir_world, rho, 0, &n, &t_depth);
+    c /= (float)spp;
+    if (sample_index == 0) {
+        rgba[pixel] = c;
+        samples[pixel] = n;
+        depth[pixel] = t_depth;
+    } else {
+        rgba[pixel] += c;
+        samples[pixel] += n;
+        depth[pixel] = fmin(depth[pixel], t_depth);
+    }
+}
+
+/* Reconstructed field (eq. 1-2) at n world points (x, y, z packed, float);
+ * NaN where no region contains the point or no cell has support there. */
+__kernel void eb_probe(int n, __global const float *points_world,
+                       float4 origin_world, float4 inv_spacing,
+                       EB_BVH_ARGS, EB_REGION_ARGS, EB_BRICK_ARGS,
+                       __global float *values)
+{
+    int i = get_global_id(0);
+    if (i >= n)
+        return;
+    eb_bvh bvh = EB_BVH_STRUCT;
+    eb_regions regions = EB_REGION_STRUCT;
+    eb_bricks bricks = EB_BRICK_STRUCT;
+    float3 p = eb_world_to_lattice(vload3(i, points_world), origin_world.xyz, inv_spacing.xyz);
+    int r = eb_find_region(bvh, regions, p);
+    float value = NAN;
+    if (r >= 0) {
+        eb_basis_sums s = eb_reconstruct(bricks, regions.brick_ids, regions.brick_start[r],
+                                         regions.brick_start[r + 1], p, 0);
+        if (s.weight > 0.0f)
+            value = s.weighted / s.weight;
+    }
+    values[i] = value;
+}

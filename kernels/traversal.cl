@@ -1,0 +1,231 @@
+/* Walking the BVH over the Active Brick Regions (paper §3.3, §4).
+ *
+ * Rays visit the regions they overlap in exact front-to-back order, whatever
+ * the builder's node boxes overlap (regions are disjoint, node boxes need not
+ * be). Two walks:
+ *  - ordered (default): one traversal per ray with a private min-heap of
+ *    nodes and regions keyed by entry distance; popping a region means every
+ *    node and region still queued starts behind it, so it is the next one.
+ *  - re-trace (the paper's scheme, §4): a closest-hit traversal from the root
+ *    for every region, starting where the previous region ended. Used when the
+ *    heap would overflow, and selectable for comparison.
+ * Space skipping (paper §4.1): nodes and regions whose value range maps to zero
+ * opacity under the current transfer function carry visible = 0 (computed on
+ * the host per frame, so a new transfer function needs no BVH rebuild) and are
+ * never entered.
+ * Points (probe): the first region containing the point. */
+#pragma once
+#include "common.h"
+
+/* exabricks.schema.Bvh on the device: node boxes, (first, count) links, the
+ * leaf-order region ids, and the per-frame visibility flags. */
+typedef struct {
+    __global const float4 *lower;
+    __global const float4 *upper;
+    __global const int2 *link;         /* (first, count); count 0: inner node */
+    __global const int *region_index;
+    __global const uchar *visible;
+} eb_bvh;
+
+/* exabricks.schema.Regions on the device. */
+typedef struct {
+    __global const float4 *lower;
+    __global const float4 *upper;
+    __global const long *brick_start;  /* CSR row pointers into brick_ids */
+    __global const int *brick_ids;
+    __global const char *finest_level;
+    __global const uchar *visible;
+} eb_regions;
+
+/* The visible region with the smallest entry distance among those the ray
+ * overlaps over a non-empty interval after t_cur (and before t_max); -1 if none.
+ * On success [*t_in, *t_out] is that overlap, clipped to [t_cur, t_max], with
+ * *t_out > *t_in >= t_cur: the caller's next search starts at *t_out, so the
+ * walk always advances and visits every region at most once. */
+inline int eb_next_region(eb_bvh bvh, eb_regions regions, float3 org, float3 inv_dir,
+                          float t_cur, float t_max, float *t_in, float *t_out)
+{
+    int stack[EB_STACK_SIZE];
+    float stack_t[EB_STACK_SIZE];
+    int sp = 0;
+    int best = -1;
+    float best_in = t_max, best_out = t_max;
+
+    if (!bvh.visible[0])
+        return -1;
+    float2 root = eb_box_interval(bvh.lower[0].xyz, bvh.upper[0].xyz, org, inv_dir);
+    if (fmin(root.y, t_max) <= fmax(root.x, t_cur))
+        return -1;
+    stack[sp] = 0;
+    stack_t[sp++] = fmax(root.x, t_cur);
+
+    while (sp > 0) {
+        --sp;
+        if (stack_t[sp] >= best_in)
+            continue;  /* a nearer region was found since this node was pushed */
+        int node = stack[sp];
+        int2 link = bvh.link[node];
+        if (link.y > 0) {
+            for (int i = link.x; i < link.x + link.y; ++i) {
+                int r = bvh.region_index[i];
+                if (!regions.visible[r])
+                    continue;
+                float2 iv = eb_box_interval(regions.lower[r].xyz, regions.upper[r].xyz, org, inv_dir);
+                float t0 = fmax(iv.x, t_cur), t1 = fmin(iv.y, t_max);
+                if (t1 > t0 && t0 < best_in) {
+                    best = r;
+                    best_in = t0;
+                    best_out = t1;
+                }
+            }
+            continue;
+        }
+        int c = link.x;
+        float t_near[2];
+        int hit[2];
+        for (int k = 0; k < 2; ++k) {
+            float2 iv = eb_box_interval(bvh.lower[c + k].xyz, bvh.upper[c + k].xyz, org, inv_dir);
+            t_near[k] = fmax(iv.x, t_cur);
+            hit[k] = bvh.visible[c + k] && fmin(iv.y, t_max) > t_near[k] && t_near[k] < best_in;
+        }
+        /* Push the far child first so the near one is popped first. */
+        int first = t_near[1] < t_near[0] ? 1 : 0;
+        int second = 1 - first;
+        if (hit[second] && sp < EB_STACK_SIZE) {
+            stack[sp] = c + second;
+            stack_t[sp++] = t_near[second];
+        }
+        if (hit[first] && sp < EB_STACK_SIZE) {
+            stack[sp] = c + first;
+            stack_t[sp++] = t_near[first];
+        }
+    }
+    *t_in = best_in;
+    *t_out = best_out;
+    return best;
+}
+
+/* Capacity of the ordered walk's heap: the queued nodes and regions lie ahead
+ * of the ray front on disjoint subtrees, a few tens for any BVH seen so far. */
+#define EB_QUEUE_SIZE 64
+
+/* A binary min-heap of (key, item) pairs in private arrays. */
+typedef struct {
+    float key[EB_QUEUE_SIZE];
+    int item[EB_QUEUE_SIZE];
+    int size;
+} eb_queue;
+
+inline void eb_queue_push(eb_queue *q, float key, int item)
+{
+    int i = q->size++;
+    while (i > 0) {
+        int parent = (i - 1) >> 1;
+        if (q->key[parent] <= key)
+            break;
+        q->key[i] = q->key[parent];
+        q->item[i] = q->item[parent];
+        i = parent;
+    }
+    q->key[i] = key;
+    q->item[i] = item;
+}
+
+inline int eb_queue_pop(eb_queue *q)
+{
+    int top = q->item[0];
+    int n = --q->size;
+    float key = q->key[n];
+    int item = q->item[n];
+    int i = 0;
+    for (;;) {
+        int c = 2 * i + 1;
+        if (c >= n)
+            break;
+        if (c + 1 < n && q->key[c + 1] < q->key[c])
+            ++c;
+        if (key <= q->key[c])
+            break;
+        q->key[i] = q->key[c];
+        q->item[i] = q->item[c];
+        i = c;
+    }
+    q->key[i] = key;
+    q->item[i] = item;
+    return top;
+}
+
+/* Queue items: a node as its index, a region r as ~r (negative). */
+inline void eb_queue_start(eb_queue *q, eb_bvh bvh, float3 org, float3 inv_dir)
+{
+    q->size = 0;
+    if (!bvh.visible[0])
+        return;
+    float2 iv = eb_box_interval(bvh.lower[0].xyz, bvh.upper[0].xyz, org, inv_dir);
+    float t0 = fmax(iv.x, 0.0f);
+    if (iv.y > t0)
+        eb_queue_push(q, t0, 0);
+}
+
+/* Expand node `node` into the queue: its visible children, or the visible
+ * regions of a leaf, that the ray overlaps over a non-empty interval after
+ * t_cur. Returns 0 if the queue overflowed (the caller must fall back). */
+inline int eb_queue_expand(eb_queue *q, eb_bvh bvh, eb_regions regions, int node,
+                           float3 org, float3 inv_dir, float t_cur)
+{
+    int2 link = bvh.link[node];
+    if (link.y > 0) {
+        for (int i = link.x; i < link.x + link.y; ++i) {
+            int r = bvh.region_index[i];
+            if (!regions.visible[r])
+                continue;
+            float2 iv = eb_box_interval(regions.lower[r].xyz, regions.upper[r].xyz, org, inv_dir);
+            float t0 = fmax(iv.x, t_cur);
+            if (iv.y > t0) {
+                if (q->size == EB_QUEUE_SIZE)
+                    return 0;
+                eb_queue_push(q, t0, ~r);
+            }
+        }
+        return 1;
+    }
+    for (int c = link.x; c < link.x + 2; ++c) {
+        if (!bvh.visible[c])
+            continue;
+        float2 iv = eb_box_interval(bvh.lower[c].xyz, bvh.upper[c].xyz, org, inv_dir);
+        float t0 = fmax(iv.x, t_cur);
+        if (iv.y > t0) {
+            if (q->size == EB_QUEUE_SIZE)
+                return 0;
+            eb_queue_push(q, t0, c);
+        }
+    }
+    return 1;
+}
+
+/* The first region (in BVH order) whose box contains lattice point p; -1 if none.
+ * Regions are disjoint, and a point on a shared face gets the same value from
+ * either side (each lists every brick with support there). Visibility is ignored. */
+inline int eb_find_region(eb_bvh bvh, eb_regions regions, float3 p)
+{
+    int stack[EB_STACK_SIZE];
+    int sp = 0;
+    stack[sp++] = 0;
+    while (sp > 0) {
+        int node = stack[--sp];
+        if (!eb_point_in_box(p, bvh.lower[node].xyz, bvh.upper[node].xyz))
+            continue;
+        int2 link = bvh.link[node];
+        if (link.y > 0) {
+            for (int i = link.x; i < link.x + link.y; ++i) {
+                int r = bvh.region_index[i];
+                if (eb_point_in_box(p, regions.lower[r].xyz, regions.upper[r].xyz))
+                    return r;
+            }
+        } else if (sp + 2 <= EB_STACK_SIZE) {
+            stack[sp++] = link.x + 1;
+            stack[sp++] = link.x;
+        }
+    }
+    return -1;
+}
