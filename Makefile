@@ -40,8 +40,12 @@ $(OUT)/regions.npz: $(OUT)/bricks.npz
 $(OUT)/bvh.npz: $(OUT)/regions.npz
 	$(EB) bvh $< -o $@
 
-demo: setup $(OUT)/bvh.npz
-	$(EB) info $(OUT)/bvh.npz
+$(OUT)/plume.png: $(OUT)/bvh.npz
+	$(EB) -v render $(OUT)/bricks.npz $(OUT)/regions.npz $(OUT)/bvh.npz -o $@ \
+	  --field T --camera $(DATA)/camera.json --colormap inferno --range 0 0.8 --opacity 0,0.05,0.3,1
+
+demo: setup $(OUT)/plume.png
+	@echo "image: $(OUT)/plume.png"
 
 test: setup
 	$(PY) -m pytest -q

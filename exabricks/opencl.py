@@ -100,6 +100,15 @@ def _devices():
     return out
 
 
+def _device_type(device) -> str:
+    """GPU, CPU, ACCELERATOR or OTHER (PoCL also sets the ALL bit, which says nothing)."""
+    cl = _cl()
+    for name in ("GPU", "CPU", "ACCELERATOR"):
+        if device.type & getattr(cl.device_type, name):
+            return name
+    return "OTHER"
+
+
 def list_devices() -> list[DeviceInfo]:
     """Every OpenCL device of every platform; ExabricksError if there is none."""
     cl = _cl()
@@ -109,7 +118,7 @@ def list_devices() -> list[DeviceInfo]:
             spec=spec,
             name=device.name.strip(),
             platform=platform.name.strip(),
-            type=cl.device_type.to_string(device.type),
+            type=_device_type(device),
             version=device.version.strip(),
             compute_units=int(device.max_compute_units),
             global_memory_bytes=int(device.global_mem_size),

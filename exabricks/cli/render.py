@@ -19,6 +19,18 @@ def _vector(name):
     return click.option(name, type=float, nargs=3, default=None, metavar="X Y Z")
 
 
+def _alphas(ctx, param, text):
+    if text is None:
+        return None
+    try:
+        alphas = tuple(float(a) for a in text.split(","))
+    except ValueError:
+        raise click.BadParameter(f"{text!r} is not a comma-separated list of numbers") from None
+    if not all(0.0 <= a <= 1.0 for a in alphas):
+        raise click.BadParameter(f"alpha values must lie in [0, 1], got {text}")
+    return alphas
+
+
 def load_scene(bricks_path, regions_path, bvh_path):
     """The three structure files of one dataset, each checked for its kind."""
     return (schema.load(bricks_path, "bricks"), schema.load(regions_path, "regions"),
@@ -75,8 +87,8 @@ def choose_transfer_function(bricks, field, preset, colormap, value_range, opaci
 @click.option("--colormap", metavar="NAME", help="A matplotlib colormap over --range (default: the field's range).")
 @click.option("--range", "value_range", type=float, nargs=2, default=None, metavar="LO HI",
               help="Data range of the colormap (and rescales a preset file to it).")
-@click.option("--opacity", type=float, multiple=True, metavar="A",
-              help="With --colormap: alpha knots spread evenly over the range (repeatable; default 0 then 1).")
+@click.option("--opacity", callback=_alphas, metavar="A0,A1,...",
+              help="With --colormap: alpha knots spread evenly over the range (default 0,1: a ramp).")
 @field_option
 @click.option("--unit-distance", type=float, default=None,
               help="World thickness over which alpha is the opacity (default: the finest cell width).")
