@@ -21,8 +21,13 @@ import pytest
 from exabricks import schema
 from exabricks.errors import ExabricksError
 from exabricks.readers import _blocks, amrex, athena, yt_bridge
+from exabricks.stages.ingest import validate_cells
 
-from conftest import AMREX, ATHENA, ENZO, LEAF_COUNTS
+from conftest import AMREX, ATHENA, ENZO, LEAF_COUNTS, ROOT
+
+sys.path.insert(0, str(ROOT / "workflows"))
+
+import amrex_plotfile  # noqa: E402
 
 
 # ---------------------------------------------------------------------------
@@ -133,69 +138,11 @@ def test_amrex_field_selection(amrex_cells):
         amrex.read(AMREX, fields=["phi", "phi"])
 
 
-_RD64 = {"<": "((8, (64 11 52 0 1 12 0 1023)),(8, (8 7 6 5 4 3 2 1)))",
-         ">": "((8, (64 11 52 0 1 12 0 1023)),(8, (1 2 3 4 5 6 7 8)))"}
-_RD32 = {"<": "((8, (32 8 23 0 1 9 0 127)),(4, (4 3 2 1)))",
-         ">": "((8, (32 8 23 0 1 9 0 127)),(4, (1 2 3 4)))"}
-
-
-def _box(lo, hi) -> str:
-    return f"(({lo[0]},{lo[1]},{lo[2]}) ({hi[0]},{hi[1]},{hi[2]}) (0,0,0))"
-
-
-def write_plotfile(root: Path, boxes, ratios, names, rng, *, real="<f8", ngrow=0,
-                   vismf=1, base=8, prob_lo=(0.0, 0.0, 0.0), prob_hi=(1.0, 1.0, 1.0)):
-    """A tiny AMReX plotfile; returns {level: [(lo, hi, data (ncomp, nz, ny, nx))]}.
-
-    boxes: per level a list of (lo, hi) inclusive index boxes; level 0 has domain base^3.
-    """
-    dt = np.dtype(real)
-    rd = (_RD64 if dt.itemsize == 8 else _RD32)[dt.byteorder if dt.byteorder in "<>" else "<"]
-    root.mkdir()
-    finest = len(boxes) - 1
-    n = [base * int(np.prod(ratios[:L])) for L in range(finest + 1)]
-    dx = [(np.array(prob_hi) - prob_lo) / n[L] for L in range(finest + 1)]
-    lines = ["HyperCLaw-V1.1", str(len(names)), *names, "3", "1.5", str(finest),
-             " ".join(map(str, prob_lo)), " ".join(map(str, prob_hi)),
-             " ".join(map(str, ratios)),
-             " ".join(_box((0, 0, 0), (m - 1,) * 3) for m in n),
-             " ".join("0" for _ in n), *(" ".join(repr(float(v)) for v in d) for d in dx), "0", "0"]
-    written = {}
-    for L, level_boxes in enumerate(boxes):
-        lines += [f"{L} {len(level_boxes)} 1.5", "0"]
-        for lo, hi in level_boxes:
-            for a in range(3):
-                lines.append(f"{float(prob_lo[a] + lo[a] * dx[L][a])!r} "
-                             f"{float(prob_lo[a] + (hi[a] + 1) * dx[L][a])!r}")
-        lines.append(f"Level_{L}/Cell")
-        d = root / f"Level_{L}"
-        d.mkdir()
-        fods, written[L] = [], []
-        with open(d / "Cell_D_00000", "wb") as f:
-            for lo, hi in level_boxes:
-                glo, ghi = np.array(lo) - ngrow, np.array(hi) + ngrow
-                shape = (len(names), *(ghi - glo + 1)[::-1])
-                data = rng.standard_normal(shape)
-                fods.append(f.tell())
-                if vismf == 1:
-                    f.write(f"FAB {rd}{_box(glo, ghi)} {len(names)}\n".encode())
-                f.write(data.astype(dt).tobytes())
-                g = slice(ngrow, -ngrow or None)
-                written[L].append((np.array(lo), np.array(hi), data[:, g, g, g]))
-        cell_h = [str(vismf), "1", str(len(names)), str(ngrow), f"({len(level_boxes)} 0",
-                  *(_box(lo, hi) for lo, hi in level_boxes), ")", str(len(level_boxes)),
-                  *(f"FabOnDisk: Cell_D_00000 {o}" for o in fods), ""]
-        if vismf in (1, 3):
-            for stat in (np.min, np.max):
-                cell_h.append(f"{len(level_boxes)},{len(names)}")
-                cell_h += ["".join(f"{stat(w[2][c]):.17e}," for c in range(len(names)))
-                           for w in written[L]]
-                cell_h.append("")
-        if vismf != 1:
-            cell_h.append(rd)
-        (d / "Cell_H").write_text("\n".join(cell_h) + "\n")
-    (root / "Header").write_text("\n".join(lines) + "\n")
-    return written
+def write_plotfile(root: Path, boxes, ratios, names, rng, **options):
+    """workflows/amrex_plotfile.write_plotfile with standard-normal data from `rng`."""
+    return amrex_plotfile.write_plotfile(
+        root, boxes, ratios, names,
+        lambda L, glo, ghi: rng.standard_normal((len(names), *(ghi - glo + 1)[::-1])), **options)
 
 
 def brute_force_leaves(written, ratios):
@@ -275,6 +222,44 @@ def test_amrex_synthetic_matches_yt(tmp_path, rng):
     write_plotfile(tmp_path / "plt", _TWO_LEVEL[:2], [2], ["a", "b"], rng, real=">f4")
     _, lattice, level, values = yt_leaves(tmp_path / "plt", "boxlib", ["a", "b"])
     assert_same_cells(amrex.read(tmp_path / "plt"), lattice, level, values)
+
+
+def test_make_big_amrex_plotfile(tmp_path):
+    """workflows/make_big.py --amrex (on 64^3, 8^3 boxes): a properly nested 3-level plotfile
+    whose leaves tile the domain and hold the field averaged to their level."""
+    import make_big
+
+    n, box = 64, 8
+    make_big.generate(tmp_path / "v.raw", n, 7)
+    volume = np.fromfile(tmp_path / "v.raw", "<f4").reshape(n, n, n)  # (z, y, x)
+    groups = volume.reshape(n // box, box, n // box, box, n // box, box)
+    r2 = np.ptp(groups, axis=(1, 3, 5))
+    t2 = float(np.quantile(r2, 0.85))
+    boxes = make_big.write_amrex(volume, tmp_path / "plt", t1=t2, t2=t2, box=box)
+    sizes = [len(b) for b in boxes]
+    assert sizes[0] == (n // 4 // box) ** 3 and 0 < sizes[2] < (n // box) ** 3 and sizes[1] > 0
+    for L, level_boxes in enumerate(boxes):
+        for lo, hi in level_boxes:
+            assert np.all(hi - lo + 1 == box) and lo.min() >= 0 and hi.max() < n >> (2 - L)
+    # Proper nesting: a level-2 box grown by one level-1 cell lies inside level 1.
+    painted = np.zeros((n // 2,) * 3, bool)  # (x, y, z) level-1 cells
+    for lo, hi in boxes[1]:
+        painted[lo[0]:hi[0] + 1, lo[1]:hi[1] + 1, lo[2]:hi[2] + 1] = True
+    for lo, hi in boxes[2]:
+        a, b = np.maximum(lo // 2 - 1, 0), np.minimum(hi // 2 + 1, n // 2 - 1)
+        assert painted[a[0]:b[0] + 1, a[1]:b[1] + 1, a[2]:b[2] + 1].all()
+    cells = amrex.read(tmp_path / "plt")
+    validate_cells(cells, source="plt")  # no overlaps
+    assert int((8 ** cells.level.astype(np.int64)).sum()) == n**3  # and no holes
+    for level in range(3):  # exabricks level: 0 = voxels, 1 = means of 2^3, 2 = of 4^3
+        w = 1 << level
+        mean = volume.astype(np.float64).reshape(
+            n // w, w, n // w, w, n // w, w).mean(axis=(1, 3, 5))
+        x, y, z = (cells.lower_lattice[cells.level == level] // w).T
+        # float64 means rounded to float32; numpy may sum the w^3 voxels in another order
+        # than the writer did, which can move the rounding by one float32 ulp (1.2e-7).
+        np.testing.assert_allclose(cells.values[0, cells.level == level],
+                                   mean[z, y, x].astype(np.float32), rtol=1.2e-7, atol=0)
 
 
 def _copy_amrex(tmp_path) -> Path:

@@ -1,6 +1,7 @@
 """Write a smooth multi-scale raw volume for scale tests and print the command that ingests it.
 
     .venv/bin/python workflows/make_big.py [--size 512] [--out bench-data/big512.raw] [--check]
+    .venv/bin/python workflows/make_big.py --amrex [--check]   # also bench-data/plt_big512
 
 The field is a sum of separable terms (Gaussian blobs of widths from 1/4 to 1/100
 of the domain, and a few sinusoids): one big smooth blob where 2x2x2 groups merge
@@ -8,11 +9,17 @@ to coarse cells, medium blobs, and small sharp features that stay at the finest
 level.  Each term is a product g_x(x) g_y(y) g_z(z), so a z-slab of the volume is
 one matrix product (slab terms x plane terms) -- a 512^3 volume takes seconds.
 Values are float32, x fastest, little-endian, origin 0, spacing 1.
+
+With --amrex the 512^3 volume also becomes a block-structured AMReX plotfile (see
+`amrex_hierarchy`): 3 levels, refinement ratio 2, 32^3 boxes (AMReX's
+max_grid_size), properly nested, 23.3 M leaf cells, written by
+workflows/amrex_plotfile.py in double precision as AMReX does by default.
 """
 
 from __future__ import annotations
 
 import argparse
+import shutil
 import sys
 import time
 from pathlib import Path
@@ -20,12 +27,21 @@ from pathlib import Path
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT / "workflows"))
 
 # Threshold and coarsest level for the printed ingest command: with them the 512^3
 # volume becomes 23.6 M cells over 6 levels (checked with --check; numbers in
 # docs/benchmarks.md).
 THRESHOLD = 0.005
 MAX_LEVEL = 5
+
+# AMReX form of the 512^3 volume: a 32^3-voxel block is a level-2 box when max - min
+# of its voxels exceeds AMREX_T2; a 64^3-voxel block is a level-1 box when its max - min
+# exceeds AMREX_T1 or proper nesting needs it.  With these, 316 level-1 and 423
+# level-2 boxes: 802,816 + 8,622,080 + 13,860,864 = 23,285,760 leaves (levels 0, 1, 2).
+AMREX_T1 = 0.1
+AMREX_T2 = 0.18
+AMREX_BOX = 32
 
 
 def terms(seed: int) -> list[tuple[float, tuple, tuple]]:
@@ -72,19 +88,139 @@ def generate(path: Path, size: int, seed: int, slab: int = 16) -> None:
     tmp.replace(path)
 
 
+def amrex_hierarchy(volume: np.ndarray, t1: float = AMREX_T1, t2: float = AMREX_T2,
+                    box: int = AMREX_BOX) -> list[list[tuple[np.ndarray, np.ndarray]]]:
+    """Boxes (lo, hi) (x, y, z) inclusive of a 3-level, ratio-2 hierarchy over volume (n, n, n).
+
+    Level 2 is the voxel grid, level 1 is it coarsened by 2, level 0 by 4; every box is
+    box^3 cells.  Level 0 tiles the domain.  A level-2 box covers a box^3 block of
+    voxels whose max - min exceeds t2; a level-1 box covers a (2 box)^3 block of voxels
+    whose max - min exceeds t1, or that lies within one level-1 cell of a level-2 box
+    (AMReX's proper nesting with n_proper = 1: a level-2 box is never next to level 0).
+    Boxes are in z, y, x order of their blocks.
+    """
+    n = volume.shape[0]
+    m = n // box  # level-2 blocks per axis
+    blocks = volume.reshape(m, box, m, box, m, box)
+    vmax, vmin = blocks.max(axis=(1, 3, 5)), blocks.min(axis=(1, 3, 5))
+    fine = vmax - vmin > t2
+    coarse = (vmax.reshape(m // 2, 2, m // 2, 2, m // 2, 2).max(axis=(1, 3, 5))
+              - vmin.reshape(m // 2, 2, m // 2, 2, m // 2, 2).min(axis=(1, 3, 5))) > t1
+    # Nesting: one level-1 cell around a level-2 box reaches into the neighbouring
+    # level-2-sized blocks (26-neighbourhood); their level-1 blocks must be refined.
+    padded, grown = np.pad(fine, 1), np.zeros_like(fine)
+    for dz in range(3):
+        for dy in range(3):
+            for dx in range(3):
+                grown |= padded[dz:dz + m, dy:dy + m, dx:dx + m]
+    coarse |= grown.reshape(m // 2, 2, m // 2, 2, m // 2, 2).any(axis=(1, 3, 5))
+
+    def boxes(mask):
+        lo = np.argwhere(mask)[:, ::-1] * box  # (x, y, z) corners
+        return [(l, l + box - 1) for l in lo]
+    return [boxes(np.ones((m // 4,) * 3, bool)), boxes(coarse), boxes(fine)]
+
+
+def write_amrex(volume: np.ndarray, out: Path, t1: float = AMREX_T1, t2: float = AMREX_T2,
+                box: int = AMREX_BOX) -> list[list]:
+    """Write `volume` (n, n, n) float32 (z, y, x) as the plotfile directory `out`; its boxes.
+
+    Each box holds the field averaged to its level: level 2 the voxels, level 1 means
+    of 2^3 voxels, level 0 means of 4^3 voxels (float64, as AMReX's averageDown).
+    """
+    import amrex_plotfile
+
+    n = volume.shape[0]
+    hierarchy = amrex_hierarchy(volume, t1, t2, box)
+
+    def data(L, lo, hi):
+        f = 1 << (2 - L)  # voxels per cell of level L
+        v = volume[lo[2] * f:(hi[2] + 1) * f, lo[1] * f:(hi[1] + 1) * f, lo[0] * f:(hi[0] + 1) * f]
+        s = (hi - lo + 1)[::-1]
+        return v.reshape(s[0], f, s[1], f, s[2], f).mean(axis=(1, 3, 5), dtype=np.float64)[None]
+
+    tmp = out.with_name(out.name + ".tmp")
+    shutil.rmtree(tmp, ignore_errors=True)
+    amrex_plotfile.write_plotfile(tmp, hierarchy, [2, 2], ["value"], data, base=n // 4,
+                                  prob_hi=(float(n),) * 3, keep=False)
+    shutil.rmtree(out, ignore_errors=True)  # a directory cannot be replaced by a rename
+    tmp.replace(out)
+    return hierarchy
+
+
+def check_amrex_with_yt(out: Path, volume: np.ndarray, sample: int = 40) -> None:
+    """yt reads the plotfile to the same leaves per level as our reader, and the same
+    values on `sample` boxes per level (yt's grids, child masks and raw fields); our
+    finest leaves hold the voxels of `volume` (n, n, n) (z, y, x)."""
+    import yt
+
+    from exabricks.readers import amrex
+
+    yt.set_log_level(40)
+    ds = yt.load(str(out))
+    ours = amrex.read(out)
+    per_level = np.bincount(ours.level, minlength=3)[::-1]  # AMReX level order
+    theirs = np.zeros(3, np.int64)
+    rng = np.random.default_rng(0)
+    grids = list(ds.index.grids)
+    for g in grids:
+        theirs[g.Level] += int(g.child_mask.sum())
+    assert theirs.tolist() == per_level.tolist(), (theirs, per_level)
+    # Values: a leaf cell of ours at (lattice, level) equals yt's grid value there;
+    # cells are matched by a sort key of (lattice, level) (lattice < 2^11 per axis).
+    key = (ours.lower_lattice.astype(np.int64) @ np.array([1, 1 << 11, 1 << 22])) * 4 + ours.level
+    order = np.argsort(key)
+    checked = 0
+    for L in range(3):
+        level_grids = [g for g in grids if g.Level == L]
+        for g in rng.choice(len(level_grids), min(sample, len(level_grids)), replace=False):
+            g = level_grids[g]
+            ijk = np.argwhere(g.child_mask)
+            width = 1 << (2 - L)
+            corner = np.rint(g.LeftEdge.d).astype(np.int64)  # world = finest lattice here
+            k = ((corner + ijk * width) @ np.array([1, 1 << 11, 1 << 22])) * 4 + (2 - L)
+            at = order[np.searchsorted(key, k, sorter=order)]
+            assert np.array_equal(key[at], k)
+            np.testing.assert_array_equal(ours.values[0, at],
+                                          g["boxlib", "value"].d[g.child_mask].astype(np.float32))
+            checked += k.size
+    fine = ours.level == 0
+    x, y, z = ours.lower_lattice[fine].T
+    np.testing.assert_array_equal(ours.values[0, fine], volume[z, y, x])
+    print(f"yt: leaves per AMReX level {theirs.tolist()} as ours; values equal on "
+          f"{checked:,} leaves of {3 * sample} sampled boxes", file=sys.stderr)
+
+
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--size", type=int, default=512, help="voxels per axis (default 512)")
     p.add_argument("--seed", type=int, default=7)
     p.add_argument("--out", type=Path, default=None, help="default bench-data/bigSIZE.raw")
     p.add_argument("--check", action="store_true",
-                   help="also run the merge and print cells per level")
+                   help="also run the merge and print cells per level (with --amrex: check "
+                   "the plotfile with yt)")
+    p.add_argument("--amrex", action="store_true",
+                   help="also write the volume as the AMReX plotfile plt_bigSIZE next to it (an "
+                   "existing volume at --out is reused, not regenerated)")
     args = p.parse_args(argv)
     out = args.out or ROOT / "bench-data" / f"big{args.size}.raw"
-    t = time.perf_counter()
-    generate(out, args.size, args.seed)
-    print(f"wrote {out} ({args.size}^3 float32) in {time.perf_counter() - t:.1f} s", file=sys.stderr, flush=True)
     n = args.size
+    if not (args.amrex and out.is_file()):  # --amrex reuses an existing volume
+        t = time.perf_counter()
+        generate(out, args.size, args.seed)
+        print(f"wrote {out} ({n}^3 float32) in {time.perf_counter() - t:.1f} s", file=sys.stderr,
+              flush=True)
+    if args.amrex:
+        plt = out.with_name(f"plt_big{n}")
+        t = time.perf_counter()
+        volume = np.fromfile(out, dtype="<f4").reshape(n, n, n)
+        boxes = write_amrex(volume, plt)
+        print(f"wrote {plt} ({', '.join(str(len(b)) for b in boxes)} boxes on levels 0, 1, 2) "
+              f"in {time.perf_counter() - t:.1f} s", file=sys.stderr, flush=True)
+        if args.check:
+            check_amrex_with_yt(plt, volume)
+        print(f"exabricks ingest {plt} -o {plt.with_suffix('.npz')}", flush=True)
+        return 0
     command = (f"exabricks ingest --format raw --dims {n} {n} {n} --dtype float32 "
                f"--max-level {MAX_LEVEL} --threshold {THRESHOLD} {out} -o {out.with_suffix('.npz')}")
     if args.check:

@@ -13,7 +13,7 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-from ..constants import LATTICE_DTYPE, LEVEL_DTYPE
+from ..constants import LATTICE_DTYPE
 
 
 def box_volumes(lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
@@ -117,16 +117,18 @@ def _paint(lo, hi, start, cover_lo, cover_hi, keys, boxes, origin, n_bins, bin_s
 
 
 def leaf_lattice(lo: np.ndarray, hi: np.ndarray, mask: np.ndarray, domain_lo: np.ndarray,
-                 width: int) -> np.ndarray:
+                 width: int, out: np.ndarray | None = None) -> np.ndarray:
     """Lower lattice corners of the masked cells of the boxes.
 
     lo, hi:    int64 (B, 3), inclusive cell-index boxes of one level.
     mask:      bool (sum of box volumes,), from `leaf_mask` (same cell order).
     domain_lo: int64 (3,), the level's domain corner (lattice 0).
     width:     lattice units per cell of this level.
-    Returns int32 (count of True, 3).
+    out:       where to write them (int32 C-contiguous (count of True, 3)), or None.
+    Returns int32 (count of True, 3): `out` or a new array.
     """
-    out = np.empty((int(np.count_nonzero(mask)), 3), dtype=LATTICE_DTYPE)
+    if out is None:
+        out = np.empty((int(np.count_nonzero(mask)), 3), dtype=LATTICE_DTYPE)
     _lattice(np.ascontiguousarray(lo, dtype=np.int64), np.ascontiguousarray(hi, dtype=np.int64),
              mask, np.asarray(domain_lo, dtype=np.int64), np.int64(width), out)
     return out
@@ -147,8 +149,3 @@ def _lattice(lo, hi, mask, domain_lo, width, out):
                         out[m, 2] = (z - domain_lo[2]) * width
                         m += 1
                     n += 1
-
-
-def level_array(n: int, level: int) -> np.ndarray:
-    """int8 (n,) filled with the exabricks `level`."""
-    return np.full(n, level, dtype=LEVEL_DTYPE)

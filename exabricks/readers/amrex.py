@@ -29,7 +29,7 @@ from pathlib import Path
 import numpy as np
 
 from .. import schema
-from ..constants import MAX_LEVEL, VALUE_DTYPE, WORLD_DTYPE
+from ..constants import LATTICE_DTYPE, LEVEL_DTYPE, MAX_LEVEL, VALUE_DTYPE, WORLD_DTYPE
 from ..errors import ExabricksError
 from . import _blocks
 
@@ -76,7 +76,7 @@ def read(path: Path, *, fields: Sequence[str] | None = None) -> schema.Cells:
 
     levels = [_read_level_header(path, header["level_paths"][L], L, len(names))
               for L in range(finest + 1)]
-    lattice_parts, level_parts, value_parts = [], [], []
+    masks = []
     for L, lev in enumerate(levels):
         lo, hi = lev["lo"], lev["hi"]
         dlo, dhi = domains[L]
@@ -92,12 +92,20 @@ def read(path: Path, *, fields: Sequence[str] | None = None) -> schema.Cells:
                  for F in range(L + 1, finest + 1)]
         cover_lo = np.concatenate([c[0] for c in cover]) if cover else np.empty((0, 3), np.int64)
         cover_hi = np.concatenate([c[1] for c in cover]) if cover else np.empty((0, 3), np.int64)
-        mask = _blocks.leaf_mask(lo, hi, cover_lo, cover_hi)
-        values = _read_level_values(lev, selected, header["ncomp"])
-        lattice_parts.append(_blocks.leaf_lattice(lo, hi, mask, dlo, widths[L]))
-        level_parts.append(_blocks.level_array(lattice_parts[-1].shape[0],
-                                               widths[L].bit_length() - 1))
-        value_parts.append(np.compress(mask, values, axis=1))
+        masks.append(_blocks.leaf_mask(lo, hi, cover_lo, cover_hi))
+    # The outputs are allocated once and every level writes its leaves into its slice
+    # (no per-level arrays to concatenate: at 2e7 cells each copy costs ~0.1 s).
+    counts = [int(np.count_nonzero(m)) for m in masks]
+    first = np.concatenate([[0], np.cumsum(counts)]).tolist()
+    lattice = np.empty((first[-1], 3), dtype=LATTICE_DTYPE)
+    level = np.empty(first[-1], dtype=LEVEL_DTYPE)
+    values = np.empty((len(selected), first[-1]), dtype=VALUE_DTYPE)
+    for L, lev in enumerate(levels):
+        part = slice(first[L], first[L + 1])
+        _read_level_values(lev, selected, header["ncomp"], masks[L], values[:, part])
+        _blocks.leaf_lattice(lev["lo"], lev["hi"], masks[L], domains[L][0], widths[L],
+                             out=lattice[part])
+        level[part] = widths[L].bit_length() - 1
 
     spacing = (header["prob_hi"] - header["prob_lo"]) / (domains[finest][1] - domains[finest][0] + 1)
     return schema.Cells(
@@ -106,9 +114,9 @@ def read(path: Path, *, fields: Sequence[str] | None = None) -> schema.Cells:
         spacing_world=spacing.astype(WORLD_DTYPE),
         meta={"source": {"format": "amrex", "code": header["version"], "time": header["time"],
                          "levels": finest + 1}},
-        lower_lattice=np.concatenate(lattice_parts),
-        level=np.concatenate(level_parts),
-        values=np.concatenate(value_parts, axis=1),
+        lower_lattice=lattice,
+        level=level,
+        values=values,
     )
 
 
@@ -353,18 +361,23 @@ def _read_level_header(path: Path, level_path: tuple[str, int], L: int, ncomp: i
 # Cell_D
 
 
-def _read_level_values(lev: dict, selected: list[int], ncomp: int) -> np.ndarray:
-    """float32 (len(selected), cells of all boxes) in box order, x fastest per box.
+def _read_level_values(lev: dict, selected: list[int], ncomp: int, mask: np.ndarray,
+                       out: np.ndarray) -> None:
+    """Write the leaf values of a level into out, float32 (len(selected), leaves).
 
-    FABs are read in file and offset order (sequential I/O); per FAB, only the span
-    from the first to the last selected component is read, into one reused buffer,
-    and converted to float32 while it is copied into place.
+    mask: bool (cells of all boxes,), box after box, x fastest (`_blocks.leaf_mask`);
+    the leaves go to `out` in that order.  FABs are read in file and offset order
+    (sequential I/O); per FAB, only the span from the first to the last selected
+    component is read, into one reused buffer, and converted to float32 while it is
+    copied into place (whole when every cell is a leaf, else through the mask).
     """
     los, his = lev["lo"].tolist(), lev["hi"].tolist()
     start = np.zeros(len(los) + 1, dtype=np.int64)
     np.cumsum(_blocks.box_volumes(lev["lo"], lev["hi"]), out=start[1:])
-    start = start.tolist()
-    out = np.empty((len(selected), start[-1]), dtype=VALUE_DTYPE)
+    leaf_start = np.zeros(len(los) + 1, dtype=np.int64)
+    if len(los):
+        np.cumsum(np.add.reduceat(mask, start[:-1], dtype=np.int64), out=leaf_start[1:])
+    start, leaf_start = start.tolist(), leaf_start.tolist()
     c0, c1 = min(selected, default=0), max(selected, default=0) + 1
     rows = [s - c0 for s in selected]
     files, offsets = lev["files"], lev["offsets"].tolist()
@@ -406,12 +419,17 @@ def _read_level_values(lev: dict, selected: list[int], ncomp: int) -> np.ndarray
                 data = data[:, lo[2] - fab_lo[2]:hi[2] - fab_lo[2] + 1,
                             lo[1] - fab_lo[1]:hi[1] - fab_lo[1] + 1,
                             lo[0] - fab_lo[0]:hi[0] - fab_lo[0] + 1]
-            for i, r in enumerate(rows):  # converts to float32 while copying
-                out[i, start[b]:start[b + 1]].reshape(data.shape[1:])[...] = data[r]
+            dst = out[:, leaf_start[b]:leaf_start[b + 1]]
+            if leaf_start[b + 1] - leaf_start[b] == start[b + 1] - start[b]:  # all leaves
+                for i, r in enumerate(rows):  # converts to float32 while copying
+                    dst[i].reshape(data.shape[1:])[...] = data[r]
+            elif leaf_start[b + 1] > leaf_start[b]:
+                keep = mask[start[b]:start[b + 1]].reshape(data.shape[1:])
+                for i, r in enumerate(rows):
+                    dst[i] = data[r][keep]
     finally:
         if f is not None:
             f.close()
-    return out
 
 
 def _fab_layout(f, name: Path, size: int, lev: dict, b: int, ncomp: int, rd_cache: dict):
