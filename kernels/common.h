@@ -12,11 +12,16 @@
 
 #define EB_INF INFINITY
 
+/* Force inlining of the hot helpers: PoCL's LLVM otherwise keeps some of them
+ * (eb_add_brick, eb_queue_expand) as calls, so the sums go through memory and
+ * a constant want_gradient is not folded away. */
+#define EB_INLINE inline __attribute__((always_inline))
+
 /* Entry and exit distance of the ray org + t * dir through the box [lo, hi]
  * (inv_dir = 1 / dir, +-inf on axes the ray runs parallel to). The ray misses
  * where .x > .y. fmin/fmax drop the NaN that 0 * inf gives when the origin lies
  * exactly on a slab plane. */
-inline float2 eb_box_interval(float3 lo, float3 hi, float3 org, float3 inv_dir)
+EB_INLINE float2 eb_box_interval(float3 lo, float3 hi, float3 org, float3 inv_dir)
 {
     float3 t0 = (lo - org) * inv_dir;
     float3 t1 = (hi - org) * inv_dir;

@@ -40,64 +40,110 @@ typedef struct {
     float3 inv_spacing;       /* lattice units per world unit, per axis                */
 } eb_integration;
 
+/* What a ray has accumulated so far. */
+typedef struct {
+    float3 color;
+    float transmittance;
+    float t_depth;
+    uint samples;
+} eb_ray_state;
+
+/* Integrate region r over [t_in, t_out] into `st` (paper §4.2-4.3); returns 1
+ * once the ray is opaque enough to stop (early ray termination). */
+EB_INLINE int eb_integrate_region(eb_regions regions, eb_bricks bricks, eb_transfer tf,
+                                  eb_integration in, int r, float t_in, float t_out,
+                                  float3 org_lattice, float3 dir_lattice, float3 dir_world,
+                                  float rho, const int shade, eb_ray_state *st)
+{
+    long b0 = regions.brick_start[r], b1 = regions.brick_start[r + 1];
+    float dt = ldexp(in.step_base, (int)regions.finest_level[r]);
+    /* First delimiter at or after t_in on this region's grid (k + rho) dt. */
+    float t_first = (ceil(t_in / dt - rho) + rho) * dt;
+    float ta = t_in;
+    for (int j = 0; ta < t_out; ++j) {
+        float tb = fmin(t_first + (float)j * dt, t_out);
+        if (tb <= ta)
+            continue;
+        float len = tb - ta;
+        float tm = 0.5f * (ta + tb);
+        ta = tb;
+        float3 p = org_lattice + tm * dir_lattice;
+        eb_basis_sums s = shade ? eb_reconstruct(bricks, regions.brick_ids, b0, b1, p, 1)
+                                : eb_reconstruct(bricks, regions.brick_ids, b0, b1, p, 0);
+        ++st->samples;
+        if (!(s.weight > 0.0f))
+            continue;  /* no cell has support here: transparent */
+        float4 c = eb_transfer_function(s.weighted / s.weight, tf.xs, tf.rgba, tf.n);
+        if (!(c.w > 0.0f))
+            continue;
+        float a = eb_opacity_correct(c.w, len, in.inv_unit_distance);
+        float3 rgb = c.xyz;
+        if (shade) {
+            float3 g = eb_basis_gradient(s) * in.inv_spacing;  /* world units */
+            float gl = length(g);
+            if (gl > 0.0f)
+                rgb *= EB_AMBIENT + EB_DIFFUSE * fabs(dot(g, dir_world)) / gl;
+        }
+        st->color += (st->transmittance * a) * rgb;
+        st->transmittance *= 1.0f - a;
+        if (st->t_depth == EB_INF && 1.0f - st->transmittance >= EB_DEPTH_OPACITY)
+            st->t_depth = tm;
+        if (1.0f - st->transmittance >= in.max_opacity)
+            return 1;
+    }
+    return 0;
+}
+
 /* Premultiplied RGBA of one ray. org_lattice, dir_lattice: the ray in lattice
  * space with t in world distance (dir_world unit length); rho: interleaving
- * offset; *samples counts reconstructions; *depth is the world distance where
- * the accumulated opacity first reaches EB_DEPTH_OPACITY (infinity if never). */
-inline float4 eb_integrate(eb_bvh bvh, eb_regions regions, eb_bricks bricks,
-                           eb_transfer tf, eb_integration in,
-                           float3 org_lattice, float3 dir_lattice, float3 dir_world,
-                           float rho, const int shade, uint *samples, float *depth)
+ * offset; ordered: 1 for the ordered walk, 0 for the paper's re-trace walk
+ * (traversal.cl); *samples counts reconstructions; *depth is the world
+ * distance where the accumulated opacity first reaches EB_DEPTH_OPACITY
+ * (infinity if never). */
+EB_INLINE float4 eb_integrate(eb_bvh bvh, eb_regions regions, eb_bricks bricks,
+                              eb_transfer tf, eb_integration in,
+                              float3 org_lattice, float3 dir_lattice, float3 dir_world,
+                              float rho, const int shade, const int ordered,
+                              uint *samples, float *depth)
 {
+    int retrace = !ordered;
     float3 inv_dir = 1.0f / dir_lattice;
-    float3 color = (float3)(0.0f);
-    float transmittance = 1.0f;
+    eb_ray_state st = {(float3)(0.0f), 1.0f, EB_INF, 0u};
     float t_cur = 0.0f;
-    float t_depth = EB_INF;
-    uint n = 0;
-    float t_in, t_out;
-    int r;
-    while ((r = eb_next_region(bvh, regions, org_lattice, inv_dir, t_cur, EB_INF, &t_in, &t_out)) >= 0) {
-        long b0 = regions.brick_start[r], b1 = regions.brick_start[r + 1];
-        float dt = ldexp(in.step_base, (int)regions.finest_level[r]);
-        /* First delimiter at or after t_in on this region's grid (k + rho) dt. */
-        float t_first = (ceil(t_in / dt - rho) + rho) * dt;
-        float ta = t_in;
-        for (int j = 0; ta < t_out; ++j) {
-            float tb = fmin(t_first + (float)j * dt, t_out);
-            if (tb <= ta)
+    int done = 0;
+    if (!retrace) {
+        eb_queue q;
+        eb_queue_start(&q, bvh, org_lattice, inv_dir);
+        while (q.size > 0 && !done) {
+            int item = eb_queue_pop(&q);
+            if (item >= 0) {
+                if (!eb_queue_expand(&q, bvh, regions, item, org_lattice, inv_dir, t_cur)) {
+                    retrace = 1;  /* heap full: finish with the re-trace walk from t_cur */
+                    break;
+                }
                 continue;
-            float len = tb - ta;
-            float tm = 0.5f * (ta + tb);
-            ta = tb;
-            float3 p = org_lattice + tm * dir_lattice;
-            eb_basis_sums s = shade ? eb_reconstruct(bricks, regions.brick_ids, b0, b1, p, 1)
-                                    : eb_reconstruct(bricks, regions.brick_ids, b0, b1, p, 0);
-            ++n;
-            if (!(s.weight > 0.0f))
-                continue;  /* no cell has support here: transparent */
-            float4 c = eb_transfer_function(s.weighted / s.weight, tf.xs, tf.rgba, tf.n);
-            if (!(c.w > 0.0f))
-                continue;
-            float a = eb_opacity_correct(c.w, len, in.inv_unit_distance);
-            float3 rgb = c.xyz;
-            if (shade) {
-                float3 g = eb_basis_gradient(s) * in.inv_spacing;  /* world units */
-                float gl = length(g);
-                if (gl > 0.0f)
-                    rgb *= EB_AMBIENT + EB_DIFFUSE * fabs(dot(g, dir_world)) / gl;
             }
-            color += (transmittance * a) * rgb;
-            transmittance *= 1.0f - a;
-            if (t_depth == EB_INF && 1.0f - transmittance >= EB_DEPTH_OPACITY)
-                t_depth = tm;
-            if (1.0f - transmittance >= in.max_opacity)
-                goto done;
+            int r = ~item;
+            float2 iv = eb_box_interval(regions.lower[r].xyz, regions.upper[r].xyz, org_lattice, inv_dir);
+            float t_in = fmax(iv.x, t_cur);
+            if (!(iv.y > t_in))
+                continue;
+            done = eb_integrate_region(regions, bricks, tf, in, r, t_in, iv.y, org_lattice,
+                                       dir_lattice, dir_world, rho, shade, &st);
+            t_cur = iv.y;
         }
-        t_cur = t_out;
     }
-done:
-    *samples = n;
-    *depth = t_depth;
-    return (float4)(color, 1.0f - transmittance);
+    if (retrace) {
+        float t_in, t_out;
+        int r;
+        while (!done && (r = eb_next_region(bvh, regions, org_lattice, inv_dir, t_cur, EB_INF,
+                                            &t_in, &t_out)) >= 0) {
+            done = eb_integrate_region(regions, bricks, tf, in, r, t_in, t_out, org_lattice,
+                                       dir_lattice, dir_world, rho, shade, &st);
+            t_cur = t_out;
+        }
+    }
+    *samples = st.samples;
+    *depth = st.t_depth;
+    return (float4)(st.color, 1.0f - st.transmittance);
 }

@@ -33,8 +33,8 @@ typedef struct {
 /* Add the contributions of brick b at lattice point p to `s`. With
  * want_gradient == 0 the derivative sums are left untouched (the compiler
  * drops that code for a constant argument). */
-inline void eb_add_brick(eb_bricks bricks, int b, float3 p, eb_basis_sums *s,
-                         const int want_gradient)
+EB_INLINE void eb_add_brick(eb_bricks bricks, int b, float3 p, eb_basis_sums *s,
+                            const int want_gradient)
 {
     float4 box = bricks.box[b];
     int4 n = bricks.dims[b];
@@ -82,8 +82,8 @@ inline void eb_add_brick(eb_bricks bricks, int b, float3 p, eb_basis_sums *s,
 
 /* Sums of eq. 1-2 at lattice point p over the bricks brick_ids[begin:end]
  * (one region's list: every brick whose support overlaps the region). */
-inline eb_basis_sums eb_reconstruct(eb_bricks bricks, __global const int *brick_ids,
-                                    long begin, long end, float3 p, const int want_gradient)
+EB_INLINE eb_basis_sums eb_reconstruct(eb_bricks bricks, __global const int *brick_ids,
+                                       long begin, long end, float3 p, const int want_gradient)
 {
     eb_basis_sums s;
     s.weight = 0.0f;
@@ -96,7 +96,7 @@ inline eb_basis_sums eb_reconstruct(eb_bricks bricks, __global const int *brick_
 }
 
 /* Gradient of B = sum H v / sum H (quotient rule, paper §5.1.2), lattice units. */
-inline float3 eb_basis_gradient(eb_basis_sums s)
+EB_INLINE float3 eb_basis_gradient(eb_basis_sums s)
 {
     return (s.weight * s.d_weighted - s.weighted * s.d_weight) / (s.weight * s.weight);
 }

@@ -36,6 +36,7 @@ __kernel void eb_render(int width, int height, int sample_index, int spp, uint s
                         float4 cam_origin, float4 cam_forward, float4 cam_du, float4 cam_dv,
                         float4 origin_world, float4 inv_spacing,
                         float step_base, float inv_unit_distance, float max_opacity, int shading,
+                        int ordered,
                         EB_BVH_ARGS, EB_REGION_ARGS, EB_BRICK_ARGS,
                         __global const float *tf_xs, __global const float4 *tf_rgba, int tf_n,
                         __global float4 *rgba, __global float *depth, __global uint *samples)
@@ -62,9 +63,15 @@ __kernel void eb_render(int width, int height, int sample_index, int spp, uint s
     float3 dir_lattice = dir_world * inv_spacing.xyz;
     uint n;
     float t_depth;
-    float4 c = shading
-        ? eb_integrate(bvh, regions, bricks, tf, in, org_lattice, dir_lattice, dir_world, rho, 1, &n, &t_depth)
-        : eb_integrate(bvh, regions, bricks, tf, in, org_lattice, dir_lattice, dir_world, rho, 0, &n, &t_depth);
+    float4 c;
+    if (ordered)
+        c = shading
+            ? eb_integrate(bvh, regions, bricks, tf, in, org_lattice, dir_lattice, dir_world, rho, 1, 1, &n, &t_depth)
+            : eb_integrate(bvh, regions, bricks, tf, in, org_lattice, dir_lattice, dir_world, rho, 0, 1, &n, &t_depth);
+    else
+        c = shading
+            ? eb_integrate(bvh, regions, bricks, tf, in, org_lattice, dir_lattice, dir_world, rho, 1, 0, &n, &t_depth)
+            : eb_integrate(bvh, regions, bricks, tf, in, org_lattice, dir_lattice, dir_world, rho, 0, 0, &n, &t_depth);
     c /= (float)spp;
     if (sample_index == 0) {
         rgba[pixel] = c;

@@ -5,8 +5,8 @@
 #pragma once
 #include "common.h"
 
-inline float4 eb_transfer_function(float value, __global const float *xs,
-                                   __global const float4 *rgba, int n)
+EB_INLINE float4 eb_transfer_function(float value, __global const float *xs,
+                                      __global const float4 *rgba, int n)
 {
     if (!(value > xs[0]))
         return rgba[0];
@@ -27,7 +27,7 @@ inline float4 eb_transfer_function(float value, __global const float *xs,
 
 /* Opacity of a step of length `len` from the slab opacity `alpha` per
  * `unit_distance` (paper §4.3): 1 - (1 - alpha)^(len / unit_distance). */
-inline float eb_opacity_correct(float alpha, float len, float inv_unit_distance)
+EB_INLINE float eb_opacity_correct(float alpha, float len, float inv_unit_distance)
 {
     return 1.0f - exp2(log2(1.0f - alpha) * (len * inv_unit_distance));
 }

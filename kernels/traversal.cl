@@ -106,8 +106,11 @@ inline int eb_next_region(eb_bvh bvh, eb_regions regions, float3 org, float3 inv
 }
 
 /* Capacity of the ordered walk's heap: the queued nodes and regions lie ahead
- * of the ray front on disjoint subtrees, a few tens for any BVH seen so far. */
+ * of the ray front on disjoint subtrees, a few tens for any BVH seen so far.
+ * A build option -DEB_QUEUE_SIZE=n overrides it (tests force overflow with 2). */
+#ifndef EB_QUEUE_SIZE
 #define EB_QUEUE_SIZE 64
+#endif
 
 /* A binary min-heap of (key, item) pairs in private arrays. */
 typedef struct {
@@ -116,7 +119,7 @@ typedef struct {
     int size;
 } eb_queue;
 
-inline void eb_queue_push(eb_queue *q, float key, int item)
+EB_INLINE void eb_queue_push(eb_queue *q, float key, int item)
 {
     int i = q->size++;
     while (i > 0) {
@@ -131,7 +134,7 @@ inline void eb_queue_push(eb_queue *q, float key, int item)
     q->item[i] = item;
 }
 
-inline int eb_queue_pop(eb_queue *q)
+EB_INLINE int eb_queue_pop(eb_queue *q)
 {
     int top = q->item[0];
     int n = --q->size;
@@ -156,7 +159,7 @@ inline int eb_queue_pop(eb_queue *q)
 }
 
 /* Queue items: a node as its index, a region r as ~r (negative). */
-inline void eb_queue_start(eb_queue *q, eb_bvh bvh, float3 org, float3 inv_dir)
+EB_INLINE void eb_queue_start(eb_queue *q, eb_bvh bvh, float3 org, float3 inv_dir)
 {
     q->size = 0;
     if (!bvh.visible[0])
@@ -170,8 +173,8 @@ inline void eb_queue_start(eb_queue *q, eb_bvh bvh, float3 org, float3 inv_dir)
 /* Expand node `node` into the queue: its visible children, or the visible
  * regions of a leaf, that the ray overlaps over a non-empty interval after
  * t_cur. Returns 0 if the queue overflowed (the caller must fall back). */
-inline int eb_queue_expand(eb_queue *q, eb_bvh bvh, eb_regions regions, int node,
-                           float3 org, float3 inv_dir, float t_cur)
+EB_INLINE int eb_queue_expand(eb_queue *q, eb_bvh bvh, eb_regions regions, int node,
+                              float3 org, float3 inv_dir, float t_cur)
 {
     int2 link = bvh.link[node];
     if (link.y > 0) {

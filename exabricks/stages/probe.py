@@ -31,10 +31,13 @@ def probe_scene(scene: DeviceScene, points_world) -> np.ndarray:
     q = scene.queue
     values_buf = opencl.empty_buffer(q, 4 * n)
     local = 64
-    scene.program.eb_probe(q, (-(-n // local) * local,), (local,),
-                           np.int32(n), opencl.to_device(q, points, np.float32),
-                           scene.origin_world4, scene.inv_spacing4,
-                           *scene.scene_args(), values_buf)
+    kernel = getattr(scene, "probe_kernel", None)
+    if kernel is None:  # one Kernel object per scene (program.eb_probe makes a new one per access)
+        kernel = scene.probe_kernel = opencl._cl().Kernel(scene.program, "eb_probe")
+    kernel(q, (-(-n // local) * local,), (local,),
+           np.int32(n), opencl.to_device(q, points, np.float32),
+           scene.origin_world4, scene.inv_spacing4,
+           *scene.scene_args(), values_buf)
     return opencl.read_back(q, values_buf, out)
 
 

@@ -24,6 +24,11 @@ absorption. Conventions the design leaves open, chosen here:
   gradient is unshaded. ``"none"``: pure emission-absorption.
 * depth: world distance along the ray at which the accumulated opacity first
   reaches 0.5 (smallest over the pixel's samples); +inf where it never does.
+* ``traversal="ordered"`` (default) walks the regions with one BVH traversal
+  per ray and a private min-heap (re-tracing if the heap fills up);
+  ``"retrace"`` re-traces from the root for every region as the paper does
+  (§4). Same regions, same image; ordered is 1.1-1.5x faster on PoCL
+  (docs/benchmarks.md, "render (PoCL)").
 """
 
 from __future__ import annotations
@@ -39,6 +44,11 @@ from ..errors import ExabricksError
 from .scene import DeviceScene, _float4
 
 SHADING_MODES = ("headlight", "none")
+
+# Region walks (kernels/traversal.cl): "ordered" keeps a private min-heap of
+# BVH nodes and regions per ray (one traversal per ray); "retrace" is the
+# paper's §4 closest-hit traversal from the root for every region.
+TRAVERSALS = ("ordered", "retrace")
 
 # Pixels per work-group side: 8 x 8 tiles keep neighbouring rays (which walk the
 # same regions and bricks) together on one core.
@@ -60,7 +70,8 @@ class RenderResult:
     stats: dict = dataclass_field(default_factory=dict)
 
 
-def _check_settings(width, height, sampling_rate, spp, max_opacity, unit_distance, shading):
+def _check_settings(width, height, sampling_rate, spp, max_opacity, unit_distance, shading,
+                    traversal="ordered"):
     if int(width) < 1 or int(height) < 1:
         raise ExabricksError(f"image size must be positive, got {width}x{height}")
     if not (math.isfinite(sampling_rate) and sampling_rate > 0):
@@ -73,6 +84,8 @@ def _check_settings(width, height, sampling_rate, spp, max_opacity, unit_distanc
         raise ExabricksError(f"unit distance must be positive, got {unit_distance:g}")
     if shading not in SHADING_MODES:
         raise ExabricksError(f"unknown shading {shading!r} (one of {', '.join(SHADING_MODES)})")
+    if traversal not in TRAVERSALS:
+        raise ExabricksError(f"unknown traversal {traversal!r} (one of {', '.join(TRAVERSALS)})")
 
 
 class Renderer:
@@ -81,7 +94,8 @@ class Renderer:
     def __init__(self, bricks: schema.Bricks, regions: schema.Regions, bvh: schema.Bvh,
                  *, field: str | None = None, device=None):
         self.scene = DeviceScene(bricks, regions, bvh, field=field, device=device)
-        self.kernel = self.scene.program.eb_render
+        # One Kernel object per Renderer (program.eb_render would make a new one on every access).
+        self.kernel = opencl._cl().Kernel(self.scene.program, "eb_render")
 
     @property
     def field(self) -> str:
@@ -94,9 +108,14 @@ class Renderer:
     def render(self, *, camera, transfer_function, width: int = 512, height: int = 512,
                sampling_rate: float = 2.0, spp: int = 1, seed: int = 0, jitter: bool = True,
                max_opacity: float = 0.98, unit_distance: float | None = None,
-               shading: str = "headlight", depth: bool = False) -> RenderResult:
-        """Render one frame; see the module docstring for the conventions."""
-        _check_settings(width, height, sampling_rate, spp, max_opacity, unit_distance, shading)
+               shading: str = "headlight", depth: bool = False,
+               traversal: str = "ordered") -> RenderResult:
+        """Render one frame; see the module docstring for the conventions.
+
+        `traversal` picks the region walk (TRAVERSALS); both give the same
+        image up to float rounding, only the speed differs."""
+        _check_settings(width, height, sampling_rate, spp, max_opacity, unit_distance, shading,
+                        traversal)
         width, height, spp = int(width), int(height), int(spp)
         s = self.scene
         unit = s.finest_width_world if unit_distance is None else float(unit_distance)
@@ -107,6 +126,7 @@ class Renderer:
             "field": self.field, "width": width, "height": height, "spp": spp,
             "sampling_rate": float(sampling_rate), "seed": int(seed), "jitter": bool(jitter),
             "max_opacity": float(max_opacity), "unit_distance": unit, "shading": shading,
+            "traversal": traversal,
             "device": self.device_name,
             "visible_regions": int(region_vis.sum()), "regions": s.regions.n_regions,
         }
@@ -128,7 +148,7 @@ class Renderer:
             _float4(origin), _float4(forward), _float4(du), _float4(dv),
             s.origin_world4, s.inv_spacing4,
             np.float32(s.min_spacing_world / sampling_rate), np.float32(1.0 / unit),
-            np.float32(max_opacity), np.int32(shading != "none"),
+            np.float32(max_opacity), np.int32(shading != "none"), np.int32(traversal == "ordered"),
             *scene_args, *tf_args, rgba_buf, depth_buf, samples_buf,
         ]
         global_size = (-(-width // TILE) * TILE, -(-height // TILE) * TILE)
@@ -153,9 +173,11 @@ def render(bricks: schema.Bricks, regions: schema.Regions, bvh: schema.Bvh, *, c
            transfer_function, field: str | None = None, width: int = 512, height: int = 512,
            sampling_rate: float = 2.0, spp: int = 1, seed: int = 0, jitter: bool = True,
            max_opacity: float = 0.98, unit_distance: float | None = None,
-           shading: str = "headlight", depth: bool = False, device=None) -> RenderResult:
+           shading: str = "headlight", depth: bool = False, device=None,
+           traversal: str = "ordered") -> RenderResult:
     """Render one frame of `field` (default: the first); see `Renderer.render`."""
     return Renderer(bricks, regions, bvh, field=field, device=device).render(
         camera=camera, transfer_function=transfer_function, width=width, height=height,
         sampling_rate=sampling_rate, spp=spp, seed=seed, jitter=jitter,
-        max_opacity=max_opacity, unit_distance=unit_distance, shading=shading, depth=depth)
+        max_opacity=max_opacity, unit_distance=unit_distance, shading=shading, depth=depth,
+        traversal=traversal)
