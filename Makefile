@@ -50,8 +50,19 @@ demo: setup $(OUT)/plume.png
 test: setup
 	$(PY) -m pytest -q
 
+# Every benchmark, in order, each replacing its own "## section" of docs/benchmarks.md
+# (median of 5 runs after a warm-up; figures are only meaningful on a quiet machine).
+# The generated inputs under bench-data/ (make_big.py's 512^3 volume as 23.6 M AMR
+# cells and as an AMReX plotfile) are made on first use by the scripts.
 bench: setup
-	$(PY) workflows/bench_ingest.py
+	@# ingest: cells/s of the 23 M-cell ExaJet and AMReX inputs and plt00020
+	$(PY) workflows/bench_ingest.py --write-docs
+	@# preprocessing: the four stage commands per dataset (time, peak memory, Table 1, bytes)
+	$(PY) workflows/bench_preprocess.py --write-docs
+	@# render: the OpenCL renderer on the four real datasets, both region walks
+	$(PY) workflows/bench_render.py --write-docs
+	@# peers: exabricks vs yt and the uniform-grid ceiling
+	$(PY) workflows/bench_peers.py
 
 clean:
 	rm -rf $(OUT)

@@ -1,101 +1,73 @@
 """Ingest throughput: cells per second for >= 20 M-cell ExaJet and AMReX inputs.
 
-    .venv/bin/python workflows/bench_ingest.py [--runs 5] [--case exajet ...] [--no-docs]
+    .venv/bin/python workflows/bench_ingest.py [--runs 5] [--only exajet,amrex,...] [--write-docs]
 
-(a) ExaJet: the 512^3 volume of workflows/make_big.py merged to AMR (23.6 M cells,
-    6 levels) is written as bench-data/big512.cells + big512.value.scalars; then
-    timed twice: in process (`readers.read` + `validate_cells`: read, level and
-    alignment checks, non-finite check, O(N log N) overlap check) and end to end
-    (`exabricks ingest` in a subprocess: also interpreter start, sha256 of the
-    inputs for the provenance record, and writing the .npz).
-(b) AMReX: the same volume as the block-structured plotfile bench-data/plt_big512
+(a) exajet: the 512^3 volume of workflows/make_big.py merged to AMR (23.6 M cells,
+    6 levels) as bench-data/big512.cells + big512.value.scalars; timed in process
+    (`readers.read` + `validate_cells`: read, level and alignment checks,
+    non-finite check, O(N log N) overlap check) and end to end (`exabricks ingest`
+    in a subprocess: also interpreter start, sha256 of the inputs for the
+    provenance record, and writing the .npz; with the command's peak RSS).
+(b) amrex: the same volume as the block-structured plotfile bench-data/plt_big512
     of `make_big.py --amrex` (3 levels, ratio 2, 32^3 boxes, float64 data;
-    23.3 M leaves out of 26.3 M stored cells), the same two ways; and, small,
-    tests/data/amrex-advection3d/plt00020 (505,856 cells).
-(c) For reference, the raw 512^3 volume itself through the numba 2x2x2 merge
-    (134 M voxels in, 23.6 M cells out; cells/s counts output cells).
+    23.3 M leaves out of 26.3 M stored cells), the same two ways; amrex-small:
+    the shared plt00020 (505,856 cells).
+(c) raw: the raw 512^3 volume itself through the numba 2x2x2 merge (134 M voxels
+    in, 23.6 M cells out; cells/s counts output cells).
 
-Each figure is the median of `--runs` runs after one warm-up run (which also
-fills the numba cache and the page cache), with min and max as the spread.  The
-results go to docs/benchmarks.md under "## ingest" (replacing that section).
+The generated inputs are made under bench-data/ on first use (workflows/benchdoc.py).
+Each figure is the median of --runs runs after one warm-up run (which also fills
+the numba cache and the page cache), with min and max as the spread.
+--write-docs replaces the "## ingest" section of docs/benchmarks.md.
 """
 
 from __future__ import annotations
 
 import argparse
-import os
-import platform
 import statistics
-import subprocess
 import sys
-import time
 from pathlib import Path
-
-import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "workflows"))
 
-import make_big  # noqa: E402
+import benchdoc  # noqa: E402
+# ensure_exajet is also used from here by workflows/bench_peers.py
+from benchdoc import BENCH, ensure_amrex, ensure_exajet, ensure_raw, fmt_bytes  # noqa: E402
 
 from exabricks import readers  # noqa: E402
-from exabricks.stages.ingest import amr_from_uniform, validate_cells  # noqa: E402
+from exabricks.stages.ingest import validate_cells  # noqa: E402
 
-BENCH = ROOT / "bench-data"
-BIG_RAW = BENCH / "big512.raw"
-BIG_CELLS = BENCH / "big512.cells"
-BIG_AMREX = BENCH / "plt_big512"
-AMREX = ROOT / "tests" / "data" / "amrex-advection3d" / "plt00020"
-EXABRICKS = [sys.executable, "-m", "exabricks.cli.main"]
+SECTION = "ingest"
+CASES = ("exajet", "amrex", "amrex-small", "raw")
+NOTES = """
+End to end includes interpreter start-up and imports, sha256 of every input
+(provenance in `meta`), and the fsync'ed `.npz` write.  CPU time is the median
+user + system time (the command's, for end to end); on a shared machine it is
+less disturbed by the other jobs than wall time, but it leaves out waits (the
+fsync) and still grows somewhat under contention.  Peak RSS is the command's
+ru_maxrss (median over the runs).
 
+The AMReX input is `.venv/bin/python workflows/make_big.py --amrex [--check]`: the
+512^3 field as a 3-level plotfile (ratio 2, 32^3 boxes, properly nested, float64
+data, 64 + 316 + 423 boxes, 201 MB), 802,816 + 8,622,080 + 13,860,864 leaves on
+AMReX levels 0, 1, 2; `--check` has yt read it to the same leaves per level and the
+same values on 120 sampled boxes.
 
-def ensure_exajet() -> Path:
-    """The big AMR in ExaJet form (made from the make_big volume when missing)."""
-    scalars = BIG_CELLS.with_name("big512.value.scalars")
-    if BIG_CELLS.is_file() and scalars.is_file():
-        return BIG_CELLS
-    if not BIG_RAW.is_file():
-        make_big.generate(BIG_RAW, 512, 7)
-    volume = np.fromfile(BIG_RAW, dtype="<f4").reshape(512, 512, 512)
-    lower, level, values = amr_from_uniform(
-        volume, max_level=make_big.MAX_LEVEL, threshold=make_big.THRESHOLD)
-    raw = np.empty((level.size, 4), "<i4")
-    raw[:, :3] = lower
-    raw[:, 3] = level
-    raw.tofile(BIG_CELLS)
-    values.astype("<f4").tofile(scalars)
-    return BIG_CELLS
+Earlier changes: ExaJet end to end went from 6.78 s (3.5 M/s) to 3.59 s (the
+schema's faster alignment check, and a less loaded machine).  The AMReX reader
+writes every level's leaves straight into the output arrays (no per-level
+temporaries, no concatenation, no masked copy of whole levels): read alone
+0.32 s -> 0.22 s on plt_big512 (old and new interleaved in one process), peak
+memory of the command 988 MB -> 725 MB.
 
-
-def ensure_amrex() -> Path:
-    """The big AMReX plotfile (written from the make_big volume when missing)."""
-    if not (BIG_AMREX / "Header").is_file():
-        if not BIG_RAW.is_file():
-            make_big.generate(BIG_RAW, 512, 7)
-        make_big.write_amrex(np.fromfile(BIG_RAW, dtype="<f4").reshape(512, 512, 512), BIG_AMREX)
-    return BIG_AMREX
-
-
-def _cpu() -> float:
-    """CPU seconds (user + system) of this process and its waited-for children."""
-    t = os.times()
-    return t.user + t.system + t.children_user + t.children_system
-
-
-def timed(fn, runs: int) -> tuple[float, float, float, float]:
-    """(median, min, max) wall seconds and median CPU seconds of `runs` calls after a warm-up.
-
-    CPU time (user + system, children included) is less disturbed than wall time by
-    other jobs on a shared machine; wall >= CPU unless a call uses several cores.
-    """
-    fn()
-    times, cpus = [], []
-    for _ in range(runs):
-        c, t = _cpu(), time.perf_counter()
-        fn()
-        times.append(time.perf_counter() - t)
-        cpus.append(_cpu() - c)
-    return statistics.median(times), min(times), max(times), statistics.median(cpus)
+Where the end-to-end time goes (AMReX, one run with phase timers, fairly quiet):
+start-up and imports 0.3 s, read 0.75 s (first call in a process: numba cache
+loading and first-touch page faults), `validate_cells` 0.8 s (mostly the Morton
+sort of the overlap check), statistics 0.07 s, sha256 of the inputs 0.2 s (ExaJet:
+0.35 s), `schema.save` 1.0-1.1 s (its own validation 0.1-0.3 s, zip CRC and writes
+~0.3 s, fsync ~0.5 s, which is why wall exceeds CPU time).
+"""
 
 
 def in_process(path: Path, options: dict):
@@ -106,92 +78,88 @@ def in_process(path: Path, options: dict):
     return run
 
 
-def end_to_end(path: Path, out: Path, options: dict):
+def ingest_flags(options: dict) -> list[str]:
+    """`exabricks ingest` flags of reader options: {"max_level": 5} -> ["--max-level", "5"]."""
     flags = []
     for key, value in options.items():
-        flags += [f"--{key.replace('_', '-')}", *map(str, value if isinstance(value, tuple) else [value])]
-
-    def run():
-        subprocess.run([*EXABRICKS, "ingest", str(path), "-o", str(out), *flags], check=True,
-                       env={**os.environ, "EXABRICKS_QUIET": "1"})
-    return run
+        flags += [f"--{key.replace('_', '-')}",
+                  *map(str, value if isinstance(value, tuple) else [value])]
+    return flags
 
 
-def write_docs(lines: list[str]) -> None:
-    doc = ROOT / "docs" / "benchmarks.md"
-    text = doc.read_text() if doc.exists() else (
-        "# Benchmarks\n\nMeasured figures of each stage, with the commands that reproduce them.\n")
-    section = "## ingest\n\n" + "\n".join(lines) + "\n"
-    start = text.find("\n## ingest\n")
-    if start < 0:
-        text = text.rstrip("\n") + "\n\n" + section
-    else:
-        end = text.find("\n## ", start + 1)
-        text = text[: start + 1] + section + (text[end:] if end >= 0 else "")
-    doc.write_text(text)
+def end_to_end(path: Path, out: Path, options: dict, runs: int):
+    """(wall s, CPU s, peak RSS bytes) lists of `runs` `exabricks ingest` runs after a warm-up."""
+    cmd = [*benchdoc.exabricks_command(), "-q", "ingest", str(path), "-o", str(out),
+           *ingest_flags(options)]
+    benchdoc.run_child(cmd)
+    walls, cpus, peaks = zip(*(benchdoc.run_child(cmd) for _ in range(runs)))
+    return list(walls), list(cpus), list(peaks)
 
 
-CASES = ("exajet", "amrex", "amrex-small", "raw")
+def row(name: str, n: int, how: str, walls, cpus, peak: str) -> str:
+    med, lo, hi = benchdoc.median_spread(walls)
+    cpu = statistics.median(cpus)
+    return (f"| {name} | {n:,} | {how} | {benchdoc.fmt_seconds(walls)} s "
+            f"| {n / med / 1e6:.1f} M ({n / hi / 1e6:.1f}-{n / lo / 1e6:.1f}) "
+            f"| {cpu:.3g} s | {n / cpu / 1e6:.1f} M | {peak} |")
 
 
-def section(rows: list[str], runs: int) -> list[str]:
-    """The "## ingest" section of docs/benchmarks.md around the table rows."""
-    return [
-        f"Provisional ({time.strftime('%Y-%m-%d')}, {os.cpu_count()} cores shared with other jobs, "
-        f"{platform.processor() or platform.machine()}, Python {platform.python_version()}); "
-        f"median of {runs} runs after a warm-up, (min-max) in brackets. Reproduce with "
-        "`.venv/bin/python workflows/bench_ingest.py` (it makes the inputs with "
-        "`workflows/make_big.py` on first use). Target: >= 5 M cells/s.",
+def section(rows: list[str], runs: int, command: str) -> str:
+    """The body of the "## ingest" section of docs/benchmarks.md around the table rows."""
+    return "\n".join([
+        f"Command: `{command}` (it makes the inputs with `workflows/make_big.py` on first "
+        "use). Target: >= 5 M cells/s.",
         "",
-        "| input | cells | what is timed | wall time | cells/s (wall) | CPU time | cells/s (CPU) |",
-        "|---|---:|---|---:|---:|---:|---:|",
+        f"- machine: {benchdoc.machine()}, load average {benchdoc.load_average()} at the end",
+        f"- median of {runs} runs after a warm-up, (min-max) in brackets",
+        "",
+        "| input | cells | what is timed | wall time | cells/s (wall) | CPU time | cells/s (CPU) "
+        "| peak RSS |",
+        "|---|---:|---|---:|---:|---:|---:|---:|",
         *rows,
-        "",
-        "End to end includes interpreter start-up and imports, sha256 of every input "
-        "(provenance in `meta`), and the fsync'ed `.npz` write.  CPU time is the median "
-        "user + system time (the command's, for end to end); on a shared machine it is "
-        "less disturbed by the other jobs than wall time, but it leaves out waits "
-        "(the fsync) and still grows somewhat under contention.",
-    ]
+        NOTES,
+    ])
 
 
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    p.add_argument("--runs", type=int, default=5)
-    p.add_argument("--case", choices=CASES, action="append",
-                   help="time only this input (repeatable; default: all)")
-    p.add_argument("--no-docs", action="store_true", help="print only; leave docs/benchmarks.md")
+    benchdoc.add_common_args(p)
+    p.add_argument("--case", action="append", help=argparse.SUPPRESS)  # old name of --only
+    p.add_argument("--no-docs", action="store_true", help=argparse.SUPPRESS)  # now the default
     args = p.parse_args(argv)
-    chosen = args.case or CASES
+    chosen = benchdoc.chosen((args.only or []) + (args.case or []), CASES)
     BENCH.mkdir(exist_ok=True)
     cases = []
     if "exajet" in chosen:
         cases.append(("ExaJet big512 (make_big.py)", ensure_exajet(), {}))
     if "amrex" in chosen:
         cases.append(("AMReX plt_big512 (make_big.py --amrex)", ensure_amrex(), {}))
-    if "amrex-small" in chosen and AMREX.is_dir():
-        cases.append(("AMReX plt00020", AMREX, {}))
+    if "amrex-small" in chosen:
+        cases.append(("AMReX plt00020", benchdoc.datasets()["amrex"].path, {}))
     if "raw" in chosen:
-        if not BIG_RAW.is_file():
-            make_big.generate(BIG_RAW, 512, 7)
-        cases.append(("raw 512^3 -> AMR merge", BIG_RAW, dict(
+        make_big = benchdoc._make_big()
+        cases.append(("raw 512^3 -> AMR merge", ensure_raw(), dict(
             format="raw", dims=(512, 512, 512), max_level=make_big.MAX_LEVEL,
             threshold=make_big.THRESHOLD)))
     rows = []
+    out = BENCH / "bench-cells.npz"
     for name, path, options in cases:
         n = readers.read(path, **options).n_cells
-        for how, fn in (("read + validate (in process)", in_process(path, options)),
-                        ("`exabricks ingest` end to end",
-                         end_to_end(path, BENCH / "bench-cells.npz", options))):
-            med, lo, hi, cpu = timed(fn, args.runs)
-            row = (f"| {name} | {n:,} | {how} | {med:.2f} s ({lo:.2f}-{hi:.2f}) "
-                   f"| {n / med / 1e6:.1f} M ({n / hi / 1e6:.1f}-{n / lo / 1e6:.1f}) "
-                   f"| {cpu:.2f} s | {n / cpu / 1e6:.1f} M |")
-            print(row, flush=True)
-            rows.append(row)
-    (BENCH / "bench-cells.npz").unlink(missing_ok=True)
-    if not args.no_docs:
-        write_docs(section(rows, args.runs))
+        walls, cpus = benchdoc.timed(in_process(path, options), args.runs)
+        rows.append(row(name, n, "read + validate (in process)", walls, cpus, "-"))
+        print(rows[-1], flush=True)
+        walls, cpus, peaks = end_to_end(path, out, options, args.runs)
+        rows.append(row(name, n, "`exabricks ingest` end to end", walls, cpus,
+                        fmt_bytes(statistics.median(peaks))))
+        print(rows[-1], flush=True)
+    out.unlink(missing_ok=True)
+    command = (".venv/bin/python workflows/bench_ingest.py"
+               + (f" --only {','.join(chosen)}" if args.only or args.case else "")
+               + f" --runs {args.runs} --write-docs")
+    body = section(rows, args.runs, command)
+    print(body)
+    if args.write_docs:
+        benchdoc.replace_section(SECTION, body)
     return 0
 
 

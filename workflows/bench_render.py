@@ -1,14 +1,14 @@
 """Benchmark the OpenCL renderer (paper §4) on the four shared datasets, both region walks.
 
-    .venv/bin/python workflows/bench_render.py [--frames 5] [--size 512]
+    .venv/bin/python workflows/bench_render.py [--runs 5] [--size 512] [--only gerris,...]
                                                [--work bench-data/render] [--write-docs]
 
 Each dataset is run through ingest, brick, regions and bvh (the `exabricks`
 stage commands, once, into --work/<name>/; not timed). A `Renderer` uploads it,
 then for each traversal ("ordered": the private min-heap walk, "retrace": the
 paper's re-trace from the root per region) the script renders one warm-up
-frame and --frames timed frames of size x size (the walks alternating) with the default camera on the
-data bounds (exabricks.camera.default_camera), the default transfer function
+frame and --runs timed frames of size x size (the walks alternating) with the
+default camera on the data bounds (exabricks.camera.default_camera), the default transfer function
 over the field's range (exabricks.transfer_function.default_transfer_function)
 and the render defaults (sampling rate 2, headlight shading, jitter, seed 0,
 max opacity 0.98). Reported per frame: kernel wall time (median and min-max),
@@ -16,14 +16,14 @@ reconstructed samples, samples per second (samples / median time), and the
 process CPU time per frame (median; all PoCL threads, less sensitive to other
 jobs on a shared machine than wall time). The two
 walks must give the same image (checked: max abs difference printed).
+The datasets are the four shared real ones (workflows/benchdoc.py; `--only big`
+renders the generated 23.6 M-cell one instead).
 --write-docs replaces the "## render (PoCL)" section of docs/benchmarks.md.
 """
 
 from __future__ import annotations
 
 import argparse
-import platform
-import re
 import subprocess
 import sys
 import time
@@ -33,22 +33,18 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(ROOT / "workflows"))
+
+import benchdoc  # noqa: E402
 
 from exabricks import schema  # noqa: E402
 from exabricks.camera import default_camera  # noqa: E402
 from exabricks.stages.render import TRAVERSALS, Renderer  # noqa: E402
 from exabricks.transfer_function import default_transfer_function  # noqa: E402
 
-DOCS = ROOT / "docs" / "benchmarks.md"
-INTRO = "# Benchmarks\n\nFigures per stage, with the command that produced them.\n"
-SECTION = "## render (PoCL)"
-# (key, name, input, field)
-DATASETS = [
-    ("gerris", "Gerris plume (ExaJet)", ROOT / "exabricks/data/gerris-plume/plume7-1.cells", "T"),
-    ("amrex", "AMReX advection", ROOT / "tests/data/amrex-advection3d/plt00020", "phi"),
-    ("athena", "Athena++ blast", ROOT / "tests/data/athena-blast3d/Blast.out2.00001.athdf", "rho"),
-    ("enzo", "Enzo moving7 (yt)", ROOT / "tests/data/enzo-moving7/moving7_0010", "Density"),
-]
+SECTION = "render (PoCL)"
+DEFAULT = ("gerris", "amrex", "athena", "enzo")
+
 NOTES = """
 ms/frame is the kernel's wall time per frame (`Renderer.render` stats "ms": enqueue
 to finish, no upload or read-back); samples are the reconstructions the kernel
@@ -120,31 +116,17 @@ def stage(*args: str) -> None:
         sys.exit(f"exabricks {' '.join(args)} failed: {proc.stderr.strip()}")
 
 
-def ensure_scene(work: Path, key: str, source: Path) -> Path:
+def ensure_scene(work: Path, dataset: benchdoc.Dataset) -> Path:
     """--work/<key>/{cells,bricks,regions,bvh}.npz, built on first use."""
-    d = work / key
+    d = work / dataset.key
     d.mkdir(parents=True, exist_ok=True)
-    steps = [("ingest", source, "cells"), ("brick", d / "cells.npz", "bricks"),
-             ("regions", d / "bricks.npz", "regions"), ("bvh", d / "regions.npz", "bvh")]
+    if not (d / "cells.npz").exists():
+        stage("ingest", str(dataset.path), "-o", str(d / "cells.npz"), *dataset.ingest_flags)
+    steps = [("brick", "cells", "bricks"), ("regions", "bricks", "regions"), ("bvh", "regions", "bvh")]
     for command, src, out in steps:
         if not (d / f"{out}.npz").exists():
-            stage(command, str(src), "-o", str(d / f"{out}.npz"))
+            stage(command, str(d / f"{src}.npz"), "-o", str(d / f"{out}.npz"))
     return d
-
-
-def machine() -> str:
-    """CPU model, core count and the OpenCL platform/device the renderer uses."""
-    model = "unknown CPU"
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                model = line.split(":", 1)[1].strip()
-                break
-    except OSError:
-        pass
-    import os
-
-    return f"{model}, {os.cpu_count()} cores, {platform.machine()}"
 
 
 def bench_one(d: Path, field: str, frames: int, size: int):
@@ -180,59 +162,51 @@ def bench_one(d: Path, field: str, frames: int, size: int):
 
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--frames", type=int, default=5, help="timed frames per walk (>= 1)")
+    benchdoc.add_common_args(parser, runs_help="timed frames per walk after one warm-up "
+                             "frame (default 5)")
+    parser.add_argument("--frames", dest="runs", type=int, default=argparse.SUPPRESS,
+                        help=argparse.SUPPRESS)  # old name
     parser.add_argument("--size", type=int, default=512, help="image width and height")
     parser.add_argument("--work", type=Path, default=ROOT / "bench-data" / "render",
                         help="where the stage outputs are kept")
-    parser.add_argument("--only", action="append", help="dataset key(s) to run (default: all)")
-    parser.add_argument("--write-docs", action="store_true")
     args = parser.parse_args(argv)
-    if args.frames < 1:
-        parser.error("--frames must be at least 1")
+    if args.runs < 1:
+        parser.error("--runs must be at least 1")
 
     rows, device = [], "?"
-    for key, name, source, field in DATASETS:
-        if args.only and key not in args.only:
-            continue
-        d = ensure_scene(args.work, key, source)
-        results, device = bench_one(d, field, args.frames, args.size)
+    sets = benchdoc.datasets()
+    keys = benchdoc.chosen(args.only, list(sets)) if args.only else DEFAULT
+    for key in keys:
+        name, field = sets[key].name, sets[key].field
+        d = ensure_scene(args.work, sets[key])
+        results, device = bench_one(d, field, args.runs, args.size)
         images = [results[t][2] for t in TRAVERSALS]
         diff = float(np.max(np.abs(images[0] - images[1])))
         for traversal in TRAVERSALS:
             times, samples, _, cpu = results[traversal]
             med = float(np.median(times))
-            row = (f"| {name} | {field} | {traversal} | {med:.0f} ({times.min():.0f}-{times.max():.0f}) "
+            row = (f"| {name} | {field} | {traversal} | {benchdoc.fmt_spread(times, '', 0)} "
                    f"| {samples:,} | {samples / med / 1e3:.1f} | {np.median(cpu):.0f} |")
             rows.append(row)
             print(row, flush=True)
         print(f"  {name}: max |ordered - retrace| = {diff:.2e}", flush=True)
 
     command = "`.venv/bin/python workflows/bench_render.py" + (
-        f" --frames {args.frames}" if args.frames != 5 else "") + (
+        f" --only {','.join(keys)}" if args.only else "") + f" --runs {args.runs}" + (
         f" --size {args.size}" if args.size != 512 else "") + " --write-docs`"
-    section = (f"{SECTION}\n\nCommand: {command}\n\n"
-               f"- machine: {machine()}\n- OpenCL device: {device}\n"
+    section = (f"Command: {command}\n\n"
+               f"- machine: {benchdoc.machine()}, load average {benchdoc.load_average()} "
+               f"at the end\n- OpenCL device: {device}\n"
                f"- frames: {args.size}x{args.size}, default camera and transfer function, "
-               f"median of {args.frames} frames after one warm-up, the two walks alternating "
+               f"median of {args.runs} frames after one warm-up, the two walks alternating "
                f"frame by frame (min-max in brackets)\n\n"
                "| dataset | field | traversal | ms/frame | samples/frame | M samples/s | CPU ms/frame |\n"
                "|---|---|---|---:|---:|---:|---:|\n"
                + "\n".join(rows) + "\n" + NOTES)
     print(section)
     if args.write_docs:
-        write_section(section)
+        benchdoc.replace_section(SECTION, section)
     return 0
-
-
-def write_section(section: str) -> None:
-    """Replace (or append) the render section of docs/benchmarks.md, leaving the rest as is."""
-    text = DOCS.read_text() if DOCS.exists() else INTRO
-    pattern = re.compile(r"^## render \(PoCL\)\n.*?(?=^## |\Z)", re.S | re.M)
-    if pattern.search(text):
-        text = pattern.sub(lambda _: section + "\n", text, count=1)
-    else:
-        text = text.rstrip("\n") + "\n\n" + section
-    DOCS.write_text(text)
 
 
 if __name__ == "__main__":

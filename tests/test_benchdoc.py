@@ -1,0 +1,89 @@
+"""workflows/benchdoc.py and the pure helpers of the bench_*.py scripts: one section of
+docs/benchmarks.md replaced, the rest byte for byte the same; flag and format helpers."""
+
+from __future__ import annotations
+
+import sys
+
+import pytest
+from conftest import ROOT
+
+sys.path.insert(0, str(ROOT / "workflows"))
+
+import bench_ingest  # noqa: E402
+import bench_preprocess  # noqa: E402
+import benchdoc  # noqa: E402
+
+HEAD = "# Benchmarks\n\nIntro line.\n\n"
+FIRST = "## ingest\n\nold ingest figures\n\n| a | b |\n|---|---|\n| 1 | 2 |\n\n"
+MIDDLE = "## render (PoCL)\n\nold render text\n### a sub-heading stays inside\nmore\n\n"
+LAST = ("## exabricks vs yt, cell location and the uniform-grid ceiling\n\n"
+        "another script's text ## not a heading\n")
+
+
+def test_replace_middle_section_leaves_the_others_byte_identical(tmp_path):
+    doc = tmp_path / "benchmarks.md"
+    doc.write_text(HEAD + FIRST + MIDDLE + LAST)
+    benchdoc.replace_section("render (PoCL)", "\nnew render\n\nfigures\n\n", doc)
+    assert doc.read_text() == HEAD + FIRST + "## render (PoCL)\n\nnew render\n\nfigures\n\n" + LAST
+
+
+def test_replace_first_and_last_sections(tmp_path):
+    doc = tmp_path / "benchmarks.md"
+    doc.write_text(HEAD + FIRST + MIDDLE + LAST)
+    benchdoc.replace_section("ingest", "new ingest", doc)
+    assert doc.read_text() == HEAD + "## ingest\n\nnew ingest\n\n" + MIDDLE + LAST
+    title = "exabricks vs yt, cell location and the uniform-grid ceiling"
+    benchdoc.replace_section(title, "peers", doc)
+    assert doc.read_text() == HEAD + "## ingest\n\nnew ingest\n\n" + MIDDLE + f"## {title}\n\npeers\n"
+
+
+def test_missing_section_is_appended_and_a_prefix_title_does_not_match(tmp_path):
+    doc = tmp_path / "benchmarks.md"
+    doc.write_text(HEAD + FIRST + MIDDLE)
+    benchdoc.replace_section("in", "not the ingest section", doc)
+    text = doc.read_text()
+    assert text == HEAD + FIRST + MIDDLE + "## in\n\nnot the ingest section\n"
+    benchdoc.replace_section("preprocessing per dataset", "table", doc)
+    assert doc.read_text() == text + "\n## preprocessing per dataset\n\ntable\n"
+
+
+def test_new_document_starts_with_the_intro(tmp_path):
+    doc = tmp_path / "benchmarks.md"
+    benchdoc.replace_section("ingest", "figures", doc)
+    assert doc.read_text() == benchdoc.INTRO + "\n## ingest\n\nfigures\n"
+
+
+def test_median_spread_and_formats():
+    assert benchdoc.median_spread([3, 1, 2, 10, 4]) == (3.0, 1.0, 10.0)
+    assert benchdoc.fmt_spread([0.5, 0.25, 1.0], digits=2) == "0.50 (0.25-1.00) s"
+    assert benchdoc.fmt_bytes(912) == "912 B"
+    assert benchdoc.fmt_bytes(25_088) == "24.5 KiB"
+    assert benchdoc.fmt_bytes(1_352_000) == "1.29 MiB"
+    assert benchdoc.fmt_bytes(1000 * 2**20) == "0.98 GiB"
+    assert benchdoc.fmt_seconds([9.19, 8.8, 10.3]) == "9.19 (8.80-10.30)"
+    assert benchdoc.fmt_seconds([0.116, 0.1, 0.2]) == "0.116 (0.100-0.200)"
+    assert benchdoc.fmt_seconds([0.00187]) == "0.00187 (0.00187-0.00187)"
+    assert bench_preprocess.rate(23_586_557, [4.44]) == "5.31"
+    assert bench_preprocess.rate(505_856, [0.0148]) == "34.2"
+
+
+def test_only_selects_in_canonical_order():
+    keys = ("gerris", "amrex", "athena", "enzo", "big")
+    assert benchdoc.chosen(None, keys) == list(keys)
+    assert benchdoc.chosen(["big,amrex", "gerris"], keys) == ["gerris", "amrex", "big"]
+    with pytest.raises(SystemExit, match="nope"):
+        benchdoc.chosen(["nope"], keys)
+
+
+def test_stage_commands_and_ingest_flags(tmp_path):
+    enzo = benchdoc.datasets()["enzo"]
+    assert enzo.format == "yt" and benchdoc.datasets()["amrex"].format == "auto"
+    steps = bench_preprocess.commands(enzo, tmp_path)
+    assert [s for s, _ in steps] == ["ingest", "brick", "regions", "bvh"]
+    ingest = steps[0][1]
+    assert ingest[-2:] == ["--format", "yt"] and "-q" in ingest
+    assert ingest[ingest.index("-o") + 1] == str(tmp_path / "cells.npz")
+    assert steps[3][1][-3:] == [str(tmp_path / "regions.npz"), "-o", str(tmp_path / "bvh.npz")]
+    assert bench_ingest.ingest_flags({"format": "raw", "dims": (4, 5, 6), "max_level": 2}) == [
+        "--format", "raw", "--dims", "4", "5", "6", "--max-level", "2"]
