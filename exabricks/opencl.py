@@ -9,9 +9,9 @@ the CPU through PoCL (Debian package ``pocl-opencl-icd``).
 
 Kernel sources are the ``.cl``/``.h`` files of ``<checkout>/kernels`` or, in an
 installed wheel, ``exabricks/kernels``; the directory is passed to the compiler
-as an include path. The program is built once per context and process;
-pyopencl's on-disk binary cache (and PoCL's kernel cache) make later processes
-skip compilation.
+as an include path. The program is built once per context, set of
+preprocessor defines and process; pyopencl's on-disk binary cache (and PoCL's
+kernel cache) make later processes skip compilation.
 """
 
 from __future__ import annotations
@@ -167,14 +167,16 @@ def context_for(device):
     return _CONTEXTS[key]
 
 
-def program_for(context):
-    """The built kernel program of `context`, compiled once per process."""
+def program_for(context, defines=()):
+    """The built kernel program of `context` with preprocessor `defines` (e.g.
+    ``("EB_CELL_LOCATION",)``, each passed as ``-D``), compiled once per process."""
     cl = _cl()
-    key = context.int_ptr
+    defines = tuple(defines)
+    key = (context.int_ptr, defines)
     if key not in _PROGRAMS:
         directory = kernel_dir()
         source = (directory / ENTRY_SOURCE).read_text(encoding="utf-8")
-        options = [*BUILD_OPTIONS, f"-I{directory}"]
+        options = [*BUILD_OPTIONS, f"-I{directory}", *(f"-D{d}" for d in defines)]
         try:
             _PROGRAMS[key] = cl.Program(context, source).build(options=options)
         except cl.RuntimeError as e:

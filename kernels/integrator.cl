@@ -11,12 +11,24 @@
  * never leave gaps or overlaps.
  * Opacity (paper §4.3): a = 1 - (1 - alpha)^(len / unit_distance).
  * Compositing: C += T a rgb, T *= 1 - a (premultiplied), stopping once the
- * accumulated opacity 1 - T reaches max_opacity. */
+ * accumulated opacity 1 - T reaches max_opacity.
+ * Reconstruction: from the region's brick list (paper §3.2); built with
+ * -DEB_CELL_LOCATION, from the bricks a per-sample descent of a tree over the
+ * brick supports finds (cell_location.cl, the comparison of paper §6.4.2).
+ * Everything else, the samples taken included, is the same in both. */
 #pragma once
 #include "common.h"
 #include "traversal.cl"
 #include "reconstruction.cl"
 #include "transfer_function.cl"
+
+/* What a sample reconstructs from. */
+#ifdef EB_CELL_LOCATION
+#include "cell_location.cl"
+typedef eb_located_bricks eb_sample_bricks;
+#else
+typedef eb_bricks eb_sample_bricks;
+#endif
 
 /* Headlight shading constants: emitted rgb *= AMBIENT + DIFFUSE |n . v|, with
  * n the normalised analytic gradient and v the view direction. A zero gradient
@@ -50,12 +62,14 @@ typedef struct {
 
 /* Integrate region r over [t_in, t_out] into `st` (paper §4.2-4.3); returns 1
  * once the ray is opaque enough to stop (early ray termination). */
-EB_INLINE int eb_integrate_region(eb_regions regions, eb_bricks bricks, eb_transfer tf,
+EB_INLINE int eb_integrate_region(eb_regions regions, eb_sample_bricks bricks, eb_transfer tf,
                                   eb_integration in, int r, float t_in, float t_out,
                                   float3 org_lattice, float3 dir_lattice, float3 dir_world,
                                   float rho, const int shade, eb_ray_state *st)
 {
+#ifndef EB_CELL_LOCATION
     long b0 = regions.brick_start[r], b1 = regions.brick_start[r + 1];
+#endif
     float dt = ldexp(in.step_base, (int)regions.finest_level[r]);
     /* First delimiter at or after t_in on this region's grid (k + rho) dt. */
     float t_first = (ceil(t_in / dt - rho) + rho) * dt;
@@ -68,8 +82,12 @@ EB_INLINE int eb_integrate_region(eb_regions regions, eb_bricks bricks, eb_trans
         float tm = 0.5f * (ta + tb);
         ta = tb;
         float3 p = org_lattice + tm * dir_lattice;
+#ifdef EB_CELL_LOCATION
+        eb_basis_sums s = shade ? eb_locate_reconstruct(bricks, p, 1) : eb_locate_reconstruct(bricks, p, 0);
+#else
         eb_basis_sums s = shade ? eb_reconstruct(bricks, regions.brick_ids, b0, b1, p, 1)
                                 : eb_reconstruct(bricks, regions.brick_ids, b0, b1, p, 0);
+#endif
         ++st->samples;
         if (!(s.weight > 0.0f))
             continue;  /* no cell has support here: transparent */
@@ -100,7 +118,7 @@ EB_INLINE int eb_integrate_region(eb_regions regions, eb_bricks bricks, eb_trans
  * (traversal.cl); *samples counts reconstructions; *depth is the world
  * distance where the accumulated opacity first reaches EB_DEPTH_OPACITY
  * (infinity if never). */
-EB_INLINE float4 eb_integrate(eb_bvh bvh, eb_regions regions, eb_bricks bricks,
+EB_INLINE float4 eb_integrate(eb_bvh bvh, eb_regions regions, eb_sample_bricks bricks,
                               eb_transfer tf, eb_integration in,
                               float3 org_lattice, float3 dir_lattice, float3 dir_world,
                               float rho, const int shade, const int ordered,

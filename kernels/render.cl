@@ -26,6 +26,19 @@
      region_finest_level, region_visible}
 #define EB_BRICK_STRUCT {brick_box, brick_dims, brick_offset, brick_values}
 
+/* eb_render's extra arguments for the cell-location variant (integrator.cl):
+ * the tree over the brick supports, exabricks.stages.cell_location.BrickTree. */
+#ifdef EB_CELL_LOCATION
+#define EB_LOCATION_ARGS                                                        \
+    , __global const float4 *tree_lower, __global const float4 *tree_upper,     \
+    __global const int2 *tree_link, __global const int *tree_brick_index
+#define EB_SAMPLE_BRICKS_STRUCT                                                 \
+    {EB_BRICK_STRUCT, {tree_lower, tree_upper, tree_link, tree_brick_index}}
+#else
+#define EB_LOCATION_ARGS
+#define EB_SAMPLE_BRICKS_STRUCT EB_BRICK_STRUCT
+#endif
+
 /* Sample `sample_index` of `spp` of every pixel of a width x height frame,
  * averaged into rgba (sample 0 overwrites, so the buffer needs no clearing).
  * Sub-pixel position: the pixel centre for spp == 1, else uniform from the
@@ -37,7 +50,7 @@ __kernel void eb_render(int width, int height, int sample_index, int spp, uint s
                         float4 origin_world, float4 inv_spacing,
                         float step_base, float inv_unit_distance, float max_opacity, int shading,
                         int ordered,
-                        EB_BVH_ARGS, EB_REGION_ARGS, EB_BRICK_ARGS,
+                        EB_BVH_ARGS, EB_REGION_ARGS, EB_BRICK_ARGS EB_LOCATION_ARGS,
                         __global const float *tf_xs, __global const float4 *tf_rgba, int tf_n,
                         __global float4 *rgba, __global float *depth, __global uint *samples)
 {
@@ -47,7 +60,7 @@ __kernel void eb_render(int width, int height, int sample_index, int spp, uint s
     uint pixel = (uint)row * (uint)width + (uint)col;
     eb_bvh bvh = EB_BVH_STRUCT;
     eb_regions regions = EB_REGION_STRUCT;
-    eb_bricks bricks = EB_BRICK_STRUCT;
+    eb_sample_bricks bricks = EB_SAMPLE_BRICKS_STRUCT;
     eb_transfer tf = {tf_xs, tf_rgba, tf_n};
     eb_integration in = {step_base, inv_unit_distance, max_opacity, inv_spacing.xyz};
 

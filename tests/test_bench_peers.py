@@ -1,8 +1,10 @@
-"""workflows/bench_peers.py: the uniform-grid ceiling renders what exabricks renders, and the
-yt settings (camera width, transfer-function tables, image orientation) match ours."""
+"""workflows/bench_peers.py: the uniform-grid ceiling renders what exabricks renders, the
+yt settings (camera width, transfer-function tables, image orientation) match ours, and the
+exabricks worker (regions, cell location and the ceiling, interleaved) and the report work."""
 
 from __future__ import annotations
 
+import argparse
 import math
 import sys
 
@@ -249,3 +251,58 @@ def test_yt_composites_the_far_sample_in_front():
     centre = np.asarray(sc.render())[4, 4]
     assert centre[3] > 0.99
     assert centre[2] > 0.99 and centre[0] < 0.01  # the far (blue) slab wins
+
+
+@pytest.fixture(scope="module")
+def gerris_row(tmp_path_factory):
+    """bench_peers' prepare and exabricks workers run in this process on the Gerris plume
+    (16 x 16 frames, 2 rounds): a row as bench_dataset makes it."""
+    path, field, _ = bench_peers.DATASETS["gerris"]
+    tmp = tmp_path_factory.mktemp("peers-gerris")
+    base = {"name": "gerris", "path": str(path), "field": field, "size": 16, "runs": 2,
+            "image_prefix": str(tmp / "gerris"), "max_voxels": bench_peers.MAX_VOXELS,
+            "alpha_scale": bench_peers.ALPHA_SCALE}
+    prep = bench_peers.worker_prepare(base)
+    ours = bench_peers.worker_exabricks({**base, **{k: prep[k] for k in (
+        "camera", "transfer_function", "value_range", "unit_distance")}})
+    return {"name": "gerris", "field": field, "prep": prep, "ours": ours,
+            "uniform": ours.pop("uniform"), "cell_location": ours.pop("cell_location"),
+            "yt": {"error": bench_peers.yt_skip_reason(prep["cells"], 1000)}}
+
+
+def test_worker_interleaves_regions_cell_location_and_uniform(gerris_row):
+    ours, located, uniform = gerris_row["ours"], gerris_row["cell_location"], gerris_row["uniform"]
+    assert located["tree_nodes"] == 2 * gerris_row["prep"]["bricks"] - 1  # one brick per leaf
+    for rate in ("2.0", "10.0"):
+        a, b, u = ours["rates"][rate], located["rates"][rate], uniform["rates"][rate]
+        assert len(a["kernel_s"]) == len(b["kernel_s"]) == len(u["kernel_s"]) == 2
+        # The same samples, summed alike: the same frame.
+        assert b["samples"] == a["samples"] > 0 and b["max_abs_vs_regions"] == 0.0
+        assert u["samples"] > 0
+    assert ours["rates"]["10.0"]["samples"] > ours["rates"]["2.0"]["samples"]
+
+
+def test_yt_is_skipped_above_the_cell_cap():
+    assert bench_peers.yt_skip_reason(505_856, bench_peers.YT_MAX_CELLS) is None
+    reason = bench_peers.yt_skip_reason(23_600_000, bench_peers.YT_MAX_CELLS)  # "big"
+    assert reason.startswith("skipped: 23,600,000 cells > --yt-max-cells")
+
+
+def test_report_goes_into_its_docs_section(gerris_row, tmp_path):
+    docs = tmp_path / "benchmarks.md"
+    docs.write_text("# Benchmarks\n\n## render (PoCL)\n\nkept\n")
+    args = argparse.Namespace(
+        datasets="gerris", size=16, runs=2, no_yt=False, yt_max_cells=1000,
+        alpha_scale=bench_peers.ALPHA_SCALE, max_voxels=bench_peers.MAX_VOXELS,
+        images=str(tmp_path / "images"), docs=str(docs))
+    body = "\n".join(bench_peers.report([gerris_row], "test machine", args))
+    table3 = body[body.index("### regions vs cell location (paper Table 3)"):
+                  body.index("### exabricks vs the uniform-grid ceiling")]
+    rows = [line for line in table3.splitlines() if line.startswith("| gerris |")]
+    assert len(rows) == 2  # rates 2 and 10
+    a, b = (gerris_row[k]["rates"]["2.0"]["kernel_s"] for k in ("ours", "cell_location"))
+    assert f"| {np.median(b) / np.median(a):.2f}x (" in rows[0] and "| yes (0.0e+00) |" in rows[0]
+    assert "skipped: 67,712 cells > --yt-max-cells 1,000" in body
+    bench_peers.benchdoc.replace_section(bench_peers.SECTION, body, docs)
+    text = docs.read_text()
+    assert "## render (PoCL)\n\nkept" in text and f"## {bench_peers.SECTION}\n" in text

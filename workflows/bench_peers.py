@@ -1,36 +1,61 @@
-"""exabricks against yt and against the uniform-grid ceiling, each pair measured in the same run.
+"""exabricks against yt, against per-sample cell location and against the uniform-grid ceiling.
 
     .venv/bin/python workflows/bench_peers.py [--datasets amrex,athena,gerris,enzo,big]
-        [--size 1024] [--runs 5] [--out docs/benchmarks-peers.md] [--images docs/images]
+        [--size 1024] [--runs 5] [--no-yt] [--yt-max-cells 10000000]
+        [--docs docs/benchmarks.md] [--images docs/images]
 
-For every dataset four workers run one after the other, each in its own
-subprocess (so that each one's peak resident memory, read with os.wait4, is its
-own), with the same field, camera, transfer function and image size:
+For every dataset three workers run one after the other, each in its own
+subprocess (so that each one's peak resident memory is its own), with the same
+field, camera, transfer function and image size:
 
-0. prepare (the offline stages, timed but not part of any pair): readers.read,
-   then brick + regions + BVH in memory, saved as .npz with exabricks.schema;
-   it also fixes the shared view (below).
+0. prepare (the offline stages, timed but not part of any comparison):
+   readers.read, then brick + regions + BVH in memory, saved as .npz with
+   exabricks.schema; it also fixes the shared view (below).
 1. exabricks: loading the three .npz files, the OpenCL program build (pyopencl's
    binary cache warm after the first run), `Renderer` construction (buffer
-   uploads), then frames at the default
-   sampling rate 2 and at 10 samples per finest cell
-   ("equal sample density" with yt's 10 samples per cell), each the median of
-   --runs frames after one warm-up frame. Pure emission-absorption
-   (shading="none", as yt's default and the uniform marcher), interleaved jitter
-   on (the renderer's default; seed 0), early termination at 0.98.
+   uploads), then the same Renderer with reconstruction="cell-location" (the
+   tree over the brick supports built in memory, the -DEB_CELL_LOCATION
+   program, no second upload), and the uniform-grid ceiling: the dataset
+   resampled at its finest resolution (lattice bounding box, capped at
+   --max-voxels) by the basis reconstruction itself
+   (`exabricks.stages.probe.probe_scene` at every finest-cell centre), rendered
+   by kernels/uniform_grid.cl (trilinear, constant step finest cell / sampling
+   rate, the same sample placement, transfer function, opacity correction,
+   compositing and early termination). Frames at the default sampling rate 2
+   and at 10 samples per finest cell ("equal sample density" with yt's 10
+   samples per cell): after one warm-up frame of each, --runs rounds of one
+   regions frame, one cell-location frame and one uniform-grid frame, so that
+   the load of a shared machine hits all three alike; the median (min-max) of
+   each. Pure emission-absorption (shading="none", as yt's default and the
+   uniform marcher), interleaved jitter on (the renderer's default; seed 0),
+   early termination at 0.98. Samples are counted the same way in both
+   kernels (every reconstruction / trilinear lookup, whether or not it is
+   transparent). Peak RSS of ours is read before the uniform grid is made.
 2. yt 4.4.3: `import yt`, `yt.load` (or yt.load_amr_grids, below) + `ds.index`,
    scene set-up (Scene, VolumeSource, transfer function, perspective camera,
    and the AMRKDTree with its vertex-centred bricks, which yt otherwise builds
    in the first render), then `sc.render()`: median of --runs after a warm-up.
-   yt's default sampling: `num_samples = 10` samples per cell crossing.
-3. The uniform-grid ceiling: the dataset resampled at its finest resolution
-   (lattice bounding box, capped at --max-voxels) by the basis reconstruction
-   itself (`exabricks.stages.probe.probe_scene` at every finest-cell centre),
-   rendered by kernels/uniform_grid.cl (trilinear, constant step finest
-   cell / sampling rate, the same sample placement, transfer function,
-   opacity correction, compositing and early termination) at both rates.
-   Samples are counted the same way in both kernels (every reconstruction /
-   trilinear lookup, whether or not it is transparent).
+   yt's default sampling: `num_samples = 10` samples per cell crossing. Skipped
+   on datasets with more than --yt-max-cells leaf cells (default 10 M: yt never
+   finished loading the 23.6 M-cell "big" dataset); the table says so.
+
+Regions vs cell location (paper §6.4.2, Table 3): both reconstructions take
+the same samples (the regions decide where), and sum every sample's bricks in
+the same order, so their frames are equal; only how a sample finds its bricks
+differs (the region's list, or a descent of the brick-support tree from the
+root, kernels/cell_location.cl).
+
+The uniform-grid ceiling was checked when an earlier run showed it at 10-30 M
+samples/s and slower per sample at rate 10 than at rate 2: its samples are
+counted like ours (tests/test_bench_peers.py: on one region both take exactly
+the same samples), and interleaved with ours it runs at about the same rate per
+sample at both rates (rate 10 slightly faster: neighbouring samples share
+voxels). The earlier figures came from timing each tool in its own process at
+a different time on a shared machine. About three quarters of its time is the
+transfer function lookup (a binary search over the preset's 256 knots) and the
+opacity correction (exp2/log2), the same code as ours: without them its
+trilinear lookups and stepping run about four times as fast (AMReX at 512^2:
+180-190 instead of 42-45 M samples/s).
 
 How yt is matched (yt/visualization/volume_rendering/lens.py, camera.py,
 utilities/orientation.py, utilities/lib/image_samplers.pyx,
@@ -89,9 +114,11 @@ Enzo's finest cell, 1/2048 of the box, would make its 16^3 root cells opaque in
 one step). Enzo renders x-velocity: every other Enzo field spans 3-7 decades,
 which a transfer function linear in the value shows as almost nothing.
 
-Results: a table on stdout and --out (markdown), and docs/images/peers-NAME.png
+Results: the tables on stdout and as the section "## exabricks vs yt, cell
+location and the uniform-grid ceiling" of --docs (workflows/benchdoc.py
+replace_section; the other sections stay), and docs/images/peers-NAME.png
 (ours | yt | uniform grid, un-premultiplied over black). All timings are
-provisional on a shared machine; the command is written into the file.
+provisional on a shared machine; the command is written into the section.
 """
 
 from __future__ import annotations
@@ -100,8 +127,6 @@ import argparse
 import json
 import math
 import os
-import platform
-import statistics
 import subprocess
 import sys
 import tempfile
@@ -111,6 +136,9 @@ from pathlib import Path
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT / "workflows"))
+
+import benchdoc  # noqa: E402
 DATA = ROOT / "tests" / "data"
 if not (DATA / "amrex-advection3d").is_dir():
     DATA = ROOT.parent / "shared" / "data"
@@ -138,6 +166,10 @@ ALPHA_SCALE = 0.1           # opacity ramp 0 -> 0.1: semi-transparent, as volume
 OPACITY_UNIT_CELLS = 128    # opacity unit = largest domain extent / this (opacity_unit)
 MAX_VOXELS = 512 ** 3        # the uniform grid's cap (float32: 512 MiB)
 PROBE_CHUNK = 1 << 21        # points per probe call
+# yt is skipped above this many leaf cells: it never finished loading the 23.6 M-cell
+# "big" dataset (hours, then killed), and every other dataset has under 1 M.
+YT_MAX_CELLS = 10_000_000
+SECTION = "exabricks vs yt, cell location and the uniform-grid ceiling"
 
 
 # ----------------------------------------------------------------------------- helpers
@@ -154,41 +186,6 @@ def timed_runs(fn, runs: int):
         result = fn()
         times.append(time.perf_counter() - t)
     return first, times, result
-
-
-def spread(times) -> dict:
-    return {"median": statistics.median(times), "min": min(times), "max": max(times)}
-
-
-def machine() -> dict:
-    """CPU model, core count and the OpenCL platform/device the renderer picks."""
-    model = platform.processor() or platform.machine()
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                model = line.split(":", 1)[1].strip()
-                break
-    except OSError:
-        pass
-    info = {"cpu": model, "cores": os.cpu_count(), "python": platform.python_version()}
-    try:
-        import pyopencl
-
-        from exabricks import opencl
-
-        info["pyopencl"] = pyopencl.VERSION_TEXT
-        device = opencl.choose_device(None)
-        info.update(opencl_platform=f"{device.platform.name.strip()} ({device.platform.version.strip()})",
-                    opencl_device=device.name.strip(), opencl_version=device.version.strip())
-    except Exception as e:  # no OpenCL: say so in the report
-        info.update(opencl_platform=f"unavailable ({e})")
-    try:
-        import yt
-
-        info["yt"] = yt.__version__
-    except ImportError:
-        info["yt"] = "not installed"
-    return info
 
 
 # ----------------------------------------------------------------------------- exabricks side
@@ -267,9 +264,35 @@ def load_scene(spec: dict):
     return tuple(schema.load(paths[kind], kind) for kind in ("bricks", "regions", "bvh"))
 
 
+def interleaved(frames: dict, runs: int) -> dict:
+    """One warm-up call of every frame function, then `runs` rounds calling each in turn,
+    so that machine load hits all alike. A frame function returns (kernel seconds,
+    samples, rgba). Returns {name: {"first_frame_s", "frame_s" (list), "kernel_s" (list),
+    "samples"}} and, apart, the last rgba of each."""
+    out = {name: {"frame_s": [], "kernel_s": []} for name in frames}
+    images = {}
+    for name, frame in frames.items():
+        t = time.perf_counter()
+        frame()
+        out[name]["first_frame_s"] = time.perf_counter() - t
+    for _ in range(runs):
+        for name, frame in frames.items():
+            t = time.perf_counter()
+            kernel_s, samples, images[name] = frame()
+            out[name]["frame_s"].append(time.perf_counter() - t)
+            out[name]["kernel_s"].append(kernel_s)
+            out[name]["samples"] = samples
+    return out, images
+
+
 def worker_exabricks(spec: dict) -> dict:
+    """Ours with the regions' brick lists, ours with per-sample cell location and the
+    uniform-grid ceiling, their frames interleaved (module docstring)."""
+    import resource
+
     from exabricks import opencl
     from exabricks.camera import Camera
+    from exabricks.stages.cell_location import build_brick_tree
     from exabricks.stages.render import Renderer
     from exabricks.transfer_function import TransferFunction
 
@@ -286,24 +309,65 @@ def worker_exabricks(spec: dict) -> dict:
     t = time.perf_counter()
     renderer = Renderer(bricks, regions, bvh, field=field, device=device)
     t_renderer = time.perf_counter() - t
+    t = time.perf_counter()
+    located = renderer.with_reconstruction("cell-location")
+    t_located = time.perf_counter() - t
+    tree = renderer.scene.brick_tree
+    t = time.perf_counter()
+    build_brick_tree(bricks)  # again, without numba's first-call cache load
+    t_tree = time.perf_counter() - t
     out = {"load_s": t_load, "kernel_build_s": t_kernels, "upload_s": t_renderer,
-           "device": renderer.device_name, "rates": {}}
-    for rate in RATES:
-        kernel_times = []
+           "device": renderer.device_name, "rates": {},
+           "cell_location": {"setup_s": t_located, "tree_build_s": t_tree,
+                             "tree_first_build_s": renderer.scene.brick_tree_seconds,
+                             "tree_nodes": int(tree.first.shape[0]), "tree_depth": tree.depth,
+                             "rates": {}},
+           # Ours alone, before the uniform grid is resampled (Linux: KiB).
+           "peak_rss_mib": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0}
 
-        def frame(rate=rate, kernel_times=kernel_times):
-            result = renderer.render(camera=camera, transfer_function=tf, width=size, height=size,
-                                     sampling_rate=rate, seed=SEED, jitter=True,
-                                     max_opacity=MAX_OPACITY, unit_distance=unit, shading="none")
-            kernel_times.append(result.stats["ms"] / 1e3)
-            return result
-        first_s, times, result = timed_runs(frame, runs)
-        kernel_s = statistics.median(kernel_times[1:])  # the timed runs, not the warm-up
-        out["rates"][str(rate)] = {
-            "first_frame_s": first_s, "frame_s": spread(times), "samples": result.stats["samples"],
-            "samples_per_s": result.stats["samples"] / kernel_s if kernel_s > 0 else 0.0,
-            "kernel_s": kernel_s}
-        np.save(spec["image_prefix"] + f"-ours-{rate:g}.npy", result.rgba)
+    lower, dims = finest_grid(bricks)
+    uniform = out["uniform"] = {"dims": [int(d) for d in dims], "voxels": int(np.prod(dims)),
+                                "fits": bool(np.prod(dims) <= spec["max_voxels"]), "rates": {}}
+    marcher = None
+    if uniform["fits"]:
+        t = time.perf_counter()
+        volume = resample_uniform(renderer.scene, lower, dims)
+        uniform["resample_s"] = time.perf_counter() - t
+        uniform["nan_voxels"] = int(np.isnan(volume).sum())
+        marcher = UniformGridRenderer(volume, lower, bricks.origin_world, bricks.spacing_world,
+                                      device=device)
+        del volume
+
+    def ours(r, rate):
+        def frame():
+            result = r.render(camera=camera, transfer_function=tf, width=size, height=size,
+                              sampling_rate=rate, seed=SEED, jitter=True,
+                              max_opacity=MAX_OPACITY, unit_distance=unit, shading="none")
+            return result.stats["ms"] / 1e3, result.stats["samples"], result.rgba
+        return frame
+
+    def ceiling(rate):
+        def frame():
+            rgba, samples, seconds = marcher.render(camera=camera, transfer_function=tf,
+                                                    width=size, height=size, sampling_rate=rate,
+                                                    unit_distance=unit)
+            return seconds, samples, rgba
+        return frame
+
+    for rate in RATES:
+        frames = {"regions": ours(renderer, rate), "cell-location": ours(located, rate)}
+        if marcher is not None:
+            frames["uniform"] = ceiling(rate)
+        measured, images = interleaved(frames, runs)
+        key = str(rate)
+        out["rates"][key] = measured["regions"]
+        out["cell_location"]["rates"][key] = {
+            **measured["cell-location"],
+            "max_abs_vs_regions": float(np.abs(images["cell-location"] - images["regions"]).max())}
+        np.save(spec["image_prefix"] + f"-ours-{rate:g}.npy", images["regions"])
+        if marcher is not None:
+            uniform["rates"][key] = measured["uniform"]
+            np.save(spec["image_prefix"] + f"-uniform-{rate:g}.npy", images["uniform"])
     return out
 
 
@@ -410,47 +474,6 @@ def _int4(x, y, z):
     import pyopencl.cltypes as cltypes
 
     return cltypes.make_int4(int(x), int(y), int(z), 0)
-
-
-def worker_uniform(spec: dict) -> dict:
-    from exabricks.camera import Camera
-    from exabricks.stages.scene import DeviceScene
-    from exabricks.transfer_function import TransferFunction
-
-    field, size, runs = spec["field"], spec["size"], spec["runs"]
-    camera = Camera.from_dict(spec["camera"])
-    tf = TransferFunction.from_paraview_dict(spec["transfer_function"])
-    bricks, regions, bvh = load_scene(spec)
-    lower, dims = finest_grid(bricks)
-    out = {"dims": [int(d) for d in dims], "voxels": int(np.prod(dims))}
-    if np.prod(dims) > spec["max_voxels"]:
-        out["fits"] = False
-        return out
-    t = time.perf_counter()
-    scene = DeviceScene(bricks, regions, bvh, field=field)
-    volume = resample_uniform(scene, lower, dims)
-    out["resample_s"] = time.perf_counter() - t
-    out["nan_voxels"] = int(np.isnan(volume).sum())
-    origin, spacing = bricks.origin_world, bricks.spacing_world
-    del scene, bricks, regions, bvh
-    marcher = UniformGridRenderer(volume, lower, origin, spacing)
-    del volume
-    out["fits"] = True
-    out["rates"] = {}
-    for rate in RATES:
-        kernel_times = []
-
-        def frame(rate=rate, kernel_times=kernel_times):
-            result = marcher.render(camera=camera, transfer_function=tf, width=size, height=size,
-                                    sampling_rate=rate, unit_distance=spec["unit_distance"])
-            kernel_times.append(result[2])
-            return result
-        _, times, (rgba, samples, _) = timed_runs(frame, runs)
-        kernel_s = statistics.median(kernel_times[1:])  # the timed runs, not the warm-up
-        out["rates"][str(rate)] = {"frame_s": spread(times), "samples": samples,
-                                   "kernel_s": kernel_s, "samples_per_s": samples / kernel_s}
-        np.save(spec["image_prefix"] + f"-uniform-{rate:g}.npy", rgba)
-    return out
 
 
 # ----------------------------------------------------------------------------- yt side
@@ -665,20 +688,20 @@ def worker_yt(spec: dict) -> dict:
     rgba = np.ascontiguousarray(image.transpose(1, 0, 2)).astype(np.float32)
     np.save(spec["image_prefix"] + "-yt.npy", rgba)
     return {"import_s": t_import, "convert_s": t_convert, "load_index_s": t_load, "setup_s": t_setup,
-            "first_frame_s": first_s, "frame_s": spread(times), "grids": int(ds.index.num_grids),
+            "first_frame_s": first_s, "frame_s": times, "grids": int(ds.index.num_grids),
             "ray_length": ray_length, "num_samples": YT_NUM_SAMPLES,
             "unit_vectors": np.asarray(cam.unit_vectors).tolist()}
 
 
-WORKERS = {"prepare": worker_prepare, "exabricks": worker_exabricks, "uniform": worker_uniform,
-           "yt": worker_yt}
+WORKERS = {"prepare": worker_prepare, "exabricks": worker_exabricks, "yt": worker_yt}
 
 
 # ----------------------------------------------------------------------------- driver
 
 
 def run_worker(kind: str, spec: dict, workdir: Path) -> dict:
-    """Run one worker in a subprocess; its result plus peak RSS (MiB) from os.wait4."""
+    """Run one worker in a subprocess; its result plus peak RSS (MiB) from os.wait4, unless
+    the worker measured its own (the exabricks worker: before the uniform grid)."""
     spec_path = workdir / f"{spec['name']}-{kind}-spec.json"
     result_path = workdir / f"{spec['name']}-{kind}-result.json"
     spec_path.write_text(json.dumps(spec))
@@ -689,7 +712,7 @@ def run_worker(kind: str, spec: dict, workdir: Path) -> dict:
     if proc.returncode != 0 or not result_path.is_file():
         return {"error": f"{kind} worker failed (exit {proc.returncode})"}
     result = json.loads(result_path.read_text())
-    result["peak_rss_mib"] = usage.ru_maxrss / 1024.0  # Linux: KiB
+    result.setdefault("peak_rss_mib", usage.ru_maxrss / 1024.0)  # Linux: KiB
     return result
 
 
@@ -722,10 +745,13 @@ def image_agreement(ours_path: str, other_path: str) -> dict | None:
     return compare_images(np.load(ours_path), np.load(other_path))
 
 
-def fmt_s(d: dict | None) -> str:
-    if not d:
-        return "-"
-    return f"{d['median']:.3f} ({d['min']:.3f}-{d['max']:.3f})"
+def fmt_s(times) -> str:
+    """'median (min-max)' of a list of seconds; '-' for none."""
+    return benchdoc.fmt_spread(times, unit="") if times else "-"
+
+
+def fmt_ms(times) -> str:
+    return benchdoc.fmt_spread(1e3 * np.asarray(times), unit="", digits=0) if times else "-"
 
 
 def fmt_agreement(m: dict | None) -> str:
@@ -735,13 +761,17 @@ def fmt_agreement(m: dict | None) -> str:
     return f"{m['psnr']:.1f} / {ssim}"
 
 
+def yt_skip_reason(cells: int, cap: int) -> str | None:
+    """Why yt is not run on a dataset of `cells` leaf cells (None: it is run)."""
+    if cells > cap:
+        return f"skipped: {cells:,} cells > --yt-max-cells {cap:,}"
+    return None
+
+
 def bench_dataset(name: str, args, workdir: Path) -> dict:
     path, field, yt_mode = DATASETS[name]
     if name == "big" and not Path(path).exists():
-        sys.path.insert(0, str(ROOT / "workflows"))
-        import bench_ingest  # the big AMR in ExaJet form, made from workflows/make_big.py
-
-        path = bench_ingest.ensure_exajet()
+        path = benchdoc.ensure_exajet()  # the big AMR in ExaJet form, from workflows/make_big.py
     if not Path(path).exists():
         return {"name": name, "error": f"{path} missing"}
     base = {"name": name, "path": str(path), "field": field, "size": args.size, "runs": args.runs,
@@ -754,9 +784,12 @@ def bench_dataset(name: str, args, workdir: Path) -> dict:
     shared = {**base, "camera": prep["camera"], "transfer_function": prep["transfer_function"],
               "value_range": prep["value_range"], "unit_distance": prep["unit_distance"]}
     row["ours"] = run_worker("exabricks", shared, workdir)
-    row["uniform"] = run_worker("uniform", shared, workdir)
+    row["uniform"] = row["ours"].pop("uniform", None)
+    row["cell_location"] = row["ours"].pop("cell_location", None)
     if not args.no_yt:
-        row["yt"] = run_worker("yt", {**shared, "yt_mode": yt_mode}, workdir)
+        skip = yt_skip_reason(prep["cells"], args.yt_max_cells)
+        row["yt"] = {"error": skip} if skip else \
+            run_worker("yt", {**shared, "yt_mode": yt_mode}, workdir)
     prefix = workdir / name
     side_by_side([f"{prefix}-ours-2.npy", f"{prefix}-yt.npy", f"{prefix}-uniform-2.npy"],
                  Path(args.images) / f"peers-{name}.png", args.size)
@@ -767,15 +800,23 @@ def bench_dataset(name: str, args, workdir: Path) -> dict:
     return row
 
 
-def report(rows, info: dict, args) -> list[str]:
+def _median(values) -> float:
+    return benchdoc.median_spread(values)[0]
+
+
+def report(rows, machine_line: str, args) -> list[str]:
+    """The markdown body of the docs section (module docstring)."""
+    command = (f".venv/bin/python workflows/bench_peers.py --datasets {args.datasets} "
+               f"--size {args.size} --runs {args.runs}")
+    if args.no_yt:
+        command += " --no-yt"
     lines = [
-        f"Provisional ({time.strftime('%Y-%m-%d %H:%M')}): {info['cpu']}, {info['cores']} cores "
-        f"(shared with other jobs), OpenCL {info.get('opencl_platform')} on "
-        f"{info.get('opencl_device', '-')} (pyopencl {info.get('pyopencl', '-')}), "
-        f"yt {info['yt']} (OpenMP, all cores), Python {info['python']}. "
-        f"Image {args.size}x{args.size}, median of {args.runs} frames after a warm-up (min-max). "
-        f"Reproduce: `.venv/bin/python workflows/bench_peers.py --datasets {args.datasets} "
-        f"--size {args.size} --runs {args.runs}`.",
+        f"Command: `{command}`",
+        "",
+        f"- machine: {machine_line}; shared with other jobs, so the figures are provisional",
+        f"- frames: {args.size}x{args.size}, the median of {args.runs} frames after one warm-up "
+        "(min-max in brackets); ours (both reconstructions) and the uniform grid take their "
+        "frames in turn in one process, so machine load hits them alike",
         "",
         "### exabricks vs yt (same field, camera, transfer function, image size)",
         "",
@@ -799,8 +840,8 @@ def report(rows, info: dict, args) -> list[str]:
             if y.get("convert_s") is not None:
                 yt_load += f" (+ {y['convert_s']:.2f} our conversion)"
             yt_frame = fmt_s(y["frame_s"])
-            ratio2 = f"{y['frame_s']['median'] / f2['median']:.1f}x"
-            ratio10 = f"{y['frame_s']['median'] / f10['median']:.1f}x"
+            ratio2 = f"{_median(y['frame_s']) / _median(f2):.1f}x"
+            ratio10 = f"{_median(y['frame_s']) / _median(f10):.1f}x"
             rss = f"{o['peak_rss_mib']:.0f} / {y['peak_rss_mib']:.0f}"
         else:
             yt_load = yt_frame = y["error"] if y else "not run (--no-yt)"
@@ -815,6 +856,41 @@ def report(rows, info: dict, args) -> list[str]:
             f"| {fmt_agreement(r.get('agreement', {}).get('yt'))} |")
     lines += [
         "",
+        "### regions vs cell location (paper Table 3)",
+        "",
+        "Kernel ms per frame. Both use the regions to decide where to sample and take the "
+        "same samples; *regions* reconstructs each sample from its region's brick list "
+        "(paper §3.2), *cell location* finds the bricks by descending a binned-SAH tree "
+        "over the brick supports (one brick per leaf) from the root for every sample "
+        "(kernels/cell_location.cl, the paper's §6.4.2 comparison with the cell-location "
+        "kernel of Wald et al. 2017). Speed-up: median cell location / median regions "
+        "(min-max of the per-round ratios). Tree build: in a warm process (in brackets: the "
+        "first build in the process, with numba loading its compiled code). Shading none, "
+        "as in the rest of this section (the paper's Table 3 shades both with analytic "
+        "gradients).",
+        "",
+        "| dataset | bricks | tree nodes / depth / build ms (first) | rate | samples | regions ms "
+        "| cell location ms | speed-up | same frame (max abs diff) |",
+        "|---|---:|---:|---:|---:|---:|---:|---:|---:|",
+    ]
+    for r in rows:
+        o, c = r.get("ours", {}), r.get("cell_location")
+        if not o or "error" in o or not c:
+            continue
+        tree = (f"{c['tree_nodes']:,} / {c['tree_depth']} / {1e3 * c['tree_build_s']:.1f} "
+                f"({1e3 * c['tree_first_build_s']:.0f})")
+        for rate in ("2.0", "10.0"):
+            a, b = o["rates"][rate], c["rates"][rate]
+            pairs = np.asarray(b["kernel_s"]) / np.asarray(a["kernel_s"])
+            same = "yes" if b["samples"] == a["samples"] else f"no: {b['samples']:,} samples"
+            lines.append(
+                f"| {r['name']} | {r['prep']['bricks']:,} | {tree} | {float(rate):g} "
+                f"| {a['samples']:,} | {fmt_ms(a['kernel_s'])} | {fmt_ms(b['kernel_s'])} "
+                f"| {_median(b['kernel_s']) / _median(a['kernel_s']):.2f}x "
+                f"({pairs.min():.2f}-{pairs.max():.2f}) "
+                f"| {same} ({b['max_abs_vs_regions']:.1e}) |")
+    lines += [
+        "",
         "### exabricks vs the uniform-grid ceiling (median kernel time, samples counted alike)",
         "",
         "| dataset | finest grid | rate | ours samples | ours Msamples/s | uniform samples "
@@ -826,9 +902,6 @@ def report(rows, info: dict, args) -> list[str]:
         o, u = r.get("ours", {}), r.get("uniform")
         if not o or "error" in o or not u:
             continue
-        if "error" in u:
-            lines.append(f"| {r['name']} | {u['error']} |" + " |" * 8)
-            continue
         grid = "x".join(map(str, u["dims"]))
         if not u.get("fits"):
             lines.append(f"| {r['name']} | {grid}: does not fit (> {args.max_voxels:,} voxels) |"
@@ -836,11 +909,12 @@ def report(rows, info: dict, args) -> list[str]:
             continue
         for rate in ("2.0", "10.0"):
             a, b = o["rates"][rate], u["rates"][rate]
+            ka, kb = _median(a["kernel_s"]), _median(b["kernel_s"])
+            rate_a, rate_b = a["samples"] / ka, b["samples"] / kb
             lines.append(
                 f"| {r['name']} | {grid} | {float(rate):g} | {a['samples']:,} "
-                f"| {a['samples_per_s'] / 1e6:.1f} | {b['samples']:,} | {b['samples_per_s'] / 1e6:.1f} "
-                f"| {a['samples_per_s'] / b['samples_per_s']:.2f} "
-                f"| {b['kernel_s'] / a['kernel_s']:.2f} "
+                f"| {rate_a / 1e6:.1f} | {b['samples']:,} | {rate_b / 1e6:.1f} "
+                f"| {rate_a / rate_b:.2f} | {kb / ka:.2f} "
                 f"| {fmt_agreement(r.get('agreement', {}).get('uniform-' + rate[:-2]))} |")
     lines += [
         "",
@@ -855,10 +929,16 @@ def report(rows, info: dict, args) -> list[str]:
         "after the first run); upload: `Renderer()` (buffers to the device). "
         "yt: `yt.load` + `ds.index`; "
         "scene = Scene, VolumeSource, transfer function, perspective camera and the AMRKDTree "
-        "(vertex-centred bricks). Peak RSS of each tool in its own process. The uniform grid is "
-        "resampled with exabricks' own basis reconstruction at every finest-cell centre (probe) "
-        "and marched trilinearly with a constant step; see workflows/bench_peers.py for how the "
-        "yt camera and transfer function were matched and what still differs.",
+        "(vertex-centred bricks). Peak RSS of each tool in its own process (ours: before the "
+        "uniform grid is resampled in the same process). yt is skipped above "
+        f"--yt-max-cells ({args.yt_max_cells:,} leaf cells): on the 23.6 M-cell big dataset "
+        "it never finished loading. The uniform grid is resampled with exabricks' own basis "
+        "reconstruction at every finest-cell centre (probe) and marched trilinearly with a "
+        "constant step (kernels/uniform_grid.cl), with the same transfer function lookup, "
+        "opacity correction and compositing code as ours; those take about three quarters "
+        "of its time (without them its trilinear lookups and stepping run about four times "
+        "as fast). See workflows/bench_peers.py for how the yt camera and transfer "
+        "function were matched and what still differs.",
         "",
         "How yt was matched (details and the yt source lines in workflows/bench_peers.py; "
         "checked by tests/test_bench_peers.py):",
@@ -891,8 +971,19 @@ def report(rows, info: dict, args) -> list[str]:
         png = Path(args.images) / f"peers-{r['name']}.png"
         if png.is_file():
             lines.append(f"![{r['name']}: ours | yt | uniform grid (grey: not run)]"
-                         f"({os.path.relpath(png, Path(args.out).parent)})")
+                         f"({os.path.relpath(png, Path(args.docs).parent)})")
     return lines
+
+
+def machine() -> str:
+    """benchdoc's machine line with the OpenCL device and the pyopencl and yt versions."""
+    versions = []
+    for module, attribute in (("pyopencl", "VERSION_TEXT"), ("yt", "__version__")):
+        try:
+            versions.append(f"{module} {getattr(__import__(module), attribute)}")
+        except ImportError:
+            versions.append(f"{module} not installed")
+    return f"{benchdoc.machine(opencl=True)}, {', '.join(versions)} (yt: OpenMP, all cores)"
 
 
 def main(argv=None) -> int:
@@ -900,12 +991,15 @@ def main(argv=None) -> int:
     p.add_argument("--datasets", default="amrex,athena,gerris,enzo,big")
     p.add_argument("--size", type=int, default=1024)
     p.add_argument("--runs", type=int, default=5)
-    p.add_argument("--out", default=str(ROOT / "docs" / "benchmarks-peers.md"))
+    p.add_argument("--docs", default=str(benchdoc.DOCS),
+                   help=f"markdown file whose section '## {SECTION}' is replaced")
     p.add_argument("--images", default=str(ROOT / "docs" / "images"))
     p.add_argument("--max-voxels", type=int, default=MAX_VOXELS)
     p.add_argument("--alpha-scale", type=float, default=ALPHA_SCALE,
                    help="scale of the default preset's opacity ramp (1: the preset itself)")
     p.add_argument("--no-yt", action="store_true", help="skip yt (exabricks and the ceiling only)")
+    p.add_argument("--yt-max-cells", type=int, default=YT_MAX_CELLS,
+                   help="skip yt on datasets with more leaf cells than this")
     p.add_argument("--json", help="also write the raw results here")
     p.add_argument("--worker", nargs=3, metavar=("KIND", "SPEC", "RESULT"), help=argparse.SUPPRESS)
     args = p.parse_args(argv)
@@ -922,18 +1016,17 @@ def main(argv=None) -> int:
         p.error("--size must be at least 2")
     if args.runs < 1:
         p.error("--runs must be at least 1")
-    info = machine()
+    machine_line = machine()
     rows = []
     with tempfile.TemporaryDirectory(prefix="bench-peers-") as tmp:
         for name in names:
             print(f"{name} ...", file=sys.stderr, flush=True)
             rows.append(bench_dataset(name, args, Path(tmp)))
-    lines = report(rows, info, args)
+    lines = report(rows, machine_line, args)
     print("\n".join(lines))
-    Path(args.out).parent.mkdir(parents=True, exist_ok=True)
-    Path(args.out).write_text("## exabricks vs yt and the uniform-grid ceiling\n\n" + "\n".join(lines) + "\n")
+    benchdoc.replace_section(SECTION, "\n".join(lines), Path(args.docs))
     if args.json:
-        Path(args.json).write_text(json.dumps({"machine": info, "rows": rows}, indent=1))
+        Path(args.json).write_text(json.dumps({"machine": machine_line, "rows": rows}, indent=1))
     return 0
 
 

@@ -32,23 +32,9 @@ def build_bvh(regions: schema.Regions, *, leaf_size: int = 4, bins: int = 16) ->
     the max of their maxima per field (NaN where no region has a number);
     finest_level (M,) int8 is the finest level over the node's regions.
     """
-    if leaf_size < 1:
-        raise ExabricksError(f"leaf size must be at least 1, got {leaf_size}")
-    if bins < 2:
-        raise ExabricksError(f"SAH needs at least 2 bins, got {bins}")
-    n = regions.n_regions
-    if n == 0:
-        raise ExabricksError("there are no regions to build a BVH over")
     lo = np.ascontiguousarray(regions.lower_lattice)
     hi = np.ascontiguousarray(regions.upper_lattice)
-    if not (np.all(np.isfinite(lo)) and np.all(np.isfinite(hi))):
-        raise ExabricksError("region bounds must be finite")
-    if np.any(hi <= lo):
-        r = int(np.flatnonzero(np.any(hi <= lo, axis=1))[0])
-        raise ExabricksError(
-            f"region {r} is empty ({lo[r].tolist()} .. {hi[r].tolist()}); regions must have volume"
-        )
-    first, count, order = _build(lo, hi, int(leaf_size), int(bins), numba.get_num_threads())
+    first, count, order = build_tree(lo, hi, leaf_size=leaf_size, bins=bins, item="region")
     node_lo, node_hi, vr, finest = _refit(
         first, count, order, lo, hi, np.ascontiguousarray(regions.value_range), regions.finest_level
     )
@@ -65,6 +51,43 @@ def build_bvh(regions: schema.Regions, *, leaf_size: int = 4, bins: int = 16) ->
         finest_level=finest,
     )
     return bvh.replace(meta={"statistics": bvh_statistics(bvh)})
+
+
+def build_tree(lower: np.ndarray, upper: np.ndarray, *, leaf_size: int = 4, bins: int = 16,
+               item: str = "box") -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Binned-SAH tree over boxes (the layout of schema.Bvh, without per-node data).
+
+    lower, upper: float32 (N, 3) box bounds, finite and with volume; `item`
+    names a box in error messages. Returns first, count (int64 (M,): an inner
+    node has count 0 and its children at first, first + 1; a leaf lists
+    `count` boxes from order[first] on) and order (int64 (N,)).
+    """
+    if leaf_size < 1:
+        raise ExabricksError(f"leaf size must be at least 1, got {leaf_size}")
+    if bins < 2:
+        raise ExabricksError(f"SAH needs at least 2 bins, got {bins}")
+    if lower.shape[0] == 0:
+        raise ExabricksError(f"there are no {item}s to build a tree over")
+    lo = np.ascontiguousarray(lower, np.float32)
+    hi = np.ascontiguousarray(upper, np.float32)
+    if not (np.all(np.isfinite(lo)) and np.all(np.isfinite(hi))):
+        raise ExabricksError(f"{item} bounds must be finite")
+    if np.any(hi <= lo):
+        r = int(np.flatnonzero(np.any(hi <= lo, axis=1))[0])
+        raise ExabricksError(
+            f"{item} {r} is empty ({lo[r].tolist()} .. {hi[r].tolist()}); {item}s must have volume"
+        )
+    return _build(lo, hi, int(leaf_size), int(bins), numba.get_num_threads())
+
+
+def tree_bounds(first, count, order, lower, upper) -> tuple[np.ndarray, np.ndarray]:
+    """Node boxes of a `build_tree` tree: float32 (M, 3) lower and upper, the union of
+    the node's boxes."""
+    n = lower.shape[0]
+    lo, hi, _, _ = _refit(first, count, order, np.ascontiguousarray(lower, np.float32),
+                          np.ascontiguousarray(upper, np.float32),
+                          np.empty((n, 0, 2), np.float32), np.zeros(n, np.int8))
+    return lo, hi
 
 
 def bvh_statistics(bvh: schema.Bvh) -> dict:
@@ -111,9 +134,9 @@ def _half_area(lo0, lo1, lo2, hi0, hi1, hi2):
 
 
 def _build(lo, hi, leaf_size, bins, threads):
-    """Binned SAH over region centroids, top down; subtrees on threads.
+    """Binned SAH over box centroids, top down; subtrees on threads.
 
-    lo, hi: float32 (R, 3) region bounds.  Returns first, count (int64 (M,))
+    lo, hi: float32 (R, 3) box bounds (regions, or brick supports).  Returns first, count (int64 (M,))
     and the region order (int64 (R,)).  The top levels are split breadth first
     here until there are 64 subtrees (fewer for small inputs); each subtree is
     built by _build_subtree (which releases the GIL) into its own node block,

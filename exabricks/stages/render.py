@@ -29,10 +29,19 @@ absorption. Conventions the design leaves open, chosen here:
   ``"retrace"`` re-traces from the root for every region as the paper does
   (§4). Same regions, same image; ordered is 1.1-1.5x faster on PoCL
   (docs/benchmarks.md, "render (PoCL)").
+* ``Renderer(..., reconstruction="cell-location")`` (Python API only) is the
+  comparison of paper §6.4.2 (Table 3): the regions still decide where to
+  sample, but each sample finds its bricks by descending a tree over the brick
+  supports from the root (kernels/cell_location.cl, built in memory when the
+  Renderer is made, or shared by `Renderer.with_reconstruction`) instead of
+  reading the region's brick list. Same samples, and the same bricks summed in
+  the same order, so the same frame; only the speed differs. ``"regions"``
+  (default) is the paper's method.
 """
 
 from __future__ import annotations
 
+import copy
 import math
 import time
 from dataclasses import dataclass, field as dataclass_field
@@ -50,6 +59,10 @@ SHADING_MODES = ("headlight", "none")
 # paper's §4 closest-hit traversal from the root for every region.
 TRAVERSALS = ("ordered", "retrace")
 
+# Where a sample finds the bricks it reconstructs from: the region's list (paper
+# §3.2) or a per-sample descent of a tree over the brick supports (§6.4.2).
+RECONSTRUCTIONS = ("regions", "cell-location")
+
 # Pixels per work-group side: 8 x 8 tiles keep neighbouring rays (which walk the
 # same regions and bricks) together on one core.
 TILE = 8
@@ -62,7 +75,8 @@ class RenderResult:
     rgba:  float32 (H, W, 4), premultiplied colour and opacity, row 0 at the top.
     depth: float32 (H, W) world distance where opacity reached 0.5 (inf: never), or None.
     stats: samples (reconstructions), ms (kernel wall time per frame),
-           samples_per_second, visible_regions, and the settings used.
+           samples_per_second, visible_regions, and the settings used
+           (reconstruction included).
     """
 
     rgba: np.ndarray
@@ -88,14 +102,38 @@ def _check_settings(width, height, sampling_rate, spp, max_opacity, unit_distanc
         raise ExabricksError(f"unknown traversal {traversal!r} (one of {', '.join(TRAVERSALS)})")
 
 
+def _check_reconstruction(reconstruction):
+    if reconstruction not in RECONSTRUCTIONS:
+        raise ExabricksError(f"unknown reconstruction {reconstruction!r} "
+                             f"(one of {', '.join(RECONSTRUCTIONS)})")
+
+
 class Renderer:
     """A dataset on an OpenCL device, ready to render frames of one field."""
 
     def __init__(self, bricks: schema.Bricks, regions: schema.Regions, bvh: schema.Bvh,
-                 *, field: str | None = None, device=None):
+                 *, field: str | None = None, device=None, reconstruction: str = "regions"):
+        _check_reconstruction(reconstruction)
         self.scene = DeviceScene(bricks, regions, bvh, field=field, device=device)
+        self._use(reconstruction)
+
+    def _use(self, reconstruction: str) -> None:
+        _check_reconstruction(reconstruction)
+        self.reconstruction = reconstruction
+        program = self.scene.program
+        self.location_args = []
+        if reconstruction == "cell-location":
+            program = opencl.program_for(self.scene.context, ("EB_CELL_LOCATION",))
+            self.location_args = self.scene.location_args()
         # One Kernel object per Renderer (program.eb_render would make a new one on every access).
-        self.kernel = opencl._cl().Kernel(self.scene.program, "eb_render")
+        self.kernel = opencl._cl().Kernel(program, "eb_render")
+
+    def with_reconstruction(self, reconstruction: str) -> "Renderer":
+        """A Renderer of the same uploaded scene (no second upload) with another
+        reconstruction (RECONSTRUCTIONS)."""
+        other = copy.copy(self)
+        other._use(reconstruction)
+        return other
 
     @property
     def field(self) -> str:
@@ -126,7 +164,7 @@ class Renderer:
             "field": self.field, "width": width, "height": height, "spp": spp,
             "sampling_rate": float(sampling_rate), "seed": int(seed), "jitter": bool(jitter),
             "max_opacity": float(max_opacity), "unit_distance": unit, "shading": shading,
-            "traversal": traversal,
+            "traversal": traversal, "reconstruction": self.reconstruction,
             "device": self.device_name,
             "visible_regions": int(region_vis.sum()), "regions": s.regions.n_regions,
         }
@@ -149,7 +187,7 @@ class Renderer:
             s.origin_world4, s.inv_spacing4,
             np.float32(s.min_spacing_world / sampling_rate), np.float32(1.0 / unit),
             np.float32(max_opacity), np.int32(shading != "none"), np.int32(traversal == "ordered"),
-            *scene_args, *tf_args, rgba_buf, depth_buf, samples_buf,
+            *scene_args, *self.location_args, *tf_args, rgba_buf, depth_buf, samples_buf,
         ]
         global_size = (-(-width // TILE) * TILE, -(-height // TILE) * TILE)
         q.finish()
@@ -174,9 +212,10 @@ def render(bricks: schema.Bricks, regions: schema.Regions, bvh: schema.Bvh, *, c
            sampling_rate: float = 2.0, spp: int = 1, seed: int = 0, jitter: bool = True,
            max_opacity: float = 0.98, unit_distance: float | None = None,
            shading: str = "headlight", depth: bool = False, device=None,
-           traversal: str = "ordered") -> RenderResult:
+           traversal: str = "ordered", reconstruction: str = "regions") -> RenderResult:
     """Render one frame of `field` (default: the first); see `Renderer.render`."""
-    return Renderer(bricks, regions, bvh, field=field, device=device).render(
+    return Renderer(bricks, regions, bvh, field=field, device=device,
+                    reconstruction=reconstruction).render(
         camera=camera, transfer_function=transfer_function, width=width, height=height,
         sampling_rate=sampling_rate, spp=spp, seed=seed, jitter=jitter,
         max_opacity=max_opacity, unit_distance=unit_distance, shading=shading, depth=depth,

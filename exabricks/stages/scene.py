@@ -3,15 +3,19 @@
 `check_inputs` is the consistency test shared by render and probe;
 `DeviceScene` holds one dataset's buffers on one device (uploaded once, reused
 for every frame or probe) and lays out kernel arguments in the order of the
-EB_BVH_ARGS / EB_REGION_ARGS / EB_BRICK_ARGS macros of kernels/render.cl.
+EB_BVH_ARGS / EB_REGION_ARGS / EB_BRICK_ARGS (and, for the cell-location
+variant, EB_LOCATION_ARGS) macros of kernels/render.cl.
 """
 
 from __future__ import annotations
+
+import time
 
 import numpy as np
 
 from .. import opencl, schema
 from ..errors import ExabricksError
+from .cell_location import build_brick_tree
 
 
 def check_inputs(bricks: schema.Bricks, regions: schema.Regions, bvh: schema.Bvh) -> None:
@@ -113,6 +117,8 @@ class DeviceScene:
         self.inv_spacing4 = _float4(1.0 / b.spacing_world)
         self.finest_width_world = finest_cell_width_world(b)
         self.min_spacing_world = float(b.spacing_world.min())
+        self._location_args = None
+        self.brick_tree = self.brick_tree_seconds = None
 
     @property
     def empty(self) -> bool:
@@ -134,3 +140,18 @@ class DeviceScene:
         nv = self._all_visible[0] if node_visible is None else node_visible
         rv = self._all_visible[1] if region_visible is None else region_visible
         return [*self._bvh_static, nv, *self._region_static, rv, *self.brick_args]
+
+    def location_args(self) -> list:
+        """Kernel arguments EB_LOCATION_ARGS: the tree over the brick supports
+        (exabricks.stages.cell_location), built and uploaded on the first call
+        (kept as `brick_tree`, its build time in `brick_tree_seconds`)."""
+        if self._location_args is None:
+            start = time.perf_counter()
+            tree = self.brick_tree = build_brick_tree(self.bricks)
+            self.brick_tree_seconds = time.perf_counter() - start
+            q, up = self.queue, opencl.to_device
+            lo, hi = _boxes4(tree.lower, tree.upper)
+            link = np.column_stack([tree.first, tree.count]).astype(np.int32)
+            self._location_args = [up(q, lo), up(q, hi), up(q, link),
+                                   up(q, tree.brick_index, np.int32)]
+        return self._location_args
