@@ -49,7 +49,7 @@ typedef struct {
     float step_base;          /* min(spacing) / sampling_rate: dt of a level-0 region */
     float inv_unit_distance;  /* 1 / unit_distance (world units)                       */
     float max_opacity;        /* early ray termination threshold                       */
-    float3 inv_spacing;       /* lattice units per world unit, per axis                */
+    float3 gradient_scale;    /* lattice -> world gradient, times a constant (below)   */
 } eb_integration;
 
 /* What a ray has accumulated so far. */
@@ -97,10 +97,14 @@ EB_INLINE int eb_integrate_region(eb_regions regions, eb_sample_bricks bricks, e
         float a = eb_opacity_correct(c.w, len, in.inv_unit_distance);
         float3 rgb = c.xyz;
         if (shade) {
-            float3 g = eb_basis_gradient(s) * in.inv_spacing;  /* world units */
-            float gl = length(g);
-            if (gl > 0.0f)
-                rgb *= EB_AMBIENT + EB_DIFFUSE * fabs(dot(g, dir_world)) / gl;
+            /* The world-space gradient up to a positive constant (only its
+             * direction matters), scaled so that dot(g, g) neither overflows
+             * nor underflows for any field magnitude (render.py); rsqrt is
+             * cheaper than length() and a division. */
+            float3 g = eb_basis_gradient(s) * in.gradient_scale;
+            float g2 = dot(g, g);
+            if (g2 > 0.0f)
+                rgb *= EB_AMBIENT + EB_DIFFUSE * fabs(dot(g, dir_world)) * rsqrt(g2);
         }
         st->color += (st->transmittance * a) * rgb;
         st->transmittance *= 1.0f - a;

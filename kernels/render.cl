@@ -47,7 +47,7 @@
  * smallest depth over the pixel's samples. */
 __kernel void eb_render(int width, int height, int sample_index, int spp, uint seed, int jitter,
                         float4 cam_origin, float4 cam_forward, float4 cam_du, float4 cam_dv,
-                        float4 origin_world, float4 inv_spacing,
+                        float4 origin_world, float4 inv_spacing, float4 gradient_scale,
                         float step_base, float inv_unit_distance, float max_opacity, int shading,
                         int ordered,
                         EB_BVH_ARGS, EB_REGION_ARGS, EB_BRICK_ARGS EB_LOCATION_ARGS,
@@ -62,7 +62,7 @@ __kernel void eb_render(int width, int height, int sample_index, int spp, uint s
     eb_regions regions = EB_REGION_STRUCT;
     eb_sample_bricks bricks = EB_SAMPLE_BRICKS_STRUCT;
     eb_transfer tf = {tf_xs, tf_rgba, tf_n};
-    eb_integration in = {step_base, inv_unit_distance, max_opacity, inv_spacing.xyz};
+    eb_integration in = {step_base, inv_unit_distance, max_opacity, gradient_scale.xyz};
 
     float jx = 0.5f, jy = 0.5f;
     if (spp > 1) {

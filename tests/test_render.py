@@ -311,3 +311,38 @@ def test_several_samples_per_pixel_on_real_data(device):
     # 0.3 % for seeds 11-13; per pixel the images differ by anti-aliasing).
     want = reference_image("gerris")
     assert abs(rgba[..., 3].mean() - want[..., 3].mean()) < 0.02 * want[..., 3].mean() + 1e-3
+
+
+OPACITY_TEST_SOURCE = """#include "transfer_function.cl"
+__kernel void opacity(__global const float *alpha, __global const float *k, __global float *out)
+{
+    int i = get_global_id(0);
+    out[i] = eb_opacity_correct(alpha[i], k[i], 1.0f);
+}
+"""
+
+
+@device_param
+def test_opacity_correction_matches_float64(device):
+    """eb_opacity_correct (inlined log2/exp2 polynomials) against 1 - (1 - alpha)^k in
+    float64, over alpha from 1e-7 to 1 and k = len / unit_distance from 1e-4 to 1e3.
+    The float64 formula takes 1 - alpha rounded to float32 as the kernel does; what
+    remains is the polynomials and float rounding, within 2e-7 (PoCL's own exp2/log2
+    pair: 7.5e-8)."""
+    import pyopencl as cl
+
+    context, queue = opencl.context_for(opencl.choose_device(device))
+    program = cl.Program(context, OPACITY_TEST_SOURCE).build(
+        options=[*opencl.BUILD_OPTIONS, f"-I{opencl.kernel_dir()}"])
+    alphas = np.concatenate([np.geomspace(1e-7, 1, 400), np.linspace(0, 1, 401)[1:],
+                             1 - np.geomspace(1e-7, 0.5, 200)])
+    ks = np.concatenate([np.geomspace(1e-4, 1e3, 120), [0.5, 1.0, 2.0]])
+    alpha, k = (x.ravel().astype(np.float32) for x in np.meshgrid(alphas, ks))
+    out = np.empty_like(alpha)
+    out_buf = opencl.empty_buffer(queue, out.nbytes)
+    program.opacity(queue, (alpha.size,), None, opencl.to_device(queue, alpha),
+                    opencl.to_device(queue, k), out_buf)
+    opencl.read_back(queue, out_buf, out)
+    want = 1.0 - (np.float32(1) - alpha).astype(np.float64) ** k.astype(np.float64)
+    np.testing.assert_allclose(out, want, rtol=0, atol=2e-7)
+    assert np.all(out[alpha == 1] == 1) and np.all((out >= 0) & (out <= 1))

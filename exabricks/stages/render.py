@@ -184,7 +184,7 @@ class Renderer:
         tf_args = [up(q, xs, np.float32), up(q, rgba_knots, np.float32), np.int32(xs.shape[0])]
         fixed = [
             _float4(origin), _float4(forward), _float4(du), _float4(dv),
-            s.origin_world4, s.inv_spacing4,
+            s.origin_world4, s.inv_spacing4, s.gradient_scale4,
             np.float32(s.min_spacing_world / sampling_rate), np.float32(1.0 / unit),
             np.float32(max_opacity), np.int32(shading != "none"), np.int32(traversal == "ordered"),
             *scene_args, *self.location_args, *tf_args, rgba_buf, depth_buf, samples_buf,

@@ -66,6 +66,18 @@ def finest_cell_width_world(bricks: schema.Bricks) -> float:
     return float(2.0 ** level * bricks.spacing_world.min())
 
 
+def gradient_scale(spacing_world, values) -> np.ndarray:
+    """Per-axis factor turning a lattice-unit gradient into one parallel to the
+    world-unit gradient, for shading (only its direction matters): 1 / spacing
+    divided by its largest component and by the field's largest magnitude, so
+    the kernel's dot(g, g) stays far from float overflow and underflow whatever
+    the units of the field and of the world."""
+    inv = 1.0 / np.asarray(spacing_world, np.float64)
+    finite = np.abs(values[np.isfinite(values)]) if values.size else np.zeros(0)
+    magnitude = float(finite.max()) if finite.size and finite.max() > 0 else 1.0
+    return inv / inv.max() / magnitude
+
+
 def _float4(xyz, w=0.0) -> np.ndarray:
     import pyopencl.cltypes as cltypes
 
@@ -115,6 +127,7 @@ class DeviceScene:
 
         self.origin_world4 = _float4(b.origin_world)
         self.inv_spacing4 = _float4(1.0 / b.spacing_world)
+        self.gradient_scale4 = _float4(gradient_scale(b.spacing_world, b.values[self.field_index]))
         self.finest_width_world = finest_cell_width_world(b)
         self.min_spacing_world = float(b.spacing_world.min())
         self._location_args = None
