@@ -50,61 +50,41 @@ ms/frame is the kernel's wall time per frame (`Renderer.render` stats "ms": enqu
 to finish, no upload or read-back); samples are the reconstructions the kernel
 counts (one per sub-interval of the adaptive sampling, §4.2-4.3); CPU ms/frame is
 the process CPU time of a `render` call (both PoCL threads). Both walks give the
-same image. The machine is shared with other jobs, so wall times vary by up to 2x
-between runs; CPU time varies less (about +-5 %).
+same image (max abs difference printed by the script).
 
-Before/after (process CPU ms per frame, median of 3 interleaved frames, kernels
-of commit 020a6df against these; same images): Gerris T 1830 -> 1144 (ordered;
-retrace 1746), AMReX phi 1205 -> 997 (retrace 1202), Athena++ rho 195 -> 171
-(retrace 184), Enzo Density 1097 -> 713 (retrace 1076). On a quiet machine the
-two PoCL threads give about half the CPU time as wall time: the Gerris plume went
-from about 0.95 s (5.8 M samples/s) to about 0.6 s per frame (about 9.5 M/s).
-The issue's target of 40 M samples/s is not met; on these frames the uniform-grid
-marcher does not meet it either (see below).
-
-Where the time goes (Gerris plume T, ordered walk; process CPU time of the 2 PoCL
-threads, kernel variants with one part removed; removing a part also changes
-register allocation, so the shares do not add up): the walk alone (every region
-on the ray visited, no sampling) about 18 %; the headlight gradient about 20 %;
-the transfer function lookup about 12-16 %; the opacity correction about 16 %;
-each brick of a region's list beyond the first about 8 % (4.4 bricks per region).
-The rest is spread thin (no hot spot in `perf`); the code is scalar, with
-spills. The walk alone (kernel variant that visits every region on each ray
-without sampling or early termination), CPU ms per frame, ordered / retrace,
-and region visits per frame: Gerris 229 / 874, 2.46 M; AMReX 81 / 350, 1.44 M;
-Athena++ 44 / 153, 0.87 M; Enzo 103 / 458, 1.35 M. So re-tracing costs
-3.5-4.5x the ordered walk per region, which matters most on octree data (Gerris:
-about one region per cell, 2.2 samples per region visited); with the ordered
-walk, traversal is at most 8-30 % of a frame and the per-sample work (3.2-4.4
-bricks per region, gradient, transfer function, opacity) is the rest.
-
-Changes that helped: the ordered min-heap walk (one traversal per ray instead
-of one per region); forcing inlining of the per-brick and heap helpers (PoCL
-had kept eb_add_brick and eb_queue_expand as calls, so the gradient code was
-not folded away when shading is off and the sums went through memory);
--cl-no-signed-zeros -cl-denorms-are-zero (about 5 %, images within 2e-6).
+Changes that helped (each checked against the float64 reference tests; figures
+are kernel ms per 512x512 frame, headlight / shading none, quiet machine):
+the ordered min-heap walk (one BVH traversal per ray instead of one per region;
+re-tracing costs 3.5-4.5x the ordered walk per region visited, which matters
+most on octree data such as the Gerris plume, about one region per cell);
+forcing inlining of the per-brick and heap helpers (PoCL had kept eb_add_brick
+and eb_queue_expand as calls); -cl-no-signed-zeros -cl-denorms-are-zero (about
+5 %); the opacity correction 1 - (1 - alpha)^(len / unit) with log2 and exp2
+inlined as polynomials (PoCL calls its library pair out of line; that one line
+was a quarter of a shading-none frame) and headlight shading with rsqrt on a
+gradient prescaled on the host, so that no length() and division are needed:
+AMReX 343 / 314 -> 293 / 247 ms, Gerris 412 / 345 -> 373 / 301 ms, Enzo
+263 / 223 -> 236 / 186 ms; images within 1e-4 of before (rounding of the
+shading normal where the field is locally constant), opacity within 2e-7 of
+float64 (tests/test_render.py).
 Tried without a measurable gain (within the +-5 % noise of interleaved runs):
 work-groups of 16x16, 32x4 and 64x1 instead of 8x8; copying a region's brick
 boxes, dims and value pointers into private memory once per region; one
-32-byte record per brick (box and dims with the value offset) instead of three
-arrays; guessing the transfer-function segment from uniform knots before the
-binary search; inline polynomial exp2/log2 for the opacity correction;
-native_exp2/native_log2 (the same code as exp2/log2 on PoCL); a smaller heap.
+32-byte record per brick instead of three arrays; guessing the transfer-function
+segment from uniform knots before the binary search (the search is about 5 %
+of a frame); native_exp2/native_log2 (the same code as exp2/log2 on PoCL).
 
-Why 40 M samples/s is out of reach here: the uniform-grid trilinear marcher
-(kernels/uniform_grid.cl through workflows/bench_peers.UniformGridRenderer,
-dataset resampled to its finest level) on the same frames (default camera and
-transfer function, 512x512, same session) reaches about 31 M samples/s (15.7-16
-M samples per CPU second): AMReX 17.5 M samples in 560 ms, Gerris 21.8 M in
-690 ms. With shading "none" (the marcher does not shade) this renderer does
-11.2 (AMReX) and 6.0 (Gerris) M samples per CPU second, taking fewer samples
-(adaptive sampling, space skipping) and so less time per frame than the marcher
-(AMReX 435 vs 560 ms, Gerris 465 vs 690 ms). The rest of the per-sample gap is
-the basis reconstruction (a sample evaluates the hat sums of every brick in its
-region's list, 1.1-2.5 on average by volume, with per-axis boundary weights) and
-the headlight gradient; PoCL runs both kernels as scalar code, one work-item
-after another. Left to try: several rays of a tile traced together with explicit
-SIMD (float8 over 8 rays).
+Where the time goes now: PoCL runs the kernel as scalar code, one work-item
+after another (the divergent loops defeat its work-group vectorizer), so a
+frame costs the latency of each sample's dependent chain: the reconstruction
+(the hat sums of every brick of the region's list, 3.2-4.4 per region by count,
+1.1-2.9 by volume), the transfer function, the opacity and the compositing;
+headlight shading adds 20-30 %. The walk alone is 8-30 % of a frame. The
+uniform-grid marcher (same transfer function, opacity and compositing code, one
+trilinear lookup per sample) is measured in the same run as ours in the section
+"exabricks vs yt, cell location and the uniform-grid ceiling". Left to try:
+several rays of a tile traced together with explicit SIMD (float8 over 8 rays),
+which is what it takes to use the cores' vector units here.
 """
 
 
