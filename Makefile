@@ -61,8 +61,8 @@ bench: setup
 	$(PY) workflows/bench_preprocess.py --write-docs
 	@# render: the OpenCL renderer on the four real datasets, both region walks
 	$(PY) workflows/bench_render.py --write-docs
-	@# peers: exabricks vs yt and the uniform-grid ceiling
-	$(PY) workflows/bench_peers.py
+	@# peers: exabricks vs yt, vs per-sample cell location, and the uniform-grid ceiling (1024², all datasets)
+	$(PY) workflows/bench_peers.py --json bench-data/peers.json
 
 clean:
 	rm -rf $(OUT)
