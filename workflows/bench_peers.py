@@ -127,7 +127,6 @@ import argparse
 import json
 import math
 import os
-import subprocess
 import sys
 import tempfile
 import time
@@ -700,19 +699,21 @@ WORKERS = {"prepare": worker_prepare, "exabricks": worker_exabricks, "yt": worke
 
 
 def run_worker(kind: str, spec: dict, workdir: Path) -> dict:
-    """Run one worker in a subprocess; its result plus peak RSS (MiB) from os.wait4, unless
-    the worker measured its own (the exabricks worker: before the uniform grid)."""
+    """Run one worker in a subprocess; its result plus peak RSS (MiB), unless the worker
+    measured its own (the exabricks worker: before the uniform grid). The worker starts
+    from benchdoc's small launcher, so its peak is its own and not this process's."""
     spec_path = workdir / f"{spec['name']}-{kind}-spec.json"
     result_path = workdir / f"{spec['name']}-{kind}-result.json"
     spec_path.write_text(json.dumps(spec))
-    proc = subprocess.Popen([sys.executable, str(Path(__file__).resolve()), "--worker", kind,
-                             str(spec_path), str(result_path)], cwd=ROOT)
-    _, status, usage = os.wait4(proc.pid, 0)
-    proc.returncode = os.waitstatus_to_exitcode(status)
-    if proc.returncode != 0 or not result_path.is_file():
-        return {"error": f"{kind} worker failed (exit {proc.returncode})"}
+    try:
+        _, _, peak = benchdoc.run_child([sys.executable, str(Path(__file__).resolve()), "--worker",
+                                         kind, str(spec_path), str(result_path)])
+    except SystemExit as e:
+        return {"error": f"{kind} worker failed: {str(e).splitlines()[-1][:200]}"}
+    if not result_path.is_file():
+        return {"error": f"{kind} worker wrote no result"}
     result = json.loads(result_path.read_text())
-    result.setdefault("peak_rss_mib", usage.ru_maxrss / 1024.0)  # Linux: KiB
+    result.setdefault("peak_rss_mib", peak / 2**20)
     return result
 
 
