@@ -114,7 +114,6 @@ def _device_type(device) -> str:
 
 def list_devices() -> list[DeviceInfo]:
     """Every OpenCL device of every platform; ExabricksError if there is none."""
-    cl = _cl()
     infos = []
     for spec, platform, device in _devices():
         infos.append(DeviceInfo(

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import functools
 import os
 import subprocess
 import sys
@@ -29,6 +30,42 @@ ENZO = DATA / "enzo-moving7" / "moving7_0010"
 GERRIS = PACKAGE_DATA / "gerris-plume" / "plume7-1.cells"
 
 # Leaf-cell counts read with yt 4.4.3 (shared/data/README.md).
+def _opencl_devices() -> list[str]:
+    """Specs of every OpenCL device here (none without a driver); kernel tests run on each."""
+    from exabricks import opencl
+    from exabricks.errors import ExabricksError
+
+    try:
+        return [d.spec for d in opencl.list_devices()]
+    except ExabricksError:
+        return []
+
+
+DEVICES = _opencl_devices()
+device_param = pytest.mark.parametrize("device", DEVICES)
+
+
+@functools.lru_cache(maxsize=None)
+def built_scene(path: Path, field: str):
+    """(bricks, regions, bvh, field, camera, transfer function) of one field of a dataset:
+    built in memory, default camera on its bounds, default transfer function over its range."""
+    from exabricks import schema
+    from exabricks.camera import default_camera
+    from exabricks.readers import read
+    from exabricks.stages.brick import build_bricks
+    from exabricks.stages.bvh import build_bvh
+    from exabricks.stages.regions import build_regions
+    from exabricks.transfer_function import default_transfer_function
+
+    bricks = build_bricks(read(path, fields=[field]))
+    regions = build_regions(bricks)
+    bvh = build_bvh(regions)
+    values = bricks.values[0]
+    tf = default_transfer_function((float(values.min()), float(values.max())))
+    lo, hi = schema.world_bounds(bricks)
+    return bricks, regions, bvh, field, default_camera(np.asarray(lo), np.asarray(hi)), tf
+
+
 LEAF_COUNTS = {"amrex": 505_856, "athena": 491_520, "gerris": 67_712, "enzo": 27_077}
 
 

@@ -9,49 +9,25 @@ brick list.
 
 from __future__ import annotations
 
-import functools
 
 import numpy as np
 import pytest
 
-from exabricks import opencl, schema
-from exabricks.camera import default_camera
 from exabricks.errors import ExabricksError
-from exabricks.readers import read
-from exabricks.stages.brick import build_bricks
-from exabricks.stages.bvh import build_bvh
 from exabricks.stages.cell_location import build_brick_tree, support_boxes
-from exabricks.stages.regions import build_regions
 from exabricks.stages.render import Renderer
-from exabricks.transfer_function import default_transfer_function
 
-from conftest import AMREX, ENZO, GERRIS
+from conftest import AMREX, ENZO, GERRIS, DEVICES, built_scene
 
 SIZE = 64
 DATASETS = {"gerris": (GERRIS, "T"), "amrex": (AMREX, "phi"), "enzo": (ENZO, "x-velocity")}
 
 
-def _devices() -> list[str]:
-    try:
-        return [d.spec for d in opencl.list_devices()]
-    except ExabricksError:
-        return []
 
 
-DEVICES = _devices()
-
-
-@functools.lru_cache(maxsize=None)
 def scene(name: str):
     """(bricks, regions, bvh, field, camera, transfer function) of a shared dataset."""
-    path, field = DATASETS[name]
-    bricks = build_bricks(read(path, fields=[field]))
-    regions = build_regions(bricks)
-    bvh = build_bvh(regions)
-    values = bricks.values[0]
-    tf = default_transfer_function((float(values.min()), float(values.max())))
-    lo, hi = schema.world_bounds(bricks)
-    return bricks, regions, bvh, field, default_camera(np.asarray(lo), np.asarray(hi)), tf
+    return built_scene(*DATASETS[name])
 
 
 def tree_query(tree, lo, hi, points) -> set[tuple[int, int]]:

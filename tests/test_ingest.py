@@ -8,7 +8,6 @@ uniform-to-AMR merge.
 from __future__ import annotations
 
 import itertools
-import shutil
 
 import numpy as np
 import pytest

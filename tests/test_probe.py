@@ -19,8 +19,7 @@ from dataclasses import dataclass
 import numpy as np
 import pytest
 
-from exabricks import opencl, schema
-from exabricks.errors import ExabricksError
+from exabricks import schema
 from exabricks.readers import read
 from exabricks.stages.brick import build_bricks
 from exabricks.stages.bvh import build_bvh
@@ -28,20 +27,11 @@ from exabricks.stages.probe import probe
 from exabricks.stages.regions import build_regions
 
 import reference
-from conftest import AMREX, ATHENA, ENZO, GERRIS, assert_one_error_line, run_cli
+from conftest import AMREX, ATHENA, ENZO, GERRIS, assert_one_error_line, run_cli, device_param
 
 TOLERANCE = 1e-5
 
 
-def _device_specs() -> list[str]:
-    try:
-        return [d.spec for d in opencl.list_devices()]
-    except ExabricksError:
-        return []
-
-
-DEVICES = _device_specs()
-device_param = pytest.mark.parametrize("device", DEVICES)
 
 # Dataset, file and the field probed (Enzo: a velocity component, whose values
 # are all of one magnitude; its density spans six decades, which would make an

@@ -19,7 +19,6 @@ import pytest
 
 from exabricks import opencl, schema
 from exabricks.camera import Camera, default_camera
-from exabricks.errors import ExabricksError
 from exabricks.readers import read
 from exabricks.stages.brick import build_bricks
 from exabricks.stages.bvh import build_bvh
@@ -28,22 +27,13 @@ from exabricks.stages.render import Renderer
 from exabricks.transfer_function import TransferFunction
 
 import reference
-from conftest import AMREX, ATHENA, GERRIS
+from conftest import AMREX, ATHENA, GERRIS, device_param
 
 RMSE_TOLERANCE = 2e-3
 SLAB_TOLERANCE = 1e-5
 SIZE = 40
 
 
-def _device_specs() -> list[str]:
-    try:
-        return [d.spec for d in opencl.list_devices()]
-    except ExabricksError:
-        return []
-
-
-DEVICES = _device_specs()
-device_param = pytest.mark.parametrize("device", DEVICES)
 
 
 @dataclass(frozen=True)

@@ -10,48 +10,25 @@ the float64 reference integrator.
 
 from __future__ import annotations
 
-import functools
 
 import numpy as np
 import pytest
 
-from exabricks import opencl, schema
-from exabricks.camera import default_camera
+from exabricks import opencl
 from exabricks.errors import ExabricksError
-from exabricks.readers import read
-from exabricks.stages.brick import build_bricks
-from exabricks.stages.bvh import build_bvh
-from exabricks.stages.regions import build_regions
 from exabricks.stages.render import TRAVERSALS, Renderer
-from exabricks.transfer_function import default_transfer_function
 
-from conftest import AMREX, ATHENA, GERRIS
+from conftest import AMREX, ATHENA, GERRIS, DEVICES, built_scene
 
 SIZE = 64
 DATASETS = {"gerris": (GERRIS, "T"), "amrex": (AMREX, "phi"), "athena": (ATHENA, "rho")}
 
 
-def _devices() -> list[str]:
-    try:
-        return [d.spec for d in opencl.list_devices()]
-    except ExabricksError:
-        return []
 
 
-DEVICES = _devices()
-
-
-@functools.lru_cache(maxsize=None)
 def scene(name: str):
     """(bricks, regions, bvh, field, camera, transfer function) of a shared dataset."""
-    path, field = DATASETS[name]
-    bricks = build_bricks(read(path))
-    regions = build_regions(bricks)
-    bvh = build_bvh(regions)
-    values = bricks.values[bricks.field_index(field)]
-    tf = default_transfer_function((float(values.min()), float(values.max())))
-    lo, hi = schema.world_bounds(bricks)
-    return bricks, regions, bvh, field, default_camera(np.asarray(lo), np.asarray(hi)), tf
+    return built_scene(*DATASETS[name])
 
 
 def frame(renderer, name, **settings):

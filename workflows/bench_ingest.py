@@ -157,9 +157,7 @@ def main(argv=None) -> int:
                + (f" --only {','.join(chosen)}" if args.only or args.case else "")
                + f" --runs {args.runs} --write-docs")
     body = section(rows, args.runs, command)
-    print(body)
-    if args.write_docs:
-        benchdoc.replace_section(SECTION, body)
+    benchdoc.publish(SECTION, body, args.write_docs)
     return 0
 
 

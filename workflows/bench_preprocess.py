@@ -123,16 +123,16 @@ def measure(dataset: benchdoc.Dataset, work: Path, runs: int) -> dict:
     built = {"ingest": benchdoc.timed(ingest, runs)[0]}
     cells = schema.load(files["ingest"], "cells")
     n_cells, scalar_bytes = cells.n_cells, cells.values.nbytes
-    built["brick"] = benchdoc.timed(lambda: build_bricks(cells), runs)[0]
+    built["brick"] = benchdoc.timed(lambda c=cells: build_bricks(c), runs)[0]
     cell_stats, n_fields = cells.meta["statistics"], cells.n_fields
     del cells
     bricks = schema.load(files["brick"], "bricks")
-    built["regions"] = benchdoc.timed(lambda: build_regions(bricks), runs)[0]
+    built["regions"] = benchdoc.timed(lambda b=bricks: build_regions(b), runs)[0]
     brick_arrays = {k: a.nbytes for k, a in bricks.arrays().items()}
     brick_stats, n_bricks = bricks.meta["statistics"], bricks.n_bricks
     del bricks
     regions = schema.load(files["regions"], "regions")
-    built["bvh"] = benchdoc.timed(lambda: build_bvh(regions), runs)[0]
+    built["bvh"] = benchdoc.timed(lambda r=regions: build_bvh(r), runs)[0]
     region_stats = regions.meta["statistics"]
     del regions
     bvh_stats = schema.load(files["bvh"], "bvh").meta["statistics"]
@@ -255,9 +255,7 @@ def main(argv=None) -> int:
                + (f" --only {','.join(keys)}" if args.only else "")
                + f" --runs {args.runs} --write-docs")
     body = section(results, args.runs, command)
-    print(body)
-    if args.write_docs:
-        benchdoc.replace_section(SECTION, body)
+    benchdoc.publish(SECTION, body, args.write_docs)
     return 0
 
 

@@ -183,9 +183,7 @@ def main(argv=None) -> int:
                "| dataset | field | traversal | ms/frame | samples/frame | M samples/s | CPU ms/frame |\n"
                "|---|---|---|---:|---:|---:|---:|\n"
                + "\n".join(rows) + "\n" + NOTES)
-    print(section)
-    if args.write_docs:
-        benchdoc.replace_section(SECTION, section)
+    benchdoc.publish(SECTION, section, args.write_docs)
     return 0
 
 

@@ -96,6 +96,13 @@ def replace_section(title: str, body: str, docs: Path = DOCS) -> None:
 # Command line, timing and child processes shared by the bench_*.py scripts
 
 
+def publish(title: str, body: str, write_docs: bool) -> None:
+    """Print a section's body; with --write-docs also put it into docs/benchmarks.md."""
+    print(body)
+    if write_docs:
+        replace_section(title, body)
+
+
 def add_common_args(parser, runs: int = 5, runs_help: str | None = None) -> None:
     """--runs N (timed runs after one warm-up), --write-docs, --only KEY (repeatable)."""
     parser.add_argument("--runs", type=int, default=runs,
