@@ -434,6 +434,13 @@ class _open:
             raise ExabricksError(f"{p}: no such file")
         if not p.is_file():
             raise ExabricksError(f"{p}: not a file")
+        with open(p, "rb") as f:
+            head = f.read(6)
+        if not head:
+            raise ExabricksError(f"{p}: empty file, not an exabricks .npz file")
+        if not head.startswith(b"PK") and not head.startswith(b"\x93NUMPY"):
+            raise ExabricksError(f"{p}: not an exabricks .npz file (not a zip archive; "
+                                 "an image, a raw data file or text?)")
         try:
             self.z = np.load(p, allow_pickle=False)
         except (zipfile.BadZipFile, ValueError, OSError, EOFError) as e:

@@ -111,3 +111,12 @@ def test_info_cli_json(tmp_path, cli):
     assert out["kind"] == "cells" and out["counts"]["cells"] == 15
     text = cli("info", path, check=0).stdout
     assert "cells per level: level 0: 8, level 1: 7" in text
+
+
+def test_files_of_other_kinds_are_named_as_such(tmp_path, cli):
+    png = tmp_path / "image.png"
+    png.write_bytes(b"\x89PNG\r\n\x1a\n" + bytes(64))
+    assert_one_error_line(cli("info", png), str(png), "not a zip archive")
+    empty = tmp_path / "empty.npz"
+    empty.write_bytes(b"")
+    assert_one_error_line(cli("info", empty), str(empty), "empty file")
