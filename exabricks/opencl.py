@@ -183,6 +183,18 @@ def program_for(context, defines=()):
     return _PROGRAMS[key]
 
 
+_KERNELS: dict = {}
+
+
+def kernel(program, name: str):
+    """The Kernel `name` of `program`, one object per process (pyopencl's
+    ``program.name`` makes a new one, and warns, on every access)."""
+    key = (program.int_ptr, name)
+    if key not in _KERNELS:
+        _KERNELS[key] = _cl().Kernel(program, name)
+    return _KERNELS[key]
+
+
 def to_device(queue, array, dtype=None):
     """A read-only device buffer holding `array` (at least one element: OpenCL forbids 0 bytes)."""
     cl = _cl()

@@ -31,9 +31,7 @@ def probe_scene(scene: DeviceScene, points_world) -> np.ndarray:
     q = scene.queue
     values_buf = opencl.empty_buffer(q, 4 * n)
     local = 64
-    kernel = getattr(scene, "probe_kernel", None)
-    if kernel is None:  # one Kernel object per scene (program.eb_probe makes a new one per access)
-        kernel = scene.probe_kernel = opencl._cl().Kernel(scene.program, "eb_probe")
+    kernel = opencl.kernel(scene.program, "eb_probe")
     kernel(q, (-(-n // local) * local,), (local,),
            np.int32(n), opencl.to_device(q, points, np.float32),
            scene.origin_world4, scene.inv_spacing4,

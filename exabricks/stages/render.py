@@ -125,8 +125,7 @@ class Renderer:
         if reconstruction == "cell-location":
             program = opencl.program_for(self.scene.context, ("EB_CELL_LOCATION",))
             self.location_args = self.scene.location_args()
-        # One Kernel object per Renderer (program.eb_render would make a new one on every access).
-        self.kernel = opencl._cl().Kernel(program, "eb_render")
+        self.kernel = opencl.kernel(program, "eb_render")
 
     def with_reconstruction(self, reconstruction: str) -> "Renderer":
         """A Renderer of the same uploaded scene (no second upload) with another
