@@ -8,10 +8,15 @@ uniform-to-AMR merge.
 from __future__ import annotations
 
 import itertools
+import re
+import shutil
+import sys
+import time
 
 import numpy as np
 import pytest
-from conftest import AMREX, ATHENA, ENZO, GERRIS, LEAF_COUNTS, assert_one_error_line, run_cli
+from conftest import (AMREX, ATHENA, ENZO, GERRIS, LEAF_COUNTS, ROOT, assert_one_error_line,
+                      run_cli)
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
@@ -20,7 +25,11 @@ from exabricks import schema
 from exabricks.errors import ExabricksError
 from exabricks.readers import FORMATS, detect_format
 from exabricks.readers.exajet import scalar_files
-from exabricks.stages.ingest import amr_from_uniform, find_overlap, validate_cells
+from exabricks.stages.ingest import amr_from_uniform, find_overlap, ingest, validate_cells
+
+sys.path.insert(0, str(ROOT / "workflows"))
+
+import amrex_plotfile  # noqa: E402
 
 GERRIS_FIELDS = ("P", "T", "U", "V", "W")
 
@@ -513,3 +522,397 @@ def test_auto_format_ingests_shared_datasets(tmp_path, name, path):
     assert cells.n_cells == LEAF_COUNTS[name]
     assert cells.meta["parameters"]["format"] == {"enzo": "yt"}.get(name, name)
     assert len(cells.meta["inputs"]) >= 1
+
+
+# ---------------------------------------------------------------------------
+# the stage function
+
+
+def test_ingest_stage_returns_checked_cells_with_meta():
+    cells = ingest(GERRIS, fields=["T"], magnitude=[("speed", "U,V,W")])
+    assert cells.fields == ("T",) and cells.n_cells == LEAF_COUNTS["gerris"]
+    params = cells.meta["parameters"]
+    assert params["format"] == "exajet" and params["magnitude"] == {"speed": "U,V,W"}
+    assert params["mask"] is None and params["mask_auto"] is False
+    assert cells.meta["statistics"]["masked_cells"] == 0
+    with pytest.raises(ExabricksError, match="--dims only apply to raw volumes"):
+        ingest(GERRIS, dims=(2, 2, 2))
+
+
+# ---------------------------------------------------------------------------
+# --mask FIELD and the automatic volFrac rule (embedded-boundary bodies become holes)
+
+
+def test_mask_drops_cells_where_the_field_is_zero(tmp_path):
+    lower, level, fields = tiny_layout()  # b = -arange(9): b is 0 at cell 0 only
+    fields["b"][4] = -0.0                 # -0 is zero too
+    p = write_exajet(tmp_path, "t", lower, level, fields)
+    out = tmp_path / "cells.npz"
+    run_cli("ingest", p, "-o", out, "--mask", "b", check=0)
+    cells = schema.load(out, "cells")
+    keep = np.array([i not in (0, 4) for i in range(9)])
+    np.testing.assert_array_equal(cells.lower_lattice, lower[keep])
+    np.testing.assert_array_equal(cells.values, np.stack([fields["a"][keep], fields["b"][keep]]))
+    assert cells.meta["parameters"]["mask"] == "b" and not cells.meta["parameters"]["mask_auto"]
+    assert cells.meta["statistics"]["masked_cells"] == 2
+    # the mask field is read even when --field leaves it out, and then not kept
+    run_cli("ingest", p, "-o", out, "--mask", "b", "--field", "a", check=0)
+    cells = schema.load(out, "cells")
+    assert cells.fields == ("a",)
+    np.testing.assert_array_equal(cells.values[0], fields["a"][keep])
+
+
+@pytest.mark.parametrize("field_args", [[], ["--field", "a"]])
+def test_volfrac_masks_automatically_unless_no_mask(tmp_path, field_args):
+    lower, level, fields = tiny_layout()
+    vf = np.ones(9, np.float32)
+    vf[[1, 7]] = 0.0
+    vf[2] = 0.25
+    p = write_exajet(tmp_path, "t", lower, level, {"a": fields["a"], "volFrac": vf})
+    out = tmp_path / "cells.npz"
+    run_cli("ingest", p, "-o", out, *field_args, check=0)
+    cells = schema.load(out, "cells")
+    keep = vf != 0
+    assert cells.fields == (("a",) if field_args else ("a", "volFrac"))
+    np.testing.assert_array_equal(cells.lower_lattice, lower[keep])
+    np.testing.assert_array_equal(cells.values[0], fields["a"][keep])
+    assert cells.meta["parameters"]["mask"] == "volFrac"
+    assert cells.meta["parameters"]["mask_auto"] is True
+    assert cells.meta["statistics"]["masked_cells"] == 2
+    run_cli("ingest", p, "-o", out, "--no-mask", *field_args, check=0)
+    cells = schema.load(out, "cells")
+    assert cells.n_cells == 9 and cells.meta["parameters"]["mask"] is None
+    assert cells.meta["parameters"]["no_mask"] is True
+
+
+def test_mask_errors(tmp_path):
+    lower, level, fields = tiny_layout()
+    p = write_exajet(tmp_path / "in", "t", lower, level, fields)
+    (tmp_path / "out").mkdir()
+    out = tmp_path / "out" / "c.npz"
+    for extra in ([], ["--field", "a"]):
+        proc = run_cli("ingest", p, "-o", out, "--mask", "volFrac", *extra)
+        assert_one_error_line(proc, p, "no field 'volFrac' for --mask", "a, b")
+    proc = run_cli("ingest", p, "-o", out, "--mask", "a", "--no-mask")
+    assert proc.returncode == 2 and "--no-mask" in proc.stderr
+    fields["a"][:] = 0
+    p = write_exajet(tmp_path / "in", "t", lower, level, fields)
+    proc = run_cli("ingest", p, "-o", out, "--mask", "a")
+    assert_one_error_line(proc, p, "every cell has a == 0")
+    assert list((tmp_path / "out").iterdir()) == []
+
+
+def _volfrac(lower, width):
+    """A sphere body (volFrac 0) with a cut-cell shell (0.5) in the unit cube, from lattice
+    corners (N, 3) and widths (N,) on the 128^3 finest lattice of the AMReX dataset."""
+    centre = (np.asarray(lower, np.float64) + 0.5 * np.asarray(width, np.float64)[:, None]) / 128
+    r = np.linalg.norm(centre - [0.3, 0.4, 0.55], axis=1)
+    return np.where(r < 0.2, 0.0, np.where(r < 0.23, 0.5, 1.0))
+
+
+def add_component(src, dst, name, values):
+    """Copy the VisMF-v1 plotfile `src` to `dst` with one more component `name`, whose
+    FAB values are values(lattice corners (N, 3), widths (N,)) of each FAB's cells."""
+    shutil.copytree(src, dst)
+    header = (dst / "Header").read_text().split("\n")
+    ncomp = int(header[1])
+    header[1] = str(ncomp + 1)
+    header.insert(2 + ncomp, name)
+    finest = int(header[ncomp + 5])
+    (dst / "Header").write_text("\n".join(header))
+    for L in range(finest + 1):
+        width = 2 ** (finest - L)
+        cell_h = (dst / f"Level_{L}" / "Cell_H").read_text().split("\n")
+        assert cell_h[0] == "1" and int(cell_h[2]) == ncomp
+        cell_h[2] = str(ncomp + 1)
+        fods = [i for i, line in enumerate(cell_h) if line.startswith("FabOnDisk:")]
+        old = (src / f"Level_{L}" / cell_h[fods[0]].split()[1]).read_bytes()
+        new = bytearray()
+        lo_hi = []
+        for i in fods:
+            _, fname, offset = cell_h[i].split()
+            offset = int(offset)
+            end = old.index(b"\n", offset) + 1
+            line = old[offset:end].decode()
+            box = [list(map(int, t.split(","))) for t in re.findall(r"\(([-\d,]+)\)", line)[-3:-1]]
+            lo, hi = np.array(box[0]), np.array(box[1])
+            n = int(np.prod(hi - lo + 1))
+            cell_h[i] = f"FabOnDisk: {fname} {len(new)}"
+            new += line.rsplit(" ", 1)[0].encode() + f" {ncomp + 1}\n".encode()
+            new += old[end:end + 8 * n * ncomp]
+            z, y, x = np.meshgrid(*(np.arange(lo[a], hi[a] + 1) for a in (2, 1, 0)), indexing="ij")
+            corner = np.stack([x.ravel(), y.ravel(), z.ravel()], axis=1) * width
+            v = values(corner, np.full(n, width))
+            new += v.astype("<f8").tobytes()
+            lo_hi.append((v.min(), v.max()))
+        (dst / f"Level_{L}" / fname).write_bytes(bytes(new))
+        # the per-FAB minima and maxima that follow: one more column each
+        rest, k = cell_h[fods[-1] + 1:], 0
+        for s in (0, 1):
+            while not rest[k]:
+                k += 1
+            assert rest[k] == f"{len(fods)},{ncomp}"
+            rest[k] = f"{len(fods)},{ncomp + 1}"
+            for b in range(len(fods)):
+                rest[k + 1 + b] += f"{lo_hi[b][s]:.17e},"
+            k += 1 + len(fods)
+        (dst / f"Level_{L}" / "Cell_H").write_text("\n".join(cell_h[:fods[-1] + 1] + rest))
+    return dst
+
+
+@pytest.fixture(scope="module")
+def eb_plotfile(tmp_path_factory):
+    """The AMReX advection plotfile with a volFrac component: a sphere of volFrac 0."""
+    return add_component(AMREX, tmp_path_factory.mktemp("eb") / "plt", "volFrac", _volfrac)
+
+
+def test_eb_body_of_a_real_plotfile_becomes_holes(tmp_path, eb_plotfile):
+    from exabricks.readers import amrex
+
+    original = amrex.read(AMREX)
+    vf = _volfrac(original.lower_lattice, 1 << original.level.astype(np.int64))
+    keep = vf != 0
+    assert 0 < np.count_nonzero(~keep) < original.n_cells and np.any(vf == 0.5)
+    out = tmp_path / "cells.npz"
+    run_cli("ingest", eb_plotfile, "-o", out, check=0)
+    cells = schema.load(out, "cells")
+    assert cells.fields == ("phi", "volFrac")
+    np.testing.assert_array_equal(cells.lower_lattice, original.lower_lattice[keep])
+    np.testing.assert_array_equal(cells.level, original.level[keep])
+    np.testing.assert_array_equal(cells.values[0], original.values[0][keep])
+    np.testing.assert_array_equal(cells.values[1], vf[keep])
+    assert cells.meta["parameters"]["mask"] == "volFrac" and cells.meta["parameters"]["mask_auto"]
+    assert cells.meta["statistics"]["masked_cells"] == int(np.count_nonzero(~keep))
+    # --no-mask: every cell, the body included; --field phi: still masked, volFrac not kept
+    everything = ingest(eb_plotfile, auto_mask=False)
+    assert everything.n_cells == LEAF_COUNTS["amrex"]
+    np.testing.assert_array_equal(everything.values[1], vf)
+    phi = ingest(eb_plotfile, fields=["phi"])
+    assert phi.fields == ("phi",) and phi.n_cells == int(keep.sum())
+    np.testing.assert_array_equal(phi.values[0], original.values[0][keep])
+
+
+# ---------------------------------------------------------------------------
+# sizes claimed by headers are checked against the files before anything is allocated
+
+
+RESOURCE_TIMEOUT = 60  # s; the claims below would take minutes and gigabytes if trusted
+
+
+@pytest.fixture
+def run_cli_limited(monkeypatch):
+    """conftest's run_cli with a wall-clock limit (a hang fails the test) and a 4 GiB
+    address-space limit (an allocation of what a header claims fails instead of swapping)."""
+    import resource
+    import subprocess
+
+    real = subprocess.run
+
+    def limit():
+        resource.setrlimit(resource.RLIMIT_AS, (4 << 30, 4 << 30))
+
+    def run(*args, **kw):
+        kw.setdefault("timeout", RESOURCE_TIMEOUT)
+        kw.setdefault("preexec_fn", limit)
+        return real(*args, **kw)
+
+    monkeypatch.setattr(subprocess, "run", run)
+    return run_cli
+
+
+def write_plotfile(root, boxes, ratios, names=("a",), **options):
+    rng = np.random.default_rng(1)
+    root.parent.mkdir(parents=True, exist_ok=True)
+    return amrex_plotfile.write_plotfile(
+        root, boxes, ratios, list(names),
+        lambda L, glo, ghi: rng.random((len(names), *(ghi - glo + 1)[::-1])), **options)
+
+
+def _claim_1024_cubed(d, vismf=1):
+    """A 24 KB plotfile whose headers claim one 1024^3 box (8 GiB of float64)."""
+    p = d / "plt"
+    write_plotfile(p, [[((0, 0, 0), (7, 7, 7))]], [], vismf=vismf)
+    big = "(1023,1023,1023)"
+    for f in (p / "Header", p / "Level_0" / "Cell_H"):
+        f.write_text(f.read_text().replace("(7,7,7)", big))
+    data = p / "Level_0" / "Cell_D_00000"
+    raw = data.read_bytes().replace(b"(7,7,7)", big.encode())
+    data.write_bytes(raw + bytes(24 * 1024 - len(raw)))
+    return p, [p / "Level_0" / "Cell_H", "box 0", "claims 85899", data, "holds only 24576"]
+
+
+def _edit_fod(p, level, box, offset):
+    h = p / f"Level_{level}" / "Cell_H"
+    lines = h.read_text().split("\n")
+    fods = [i for i, line in enumerate(lines) if line.startswith("FabOnDisk:")]
+    lines[fods[box]] = f"FabOnDisk: Cell_D_00000 {offset}"
+    h.write_text("\n".join(lines))
+    return h
+
+
+def _small_plotfile(d, **options):
+    return write_plotfile(d / "plt", [[((0, 0, 0), (3, 7, 7)), ((4, 0, 0), (7, 7, 7))],
+                                      [((2, 2, 2), (9, 9, 9))]], [2], **options) and d / "plt"
+
+
+def _res_amrex_box(d):
+    return _claim_1024_cubed(d)
+
+
+def _res_amrex_box_vismf2(d):
+    p, needles = _claim_1024_cubed(d, vismf=2)
+    return p, [*needles[:2], "claims 85899345", needles[3]]
+
+
+def _res_amrex_offset_past_end(d):
+    p = _small_plotfile(d)
+    h = _edit_fod(p, 0, 1, 10**12)
+    return p, [h, "box 1", "starts at byte 1000000000000", "Cell_D_00000 holds only"]
+
+
+def _res_amrex_offsets_overlap(d):
+    p = _small_plotfile(d, vismf=2)  # no FAB header lines: only the offsets tell
+    h = _edit_fod(p, 0, 1, 0)
+    return p, [h, "box 1 starts at byte 0", "inside the data of box 0"]
+
+
+def _res_athena_block(d):
+    import h5py
+
+    d.mkdir()
+    p = d / "huge.athdf"
+    with h5py.File(p, "w") as f:
+        for k, v in {"RootGridSize": [1024] * 3, "MeshBlockSize": [1024] * 3,
+                     "RootGridX1": [0.0, 1.0, 1.0], "RootGridX2": [0.0, 1.0, 1.0],
+                     "RootGridX3": [0.0, 1.0, 1.0], "VariableNames": [b"rho"],
+                     "DatasetNames": [b"prim"], "NumVariables": [1]}.items():
+            f.attrs[k] = np.array(v)
+        f["Levels"] = np.zeros(1, np.int32)
+        f["LogicalLocations"] = np.zeros((1, 3), np.int64)
+        f.create_dataset("prim", shape=(1, 1, 1024, 1024, 1024), dtype="f4")  # nothing stored
+    return p, [p, "dataset 'prim' of shape (1, 1, 1024, 1024, 1024)", "claims 4294967296 bytes",
+               "the file holds only"]
+
+
+def _res_athena_levels(d):
+    p, _ = _res_athena_block(d)
+    import h5py
+
+    with h5py.File(p, "r+") as f:
+        del f["Levels"], f["LogicalLocations"]
+        f.create_dataset("Levels", shape=(10**9,), dtype="i4")
+        f.create_dataset("LogicalLocations", shape=(10**9, 3), dtype="i8")
+    return p, [p, "dataset 'Levels' of shape (1000000000,)", "claims 4000000000 bytes"]
+
+
+def _res_exajet_scalars(d):
+    """A sparse 16 GiB .cells file next to a 4-value .scalars: refused before reading."""
+    d.mkdir()
+    p = d / "big.cells"
+    with open(p, "wb") as f:
+        f.truncate(16 << 30)
+    np.zeros(4, "<f4").tofile(d / "big.v.scalars")
+    return p, [d / "big.v.scalars", "4 values for field 'v'", p, f"{1 << 30} cells"]
+
+
+def _res_raw_dims_overflow(d):
+    """--dims whose product wraps around int64 to 0 bytes must not match an empty file."""
+    d.mkdir()
+    p = d / "v.raw"
+    p.write_bytes(b"")
+    return [p, "--dims", 1 << 21, 1 << 21, 1 << 22], [p, "size 0 bytes", "73786976294838206464 bytes"]
+
+
+RESOURCE_CASES = {n[len("_res_"):]: f for n, f in globals().items() if n.startswith("_res_")}
+
+
+@pytest.mark.parametrize("case", sorted(RESOURCE_CASES))
+def test_claimed_sizes_fail_fast(tmp_path, run_cli_limited, case):
+    args, needles = RESOURCE_CASES[case](tmp_path / "in")
+    args = args if isinstance(args, list) else [args]
+    (tmp_path / "out").mkdir()
+    t0 = time.perf_counter()
+    proc = run_cli_limited("ingest", *args, "-o", tmp_path / "out" / "c.npz")
+    assert_one_error_line(proc, *needles)
+    assert list((tmp_path / "out").iterdir()) == []
+    assert time.perf_counter() - t0 < RESOURCE_TIMEOUT
+
+
+def test_claimed_box_fails_in_well_under_a_second(tmp_path):
+    from exabricks.readers import amrex
+
+    p, _ = _claim_1024_cubed(tmp_path)
+    amrex.read(_small_plotfile(tmp_path / "warm"))  # imports and compiled code are loaded
+    t0 = time.perf_counter()
+    with pytest.raises(ExabricksError, match="claims 85899"):
+        ingest(p)
+    assert time.perf_counter() - t0 < 0.5
+
+
+# ---------------------------------------------------------------------------
+# world frames: finite origin, finite, positive, normal spacing (one error line, no warnings)
+
+
+def _header_line(p, index, text):
+    lines = (p / "Header").read_text().split("\n")
+    lines[index] = text
+    (p / "Header").write_text("\n".join(lines))
+    return p / "Header"
+
+
+# Header lines of a 1-field plotfile: 6 prob_lo, 7 prob_hi, 11.. cell sizes per level.
+AMREX_BAD_VALUES = {
+    "prob_hi_inf": (7, "1.0 inf 1.0", ["prob_lo and prob_hi must be finite", "inf"]),
+    "prob_hi_nan": (7, "1.0 1.0 nan", ["must be finite", "nan"]),
+    "prob_lo_minus_inf": (6, "-inf 0 0", ["must be finite"]),
+    "prob_hi_equal": (7, "1.0 0.0 1.0", ["prob_hi must exceed prob_lo"]),
+    "prob_hi_below": (7, "1.0 1.0 -2.0", ["prob_hi must exceed prob_lo"]),
+    "extent_overflow": (7, "1.7e308 1 1", ["axis x", "inf", "not a finite, positive, normal"]),
+    "spacing_denormal": (7, "1e-307 1 1", ["axis x", "not a finite, positive, normal"]),
+    "cell_size_zero": (11, "0.125 0 0.125", ["line 12", "level-0 cell size 0.0"]),
+    "cell_size_negative": (12, "0.0625 -0.0625 0.0625", ["line 13", "level-1 cell size -0.0625"]),
+    "cell_size_denormal": (11, "1e-310 0.125 0.125", ["level-0 cell size 1e-310"]),
+    "cell_size_inf": (12, "inf 0.0625 0.0625", ["level-1 cell size inf"]),
+}
+
+
+@pytest.mark.parametrize("case", sorted(AMREX_BAD_VALUES))
+def test_amrex_bad_world_values(tmp_path, case):
+    index, text, needles = AMREX_BAD_VALUES[case]
+    p = _small_plotfile(tmp_path)
+    if case == "extent_overflow":
+        _header_line(p, 6, "-1.7e308 0 0")
+    header = _header_line(p, index, text)
+    proc = run_cli("ingest", p, "-o", tmp_path / "c.npz")
+    assert_one_error_line(proc, header, *needles)  # one line: no RuntimeWarning before it
+
+
+ATHENA_BAD_VALUES = {
+    "inf": ("RootGridX2", [-0.5, np.inf, 1.0], "min and max must be finite"),
+    "nan": ("RootGridX3", [np.nan, 0.5, 1.0], "min and max must be finite"),
+    "equal": ("RootGridX1", [0.5, 0.5, 1.0], "max must exceed min"),
+    "denormal": ("RootGridX1", [0.0, 1e-306, 1.0], "not a finite, positive, normal"),
+    "overflow": ("RootGridX1", [-1.7e308, 1.7e308, 1.0], "not a finite, positive, normal"),
+}
+
+
+@pytest.mark.parametrize("case", sorted(ATHENA_BAD_VALUES))
+def test_athena_bad_world_values(tmp_path, case):
+    import h5py
+
+    name, value, needle = ATHENA_BAD_VALUES[case]
+    p = tmp_path / "copy.athdf"
+    shutil.copy(ATHENA, p)
+    with h5py.File(p, "r+") as f:
+        f.attrs[name] = np.array(value, np.float64)
+    proc = run_cli("ingest", p, "-o", tmp_path / "c.npz")
+    assert_one_error_line(proc, p, needle)
+
+
+def test_values_beyond_float32_give_one_error_line(tmp_path):
+    """float64 data beyond float32's range: inf, reported by --nan error with no warning."""
+    p = tmp_path / "plt"
+    amrex_plotfile.write_plotfile(p, [[((0, 0, 0), (7, 7, 7))]], [], ["a"],
+                                  lambda L, lo, hi: np.full((1, 8, 8, 8), 1e300))
+    proc = run_cli("ingest", p, "-o", tmp_path / "c.npz")
+    assert_one_error_line(proc, p, "field 'a' is inf")

@@ -272,7 +272,9 @@ def test_amrex_truncated_cell_d(tmp_path):
     p = _copy_amrex(tmp_path)
     data = p / "Level_2" / "Cell_D_00000"
     data.write_bytes(data.read_bytes()[: data.stat().st_size // 2])
-    with pytest.raises(ExabricksError, match=r"Cell_D_00000: truncated"):
+    # caught by the size check of every FAB before anything is allocated
+    with pytest.raises(ExabricksError, match=r"Level_2/Cell_H: box \d+ .* claims \d+ bytes "
+                                             r"from byte \d+ but .*Cell_D_00000 holds only \d+"):
         amrex.read(p)
 
 
@@ -321,6 +323,49 @@ def test_amrex_truncated_and_missing_header(tmp_path):
         amrex.read(p)
     with pytest.raises(ExabricksError, match="not an AMReX plotfile directory"):
         amrex.read(tmp_path / "nothing")
+
+
+def _with_ratio_line(tmp_path, line: str) -> Path:
+    """A copy of the real plotfile whose Header ratio line (now "2 2 ") is `line`."""
+    p = _copy_amrex(tmp_path)
+    header = p / "Header"
+    lines = header.read_text().split("\n")
+    assert lines[8].split() == ["2", "2"]
+    lines[8] = line
+    header.write_text("\n".join(lines))
+    return p
+
+
+def test_amrex_ratio_line_with_the_finest_level_matches_yt(tmp_path, amrex_cells):
+    """Embedded-boundary and PeleLMeX-family writers list a ratio for the finest level
+    too (3 for 3 levels): the same cells as the original, and as yt reads them."""
+    p = _with_ratio_line(tmp_path, "2 2 2 ")
+    cells = amrex.read(p)
+    for name in schema.Cells.SPECS:
+        np.testing.assert_array_equal(getattr(cells, name), getattr(amrex_cells, name))
+    ds, lattice, level, values = yt_leaves(p, "boxlib", ["phi"])
+    assert list(ds.ref_factors) == [2, 2, 2]
+    assert_same_cells(cells, lattice, level, values)
+
+
+@pytest.mark.parametrize("line", ["2 2 4", "(2,2,2) (2,2,2)", "(2,2,2) (2,2,2) (4,4,4)"])
+def test_amrex_ratio_line_forms(tmp_path, amrex_cells, line):
+    """The extra finest-level ratio is ignored whatever it is; per-axis IntVects as well."""
+    cells = amrex.read(_with_ratio_line(tmp_path, line))
+    np.testing.assert_array_equal(cells.lower_lattice, amrex_cells.lower_lattice)
+    np.testing.assert_array_equal(cells.level, amrex_cells.level)
+
+
+@pytest.mark.parametrize("line, needle", [
+    ("2", r"refinement ratios \(expected 2, or 3 with the finest level's, found 1\)"),
+    ("2 2 2 2", "found 4"),
+    ("(2,2,2)", "expected 2 or 3 IntVects"),
+    ("(2,2,4) (2,2,2)", "anisotropic"),
+    ("2 3 2", "ratio 3 is not a power of two"),
+])
+def test_amrex_bad_ratio_lines(tmp_path, line, needle):
+    with pytest.raises(ExabricksError, match=r"plt/Header: .*" + needle):
+        amrex.read(_with_ratio_line(tmp_path, line))
 
 
 def test_amrex_non_power_of_two_ratio(tmp_path, rng):

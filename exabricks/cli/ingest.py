@@ -7,9 +7,10 @@ from pathlib import Path
 import click
 
 from .. import progress, readers, schema
-from ..errors import ExabricksError
+from ..output import check_output
 from ..readers.raw import BYTE_ORDERS, DTYPES
-from ..stages.ingest import NAN_POLICIES, add_magnitude, cell_statistics, validate_cells
+from ..stages.ingest import AUTO_MASK_FIELD, NAN_POLICIES
+from ..stages.ingest import ingest as ingest_stage
 from .options import output_option
 
 
@@ -53,68 +54,25 @@ def _name_equals(kind: str):
               show_default=True,
               help="NaN/Inf values: error; zero (replace by 0); drop (remove those cells); "
               "keep (store unchanged).")
+@click.option("--mask", "mask", default=None, metavar="FIELD",
+              help="Drop the cells where FIELD == 0 (they become holes, e.g. the body of an "
+              f"embedded-boundary plotfile). Default: {AUTO_MASK_FIELD} when the input has it.")
+@click.option("--no-mask", "no_mask", is_flag=True,
+              help=f"Keep every cell: no automatic --mask {AUTO_MASK_FIELD}.")
 def ingest(input_path, output, fmt, fields, scalars, dims, dtype, byte_order, raw_name,
-           max_level, threshold, magnitude, nan_policy):
+           max_level, threshold, magnitude, nan_policy, mask, no_mask):
     """Read INPUT (ExaJet, AMReX, Athena++, raw volume, or anything yt loads), check
     its leaf cells and write them as an exabricks cells file."""
-    source = str(input_path)
-    if fmt == "auto":
-        fmt = readers.detect_format(input_path, dims=dims)
-    options = {}
-    raw_given = [flag for flag, given in (
-        ("--dims", dims is not None), ("--max-level", max_level is not None),
-        ("--threshold", threshold != 0.0), ("--dtype", dtype != "float32"),
-        ("--byte-order", byte_order != "little"), ("--name", raw_name != "value")) if given]
-    if fmt == "raw":
-        options = dict(dims=dims, dtype=dtype, name=raw_name, max_level=max_level,
-                       threshold=threshold, byte_order=byte_order)
-    elif raw_given:
-        raise ExabricksError(f"{source}: {', '.join(raw_given)} only apply to raw volumes, "
-                             f"not to {fmt} input")
-    if scalars:
-        if fmt != "exajet":
-            raise ExabricksError(f"{source}: --scalars is for exajet .cells files, not {fmt}")
-        options["scalars"] = {k: Path(v) for k, v in scalars}
-    derived = {name for name, _ in magnitude}
-    read_fields = [f for f in fields if f not in derived]
-    if magnitude and read_fields:
-        # components of a derived field must be read even if not kept
-        read_fields += [c for _, comps in magnitude for c in comps.split(",") if c not in read_fields]
-
+    if mask is not None and no_mask:
+        raise click.UsageError("--mask and --no-mask exclude each other")
+    check_output(output, [input_path, *(path for _, path in scalars)])
     with progress.bar(total=3, desc="ingest", unit="step") as bar:
-        cells = readers.read(input_path, format=fmt, fields=read_fields or None, **options)
+        cells = ingest_stage(
+            input_path, format=fmt, fields=fields, scalars=dict(scalars) or None,
+            dims=dims, dtype=dtype, byte_order=byte_order, name=raw_name,
+            max_level=max_level, threshold=threshold, magnitude=magnitude,
+            nan_policy=nan_policy, mask=mask, auto_mask=not no_mask, on_step=bar.update,
+        )
+        inputs = [entry["path"] for entry in cells.meta.get("inputs", [])]
+        schema.save(output, cells, inputs=[input_path, *inputs])
         bar.update()
-        for name, comps in magnitude:
-            cells = add_magnitude(cells, name, tuple(c for c in comps.split(",") if c), source=source)
-        if fields:
-            cells = readers.select_fields(cells, fields, source=source)
-        n_read = cells.n_cells
-        cells = validate_cells(cells, source=source, nan_policy=nan_policy)
-        bar.update()
-        inputs = cells.meta.get("inputs") or _input_files(input_path)
-        cells = cells.replace(meta=schema.make_meta(
-            inputs=inputs,
-            parameters={
-                "format": fmt, "fields": list(fields), "nan": nan_policy,
-                **({"scalars": {k: str(v) for k, v in options["scalars"].items()}}
-                   if "scalars" in options else {}),
-                **({"dims": list(dims), "dtype": dtype, "byte_order": byte_order,
-                    "name": raw_name, "max_level": max_level, "threshold": threshold}
-                   if fmt == "raw" else {}),
-                **({"magnitude": {k: v for k, v in magnitude}} if magnitude else {}),
-            },
-            statistics=_statistics(cells, dropped=n_read - cells.n_cells),
-            source={k: v for k, v in cells.meta.items() if k != "inputs"},
-        ))
-        schema.save(output, cells)
-        bar.update()
-
-
-def _input_files(path: Path) -> list[str]:
-    if path.is_dir():
-        return sorted(str(p) for p in path.rglob("*") if p.is_file())
-    return [str(path)]
-
-
-def _statistics(cells, dropped: int) -> dict:
-    return {**cell_statistics(cells), "dropped_nonfinite_cells": int(dropped)}

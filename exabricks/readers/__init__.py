@@ -92,6 +92,31 @@ def read(path: str | Path, *, format: str = "auto", fields=None, **options) -> C
     return select_fields(cells, fields, source=str(path))
 
 
+def field_names(path: str | Path, *, format: str, **options) -> list[str] | None:
+    """The names of the fields `path` holds, from its headers only (no data is read).
+
+    format: one of FORMATS (not auto).  None where that is not cheap (yt loads the
+    whole dataset index to know).  Raises ExabricksError for a bad header.
+    """
+    path = Path(path)
+    if not path.exists():
+        raise ExabricksError(f"{path}: no such file or directory")
+    if format == "amrex":
+        from . import amrex
+        return list(amrex.field_names(path))
+    if format == "athena":
+        from . import athena
+        return list(athena.field_names(path))
+    if format == "exajet":
+        if options.get("scalars") is not None:
+            return list(options["scalars"])
+        from . import exajet
+        return list(exajet.scalar_files(path))
+    if format == "raw":
+        return [options.get("name", "value")]
+    return None
+
+
 def select_fields(cells: Cells, fields, *, source: str) -> Cells:
     """`cells` with only `fields`, in that order (None or empty: unchanged)."""
     if not fields:

@@ -21,6 +21,7 @@ two), and lattice 0 is the corner of the domain, world `prob_lo`.
 
 from __future__ import annotations
 
+import math
 import os
 import re
 from collections.abc import Sequence
@@ -31,7 +32,7 @@ import numpy as np
 from .. import schema
 from ..constants import LATTICE_DTYPE, LEVEL_DTYPE, MAX_LEVEL, VALUE_DTYPE, WORLD_DTYPE
 from ..errors import ExabricksError
-from . import _blocks
+from . import _blocks, _checks
 
 _INT = r"-?\d+"
 _IV = rf"\(\s*({_INT}(?:\s*,\s*{_INT})*)\s*\)"
@@ -76,7 +77,6 @@ def read(path: Path, *, fields: Sequence[str] | None = None) -> schema.Cells:
 
     levels = [_read_level_header(path, header["level_paths"][L], L, len(names))
               for L in range(finest + 1)]
-    masks = []
     for L, lev in enumerate(levels):
         lo, hi = lev["lo"], lev["hi"]
         dlo, dhi = domains[L]
@@ -86,6 +86,13 @@ def read(path: Path, *, fields: Sequence[str] | None = None) -> schema.Cells:
                 f"{lev['where']}: box {b} {lo[b].tolist()}..{hi[b].tolist()} lies outside "
                 f"the level-{L} domain {dlo.tolist()}..{dhi.tolist()}"
             )
+    # Every FAB's claimed size against its Cell_D file, before anything of the size the
+    # headers claim is allocated: the cells read below are then bounded by the bytes on disk.
+    for lev in levels:
+        lev["layout"] = _fab_layouts(lev, header["ncomp"])
+    masks = []
+    for L, lev in enumerate(levels):
+        lo, hi = lev["lo"], lev["hi"]
         # A cell is a leaf unless any finer level covers it (with proper nesting the next
         # level alone would do; all finer levels guarantee that leaves never overlap).
         cover = [_blocks.coarsen(levels[F]["lo"], levels[F]["hi"], widths[L] // widths[F])
@@ -107,7 +114,7 @@ def read(path: Path, *, fields: Sequence[str] | None = None) -> schema.Cells:
                              out=lattice[part])
         level[part] = widths[L].bit_length() - 1
 
-    spacing = (header["prob_hi"] - header["prob_lo"]) / (domains[finest][1] - domains[finest][0] + 1)
+    spacing = header["spacing"]
     return schema.Cells(
         fields=tuple(names[i] for i in selected),
         origin_world=header["prob_lo"].astype(WORLD_DTYPE),
@@ -118,6 +125,11 @@ def read(path: Path, *, fields: Sequence[str] | None = None) -> schema.Cells:
         level=level,
         values=values,
     )
+
+
+def field_names(path: Path) -> list[str]:
+    """The field names listed in the plotfile's Header (nothing else is read)."""
+    return _read_header(Path(path))["fields"]
 
 
 # ---------------------------------------------------------------------------
@@ -178,6 +190,8 @@ def _parse_boxes(text: str, where: Path, count: int) -> tuple[np.ndarray, np.nda
         return np.empty((0, 3), np.int64), np.empty((0, 3), np.int64)
     try:
         nums = np.array([[int(t) for t in ",".join(b).split(",")] for b in found], dtype=np.int64)
+    except OverflowError:
+        raise ExabricksError(f"{where}: a box index does not fit in 64 bits") from None
     except ValueError:
         raise ExabricksError(f"{where}: a box is not three-dimensional") from None
     if nums.ndim != 2 or nums.shape[1] != 9:
@@ -188,6 +202,38 @@ def _parse_boxes(text: str, where: Path, count: int) -> tuple[np.ndarray, np.nda
     if np.any(hi < lo):
         raise ExabricksError(f"{where}: a box has hi < lo")
     return lo, hi
+
+
+def _parse_ratios(c: _Lines, finest: int) -> list[int]:
+    """The refinement ratios of levels 0..finest-1 from the Header's ratio line.
+
+    AMReX writes one ratio per coarse level (`finest` numbers); embedded-boundary and
+    PeleLMeX-family writers add one for the finest level too (`finest + 1`), which is
+    ignored, as yt does (it only ever uses ref_factors[L] for L < finest).  Older
+    writers give per-axis IntVects "(2,2,2) (2,2,2)" (isotropic ones are accepted).
+    """
+    ratio_line = c.next("refinement ratios")
+    r = [int(t) for t in re.findall(_INT, ratio_line)]
+    if "(" in ratio_line:  # per-axis IntVects (older writers)
+        if len(r) % 3 or len(r) // 3 not in (finest, finest + 1):
+            raise c.fail(f"refinement ratios (expected {finest} or {finest + 1} IntVects, "
+                         f"found {len(r)} numbers)")
+        r3 = np.array(r, dtype=np.int64).reshape(-1, 3)[:finest]
+        if np.any(r3 != r3[:, :1]):
+            raise ExabricksError(
+                f"{c.where}: anisotropic refinement ratios {r3.tolist()} are not supported"
+            )
+        r = r3[:, 0].tolist()
+    if len(r) not in (finest, finest + 1):
+        raise c.fail(f"refinement ratios (expected {finest}, or {finest + 1} with the finest "
+                     f"level's, found {len(r)})")
+    r = r[:finest]
+    for x in r:
+        if x < 2 or x & (x - 1):
+            raise ExabricksError(
+                f"{c.where}: refinement ratio {x} is not a power of two (exabricks needs 2, 4, 8, ...)"
+            )
+    return r
 
 
 def _read_header(path: Path) -> dict:
@@ -217,26 +263,17 @@ def _read_header(path: Path) -> dict:
         raise c.fail(f"finest level (must lie in 0..{MAX_LEVEL})")
     prob_lo = c.floats("prob_lo", 3)
     prob_hi = c.floats("prob_hi", 3)
-    if not (np.all(np.isfinite(prob_lo)) and np.all(prob_hi > prob_lo)):
+    if not (np.all(np.isfinite(prob_lo)) and np.all(np.isfinite(prob_hi))):
         raise ExabricksError(
-            f"{where}: prob_hi must exceed prob_lo (found {prob_lo} and {prob_hi})"
+            f"{where}: prob_lo and prob_hi must be finite (found {prob_lo.tolist()} and "
+            f"{prob_hi.tolist()})"
         )
-    ratio_line = c.next("refinement ratios")
-    r = [int(t) for t in re.findall(_INT, ratio_line)]
-    if len(r) == 3 * finest and "(" in ratio_line:  # per-axis IntVects (older writers)
-        r3 = np.array(r, dtype=np.int64).reshape(finest, 3)
-        if np.any(r3 != r3[:, :1]):
-            raise ExabricksError(
-                f"{where}: anisotropic refinement ratios {r3.tolist()} are not supported"
-            )
-        r = r3[:, 0].tolist()
-    if len(r) != finest:
-        raise c.fail(f"refinement ratios (expected {finest}, found {len(r)})")
-    for x in r:
-        if x < 2 or x & (x - 1):
-            raise ExabricksError(
-                f"{where}: refinement ratio {x} is not a power of two (exabricks needs 2, 4, 8, ...)"
-            )
+    if not np.all(prob_hi > prob_lo):
+        raise ExabricksError(
+            f"{where}: prob_hi must exceed prob_lo (found {prob_lo.tolist()} and "
+            f"{prob_hi.tolist()})"
+        )
+    r = _parse_ratios(c, finest)
     dom_lo, dom_hi = _parse_boxes(c.next("domain boxes"), where, finest + 1)
     for L in range(finest):
         want = (dom_hi[L] - dom_lo[L] + 1) * r[L]
@@ -246,8 +283,9 @@ def _read_header(path: Path) -> dict:
                 f"{where}: the level-{L + 1} domain is not the level-{L} domain refined by {r[L]}"
             )
     c.next("level steps")
-    for _ in range(finest + 1):
-        c.floats("cell sizes", 3)
+    for L in range(finest + 1):
+        _checks.check_cell_size(f"{where}: line {c.i + 1}", c.floats("cell sizes", 3),
+                                f"level-{L} cell size")
     coord = c.ints("coordinate system", 1)[0]
     if coord != 0:
         raise ExabricksError(
@@ -271,11 +309,16 @@ def _read_header(path: Path) -> dict:
             c.next(f"level-{L} box extents")
         level_paths.append((c.next(f"level-{L} multifab path"), nbox))
     ratios = np.array(r, dtype=np.int64)
-    if int(np.prod(ratios)) * int((dom_hi[0] - dom_lo[0] + 1).max()) >= 2**31:
+    if math.prod(r) * int((dom_hi[0] - dom_lo[0] + 1).max()) >= 2**31:  # exact ints
         raise ExabricksError(f"{where}: the finest domain exceeds the int32 lattice")
+    cells = (dom_hi[finest] - dom_lo[finest] + 1).astype(np.float64)
+    with np.errstate(all="ignore"):
+        spacing = (prob_hi - prob_lo) / cells
+    _checks.check_frame(where, prob_lo, spacing, cells)
     return {
         "version": version, "fields": names, "ncomp": ncomp, "time": time,
         "finest_level": finest, "prob_lo": prob_lo, "prob_hi": prob_hi, "ratios": ratios,
+        "spacing": spacing,
         "domains": [(dom_lo[L], dom_hi[L]) for L in range(finest + 1)],
         "level_paths": level_paths,
     }
@@ -315,7 +358,7 @@ def _read_level_header(path: Path, level_path: tuple[str, int], L: int, ncomp: i
     ngrow = c.next("number of ghost cells")
     try:  # one number, or an IntVect "(1,1,1)" from writers with per-axis ghost cells
         ngrow = np.broadcast_to(np.array(re.findall(_INT, ngrow), dtype=np.int64), (3,)).copy()
-    except ValueError:
+    except (ValueError, OverflowError):
         raise c.fail("number of ghost cells") from None
     if np.any(ngrow < 0):
         raise c.fail("number of ghost cells")
@@ -340,7 +383,7 @@ def _read_level_header(path: Path, level_path: tuple[str, int], L: int, ncomp: i
             raise c.fail("FabOnDisk entry")
         try:
             offsets[b] = int(parts[2])
-        except ValueError:
+        except (ValueError, OverflowError):
             raise c.fail("FabOnDisk offset") from None
         files.append(directory / parts[1])
     dtype = None
@@ -363,6 +406,14 @@ def _read_level_header(path: Path, level_path: tuple[str, int], L: int, ncomp: i
 
 def _read_level_values(lev: dict, selected: list[int], ncomp: int, mask: np.ndarray,
                        out: np.ndarray) -> None:
+    """`_copy_level_values` where float64 values beyond float32's range become inf (a
+    non-finite value that the --nan policy handles later) without a RuntimeWarning."""
+    with np.errstate(over="ignore", invalid="ignore"):
+        _copy_level_values(lev, selected, ncomp, mask, out)
+
+
+def _copy_level_values(lev: dict, selected: list[int], ncomp: int, mask: np.ndarray,
+                       out: np.ndarray) -> None:
     """Write the leaf values of a level into out, float32 (len(selected), leaves).
 
     mask: bool (cells of all boxes,), box after box, x fastest (`_blocks.leaf_mask`);
@@ -381,8 +432,8 @@ def _read_level_values(lev: dict, selected: list[int], ncomp: int, mask: np.ndar
     c0, c1 = min(selected, default=0), max(selected, default=0) + 1
     rows = [s - c0 for s in selected]
     files, offsets = lev["files"], lev["offsets"].tolist()
+    layout = lev["layout"]
     order = sorted(range(len(files)), key=lambda b: (str(files[b]), offsets[b]))
-    rd_cache: dict = {}
     f, name, size = None, None, 0
     buf = np.empty(0, dtype=np.uint8)
     try:
@@ -398,11 +449,11 @@ def _read_level_values(lev: dict, selected: list[int], ncomp: int, mask: np.ndar
                 except OSError as e:
                     raise ExabricksError(f"{name}: cannot open ({e})") from e
                 size = os.fstat(f.fileno()).st_size
-            fab_lo, fab_hi, dtype, data_at = _fab_layout(f, name, size, lev, b, ncomp, rd_cache)
+            fab_lo, fab_hi, dtype, data_at = layout[b]
             shape = tuple(fab_hi[a] - fab_lo[a] + 1 for a in (2, 1, 0))  # (nz, ny, nx)
             nbytes = shape[0] * shape[1] * shape[2] * dtype.itemsize
             end = data_at + ncomp * nbytes
-            if end > size:
+            if end > size:  # checked by _fab_layouts: the file shrank since
                 raise ExabricksError(
                     f"{name}: truncated: FAB {b} of {lev['where']} needs bytes up to {end}, "
                     f"the file has {size}"
@@ -432,19 +483,75 @@ def _read_level_values(lev: dict, selected: list[int], ncomp: int, mask: np.ndar
             f.close()
 
 
-def _fab_layout(f, name: Path, size: int, lev: dict, b: int, ncomp: int, rd_cache: dict):
-    """(box lo, box hi as int lists, dtype, byte offset of the data) of FAB `b`."""
-    offset = int(lev["offsets"][b])
-    if offset < 0 or offset >= size:
-        raise ExabricksError(
-            f"{name}: truncated: FAB {b} of {lev['where']} starts at byte {offset}, "
-            f"the file has {size}"
-        )
+def _fab_layouts(lev: dict, ncomp: int) -> list[tuple[list[int], list[int], np.dtype, int]]:
+    """(FAB lo, FAB hi as int lists, dtype, byte offset of the data) of every box of a level.
+
+    Checks, before anything is allocated: each FabOnDisk offset lies in its Cell_D file,
+    each FAB (header line and all components, ghost cells included) fits in the file
+    from there, and no two FABs of the level share bytes, so the level's cells are
+    bounded by the bytes on disk.  Sizes are Python ints (a claimed 2**30-cell box
+    does not overflow).
+    """
+    files, offsets = lev["files"], lev["offsets"].tolist()
+    out: list = [None] * len(files)
+    rd_cache: dict = {}
+    by_file: dict = {}
+    for b, name in enumerate(files):
+        by_file.setdefault(name, []).append(b)
+    for name, boxes in by_file.items():
+        try:
+            size = os.stat(name).st_size
+        except FileNotFoundError:
+            raise ExabricksError(f"{name}: missing (FAB data of {lev['where']})") from None
+        except OSError as e:
+            raise ExabricksError(f"{name}: cannot open ({e})") from e
+        boxes.sort(key=lambda b: offsets[b])
+        f = None
+        try:
+            prev_end, prev = 0, None
+            for b in boxes:
+                lo, hi = lev["lo"][b].tolist(), lev["hi"][b].tolist()
+                what = f"box {b} {tuple(lo)}..{tuple(hi)}"
+                offset = offsets[b]
+                if not 0 <= offset < size:
+                    raise ExabricksError(
+                        f"{lev['where']}: {what} starts at byte {offset} but {name} holds "
+                        f"only {size} (truncated?)"
+                    )
+                if lev["version"] == 1:
+                    if f is None:
+                        try:
+                            f = open(name, "rb")
+                        except OSError as e:
+                            raise ExabricksError(f"{name}: cannot open ({e})") from e
+                    layout = _fab_header(f, name, lev, b, offset, ncomp, rd_cache)
+                else:
+                    g = lev["ngrow"].tolist()
+                    layout = ([lo[a] - g[a] for a in range(3)], [hi[a] + g[a] for a in range(3)],
+                              lev["dtype"], offset)
+                fab_lo, fab_hi, dtype, data_at = layout
+                end = data_at + ncomp * dtype.itemsize * _volume(fab_lo, fab_hi)
+                _checks.claim(lev["where"], what, end - offset, name, size, at=offset)
+                if offset < prev_end:
+                    raise ExabricksError(
+                        f"{lev['where']}: box {b} starts at byte {offset} of {name}, inside the "
+                        f"data of box {prev} (bytes up to {prev_end}): corrupt FabOnDisk offsets"
+                    )
+                prev_end, prev = end, b
+                out[b] = layout
+        finally:
+            if f is not None:
+                f.close()
+    return out
+
+
+def _volume(lo: Sequence[int], hi: Sequence[int]) -> int:
+    return (hi[0] - lo[0] + 1) * (hi[1] - lo[1] + 1) * (hi[2] - lo[2] + 1)
+
+
+def _fab_header(f, name: Path, lev: dict, b: int, offset: int, ncomp: int, rd_cache: dict):
+    """(FAB lo, FAB hi, dtype, data offset) from the header line of FAB `b` (VisMF v1)."""
     lo, hi = lev["lo"][b].tolist(), lev["hi"][b].tolist()
-    if lev["version"] != 1:
-        g = lev["ngrow"].tolist()
-        return ([lo[a] - g[a] for a in range(3)], [hi[a] + g[a] for a in range(3)],
-                lev["dtype"], offset)
     f.seek(offset)
     line = f.readline(1024)
     m = _FAB_RE.match(line.decode("ascii", errors="replace"))

@@ -14,6 +14,7 @@ corner, the spacing the root cell size / 2**max.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -22,6 +23,7 @@ import numpy as np
 from .. import schema
 from ..constants import LATTICE_DTYPE, LEVEL_DTYPE, MAX_LEVEL, VALUE_DTYPE, WORLD_DTYPE
 from ..errors import ExabricksError
+from . import _checks
 
 _ROOT_ATTRS = ("RootGridSize", "MeshBlockSize", "RootGridX1", "RootGridX2", "RootGridX3",
                "VariableNames", "DatasetNames", "NumVariables")
@@ -52,6 +54,26 @@ def read(path: Path, *, fields: Sequence[str] | None = None) -> schema.Cells:
         raise
     except (OSError, KeyError, ValueError, TypeError) as e:  # damaged datasets inside a valid file
         raise ExabricksError(f"{path}: cannot read the Athena++ data ({e})") from e
+
+
+def field_names(path: Path) -> list[str]:
+    """The variable names of an .athdf file (its VariableNames attribute; no data is read)."""
+    import h5py
+
+    path = Path(path)
+    if not path.is_file():
+        raise ExabricksError(f"{path}: no such file" if not path.exists() else f"{path}: not a file")
+    try:
+        with h5py.File(path, "r") as f:
+            for name in _ROOT_ATTRS:
+                _attr(f, path, name)
+            return _text(_attr(f, path, "VariableNames"))
+    except ExabricksError:
+        raise
+    except (OSError, KeyError, ValueError, TypeError) as e:
+        raise ExabricksError(
+            f"{path}: not a readable HDF5 file (truncated or another format: {e})"
+        ) from e
 
 
 def _attr(f, path: Path, name: str) -> np.ndarray:
@@ -93,6 +115,11 @@ def _read(f, path: Path, fields: Sequence[str] | None) -> schema.Cells:
             f"spacing (x1rat = x2rat = x3rat = 1)"
         )
     lower_world, upper_world = extents[:, 0], extents[:, 1]
+    if not np.all(np.isfinite(extents[:, :2])):
+        raise ExabricksError(
+            f"{path}: RootGridX1..3 min and max must be finite (found "
+            f"{extents[:, :2].tolist()})"
+        )
     if not np.all(upper_world > lower_world):
         raise ExabricksError(f"{path}: RootGridX max must exceed min")
 
@@ -109,13 +136,32 @@ def _read(f, path: Path, fields: Sequence[str] | None) -> schema.Cells:
     if len(set(fields)) != len(fields):
         raise ExabricksError(f"{path}: field listed twice in {list(fields)}")
 
-    levels = np.asarray(_dataset(f, path, "Levels")[()], dtype=np.int64)
-    loc = np.asarray(_dataset(f, path, "LogicalLocations")[()], dtype=np.int64)
-    nb = levels.shape[0]
-    if levels.ndim != 1 or loc.shape != (nb, 3):
-        raise ExabricksError(f"{path}: Levels {levels.shape} and LogicalLocations {loc.shape} disagree")
+    # Every dataset's shape and stored size are checked before it is read, and before
+    # anything of the size the attributes claim is allocated.
+    file_size = path.stat().st_size
+    levels_ds = _dataset(f, path, "Levels")
+    loc_ds = _dataset(f, path, "LogicalLocations")
+    nb = levels_ds.shape[0] if len(levels_ds.shape) == 1 else -1
+    if nb < 0 or loc_ds.shape != (nb, 3):
+        raise ExabricksError(
+            f"{path}: Levels {levels_ds.shape} and LogicalLocations {loc_ds.shape} disagree"
+        )
     if nb == 0:
         raise ExabricksError(f"{path}: no mesh blocks")
+    _check_stored(levels_ds, path, file_size)
+    _check_stored(loc_ds, path, file_size)
+    first = np.concatenate([[0], np.cumsum(counts)])
+    used = sorted({int(np.searchsorted(first, names.index(n), side="right") - 1) for n in fields})
+    for d in used:
+        ds = _dataset(f, path, datasets[d])
+        want = (int(counts[d]), nb, *block[::-1].tolist())
+        if ds.shape != want:
+            raise ExabricksError(
+                f"{path}: dataset {datasets[d]!r} has shape {ds.shape}, expected {want}"
+            )
+        _check_stored(ds, path, file_size)
+    levels = np.asarray(levels_ds[()], dtype=np.int64)
+    loc = np.asarray(loc_ds[()], dtype=np.int64)
     finest = int(levels.max())
     if levels.min() < 0 or finest > MAX_LEVEL - 1:
         raise ExabricksError(f"{path}: block levels must lie in 0..{MAX_LEVEL - 1}")
@@ -131,8 +177,10 @@ def _read(f, path: Path, fields: Sequence[str] | None) -> schema.Cells:
         )
     _check_leaves(levels, loc, path)
 
-    spacing = (upper_world - lower_world) / (root << finest)
-    _check_faces(f, path, levels, loc, block, finest, lower_world, spacing)
+    with np.errstate(all="ignore"):
+        spacing = (upper_world - lower_world) / (root << finest)
+    _checks.check_frame(path, lower_world, spacing, root << finest)
+    _check_faces(f, path, levels, loc, block, finest, lower_world, spacing, file_size)
 
     # Built in int32 directly (checked above to fit): large files have 10^8+ cells.
     width = (np.int64(1) << (finest - levels)).astype(LATTICE_DTYPE)       # (B,)
@@ -144,17 +192,11 @@ def _read(f, path: Path, fields: Sequence[str] | None) -> schema.Cells:
 
     nv = int(np.prod(block))
     values = np.empty((len(fields), nb * nv), dtype=VALUE_DTYPE)
-    first = np.concatenate([[0], np.cumsum(counts)])
     for i, name in enumerate(fields):
         v = names.index(name)
         d = int(np.searchsorted(first, v, side="right") - 1)
-        ds = _dataset(f, path, datasets[d])
-        want = (int(counts[d]), nb, *block[::-1].tolist())
-        if ds.shape != want:
-            raise ExabricksError(
-                f"{path}: dataset {datasets[d]!r} has shape {ds.shape}, expected {want}"
-            )
-        values[i] = ds[v - first[d]].reshape(-1)
+        with np.errstate(over="ignore", invalid="ignore"):  # float64 beyond float32: inf
+            values[i] = f[datasets[d]][v - first[d]].reshape(-1)
 
     return schema.Cells(
         fields=tuple(fields),
@@ -207,22 +249,53 @@ def _check_leaves(levels: np.ndarray, loc: np.ndarray, path: Path) -> None:
             )
 
 
-def _check_faces(f, path, levels, loc, block, finest, lower_world, spacing) -> None:
+def _check_stored(ds, path: Path, file_size: int) -> None:
+    """Raise unless the bytes that dataset `ds` claims (shape x item size) are in the file.
+
+    Unfiltered datasets must fit in the file and be fully allocated (an HDF5 dataset
+    can declare any shape and store nothing); filtered (compressed) ones must store
+    something.  Only shapes and storage sizes are asked, nothing is read.
+    """
+    name = ds.name.lstrip("/")
+    claimed = math.prod(ds.shape) * ds.dtype.itemsize
+    stored = ds.id.get_storage_size()
+    what = f"dataset {name!r} of shape {ds.shape}"
+    if ds.id.get_create_plist().get_nfilters() == 0:
+        _checks.claim(path, what, claimed, "the file", file_size)
+        if stored < claimed:
+            raise ExabricksError(
+                f"{path}: {what} claims {claimed} bytes but only {stored} are stored "
+                f"(unwritten or truncated)"
+            )
+    elif claimed and not stored:
+        raise ExabricksError(f"{path}: {what} claims {claimed} bytes but none are stored")
+
+
+def _check_faces(f, path, levels, loc, block, finest, lower_world, spacing, file_size) -> None:
     """Check x1f/x2f/x3f against the lattice, so a mislabelled block cannot slip through."""
     width = (1 << (finest - levels)).astype(np.float64)
     for a, name in enumerate(("x1f", "x2f", "x3f")):
-        faces = np.asarray(_dataset(f, path, name)[()], dtype=np.float64)
-        if faces.shape != (levels.shape[0], block[a] + 1):
-            raise ExabricksError(f"{path}: dataset {name!r} has shape {faces.shape}")
-        expect = lower_world[a] + spacing[a] * width[:, None] * (
-            loc[:, a:a + 1] * block[a] + np.arange(block[a] + 1)[None, :]
+        ds = _dataset(f, path, name)
+        if ds.shape != (levels.shape[0], block[a] + 1):
+            raise ExabricksError(f"{path}: dataset {name!r} has shape {ds.shape}")
+        _check_stored(ds, path, file_size)
+        faces = np.asarray(ds[()], dtype=np.float64)
+        with np.errstate(all="ignore"):
+            _check_face_values(path, name, faces, a, levels, loc, block, width, lower_world,
+                               spacing)
+
+
+def _check_face_values(path, name, faces, a, levels, loc, block, width, lower_world, spacing):
+    """Raise unless faces (B, n + 1) of axis `a` sit where the lattice puts them (NaN never does)."""
+    expect = lower_world[a] + spacing[a] * width[:, None] * (
+        loc[:, a:a + 1] * block[a] + np.arange(block[a] + 1)[None, :]
+    )
+    # The faces are stored in float32: allow its rounding, relative to the cell width.
+    tol = 1e-3 * spacing[a] * width[:, None] + 4 * np.finfo(np.float32).eps * np.abs(expect)
+    bad = ~(np.abs(faces - expect) <= tol)
+    if np.any(bad):
+        b = int(np.flatnonzero(bad.any(axis=1))[0])
+        raise ExabricksError(
+            f"{path}: block {b}: {name} faces do not match a uniform mesh at its level and "
+            f"logical location (non-uniform spacing is not supported)"
         )
-        # The faces are stored in float32: allow its rounding, relative to the cell width.
-        tol = 1e-3 * spacing[a] * width[:, None] + 4 * np.finfo(np.float32).eps * np.abs(expect)
-        bad = np.abs(faces - expect) > tol
-        if np.any(bad):
-            b = int(np.flatnonzero(bad.any(axis=1))[0])
-            raise ExabricksError(
-                f"{path}: block {b}: {name} faces do not match a uniform mesh at its level and "
-                f"logical location (non-uniform spacing is not supported)"
-            )

@@ -54,16 +54,6 @@ def read(path: str | Path, *, fields=None, scalars: dict[str, Path] | None = Non
             f"(4 int32 x, y, z, level per cell): truncated .cells file"
         )
     n = size // CELL_BYTES
-    raw = _read_exact(path, np.empty((n, 4), np.int32))
-    lower = np.empty((n, 3), LATTICE_DTYPE)
-    level = np.empty(n, LEVEL_DTYPE)
-    bad = _split(raw, lower, level, MAX_LEVEL)
-    if bad >= 0:
-        raise ExabricksError(
-            f"{path}: cell {bad} at {raw[bad, :3].tolist()} has level {int(raw[bad, 3])}, "
-            f"outside 0..{MAX_LEVEL}"
-        )
-    del raw
 
     if scalars is None:
         scalars = scalar_files(path)
@@ -80,9 +70,8 @@ def read(path: str | Path, *, fields=None, scalars: dict[str, Path] | None = Non
                 f"{path}: no field {missing[0]!r} (fields: {', '.join(scalars)})"
             )
         scalars = {f: scalars[f] for f in fields}
-
-    values = np.empty((len(scalars), n), VALUE_DTYPE)
-    for row, (name, p) in enumerate(scalars.items()):
+    # Every file's size against the cell count before anything is allocated or read.
+    for name, p in scalars.items():
         _check_file(p, f"scalars file for field {name!r}")
         nbytes = p.stat().st_size
         if nbytes % 4:
@@ -94,6 +83,19 @@ def read(path: str | Path, *, fields=None, scalars: dict[str, Path] | None = Non
             raise ExabricksError(
                 f"{p}: {nbytes // 4} values for field {name!r}, but {path} has {n} cells"
             )
+
+    raw = _read_exact(path, np.empty((n, 4), np.int32))
+    lower = np.empty((n, 3), LATTICE_DTYPE)
+    level = np.empty(n, LEVEL_DTYPE)
+    bad = _split(raw, lower, level, MAX_LEVEL)
+    if bad >= 0:
+        raise ExabricksError(
+            f"{path}: cell {bad} at {raw[bad, :3].tolist()} has level {int(raw[bad, 3])}, "
+            f"outside 0..{MAX_LEVEL}"
+        )
+    del raw
+    values = np.empty((len(scalars), n), VALUE_DTYPE)
+    for row, p in enumerate(scalars.values()):
         _read_exact(p, values[row])
 
     return Cells(

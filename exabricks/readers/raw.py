@@ -8,6 +8,7 @@ multi-level inputs for scale tests are made.  Origin 0, spacing 1 (one voxel).
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 
 import numpy as np
@@ -55,7 +56,9 @@ def read(
         missing = next(f for f in fields if f != name)
         raise ExabricksError(f"{path}: no field {missing!r} (fields: {name})")
     dt = np.dtype(dtype).newbyteorder(BYTE_ORDERS[byte_order])
-    expected = int(np.prod(dims, dtype=np.int64)) * dt.itemsize
+    # Python ints: --dims of 2**22 each must not wrap around to a plausible size.  The
+    # file must hold exactly the claimed voxels before any of them is allocated.
+    expected = math.prod(dims) * dt.itemsize
     size = path.stat().st_size
     if size != expected:
         x, y, z = dims

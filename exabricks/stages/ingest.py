@@ -1,7 +1,9 @@
-"""Ingest stage: check leaf cells from any reader, and turn a uniform volume into AMR.
+"""Ingest stage: read any AMR source into checked leaf cells, and turn a uniform
+volume into AMR.
 
-Two pure functions (arrays in, arrays out, no paths, no printing):
-
+- `ingest` is the stage (DESIGN.md "The pipeline"): reader, derived fields, the
+  embedded-boundary mask, field selection, the checks, and the provenance meta;
+  `exabricks ingest` only parses options, calls it and saves the result.
 - `validate_cells` enforces the cell contract of DESIGN.md ("Cells and
   coordinates"): at least one cell, levels in 0..MAX_LEVEL, lower corners that
   are multiples of the cell width, no two cells covering the same space, and a
@@ -11,14 +13,19 @@ Two pure functions (arrays in, arrays out, no paths, no printing):
   from a raw volume.
 
 `add_magnitude` derives a vector-magnitude field from component fields (a user
-option, DESIGN.md "Fields").
+option, DESIGN.md "Fields"); `apply_mask` drops the cells where a field is 0
+(the body of an embedded-boundary plotfile, whose `volFrac` is 0 there).
 """
 
 from __future__ import annotations
 
+from collections.abc import Callable, Iterable, Mapping
+from pathlib import Path
+
 import numba
 import numpy as np
 
+from .. import schema
 from ..constants import LATTICE_DTYPE, LEVEL_DTYPE, MAX_LEVEL, VALUE_DTYPE
 from ..errors import ExabricksError
 from ..schema import Cells
@@ -32,6 +39,185 @@ drop:  remove every cell that has a non-finite value in any field (leaves holes,
        which the reconstruction treats as empty space);
 keep:  store them unchanged (the renderer then sees NaN/Inf; use with care).
 """
+
+
+AUTO_MASK_FIELD = "volFrac"
+"""The field that masks cells by itself: where an input has it and no mask is given
+(and the automatic rule is not turned off), cells with volFrac == 0 are dropped.
+AMReX embedded-boundary plotfiles store the fluid volume fraction of each cell
+under this name; 0 is inside the body."""
+
+RAW_DEFAULTS = {"dims": None, "dtype": "float32", "byte_order": "little", "name": "value",
+                "max_level": None, "threshold": 0.0}
+_RAW_FLAGS = {"dims": "--dims", "max_level": "--max-level", "threshold": "--threshold",
+              "dtype": "--dtype", "byte_order": "--byte-order", "name": "--name"}
+
+
+# ---------------------------------------------------------------------------
+# the stage
+
+
+def ingest(
+    path: str | Path,
+    *,
+    format: str = "auto",
+    fields: Iterable[str] = (),
+    scalars: Mapping[str, str | Path] | None = None,
+    dims=None,
+    dtype: str = "float32",
+    byte_order: str = "little",
+    name: str = "value",
+    max_level: int | None = None,
+    threshold: float = 0.0,
+    magnitude: Iterable[tuple[str, str | Iterable[str]]] | Mapping = (),
+    nan_policy: str = "error",
+    mask: str | None = None,
+    auto_mask: bool = True,
+    on_step: Callable[[], None] | None = None,
+) -> Cells:
+    """Leaf cells of `path`, checked, with their provenance meta (ready for schema.save).
+
+    format: "auto" (`readers.detect_format`) or one of `readers.FORMATS`.
+    fields: names to keep, in that order (empty: every field of the input, then the
+            derived ones).
+    scalars: exajet only: field name -> .scalars file.
+    dims, dtype, byte_order, name, max_level, threshold: raw volumes only (see
+            `readers.raw.read`); any of them away from its default for another format
+            is an error.
+    magnitude: (NAME, "A,B,C" or (A, B, C)) pairs, or a mapping: field NAME =
+            sqrt(A² + B² + C²), appended before `fields` selects.
+    nan_policy: one of NAN_POLICIES.
+    mask: drop the cells where this field is exactly 0 (compared as stored, float32);
+          they become holes.  The field itself stays unless `fields` leaves it out.
+    auto_mask: with no `mask`, use AUTO_MASK_FIELD as the mask when the input has it.
+    on_step: called after reading and after checking (for a progress bar).
+
+    The order: read, magnitudes, mask, field selection, `validate_cells`.
+    meta: inputs with sha256, parameters (format, fields, nan, mask, mask_auto, and the
+    format's own options), statistics (`cell_statistics`, dropped_nonfinite_cells,
+    masked_cells), and the reader's source description.
+    Raises ExabricksError naming `path` for bad input or options.
+    """
+    from .. import readers
+
+    path = Path(path)
+    source = str(path)
+    fields = list(fields)
+    step = on_step or (lambda: None)
+    fmt = readers.detect_format(path, dims=dims) if format == "auto" else format
+    raw = {"dims": dims, "dtype": dtype, "byte_order": byte_order, "name": name,
+           "max_level": max_level, "threshold": threshold}
+    options: dict = {}
+    if fmt == "raw":
+        options = dict(raw)
+    else:
+        given = [_RAW_FLAGS[k] for k in ("dims", "max_level", "threshold", "dtype",
+                                         "byte_order", "name") if raw[k] != RAW_DEFAULTS[k]]
+        if given:
+            raise ExabricksError(f"{source}: {', '.join(given)} only apply to raw volumes, "
+                                 f"not to {fmt} input")
+    if scalars:
+        if fmt != "exajet":
+            raise ExabricksError(f"{source}: --scalars is for exajet .cells files, not {fmt}")
+        options["scalars"] = {k: Path(v) for k, v in scalars.items()}
+    pairs = list(magnitude.items()) if isinstance(magnitude, Mapping) else list(magnitude)
+    derived = [(k, tuple(c for c in v.split(",") if c) if isinstance(v, str) else tuple(v))
+               for k, v in pairs]
+    derived_names = {k for k, _ in derived}
+    if mask is not None and not mask:
+        raise ExabricksError(f"{source}: --mask needs a field name")
+
+    read_fields = [f for f in fields if f not in derived_names]
+    if derived and read_fields:
+        # components of a derived field must be read even if not kept
+        read_fields += [c for _, comps in derived for c in comps if c not in read_fields]
+    mask_auto = False
+    if read_fields and (mask is not None or auto_mask):
+        # A subset is read: the mask field must be part of it even if not kept, and the
+        # automatic rule must know whether the input has AUTO_MASK_FIELD.
+        names = readers.field_names(path, format=fmt, **options)
+        if mask is None:
+            if names is None:
+                read_fields = []  # cannot tell cheaply (yt): read all, decide below
+            elif AUTO_MASK_FIELD in names:
+                mask, mask_auto = AUTO_MASK_FIELD, True
+        elif names is not None and mask not in names and mask not in derived_names:
+            raise ExabricksError(
+                f"{source}: no field {mask!r} for --mask (fields: {', '.join(names) or 'none'})"
+            )
+        if mask is not None and mask not in derived_names and read_fields \
+                and mask not in read_fields:
+            read_fields.append(mask)
+
+    with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
+        # Readers turn out-of-range values into inf and refuse bad geometry with their
+        # own messages; no RuntimeWarning may reach stderr ahead of an error line.
+        cells = readers.read(path, format=fmt, fields=read_fields or None, **options)
+        step()
+        for mag_name, comps in derived:
+            cells = add_magnitude(cells, mag_name, comps, source=source)
+        if mask is None and auto_mask and AUTO_MASK_FIELD in cells.fields:
+            mask, mask_auto = AUTO_MASK_FIELD, True
+        n_masked = 0
+        if mask is not None:
+            n_before = cells.n_cells
+            cells = apply_mask(cells, mask, source=source)
+            n_masked = n_before - cells.n_cells
+        if fields:
+            cells = readers.select_fields(cells, fields, source=source)
+        n_read = cells.n_cells
+        cells = validate_cells(cells, source=source, nan_policy=nan_policy)
+        step()
+
+    inputs = cells.meta.get("inputs") or _input_files(path)
+    parameters = {
+        "format": fmt, "fields": fields, "nan": nan_policy,
+        "mask": mask, "mask_auto": mask_auto,
+        **({} if auto_mask else {"no_mask": True}),
+        **({"scalars": {k: str(v) for k, v in options["scalars"].items()}}
+           if "scalars" in options else {}),
+        **({"dims": list(dims), "dtype": dtype, "byte_order": byte_order,
+            "name": name, "max_level": max_level, "threshold": threshold}
+           if fmt == "raw" else {}),
+        **({"magnitude": {k: ",".join(c) for k, c in derived}} if derived else {}),
+    }
+    statistics = {**cell_statistics(cells), "dropped_nonfinite_cells": int(n_read - cells.n_cells),
+                  "masked_cells": int(n_masked)}
+    return cells.replace(meta=schema.make_meta(
+        inputs=inputs, parameters=parameters, statistics=statistics,
+        source={k: v for k, v in cells.meta.items() if k != "inputs"},
+    ))
+
+
+def _input_files(path: Path) -> list[str]:
+    if path.is_dir():
+        return sorted(str(p) for p in path.rglob("*") if p.is_file())
+    return [str(path)]
+
+
+def apply_mask(cells: Cells, field: str, *, source: str) -> Cells:
+    """`cells` without those where field `field` is exactly 0 (+0 or -0); NaN is kept.
+
+    Raises ExabricksError naming `source` when the field is missing or every cell
+    would go.
+    """
+    if field not in cells.fields:
+        raise ExabricksError(
+            f"{source}: no field {field!r} for --mask (fields: {', '.join(cells.fields) or 'none'})"
+        )
+    keep = cells.values[cells.fields.index(field)] != 0
+    if keep.all():
+        return cells
+    if not keep.any():
+        raise ExabricksError(
+            f"{source}: every cell has {field} == 0: nothing is left after masking "
+            f"(--mask {field}{'; --no-mask keeps them' if field == AUTO_MASK_FIELD else ''})"
+        )
+    return cells.replace(
+        lower_lattice=np.ascontiguousarray(cells.lower_lattice[keep]),
+        level=np.ascontiguousarray(cells.level[keep]),
+        values=np.ascontiguousarray(cells.values[:, keep]),
+    )
 
 
 # ---------------------------------------------------------------------------
