@@ -1,6 +1,7 @@
-"""workflows/bench_peers.py: the uniform-grid ceiling renders what exabricks renders, the
-yt settings (camera width, transfer-function tables, image orientation) match ours, and the
-exabricks worker (regions, cell location and the ceiling, interleaved) and the report work."""
+"""The uniform-grid ceiling (exabricks.stages.uniform_grid) against a float64 NumPy march
+and against exabricks' own frames; the yt bridge's nested grids against hand-computed
+grids and yt's leaves; workflows/bench_peers.py's yt settings, its exabricks worker and the
+figures its report is made of, against hand-computed values."""
 
 from __future__ import annotations
 
@@ -10,7 +11,7 @@ import sys
 
 import numpy as np
 import pytest
-from conftest import ROOT
+from conftest import DEVICES, GERRIS, ROOT
 
 sys.path.insert(0, str(ROOT / "workflows"))
 
@@ -19,6 +20,9 @@ import make_big  # noqa: E402
 
 from exabricks import schema  # noqa: E402
 from exabricks.camera import Camera, default_camera  # noqa: E402
+from exabricks.errors import ExabricksError  # noqa: E402
+from exabricks.readers import yt_bridge  # noqa: E402
+from exabricks.stages import uniform_grid  # noqa: E402
 from exabricks.stages.brick import build_bricks  # noqa: E402
 from exabricks.stages.bvh import build_bvh  # noqa: E402
 from exabricks.stages.compare import compare_images  # noqa: E402
@@ -53,13 +57,134 @@ def _scene(cells, max_brick_width):
     return bricks, regions, build_bvh(regions)
 
 
+# ---------------------------------------------------------------------------
+# the uniform grid: its box, its resampling, its marcher
+
+
+def test_finest_grid_of_two_levels_by_hand():
+    # A level-1 cell at (2, 0, 0) spans [2, 4) x [0, 2) x [0, 2); a level-0 cell at
+    # (-1, 3, 0) spans [-1, 0) x [3, 4) x [0, 1): the box is [-1, 4) x [0, 4) x [0, 2).
+    cells = schema.Cells(
+        fields=("v",), origin_world=np.zeros(3), spacing_world=np.ones(3),
+        lower_lattice=np.array([[2, 0, 0], [-1, 3, 0]], np.int32),
+        level=np.array([1, 0], np.int8), values=np.ones((1, 2), np.float32))
+    lower, dims = uniform_grid.finest_grid(cells)
+    assert lower.tolist() == [-1, 0, 0] and dims.tolist() == [5, 4, 2]
+    # Bricks: a 3 x 1 x 1 brick of level-1 cells at (0, 0, 0) spans [0, 6) x [0, 2) x [0, 2).
+    bricks = schema.Bricks(
+        fields=("v",), origin_world=np.zeros(3), spacing_world=np.ones(3),
+        lower_lattice=np.array([[0, 0, 0]], np.int32), level=np.array([1], np.int8),
+        dims=np.array([[3, 1, 1]], np.int32), offset=np.array([0], np.int64),
+        values=np.ones((1, 3), np.float32))
+    lower, dims = uniform_grid.finest_grid(bricks)
+    assert lower.tolist() == [0, 0, 0] and dims.tolist() == [6, 2, 2]
+
+
 def test_resample_reproduces_cells_and_finest_grid(single_level):
     cells, volume = single_level
-    lower, dims = bench_peers.finest_grid(cells)
+    lower, dims = uniform_grid.finest_grid(cells)
     assert lower.tolist() == [0, 0, 0] and dims.tolist() == [40, 36, 28]
-    resampled = bench_peers.resample_uniform(DeviceScene(*_scene(cells, 16)), lower, dims)
+    # A chunk smaller than one z-slab still fills every slab.
+    resampled = uniform_grid.resample(DeviceScene(*_scene(cells, 16)), lower, dims, chunk=1000)
     # At a cell centre only that cell's hat is non-zero: the basis value is the cell value.
     np.testing.assert_allclose(resampled, volume, rtol=1e-6, atol=1e-7)
+
+
+def _mix(a, b, f):
+    return a + (b - a) * f  # as OpenCL's mix: NaN in either end gives NaN
+
+
+def _trilinear(volume, x):
+    """float64 trilinear value of `volume` (Z, Y, X) at voxel coordinates x (N, 3) (centres
+    at integers), clamped to the edge voxels."""
+    n = np.array(volume.shape[::-1])
+    fl = np.floor(x)
+    f = x - fl
+    i0 = fl.astype(np.int64)
+    lo, hi = np.clip(i0, 0, n - 1), np.clip(i0 + 1, 0, n - 1)
+
+    def at(ix, iy, iz):
+        return volume[iz, iy, ix]
+
+    c = {}
+    for dz, z in ((0, lo[:, 2]), (1, hi[:, 2])):
+        for dy, y in ((0, lo[:, 1]), (1, hi[:, 1])):
+            c[dy, dz] = _mix(at(lo[:, 0], y, z), at(hi[:, 0], y, z), f[:, 0])
+    return _mix(_mix(c[0, 0], c[1, 0], f[:, 1]), _mix(c[0, 1], c[1, 1], f[:, 1]), f[:, 2])
+
+
+def numpy_uniform_march(volume, lower_lattice, origin_world, spacing_world, camera, tf,
+                        width, height, sampling_rate, unit_distance):
+    """float64 reference of the marcher without jitter or early termination.
+
+    Per pixel-centre ray: the interval through the voxels' support box (lattice
+    [lower - 1/2, lower + dims + 1/2]), delimiters (k + 1/2) dt (dt = finest spacing /
+    sampling rate) splitting it into sub-intervals sampled at their midpoints,
+    trilinear values, opacity 1 - (1 - alpha)^(length / unit), front-to-back
+    compositing; NaN samples transparent. Returns rgba (H, W, 4) premultiplied and
+    the samples per pixel (H, W).
+    """
+    volume = np.asarray(volume, np.float64)
+    spacing = np.asarray(spacing_world, np.float64)
+    dims = np.array(volume.shape[::-1], np.float64)
+    origins, directions = camera.rays(width, height)
+    org = (origins - origin_world) / spacing - np.asarray(lower_lattice, np.float64) - 0.5
+    step = directions / spacing
+    dt = spacing.min() / sampling_rate
+    rgba = np.zeros((height, width, 4))
+    samples = np.zeros((height, width), np.int64)
+    for row, col in np.ndindex(height, width):
+        o, d = org[row, col], step[row, col]
+        with np.errstate(divide="ignore"):
+            t0, t1 = (-1.0 - o) / d, (dims - o) / d
+        t_in, t_out = max(np.minimum(t0, t1).max(), 0.0), np.maximum(t0, t1).min()
+        if not t_out > t_in:
+            continue
+        first = (math.ceil(t_in / dt - 0.5) + 0.5) * dt
+        cuts = first + dt * np.arange(int((t_out - first) / dt) + 2)
+        edges = np.concatenate([[t_in], cuts[(cuts > t_in) & (cuts < t_out)], [t_out]])
+        mids, lengths = 0.5 * (edges[:-1] + edges[1:]), np.diff(edges)
+        values = _trilinear(volume, o + mids[:, None] * d)
+        samples[row, col] = len(mids)
+        colour, transmittance = np.zeros(3), 1.0
+        for value, length in zip(values, lengths):
+            if np.isnan(value):
+                continue
+            r, g, b, a = tf.evaluate(np.array([value]))[0]
+            a = 1.0 - (1.0 - a) ** (length / unit_distance)
+            colour += transmittance * a * np.array([r, g, b])
+            transmittance *= 1.0 - a
+        rgba[row, col] = (*colour, 1.0 - transmittance)
+    return rgba, samples
+
+
+@pytest.mark.parametrize("device", DEVICES)
+def test_uniform_grid_marcher_equals_float64_numpy_march(device):
+    """A 6 x 5 x 4 grid with one NaN voxel, anisotropic spacing, a lattice offset and a
+    non-square image that is no multiple of the 8 x 8 tiles."""
+    rng = np.random.default_rng(5)
+    volume = rng.uniform(0.0, 1.0, (4, 5, 6)).astype(np.float32)
+    volume[3, 4, 5] = np.nan
+    lower = np.array([3, -2, 5])
+    origin, spacing = np.array([1.0, -2.0, 0.5]), np.array([0.5, 0.25, 0.4])
+    lo_world = origin + spacing * (lower - 0.5)
+    hi_world = origin + spacing * (lower + np.array([6, 5, 4]) + 0.5)
+    camera = default_camera(lo_world, hi_world)
+    # Opacity at most 0.3 per unit: the frame never nears full opacity, so the kernel's
+    # early termination (max_opacity 1) never cuts a ray that the reference goes on with.
+    tf = TransferFunction([[0.0, 0.1, 0.2, 0.9], [0.6, 1.0, 0.5, 0.0], [1.0, 0.3, 0.8, 0.3]],
+                          [[0.0, 0.05], [0.5, 0.3], [1.0, 0.1]])
+    width, height, rate, unit = 21, 13, 3.0, 0.7
+    marcher = uniform_grid.UniformGridRenderer(volume, lower, origin, spacing, device=device)
+    rgba, samples, seconds = marcher.render(
+        camera=camera, transfer_function=tf, width=width, height=height, sampling_rate=rate,
+        max_opacity=1.0, unit_distance=unit, jitter=False)
+    ref, ref_samples = numpy_uniform_march(volume, lower, origin, spacing, camera, tf,
+                                           width, height, rate, unit)
+    assert rgba.shape == (height, width, 4) and rgba.dtype == np.float32 and seconds >= 0
+    assert samples == int(ref_samples.sum()) and ref_samples.min() == 0  # some rays miss
+    assert ref[..., 3].max() > 0.3  # the frame is not nearly empty
+    np.testing.assert_allclose(rgba, ref, rtol=0, atol=2e-6)
 
 
 def _both(cells, volume, max_brick_width):
@@ -72,8 +197,8 @@ def _both(cells, volume, max_brick_width):
     ours = Renderer(bricks, regions, bvh).render(
         camera=camera, transfer_function=tf, width=SIZE, height=SIZE, sampling_rate=2.0,
         jitter=False, shading="none", unit_distance=unit)
-    marcher = bench_peers.UniformGridRenderer(volume, np.zeros(3), cells.origin_world,
-                                              cells.spacing_world)
+    marcher = uniform_grid.UniformGridRenderer(volume, np.zeros(3), cells.origin_world,
+                                               cells.spacing_world)
     rgba, samples, _ = marcher.render(camera=camera, transfer_function=tf, width=SIZE,
                                       height=SIZE, sampling_rate=2.0, jitter=False,
                                       unit_distance=unit)
@@ -101,16 +226,107 @@ def test_uniform_grid_matches_exabricks_render_across_regions(single_level):
     assert metrics["max_abs"] < 5e-3 and metrics["psnr"] > 80, metrics
 
 
+def test_uniform_grid_refuses_a_volume_that_is_not_3d():
+    with pytest.raises(ExabricksError, match="3D"):
+        uniform_grid.UniformGridRenderer(np.zeros((4, 4)), np.zeros(3), np.zeros(3), np.ones(3))
+
+
+# ---------------------------------------------------------------------------
+# leaf cells as yt's nested grids (exabricks.readers.yt_bridge.to_amr_grids)
+
+
+def test_to_amr_grids_by_hand():
+    """A level-1 cell refined into 8 level-0 cells (values 1..8, x fastest) beside a
+    level-1 cell of value 20: yt level 0 is one 2 x 1 x 1 grid (the refined cell's mean
+    4.5, then 20), yt level 1 one 2 x 2 x 2 grid of the children."""
+    fine = [(i, j, k) for k in range(2) for j in range(2) for i in range(2)]
+    cells = schema.Cells(
+        fields=("v",), origin_world=np.array([10.0, 20.0, 30.0]), spacing_world=np.full(3, 0.5),
+        lower_lattice=np.array(fine + [(2, 0, 0)], np.int32),
+        level=np.array([0] * 8 + [1], np.int8),
+        values=np.array([[1, 2, 3, 4, 5, 6, 7, 8, 20]], np.float32))
+    grids, top = yt_bridge.to_amr_grids(cells)
+    assert top == 1 and len(grids) == 2
+    coarse, child = grids
+    assert coarse["level"] == 0 and child["level"] == 1
+    np.testing.assert_array_equal(coarse["left_edge"], [10.0, 20.0, 30.0])
+    np.testing.assert_array_equal(coarse["right_edge"], [12.0, 21.0, 31.0])
+    np.testing.assert_array_equal(coarse["dimensions"], [2, 1, 1])
+    np.testing.assert_array_equal(coarse["v"][0], np.array([4.5, 20.0]).reshape(2, 1, 1))
+    assert coarse["v"][1] == ""
+    np.testing.assert_array_equal(child["left_edge"], [10.0, 20.0, 30.0])
+    np.testing.assert_array_equal(child["right_edge"], [11.0, 21.0, 31.0])
+    np.testing.assert_array_equal(child["dimensions"], [2, 2, 2])
+    i, j, k = np.meshgrid(np.arange(2), np.arange(2), np.arange(2), indexing="ij")
+    np.testing.assert_array_equal(child["v"][0], 1 + i + 2 * j + 4 * k)  # [i, j, k] = (x, y, z)
+
+
+def test_to_amr_grids_hold_exactly_our_leaves():
+    """The Gerris plume (ExaJet, 5 levels) as nested yt grids: same leaves, same values."""
+    yt = pytest.importorskip("yt")
+    from exabricks import readers
+
+    cells = readers.read(GERRIS, fields=["T"])
+    grids, top = yt_bridge.to_amr_grids(cells)
+    lo, hi = (np.asarray(b) for b in schema.world_bounds(cells))
+    root = np.rint((hi - lo) / cells.spacing_world / (1 << top)).astype(int)
+    ds = yt.load_amr_grids(grids, root, bbox=np.column_stack([lo, hi]), length_unit=1.0)
+    ad = ds.all_data()
+    width = np.left_shift(1, cells.level.astype(np.int64))[:, None] * cells.spacing_world
+    ours = cells.origin_world + cells.lower_lattice * cells.spacing_world + 0.5 * width
+    theirs = np.column_stack([ad["index", a].d for a in "xyz"])
+    assert theirs.shape == ours.shape
+    o = np.lexsort(ours.T)
+    t = np.lexsort(theirs.T)
+    np.testing.assert_array_equal(theirs[t], ours[o])
+    np.testing.assert_array_equal(ad["stream", "T"].d[t], cells.values[0][o].astype(np.float64))
+    np.testing.assert_array_equal(ad["index", "dx"].d[t], width[o, 0])
+
+
+def test_to_amr_grids_refuses_incomplete_octree():
+    cells = schema.Cells(
+        fields=("v",), origin_world=np.zeros(3), spacing_world=np.ones(3),
+        lower_lattice=np.array([[0, 0, 0], [1, 0, 0], [2, 0, 0]], np.int32),  # 2 of 8 children
+        level=np.array([0, 0, 1], np.int8), values=np.ones((1, 3), np.float32))
+    with pytest.raises(ExabricksError, match="toy: not octree-complete at level 0"):
+        yt_bridge.to_amr_grids(cells, source="toy")
+
+
+# ---------------------------------------------------------------------------
+# bench_peers' yt settings
+
+
+def test_yt_helpers_by_hand():
+    # Extinction per unit ray parameter: -ln(1 - alpha) L / unit, alpha clipped below 1.
+    np.testing.assert_allclose(
+        bench_peers.yt_extinction([0.0, 0.5, 1.0], ray_length=7.0, unit_distance=0.5),
+        [0.0, 14.0 * math.log(2.0), 14.0 * 6.0 * math.log(10.0)], rtol=1e-9)
+    # Bounds widened by 1e-3 of the range (of max(1, |value|) for a constant field).
+    assert bench_peers.yt_bounds((0.0, 3.0)) == pytest.approx((-0.003, 3.003), rel=1e-12)
+    assert bench_peers.yt_bounds((2.0, 2.0)) == pytest.approx((1.998, 2.002), rel=1e-12)
+    assert bench_peers.yt_bounds((-0.25, -0.25)) == pytest.approx((-0.251, -0.249), rel=1e-12)
+    # fovy 90: tan 45 = 1, so w0 = 2 depth (N - 1) / N.
+    camera = Camera((0.0, 0.0, 5.0), (0.0, 0.0, 0.0), (0.0, 1.0, 0.0), 90.0)
+    assert bench_peers.yt_camera_width(camera, 17, 17, 9.0) == pytest.approx(
+        [18.0 * 16 / 17, 18.0 * 16 / 17, 9.0], rel=1e-12)
+    with pytest.raises(ValueError, match="square"):
+        bench_peers.yt_camera_width(camera, 20, 10, 1.0)
+    # yt's image [i, j] is our pixel (row j, col i).
+    image = np.arange(3 * 3 * 4, dtype=np.float64).reshape(3, 3, 4)
+    ours = bench_peers.yt_image_to_ours(image)
+    assert ours.dtype == np.float32 and ours.flags.c_contiguous
+    np.testing.assert_array_equal(ours[1, 2], image[2, 1])
+
+
 def test_yt_transfer_function_reproduces_ours_at_its_nodes():
     pytest.importorskip("yt")
     tf = TransferFunction([[0.0, 0.1, 0.2, 0.9], [2.0, 1.0, 0.5, 0.0], [3.0, 0.3, 0.3, 0.3]],
                           [[0.5, 0.0], [1.5, 0.8], [3.0, 1.0]])
     bounds = bench_peers.yt_bounds((0.0, 3.0))
-    assert bounds[0] < 0.0 and bounds[1] > 3.0  # yt drops values on or outside its bounds
     ytf = bench_peers.yt_transfer_function(tf, bounds, ray_length=7.0, unit_distance=0.5)
     assert ytf.grey_opacity
     x = ytf.funcs[0].x
-    np.testing.assert_allclose(x, np.linspace(bounds[0], bounds[1], bench_peers.YT_NBINS))
+    assert len(x) == bench_peers.YT_NBINS
     ref = tf.evaluate(x)
     for c in range(3):
         np.testing.assert_array_equal(ytf.funcs[c].y, ref[:, c])
@@ -146,13 +362,11 @@ def test_yt_perspective_rays_are_our_pixel_centres():
     # yt's ray [i, j] runs along east = -right and north = up: our pixel (n-1-j, n-1-i).
     np.testing.assert_allclose(yt_dirs, ours[::-1, ::-1].transpose(1, 0, 2), atol=1e-12)
     np.testing.assert_allclose(np.asarray(params["vp_pos"])[0, 0], camera.position)
-    with pytest.raises(ValueError, match="square"):
-        bench_peers.yt_camera_width(camera, 20, 10, 1.0)
 
 
-def test_yt_image_is_transposed_ours():
-    """An off-centre opaque cube lands on the pixel our projection predicts, in yt's image
-    transposed (what bench_peers does to yt's image)."""
+def test_yt_image_as_ours_puts_a_cube_where_our_projection_does():
+    """An off-centre opaque cube lands, in yt's image turned into ours
+    (`yt_image_to_ours`), on the pixel our projection predicts."""
     yt = pytest.importorskip("yt")
     from yt.visualization.volume_rendering.api import Scene, create_volume_source
     from yt.visualization.volume_rendering.transfer_functions import ColorTransferFunction
@@ -178,7 +392,7 @@ def test_yt_image_is_transposed_ours():
     cam.focus = ds.arr(camera.look_at, "code_length")
     cam.set_position(ds.arr(camera.position, "code_length"), north_vector=np.asarray(camera.up))
     cam.width = ds.arr(bench_peers.yt_camera_width(camera, n, n, 10.0), "code_length")
-    alpha = np.asarray(sc.render())[..., 3].transpose()
+    alpha = bench_peers.yt_image_to_ours(np.asarray(sc.render()))[..., 3]
     origin, forward, du, dv = camera.frame(n, n)
     d = centre - origin
     u = (d @ du) / (du @ du) / (d @ forward)
@@ -188,69 +402,14 @@ def test_yt_image_is_transposed_ours():
     assert math.hypot(rows.mean() - row, cols.mean() - col) < 1.0
 
 
-def test_yt_amr_grids_hold_exactly_our_leaves():
-    """The Gerris plume (ExaJet, 5 levels) as nested yt grids: same leaves, same values."""
-    yt = pytest.importorskip("yt")
-    from conftest import GERRIS
-
-    from exabricks import readers
-
-    cells = readers.read(GERRIS, fields=["T"])
-    grids, top = bench_peers.yt_amr_grids(cells)
-    lo, hi = (np.asarray(b) for b in schema.world_bounds(cells))
-    root = np.rint((hi - lo) / cells.spacing_world / (1 << top)).astype(int)
-    ds = yt.load_amr_grids(grids, root, bbox=np.column_stack([lo, hi]), length_unit=1.0)
-    ad = ds.all_data()
-    width = np.left_shift(1, cells.level.astype(np.int64))[:, None] * cells.spacing_world
-    ours = cells.origin_world + cells.lower_lattice * cells.spacing_world + 0.5 * width
-    theirs = np.column_stack([ad["index", a].d for a in "xyz"])
-    assert theirs.shape == ours.shape
-    o = np.lexsort(ours.T)
-    t = np.lexsort(theirs.T)
-    np.testing.assert_array_equal(theirs[t], ours[o])
-    np.testing.assert_array_equal(ad["stream", "T"].d[t], cells.values[0][o].astype(np.float64))
-    np.testing.assert_array_equal(ad["index", "dx"].d[t], width[o, 0])
+def test_yt_is_skipped_only_above_the_cell_cap():
+    assert bench_peers.yt_skip_reason(1000, 1000) is None
+    assert bench_peers.yt_skip_reason(999, 1000) is None
+    assert bench_peers.yt_skip_reason(1001, 1000) is not None
 
 
-def test_yt_amr_grids_refuses_incomplete_octree():
-    cells = schema.Cells(
-        fields=("v",), origin_world=np.zeros(3), spacing_world=np.ones(3),
-        lower_lattice=np.array([[0, 0, 0], [1, 0, 0], [2, 0, 0]], np.int32),  # 2 of 8 children
-        level=np.array([0, 0, 1], np.int8), values=np.ones((1, 3), np.float32))
-    with pytest.raises(ValueError, match="octree-complete"):
-        bench_peers.yt_amr_grids(cells)
-
-
-def test_yt_composites_the_far_sample_in_front():
-    """What bench_peers reports as yt's remaining difference: along a ray through two
-    opaque slabs, yt's pixel takes the colour of the slab *further* from the camera."""
-    yt = pytest.importorskip("yt")
-    from yt.visualization.volume_rendering.api import Scene, create_volume_source
-    from yt.visualization.volume_rendering.transfer_functions import ColorTransferFunction
-
-    x = (np.arange(16) + 0.5) / 16
-    X = np.broadcast_to(x[:, None, None], (16, 16, 16))
-    data = np.where(X < 0.5, 1.0, 2.0)  # value 1 near the camera (x < 0.5), 2 behind
-    ds = yt.load_uniform_grid({"density": (data, "")}, data.shape, length_unit=1.0,
-                              bbox=np.array([[0.0, 1.0]] * 3))
-    sc = Scene()
-    source = create_volume_source(ds.all_data(), ("stream", "density"))
-    source.log_field = False
-    tf = ColorTransferFunction((0.5, 2.5), grey_opacity=True)
-    near, far = np.abs(tf.funcs[0].x - 1.0) < 0.4, np.abs(tf.funcs[0].x - 2.0) < 0.4
-    tf.funcs[0].y[:] = near   # red: value 1
-    tf.funcs[2].y[:] = far    # blue: value 2
-    tf.funcs[3].y[:] = 1000.0 * (near | far)
-    source.transfer_function = tf
-    sc.add_source(source)
-    cam = sc.add_camera(ds, lens_type="perspective")
-    cam.resolution = (9, 9)
-    cam.focus = ds.arr([0.5, 0.5, 0.5], "code_length")
-    cam.set_position(ds.arr([-3.0, 0.5, 0.5], "code_length"), north_vector=np.array([0.0, 0.0, 1.0]))
-    cam.width = ds.arr([0.1, 0.1, 1.0], "code_length")
-    centre = np.asarray(sc.render())[4, 4]
-    assert centre[3] > 0.99
-    assert centre[2] > 0.99 and centre[0] < 0.01  # the far (blue) slab wins
+# ---------------------------------------------------------------------------
+# the exabricks worker on real data, and the figures of the report
 
 
 @pytest.fixture(scope="module")
@@ -272,45 +431,105 @@ def gerris_row(tmp_path_factory):
 
 def test_worker_interleaves_regions_cell_location_and_uniform(gerris_row):
     ours, located, uniform = gerris_row["ours"], gerris_row["cell_location"], gerris_row["uniform"]
-    assert located["tree_nodes"] == 2 * gerris_row["prep"]["bricks"] - 1  # one brick per leaf
-    for rate in ("2.0", "10.0"):
+    prep = gerris_row["prep"]
+    assert located["tree_nodes"] == 2 * prep["bricks"] - 1  # one brick per leaf
+    for rate in bench_peers.RATE_KEYS:
         a, b, u = ours["rates"][rate], located["rates"][rate], uniform["rates"][rate]
         assert len(a["kernel_s"]) == len(b["kernel_s"]) == len(u["kernel_s"]) == 2
         # The same samples, summed alike: the same frame.
         assert b["samples"] == a["samples"] > 0 and b["max_abs_vs_regions"] == 0.0
         assert u["samples"] > 0
-    assert ours["rates"]["10.0"]["samples"] > ours["rates"]["2.0"]["samples"]
+    low, high = bench_peers.RATE_KEYS
+    assert ours["rates"][high]["samples"] > ours["rates"][low]["samples"]
+    # The Gerris plume is 128^3 finest cells: the uniform grid is that box, and the opacity
+    # unit (largest extent / 128) its finest cell.
+    assert uniform["dims"] == [128, 128, 128] and uniform["voxels"] == 128 ** 3
+    assert prep["unit_distance"] == prep["finest_cell_world"] == 1.0
 
 
-def test_yt_is_skipped_above_the_cell_cap():
-    assert bench_peers.yt_skip_reason(505_856, bench_peers.YT_MAX_CELLS) is None
-    reason = bench_peers.yt_skip_reason(23_600_000, bench_peers.YT_MAX_CELLS)  # "big"
-    assert reason.startswith("skipped: 23,600,000 cells > --yt-max-cells")
+def toy_row(name: str = "toy") -> dict:
+    """A results row with round figures, as bench_dataset makes it (one round of each)."""
+    camera = default_camera([0.0, 0.0, 0.0], [1.0, 1.0, 1.0])
+
+    def rates(regions, uniform):
+        return {key: {"first_frame_s": 1.0, "frame_s": frame, "kernel_s": kernel,
+                      "samples": samples}
+                for key, (frame, kernel, samples) in zip(bench_peers.RATE_KEYS, regions)} \
+            if uniform is None else {key: {"kernel_s": kernel, "samples": samples}
+                                     for key, (kernel, samples) in zip(bench_peers.RATE_KEYS, uniform)}
+
+    return {
+        "name": name, "field": "v",
+        "prep": {"cells": 1000, "bricks": 10, "regions": 40, "levels": 2, "read_s": 0.5,
+                 "build_s": 0.25, "save_s": 0.1, "camera": camera.to_dict(),
+                 "transfer_function": default_transfer_function((0.0, 1.0)).to_paraview_dict(),
+                 "world_bounds": [[0, 0, 0], [1, 1, 1]], "value_range": [0.0, 1.0],
+                 "unit_distance": 0.5, "finest_cell_world": 0.125,
+                 "bricks_per_region_by_count": 2.5, "bricks_per_region_by_volume": 1.25},
+        "ours": {"load_s": 0.1, "kernel_build_s": 0.2, "upload_s": 0.3, "device": "toy",
+                 "peak_rss_mib": 100.0,
+                 "rates": rates([([1.0, 2.0, 4.0], [0.1, 0.2, 0.3], 1000),
+                                 ([3.0, 4.0, 8.0], [0.5, 0.6, 0.7], 5000)], None)},
+        "cell_location": {"setup_s": 0.1, "tree_build_s": 0.001, "tree_first_build_s": 0.5,
+                          "tree_nodes": 19, "tree_depth": 5,
+                          "rates": {k: {**v, "max_abs_vs_regions": 0.0} for k, v in rates(
+                              None, [([0.3, 0.6, 0.9], 1000), ([1.0, 1.2, 1.4], 5000)]).items()}},
+        "uniform": {"dims": [8, 8, 8], "voxels": 512, "fits": True,
+                    "rates": rates(None, [([0.05, 0.1, 0.2], 800), ([0.2, 0.4, 0.5], 4000)])},
+        "yt": {"import_s": 1.0, "convert_s": None, "load_index_s": 1.0, "setup_s": 1.0,
+               "first_frame_s": 7.0, "frame_s": [5.0, 6.0, 7.0], "peak_rss_mib": 200.0},
+        "agreement": {},
+    }
 
 
-def test_report_goes_into_its_docs_section(gerris_row, tmp_path):
-    docs = tmp_path / "benchmarks.md"
-    docs.write_text("# Benchmarks\n\n## render (PoCL)\n\nkept\n")
+def test_report_figures_by_hand():
+    low, high = bench_peers.RATE_KEYS
+    rows = [toy_row(), {"name": "broken", "error": "missing"},
+            {**toy_row("no-yt"), "yt": {"error": "skipped"}}]
+    # yt / ours frame medians: 6 / 2 and 6 / 4; the row without yt has none.
+    assert bench_peers.yt_ratios(rows, low) == {"toy": pytest.approx(3.0)}
+    assert bench_peers.yt_ratios(rows, high) == {"toy": pytest.approx(1.5)}
+    # ours / uniform samples per second: (1000 / 0.2) / (800 / 0.1), (5000 / 0.6) / (4000 / 0.4).
+    ceiling = bench_peers.ceiling_ratios(rows[:1])
+    assert ceiling == {("toy", low): pytest.approx(0.625), ("toy", high): pytest.approx(5 / 6)}
+    figures = bench_peers.target_figures(rows[:1])
+    rl, rh = (f"{float(k):g}" for k in bench_peers.RATE_KEYS)
+    # cell location / regions kernel medians: 0.6 / 0.2 and 1.2 / 0.6.
+    assert figures["cell_location"] == {f"toy rate {rl}": pytest.approx(3.0),
+                                        f"toy rate {rh}": pytest.approx(2.0)}
+    assert figures["ceiling"] == {f"toy rate {rl}": pytest.approx(0.625),
+                                  f"toy rate {rh}": pytest.approx(5 / 6)}
+    # The default camera (fovy 30) on a square frame: the corner pixel centres lie at
+    # u = v = (N - 1) / N of the half-extent tan 15 deg, 1 / cos = |(1, u t, v t)|.
+    n = 16
+    t = math.tan(math.radians(15.0)) * (n - 1) / n
+    assert bench_peers._off_axis_stretch(rows[0]["prep"]["camera"], n) == pytest.approx(
+        math.sqrt(1.0 + 2.0 * t * t) - 1.0, rel=1e-9)
+
+
+def _tables(lines):
+    """Every markdown table of `lines` as a list of its rows' cell counts."""
+    tables, current = [], []
+    for line in [*lines, ""]:
+        if line.startswith("|"):
+            current.append(line.strip().strip("|").count("|") + 1)
+        elif current:
+            tables.append(current)
+            current = []
+    return tables
+
+
+@pytest.mark.parametrize("which", ["toy", "gerris"])
+def test_report_tables_are_whole(which, request, tmp_path):
+    """Every row of every table of the report has its header's number of cells, for
+    measured rows, a failed one and one without yt."""
+    rows = [toy_row(), {"name": "broken", "error": "missing"}] if which == "toy" \
+        else [request.getfixturevalue("gerris_row")]
     args = argparse.Namespace(
-        datasets="gerris", size=16, runs=2, no_yt=False, yt_max_cells=1000,
+        datasets="x", size=16, runs=2, no_yt=False, yt_max_cells=1000,
         alpha_scale=bench_peers.ALPHA_SCALE, max_voxels=bench_peers.MAX_VOXELS,
-        images=str(tmp_path / "images"), docs=str(docs))
-    body = "\n".join(bench_peers.report([gerris_row], "test machine", args))
-    table3 = body[body.index("### regions vs cell location (paper Table 3)"):
-                  body.index("### exabricks vs the uniform-grid ceiling")]
-    rows = [line for line in table3.splitlines() if line.startswith("| gerris |")]
-    assert len(rows) == 2  # rates 2 and 10
-    a, b = (gerris_row[k]["rates"]["2.0"]["kernel_s"] for k in ("ours", "cell_location"))
-    assert f"| {np.median(b) / np.median(a):.2f}x (" in rows[0] and "| yes (0.0e+00) |" in rows[0]
-    assert "skipped: 67,712 cells > --yt-max-cells 1,000" in body
-    # The targets summary: the same speed-up as the table, judged against 2x; no yt figure.
-    speedup = np.median(b) / np.median(a)
-    line = next(x for x in body.splitlines() if x.startswith("- cell location / regions"))
-    assert f"gerris rate 2 {speedup:.2f}x" in line
-    assert ("met on every one" in line) == (min(
-        np.median(gerris_row["cell_location"]["rates"][r]["kernel_s"])
-        / np.median(gerris_row["ours"]["rates"][r]["kernel_s"]) for r in ("2.0", "10.0")) >= 2)
-    assert "- yt / ours, each at its default sampling (target 5x): not measured" in body
-    bench_peers.benchdoc.replace_section(bench_peers.SECTION, body, docs)
-    text = docs.read_text()
-    assert "## render (PoCL)\n\nkept" in text and f"## {bench_peers.SECTION}\n" in text
+        images=str(tmp_path / "images"), docs=str(tmp_path / "benchmarks.md"))
+    tables = _tables(bench_peers.report(rows, "test machine", args))
+    assert len(tables) == 3
+    for counts in tables:
+        assert len(counts) > 2 and set(counts) == {counts[0]}, counts

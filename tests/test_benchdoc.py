@@ -1,10 +1,12 @@
 """workflows/benchdoc.py and the pure helpers of the bench_*.py scripts: one section of
-docs/benchmarks.md replaced, the rest byte for byte the same; flag and format helpers."""
+docs/benchmarks.md replaced, the rest byte for byte the same; flag and format helpers; the
+notes around the tables computed from the results."""
 
 from __future__ import annotations
 
 import sys
 
+import numpy as np
 import pytest
 from conftest import ROOT
 
@@ -12,7 +14,10 @@ sys.path.insert(0, str(ROOT / "workflows"))
 
 import bench_ingest  # noqa: E402
 import bench_preprocess  # noqa: E402
+import bench_render  # noqa: E402
 import benchdoc  # noqa: E402
+
+from exabricks import schema  # noqa: E402
 
 HEAD = "# Benchmarks\n\nIntro line.\n\n"
 FIRST = "## ingest\n\nold ingest figures\n\n| a | b |\n|---|---|\n| 1 | 2 |\n\n"
@@ -87,3 +92,32 @@ def test_stage_commands_and_ingest_flags(tmp_path):
     assert steps[3][1][-3:] == [str(tmp_path / "regions.npz"), "-o", str(tmp_path / "bvh.npz")]
     assert bench_ingest.ingest_flags({"format": "raw", "dims": (4, 5, 6), "max_level": 2}) == [
         "--format", "raw", "--dims", "4", "5", "6", "--max-level", "2"]
+
+
+def test_report_notes_are_computed_from_the_results():
+    """The prose around the tables takes its figures from the results (hand-computed here)."""
+    # 100 regions of 55 B and 30 B of BVH each over 10 bricks of 85 cells, one float32
+    # field: 850 B of regions + BVH against 340 B of scalars per brick, 2.5x > 1.5x.
+    result = {"dataset": benchdoc.datasets()["gerris"], "cells": 850, "fields": 1,
+              "n_bricks": 10, "region_stats": {"n_regions": 100},
+              "bytes": {"scalars": 3400, "regions": 5500, "bvh": 3000}}
+    line = bench_preprocess.size_notes([result])[-1]
+    assert line == ("- Gerris plume (ExaJet): 10.0 regions x (55 B of region + 30 B of BVH) = "
+                    "850 B against 340 B of scalars (85.0 cells x 1 field(s)): 2.50x, above "
+                    "the 1.5x target")
+    assert bench_preprocess.defaults() == {"max_brick_width": 32, "leaf_size": 4}
+
+    cells = schema.Cells(fields=("v",), origin_world=np.zeros(3), spacing_world=np.ones(3),
+                         lower_lattice=np.array([[0, 0, 0], [1, 0, 0], [2, 0, 0]], np.int32),
+                         level=np.array([0, 0, 1], np.int8), values=np.ones((1, 3), np.float32))
+    assert bench_ingest.levels_note("toy", cells) == (
+        "- toy: 3 leaf cells on 2 levels (level 0: 2, level 1: 1)")
+    assert bench_ingest.target_note({"a": 6e6, "b": 4e6}) == (
+        "Target: >= 5 M cells/s end to end: met on a; missed on b.")
+    assert bench_ingest.target_note({}) == "Target: >= 5 M cells/s (not measured)."
+
+    notes = bench_render.time_notes({
+        "x": {"avg_bricks_per_region_by_count": 3.3, "avg_bricks_per_region_by_volume": 1.5},
+        "y": {"avg_bricks_per_region_by_count": 4.0, "avg_bricks_per_region_by_volume": 2.7}})
+    assert "3.3-4.0 bricks per region by count and 1.5-2.7 by volume" in notes
+    assert bench_render.time_notes({}) == ""

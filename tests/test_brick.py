@@ -9,8 +9,6 @@ from __future__ import annotations
 import importlib
 import json
 import os
-import subprocess
-import sys
 
 import numpy as np
 import pytest
@@ -222,6 +220,7 @@ def test_generator_makes_valid_varied_layouts():
     assert cells.lower_lattice.min() < 0
 
 
+@pytest.mark.slow
 @settings(max_examples=HYPOTHESIS_EXAMPLES, deadline=None,
           suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large])
 @given(cells=amr_cells(), max_brick_width=st.sampled_from([1, 2, 3, 4, 8, 32]))
@@ -247,27 +246,6 @@ def test_parallel_build_matches_serial(monkeypatch):
     check_bricks(cells, parallel, 8)
     for name in schema.Bricks.SPECS:
         np.testing.assert_array_equal(getattr(parallel, name), getattr(serial, name))
-
-
-def test_pure_python_matches_compiled(tmp_path):
-    """NUMBA_DISABLE_JIT=1 runs the same code as plain Python: identical bricks."""
-    rng = np.random.default_rng(11)
-    lower, level = refine_octree(
-        rng, root_level=3, root_grid=(3, 3, 2), root_fill=0.8, refine=0.5, hole=0.1,
-        clustered=False, base_depth=0, max_cells=1500, offset=(0, 0, 0),
-    )
-    cells = make_cells(lower, level, rng)
-    schema.save(tmp_path / "cells.npz", cells)
-    script = (
-        "import sys; from exabricks import schema; from exabricks.stages.brick import build_bricks;"
-        "schema.save(sys.argv[2], build_bricks(schema.load(sys.argv[1], 'cells'), max_brick_width=4))"
-    )
-    subprocess.run([sys.executable, "-c", script, tmp_path / "cells.npz", tmp_path / "py.npz"],
-                   check=True, env={**os.environ, "NUMBA_DISABLE_JIT": "1"})
-    python = schema.load(tmp_path / "py.npz", "bricks")
-    compiled = build_bricks(cells, max_brick_width=4)
-    for name in schema.Bricks.SPECS:
-        np.testing.assert_array_equal(getattr(python, name), getattr(compiled, name))
 
 
 # ---------------------------------------------------------------------------

@@ -276,6 +276,7 @@ def test_bvh_one_region_is_a_leaf_root():
 # properties on random layouts
 
 
+@pytest.mark.slow
 @settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(cells=amr_cells(max_cells=1500, max_level=4), width=st.sampled_from([0, 1, 2, 3, 8, 32]),
        leaf_size=st.integers(1, 6), seed=st.integers(0, 1000))
@@ -330,11 +331,13 @@ def check_real(cells, n_regions_checked=300, n_points=400):
     return regions, bvh
 
 
+@pytest.mark.slow
 def test_gerris_plume():
     regions, bvh = check_real(gerris_cells())
     assert regions.meta["statistics"]["n_bricks"] > 0
 
 
+@pytest.mark.slow
 def test_gerris_one_brick_per_cell_threads():
     """67,712 single-cell bricks: the partition splits into subtrees built on threads;
     the result must not depend on the thread count and must still tile every support."""
@@ -352,6 +355,7 @@ def test_gerris_one_brick_per_cell_threads():
     check_regions_brute_force(bricks, regions, rng.choice(regions.n_regions, 100, replace=False))
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name", ["amrex", "athena", "enzo"])
 def test_real_datasets(name):
     from exabricks import readers

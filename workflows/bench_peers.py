@@ -17,9 +17,9 @@ field, camera, transfer function and image size:
    tree over the brick supports built in memory, the -DEB_CELL_LOCATION
    program, no second upload), and the uniform-grid ceiling: the dataset
    resampled at its finest resolution (lattice bounding box, capped at
-   --max-voxels) by the basis reconstruction itself
-   (`exabricks.stages.probe.probe_scene` at every finest-cell centre), rendered
-   by kernels/uniform_grid.cl (trilinear, constant step finest cell / sampling
+   --max-voxels) by the basis reconstruction itself and rendered by
+   kernels/uniform_grid.cl (exabricks.stages.uniform_grid: `resample`,
+   `UniformGridRenderer`; trilinear, constant step finest cell / sampling
    rate, the same sample placement, transfer function, opacity correction,
    compositing and early termination). Frames at the default sampling rate 2
    and at 10 samples per finest cell ("equal sample density" with yt's 10
@@ -94,13 +94,14 @@ field_interpolation_tables.pxd):
 * Differences that remain: yt walks each ray from the camera but composites
   every new sample *in front of* the accumulated colour (its brick order is
   furthest-first from front_center, which lies behind the data), so
-  occlusion is reversed with respect to ours (checked with two opaque slabs);
+  occlusion is reversed with respect to ours;
   yt's reconstruction is trilinear within each brick from vertex values it
   averages from cell values (no ghost zones), not the basis method.
 
 ExaJet data (gerris, big) has no yt front end (and yt.load_octree says of
 itself that "fluid fields will not work yet, or possibly ever"): our reader's
-leaf cells are turned into properly nested grids (`yt_amr_grids`) and given to
+leaf cells are turned into properly nested grids
+(`exabricks.readers.yt_bridge.to_amr_grids`) and given to
 yt.load_amr_grids. yt then has exactly our leaves and values (checked on the
 Gerris plume); the conversion is timed on its own and not counted as yt's
 load, but it is part of the yt process's peak memory.
@@ -143,7 +144,7 @@ if not (DATA / "amrex-advection3d").is_dir():
     DATA = ROOT.parent / "shared" / "data"
 
 # name: (path, field, how yt gets the data: "native" = yt.load, "grids" = our leaf cells
-# converted to nested grids for yt.load_amr_grids, see yt_amr_grids)
+# converted to nested grids for yt.load_amr_grids, see yt_bridge.to_amr_grids)
 DATASETS = {
     "amrex": (DATA / "amrex-advection3d" / "plt00020", "phi", "native"),
     "athena": (DATA / "athena-blast3d" / "Blast.out2.00001.athdf", "rho", "native"),
@@ -156,19 +157,23 @@ DATASETS = {
     "big": (ROOT / "bench-data" / "big512.cells", "value", "grids"),
 }
 RATES = (2.0, 10.0)          # ours: the default, and yt's 10 samples per cell
+RATE_KEYS = tuple(str(r) for r in RATES)  # the results' keys: '2.0', '10.0'
 YT_NUM_SAMPLES = 10          # yt's VolumeSource default
 MAX_OPACITY = 0.98
 SEED = 0
 YT_NBINS = 4096
+YT_PAD = 1e-3                # yt's bounds: the value range widened by this fraction each side
 ALPHA_CLIP = 1.0 - 1e-6      # -ln(1 - alpha) is infinite at alpha = 1
 ALPHA_SCALE = 0.1           # opacity ramp 0 -> 0.1: semi-transparent, as volume rendering is used
 OPACITY_UNIT_CELLS = 128    # opacity unit = largest domain extent / this (opacity_unit)
 MAX_VOXELS = 512 ** 3        # the uniform grid's cap (float32: 512 MiB)
-PROBE_CHUNK = 1 << 21        # points per probe call
 # yt is skipped above this many leaf cells: it never finished loading the 23.6 M-cell
 # "big" dataset (hours, then killed), and every other dataset has under 1 M.
 YT_MAX_CELLS = 10_000_000
 SECTION = "exabricks vs yt, cell location and the uniform-grid ceiling"
+# The issue's targets: yt / ours frame time at each tool's default sampling and with ours
+# at RATES[-1]; cell location / regions kernel time; ours / uniform-grid samples per second.
+TARGETS = {"yt_default": 5.0, "yt_equal": 1.5, "cell_location": 2.0, "ceiling": 0.5}
 
 
 # ----------------------------------------------------------------------------- helpers
@@ -243,9 +248,11 @@ def scene_paths(spec: dict) -> dict:
 def worker_prepare(spec: dict) -> dict:
     """The offline stages (ingest, brick, regions, bvh) in memory, saved as .npz; the view."""
     from exabricks import schema
+    from exabricks.stages.scene import finest_cell_width_world
 
     cells, bricks, regions, bvh, t_read, t_build = build_scene(Path(spec["path"]), spec["field"])
     camera, tf, bounds, value_range = view_of(cells, spec["alpha_scale"])
+    stats = regions.meta["statistics"]
     t = time.perf_counter()
     for kind, obj in (("bricks", bricks), ("regions", regions), ("bvh", bvh)):
         schema.save(scene_paths(spec)[kind], obj)
@@ -253,7 +260,10 @@ def worker_prepare(spec: dict) -> dict:
             "levels": int(cells.level.max()) + 1, "read_s": t_read, "build_s": t_build,
             "save_s": time.perf_counter() - t, "camera": camera.to_dict(),
             "transfer_function": tf.to_paraview_dict(), "world_bounds": [list(b) for b in bounds],
-            "value_range": list(value_range), "unit_distance": opacity_unit(bounds)}
+            "value_range": list(value_range), "unit_distance": opacity_unit(bounds),
+            "finest_cell_world": finest_cell_width_world(bricks),
+            "bricks_per_region_by_count": stats["avg_bricks_per_region_by_count"],
+            "bricks_per_region_by_volume": stats["avg_bricks_per_region_by_volume"]}
 
 
 def load_scene(spec: dict):
@@ -291,6 +301,7 @@ def worker_exabricks(spec: dict) -> dict:
 
     from exabricks import opencl
     from exabricks.camera import Camera
+    from exabricks.stages import uniform_grid
     from exabricks.stages.cell_location import build_brick_tree
     from exabricks.stages.render import Renderer
     from exabricks.transfer_function import TransferFunction
@@ -324,17 +335,17 @@ def worker_exabricks(spec: dict) -> dict:
            # Ours alone, before the uniform grid is resampled (Linux: KiB).
            "peak_rss_mib": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0}
 
-    lower, dims = finest_grid(bricks)
+    lower, dims = uniform_grid.finest_grid(bricks)
     uniform = out["uniform"] = {"dims": [int(d) for d in dims], "voxels": int(np.prod(dims)),
                                 "fits": bool(np.prod(dims) <= spec["max_voxels"]), "rates": {}}
     marcher = None
     if uniform["fits"]:
         t = time.perf_counter()
-        volume = resample_uniform(renderer.scene, lower, dims)
+        volume = uniform_grid.resample(renderer.scene, lower, dims)
         uniform["resample_s"] = time.perf_counter() - t
         uniform["nan_voxels"] = int(np.isnan(volume).sum())
-        marcher = UniformGridRenderer(volume, lower, bricks.origin_world, bricks.spacing_world,
-                                      device=device)
+        marcher = uniform_grid.UniformGridRenderer(volume, lower, bricks.origin_world,
+                                                   bricks.spacing_world, device=device)
         del volume
 
     def ours(r, rate):
@@ -368,111 +379,6 @@ def worker_exabricks(spec: dict) -> dict:
             uniform["rates"][key] = measured["uniform"]
             np.save(spec["image_prefix"] + f"-uniform-{rate:g}.npy", images["uniform"])
     return out
-
-
-# ----------------------------------------------------------------------------- uniform-grid ceiling
-
-
-def finest_grid(data):
-    """(lattice lower corner (3,) int64, dims (3,) int64) of the finest-resolution box of
-    `data` (schema.Cells or schema.Bricks): one voxel per lattice unit."""
-    width = np.left_shift(1, data.level.astype(np.int64))[:, None]
-    extent = width * (data.dims if hasattr(data, "dims") else 1)
-    lower = data.lower_lattice.astype(np.int64)
-    lo = lower.min(axis=0)
-    hi = (lower + extent).max(axis=0)
-    return lo, hi - lo
-
-
-def resample_uniform(scene, lattice_lower, dims) -> np.ndarray:
-    """The basis reconstruction at every finest-cell centre: float32 (Z, Y, X), x fastest.
-
-    `scene`: an exabricks.stages.scene.DeviceScene; NaN where no cell has support.
-    """
-    from exabricks.stages.probe import probe_scene
-
-    nx, ny, nz = (int(d) for d in dims)
-    volume = np.empty((nz, ny, nx), np.float32)
-    origin = np.asarray(scene.bricks.origin_world, np.float64)
-    spacing = np.asarray(scene.bricks.spacing_world, np.float64)
-    xs = origin[0] + spacing[0] * (lattice_lower[0] + np.arange(nx) + 0.5)
-    ys = origin[1] + spacing[1] * (lattice_lower[1] + np.arange(ny) + 0.5)
-    slabs = max(1, PROBE_CHUNK // (nx * ny))
-    for z0 in range(0, nz, slabs):
-        z1 = min(nz, z0 + slabs)
-        zs = origin[2] + spacing[2] * (lattice_lower[2] + np.arange(z0, z1) + 0.5)
-        Z, Y, X = np.meshgrid(zs, ys, xs, indexing="ij")
-        points = np.column_stack([X.ravel(), Y.ravel(), Z.ravel()])
-        volume[z0:z1] = probe_scene(scene, points).reshape(z1 - z0, ny, nx)
-    return volume
-
-
-class UniformGridRenderer:
-    """kernels/uniform_grid.cl on one device: a volume uploaded once, many frames."""
-
-    def __init__(self, volume, lattice_lower, origin_world, spacing_world, *, device=None):
-        import pyopencl as cl
-
-        from exabricks import opencl
-
-        self.device = device if device is not None and not isinstance(device, str) \
-            else opencl.choose_device(device)
-        self.context, self.queue = opencl.context_for(self.device)
-        directory = opencl.kernel_dir()
-        source = (directory / "uniform_grid.cl").read_text(encoding="utf-8")
-        self.program = cl.Program(self.context, source).build(
-            options=[*opencl.BUILD_OPTIONS, f"-I{directory}"])
-        self.kernel = cl.Kernel(self.program, "eb_uniform_render")
-        volume = np.ascontiguousarray(volume, np.float32)
-        nz, ny, nx = volume.shape
-        self.dims = _int4(nx, ny, nz)
-        self.volume_buf = opencl.to_device(self.queue, volume)
-        self.lattice_lower4 = _float4(lattice_lower)
-        self.origin4 = _float4(origin_world)
-        self.inv_spacing4 = _float4(1.0 / np.asarray(spacing_world, np.float64))
-        self.finest_width_world = float(np.min(spacing_world))
-
-    def render(self, *, camera, transfer_function, width, height, sampling_rate=2.0,
-               max_opacity=MAX_OPACITY, unit_distance=None, jitter=True, seed=SEED):
-        """(rgba float32 (H, W, 4) premultiplied, samples, kernel seconds)."""
-        from exabricks import opencl
-
-        q = self.queue
-        unit = self.finest_width_world if unit_distance is None else float(unit_distance)
-        origin, forward, du, dv = camera.frame(width, height)
-        xs, knots = transfer_function.merged_knots()
-        n = width * height
-        rgba_buf = opencl.empty_buffer(q, 16 * n)
-        samples_buf = opencl.empty_buffer(q, 4 * n)
-        tile = 8
-        global_size = (-(-width // tile) * tile, -(-height // tile) * tile)
-        args = (np.int32(width), np.int32(height), np.uint32(seed), np.int32(bool(jitter)),
-                _float4(origin), _float4(forward), _float4(du), _float4(dv),
-                self.origin4, self.inv_spacing4, self.lattice_lower4, self.volume_buf, self.dims,
-                np.float32(self.finest_width_world / sampling_rate), np.float32(1.0 / unit),
-                np.float32(max_opacity), opencl.to_device(q, xs, np.float32),
-                opencl.to_device(q, knots, np.float32), np.int32(xs.shape[0]), rgba_buf, samples_buf)
-        q.finish()
-        t = time.perf_counter()
-        self.kernel(q, global_size, (tile, tile), *args)
-        q.finish()
-        seconds = time.perf_counter() - t
-        rgba = opencl.read_back(q, rgba_buf, np.empty((height, width, 4), np.float32))
-        samples = opencl.read_back(q, samples_buf, np.empty(n, np.uint32))
-        return rgba, int(samples.sum(dtype=np.int64)), seconds
-
-
-def _float4(xyz):
-    import pyopencl.cltypes as cltypes
-
-    x, y, z = (float(v) for v in xyz)
-    return cltypes.make_float4(x, y, z, 0.0)
-
-
-def _int4(x, y, z):
-    import pyopencl.cltypes as cltypes
-
-    return cltypes.make_int4(int(x), int(y), int(z), 0)
 
 
 # ----------------------------------------------------------------------------- yt side
@@ -510,113 +416,18 @@ def yt_extinction(alpha, ray_length: float, unit_distance: float) -> np.ndarray:
     return -np.log1p(-alpha) * (ray_length / unit_distance)
 
 
+def yt_image_to_ours(image) -> np.ndarray:
+    """The (N, N, 4) image `sc.render()` returns as our float32 (row, col, rgba) layout:
+    yt's ray grid rotated by 180 degrees, i.e. ours transposed (module docstring)."""
+    return np.ascontiguousarray(np.asarray(image).transpose(1, 0, 2)).astype(np.float32)
+
+
 def yt_bounds(value_range) -> tuple[float, float]:
+    """yt's transfer-function bounds: `value_range` widened by YT_PAD of its width each side
+    (of max(1, |value|) for a constant field), since yt drops values on or outside them."""
     lo, hi = value_range
-    pad = 1e-3 * (hi - lo) if hi > lo else 1e-3 * max(1.0, abs(lo))
+    pad = YT_PAD * (hi - lo) if hi > lo else YT_PAD * max(1.0, abs(lo))
     return lo - pad, hi + pad
-
-
-def _cell_keys(lower) -> np.ndarray:
-    """One int64 per lattice point (21 bits per axis)."""
-    p = np.asarray(lower, np.int64)
-    return (p[:, 0] << 42) | (p[:, 1] << 21) | p[:, 2]
-
-
-def yt_amr_grids(cells, *, source: str = "cells") -> tuple[list[dict], int]:
-    """Leaf cells (one field) as properly nested grids for yt.load_amr_grids.
-
-    yt needs every level to cover what the finer levels refine, grids aligned to
-    their parent level's cells and each grid inside one parent grid. Level l's
-    "covering" cells are its leaves plus the parents of level l-1's covering
-    cells (value: the mean of their children; yt only shows leaves); the
-    coarsest level is cut into bricks (exabricks.stages.brick) of its cells,
-    every finer level into bricks of the refined parent cells, grouped by the
-    parent's grid. The data must be octree-complete (every refined cell has all
-    8 children, as in Gerris and the make_big merge); ValueError otherwise.
-    Returns (grid dicts with yt level 0 = our coarsest level, our coarsest level).
-    """
-    lower = cells.lower_lattice.astype(np.int64)
-    level = cells.level.astype(np.int64)
-    values = cells.values[0].astype(np.float64)
-    top = int(level.max())
-    covering = []
-    for lev in range(top + 1):
-        mine = level == lev
-        lo, v = lower[mine], values[mine]
-        if lev > 0:
-            finer_lo, finer_v = covering[lev - 1]
-            parents = (finer_lo >> lev) << lev
-            _, first, inverse = np.unique(_cell_keys(parents), return_index=True, return_inverse=True)
-            mean = np.bincount(inverse, weights=finer_v) / np.bincount(inverse)
-            lo, v = np.vstack([lo, parents[first]]), np.concatenate([v, mean])
-        covering.append((lo, v))
-    origin, spacing = cells.origin_world, cells.spacing_world
-    grids = []
-    parent_keys = parent_grid = None
-    for lev in range(top, -1, -1):
-        lo, v = covering[lev]
-        width = 1 << lev
-        keys = _cell_keys(lo)
-        order = np.argsort(keys)
-        sorted_keys = keys[order]
-        if lev == top:
-            units, unit_level, group = lo, lev, np.zeros(len(lo), np.int64)
-        else:
-            units = np.unique((lo >> (lev + 1)) << (lev + 1), axis=0)
-            unit_level = lev + 1
-            group = parent_grid[np.searchsorted(parent_keys, _cell_keys(units))]
-        ratio = 1 << (unit_level - lev)
-        grid_of = np.empty(len(lo), np.int64)
-        for brick_lower, brick_dims in _bricks_by_group(units, unit_level, group):
-            for corner, unit_dims in zip(brick_lower, brick_dims):
-                dims = unit_dims * ratio
-                ijk = np.stack(np.meshgrid(*(np.arange(d) for d in dims), indexing="ij"), -1)
-                points = corner + width * ijk.reshape(-1, 3)
-                found = np.minimum(np.searchsorted(sorted_keys, _cell_keys(points)), len(lo) - 1)
-                index = order[found]
-                if not np.array_equal(lo[index], points):
-                    raise ValueError(f"{source}: not octree-complete at level {lev} "
-                                     "(a refined cell lacks some of its 8 children)")
-                grid_of[index] = len(grids)
-                left = origin + spacing * corner
-                grids.append({"left_edge": left, "right_edge": left + spacing * dims * width,
-                              "level": top - lev, "dimensions": dims,
-                              cells.fields[0]: (v[index].reshape(dims), "")})
-        parent_keys, parent_grid = sorted_keys, grid_of[order]
-    return grids, top
-
-
-def _bricks_by_group(units, level: int, group):
-    """Bricks (exabricks.stages.brick) of same-level cells `units` (N, 3) int64 that never
-    mix two values of `group` (N,): yields (lower (B, 3) int64, dims (B, 3) int64) batches.
-
-    Groups are moved apart along x by a multiple of the cell width before one
-    build_bricks call (a brick must be filled, so it cannot bridge the gap), and
-    moved back; one call per group where the shifted lattice would leave int32.
-    """
-    from exabricks import schema
-    from exabricks.stages.brick import build_bricks
-
-    def bricks_of(lower):
-        b = build_bricks(schema.Cells(
-            fields=("unit",), origin_world=np.zeros(3), spacing_world=np.ones(3),
-            lower_lattice=lower.astype(np.int32), level=np.full(len(lower), level, np.int8),
-            values=np.zeros((1, len(lower)), np.float32)))
-        return b.lower_lattice.astype(np.int64), b.dims.astype(np.int64)
-
-    width = 1 << level
-    base = units.min(axis=0)
-    shifted = units - base
-    stride = (int(shifted[:, 0].max()) // width + 2) * width
-    groups, dense = np.unique(group, return_inverse=True)
-    if len(groups) * stride + int(shifted.max()) < np.iinfo(np.int32).max:
-        shifted[:, 0] += dense * stride
-        lower, dims = bricks_of(shifted)
-        lower[:, 0] -= (lower[:, 0] // stride) * stride
-        yield lower + base, dims
-    else:
-        for g in groups:
-            yield bricks_of(units[group == g])
 
 
 def worker_yt(spec: dict) -> dict:
@@ -635,10 +446,11 @@ def worker_yt(spec: dict) -> dict:
     t_convert = None
     if spec["yt_mode"] == "grids":
         from exabricks import readers, schema
+        from exabricks.readers import yt_bridge
 
         t = time.perf_counter()
         cells = readers.read(spec["path"], fields=[spec["field"]])
-        grids, top = yt_amr_grids(cells, source=spec["path"])
+        grids, top = yt_bridge.to_amr_grids(cells, source=spec["path"])
         lo, hi = (np.asarray(b) for b in schema.world_bounds(cells))
         root = np.rint((hi - lo) / cells.spacing_world / (1 << top)).astype(int)
         del cells
@@ -684,7 +496,7 @@ def worker_yt(spec: dict) -> dict:
         return np.asarray(sc.render())
 
     first_s, times, image = timed_runs(frame, runs)
-    rgba = np.ascontiguousarray(image.transpose(1, 0, 2)).astype(np.float32)
+    rgba = yt_image_to_ours(image)
     np.save(spec["image_prefix"] + "-yt.npy", rgba)
     return {"import_s": t_import, "convert_s": t_convert, "load_index_s": t_load, "setup_s": t_setup,
             "first_frame_s": first_s, "frame_s": times, "grids": int(ds.index.num_grids),
@@ -792,12 +604,13 @@ def bench_dataset(name: str, args, workdir: Path) -> dict:
         row["yt"] = {"error": skip} if skip else \
             run_worker("yt", {**shared, "yt_mode": yt_mode}, workdir)
     prefix = workdir / name
-    side_by_side([f"{prefix}-ours-2.npy", f"{prefix}-yt.npy", f"{prefix}-uniform-2.npy"],
+    low, high = (f"{r:g}" for r in RATES)
+    side_by_side([f"{prefix}-ours-{low}.npy", f"{prefix}-yt.npy", f"{prefix}-uniform-{low}.npy"],
                  Path(args.images) / f"peers-{name}.png", args.size)
     row["agreement"] = {
-        "yt": image_agreement(f"{prefix}-ours-10.npy", f"{prefix}-yt.npy"),
-        "uniform-2": image_agreement(f"{prefix}-ours-2.npy", f"{prefix}-uniform-2.npy"),
-        "uniform-10": image_agreement(f"{prefix}-ours-10.npy", f"{prefix}-uniform-10.npy")}
+        "yt": image_agreement(f"{prefix}-ours-{high}.npy", f"{prefix}-yt.npy"),
+        **{f"uniform-{r}": image_agreement(f"{prefix}-ours-{r}.npy", f"{prefix}-uniform-{r}.npy")
+           for r in (low, high)}}
     return row
 
 
@@ -805,31 +618,83 @@ def _median(values) -> float:
     return benchdoc.median_spread(values)[0]
 
 
-# Where the time goes where a target is missed, and what would close the gap
-# (profiles in the "render (PoCL)" section; kept here so that a rerun keeps them).
-GAPS = """
-Where the time goes. Ours runs on PoCL as scalar code, one work-item (ray) after
-another: the divergent loops of the region walk defeat PoCL's work-group
-vectorizer, while yt's C ray caster runs one OpenMP thread per core and the
-uniform-grid marcher does one trilinear lookup per sample. Per sample ours
-evaluates the hat sums of every brick in its region's list (3.2-4.4 by count,
-1.1-2.9 by volume), then the same transfer function, opacity and compositing
-code as the marcher. On octree-like data (Gerris, the generated 23.6 M-cell set:
-small bricks, about one region per finest cell) the region walk adds a heap
-step and a box test per 1-3 samples; that is where ours falls to 0.34 of the
-marcher, and where yt, which samples coarse cells sparsely, is closest to us.
-Tried without gain (see "render (PoCL)"): other work-group shapes, private
-copies of a region's bricks, two samples reconstructed together.
+def _measured(r) -> bool:
+    """Whether `r` has our frames (the prepare and exabricks workers both succeeded)."""
+    o = r.get("ours", {})
+    return bool(o) and "error" not in o and not r.get("error") and "error" not in r.get("prep", {})
 
-What would close the gaps: (1) packet tracing: the 64 rays of an 8 x 8 tile
-walked together with explicit float8/float16 vectors (one region list shared by
-the packet, lanes masked as rays leave), which is how the ExaBricks authors'
-CPU ancestors (OSPRay/ISPC) reach the vector units; (2) on octree-like data,
-larger regions: merge runs of regions along a ray's dominant axis that share a
-brick list, or build regions over 2x2x2 groups of small same-level bricks, so
-that a region visit buys more samples. On a GPU the same kernels run one ray
-per lane without these changes.
-"""
+
+def _span(values, digits: int = 1) -> str:
+    """'lo-hi' of a list of figures, or one figure when both ends round alike."""
+    lo, hi = (f"{v:.{digits}f}" for v in (min(values), max(values)))
+    return lo if lo == hi else f"{lo}-{hi}"
+
+
+def ceiling_ratios(rows) -> dict:
+    """{(dataset, rate key): ours / uniform-grid samples per second (median kernel times)}."""
+    out = {}
+    for r in rows:
+        u = r.get("uniform")
+        if not _measured(r) or not u or not u.get("fits"):
+            continue
+        for rate in RATE_KEYS:
+            a, b = r["ours"]["rates"][rate], u["rates"][rate]
+            out[r["name"], rate] = ((a["samples"] / _median(a["kernel_s"]))
+                                    / (b["samples"] / _median(b["kernel_s"])))
+    return out
+
+
+def yt_ratios(rows, rate: str) -> dict:
+    """{dataset: median yt frame / median ours frame at `rate`} where yt ran."""
+    return {r["name"]: _median(r["yt"]["frame_s"]) / _median(r["ours"]["rates"][rate]["frame_s"])
+            for r in rows if _measured(r) and r.get("yt") and "error" not in r["yt"]}
+
+
+def gaps(rows, machine_line: str) -> list[str]:
+    """Where the time goes and what would close the gaps, with this run's figures."""
+    from exabricks.stages.render import TILE
+
+    measured = [r for r in rows if _measured(r)]
+    if not measured:
+        return []
+    count = [r["prep"]["bricks_per_region_by_count"] for r in measured]
+    volume = [r["prep"]["bricks_per_region_by_volume"] for r in measured]
+    text = ("Where the time goes. Per sample ours evaluates the hat sums of every brick in its "
+            f"region's list ({_span(count)} bricks per region by count, {_span(volume)} by "
+            "volume on these datasets), then the same transfer function, opacity and "
+            "compositing code as the uniform-grid marcher, which does one trilinear lookup "
+            "per sample and no region walk.")
+    if "pocl" in machine_line.lower():
+        text += (" On PoCL ours runs as scalar code, one work-item (ray) after another: the "
+                 "divergent loops of the region walk defeat PoCL's work-group vectorizer, "
+                 "while yt's C ray caster runs one OpenMP thread per core.")
+    ceiling = ceiling_ratios(measured)
+    if ceiling:
+        (name, rate), worst = min(ceiling.items(), key=lambda kv: kv[1])
+        prep = next(r["prep"] for r in measured if r["name"] == name)
+        text += (f" Ours is furthest from the marcher on {name} at rate {float(rate):g} "
+                 f"({worst:.2f} of its samples per second), with "
+                 f"{prep['cells'] / prep['bricks']:.1f} cells per brick and "
+                 f"{prep['regions'] / prep['cells']:.2f} regions per leaf cell: the smaller the "
+                 "bricks and regions, the fewer samples each region visit (a heap step and a "
+                 "box test) buys.")
+    near = yt_ratios(measured, RATE_KEYS[-1])
+    if near:
+        name = min(near, key=near.get)
+        text += (f" yt comes closest to ours on {name} ({near[name]:.1f}x our frame time at "
+                 f"{RATES[-1]:g} samples per finest cell).")
+    return [
+        text,
+        "",
+        f"What would close the gaps: (1) packet tracing: the {TILE * TILE} rays of each "
+        f"{TILE} x {TILE} tile walked together with explicit vectors (one region list shared by the "
+        "packet, lanes masked as rays leave), which is how the ExaBricks authors' CPU "
+        "ancestors (OSPRay/ISPC) reach the vector units; (2) on octree-like data, larger "
+        "regions: merge runs of regions along a ray's dominant axis that share a brick list, "
+        "or build regions over 2x2x2 groups of small same-level bricks, so that a region "
+        "visit buys more samples. On a GPU the same kernels run one ray per lane without "
+        "these changes.",
+    ]
 
 
 def _verdict(name: str, target: float, values: dict, unit: str) -> str:
@@ -847,38 +712,66 @@ def _verdict(name: str, target: float, values: dict, unit: str) -> str:
     return f"- {name} (target {target:g}{unit}): {shown}; {verdict}"
 
 
-def targets(rows) -> list[str]:
-    """The issue's targets against this run's figures, dataset by dataset."""
-    yt_default, yt_equal, cell, ceiling = {}, {}, {}, {}
+def target_figures(rows) -> dict:
+    """This run's figure for each of TARGETS: {target key: {label: figure}} (`targets`)."""
+    low, high = RATE_KEYS
+    cell = {}
     for r in rows:
-        o = r.get("ours", {})
-        if not o or "error" in o or r.get("error"):
+        c = r.get("cell_location")
+        if not _measured(r) or not c:
             continue
-        y, c, u = r.get("yt"), r.get("cell_location"), r.get("uniform")
-        rates = o["rates"]
-        if y and "error" not in y:
-            yt_default[r["name"]] = _median(y["frame_s"]) / _median(rates["2.0"]["frame_s"])
-            yt_equal[r["name"]] = _median(y["frame_s"]) / _median(rates["10.0"]["frame_s"])
-        for rate in ("2.0", "10.0"):
-            key = f"{r['name']} rate {float(rate):g}"
-            if c:
-                cell[key] = _median(c["rates"][rate]["kernel_s"]) / _median(rates[rate]["kernel_s"])
-            if u and u.get("fits"):
-                ours = rates[rate]["samples"] / _median(rates[rate]["kernel_s"])
-                grid = u["rates"][rate]["samples"] / _median(u["rates"][rate]["kernel_s"])
-                ceiling[key] = ours / grid
+        for rate in RATE_KEYS:
+            cell[f"{r['name']} rate {float(rate):g}"] = (
+                _median(c["rates"][rate]["kernel_s"]) / _median(r["ours"]["rates"][rate]["kernel_s"]))
+    return {"yt_default": yt_ratios(rows, low), "yt_equal": yt_ratios(rows, high),
+            "cell_location": cell,
+            "ceiling": {f"{name} rate {float(rate):g}": v
+                        for (name, rate), v in ceiling_ratios(rows).items()}}
+
+
+def targets(rows) -> list[str]:
+    """The issue's targets (TARGETS) against this run's figures, dataset by dataset."""
+    figures = target_figures(rows)
     return [
         "Targets (from this run):",
         "",
-        _verdict("yt / ours, each at its default sampling", 5, yt_default, "x"),
-        _verdict("yt / ours, ours at 10 samples per finest cell", 1.5, yt_equal, "x"),
-        _verdict("cell location / regions", 2, cell, "x"),
-        _verdict("ours / uniform-grid samples per second", 0.5, ceiling, ""),
+        _verdict("yt / ours, each at its default sampling", TARGETS["yt_default"],
+                 figures["yt_default"], "x"),
+        _verdict(f"yt / ours, ours at {RATES[-1]:g} samples per finest cell",
+                 TARGETS["yt_equal"], figures["yt_equal"], "x"),
+        _verdict("cell location / regions", TARGETS["cell_location"], figures["cell_location"], "x"),
+        _verdict("ours / uniform-grid samples per second", TARGETS["ceiling"], figures["ceiling"], ""),
     ]
+
+
+def _off_axis_stretch(camera_dict: dict, size: int) -> float:
+    """Largest 1/cos(angle between a pixel's ray and the view axis) - 1 of a size^2 frame."""
+    from exabricks.camera import Camera
+
+    camera = Camera.from_dict(camera_dict)
+    _, forward, _, _ = camera.frame(size, size)
+    _, directions = camera.rays(size, size)
+    cosine = (directions @ np.asarray(forward, np.float64)) / (
+        np.linalg.norm(directions, axis=-1) * np.linalg.norm(forward))
+    return float((1.0 / cosine).max() - 1.0)
+
+
+def unit_note(rows) -> str:
+    """What the opacity unit is, in finest cells, dataset by dataset (from the rows)."""
+    cells = {}
+    for r in rows:
+        prep = r.get("prep", {})
+        if "unit_distance" in prep:
+            cells.setdefault(f"{prep['unit_distance'] / prep['finest_cell_world']:g}", []).append(
+                r["name"])
+    return "; ".join(f"{n} finest cell{'s' if n != '1' else ''} of {', '.join(names)}"
+                     for n, names in cells.items())
 
 
 def report(rows, machine_line: str, args) -> list[str]:
     """The markdown body of the docs section (module docstring)."""
+    low, high = RATE_KEYS
+    rl, rh = float(low), float(high)
     command = (f".venv/bin/python workflows/bench_peers.py --datasets {args.datasets} "
                f"--size {args.size} --runs {args.runs}")
     if args.no_yt:
@@ -899,9 +792,11 @@ def report(rows, machine_line: str, args) -> list[str]:
         "",
         "| dataset (field) | cells (levels) | offline: read + build s "
         "| ours: load / kernel build / upload s "
-        "| ours frame s, rate 2 | ours frame s, rate 10 | yt: import / load+index / scene s "
-        "| yt frame s (10 samples/cell) | yt / ours (rate 2) | yt / ours (rate 10) "
-        "| peak RSS ours / yt MiB | image yt vs ours (rate 10): PSNR dB / SSIM |",
+        f"| ours frame s, rate {rl:g} | ours frame s, rate {rh:g} "
+        "| yt: import / load+index / scene s "
+        f"| yt frame s ({YT_NUM_SAMPLES} samples/cell) | yt / ours (rate {rl:g}) "
+        f"| yt / ours (rate {rh:g}) "
+        f"| peak RSS ours / yt MiB | image yt vs ours (rate {rh:g}): PSNR dB / SSIM |",
         "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|",
     ]
     for r in rows:
@@ -911,25 +806,25 @@ def report(rows, machine_line: str, args) -> list[str]:
             lines.append(f"| {r['name']} | {failed} |" + " |" * 10)
             continue
         y = r.get("yt")
-        f2, f10 = o["rates"]["2.0"]["frame_s"], o["rates"]["10.0"]["frame_s"]
+        f_low, f_high = o["rates"][low]["frame_s"], o["rates"][high]["frame_s"]
         if y and "error" not in y:
             yt_load = f"{y['import_s']:.2f} / {y['load_index_s']:.2f} / {y['setup_s']:.2f}"
             if y.get("convert_s") is not None:
                 yt_load += f" (+ {y['convert_s']:.2f} our conversion)"
             yt_frame = fmt_s(y["frame_s"])
-            ratio2 = f"{_median(y['frame_s']) / _median(f2):.1f}x"
-            ratio10 = f"{_median(y['frame_s']) / _median(f10):.1f}x"
+            ratio_low = f"{_median(y['frame_s']) / _median(f_low):.1f}x"
+            ratio_high = f"{_median(y['frame_s']) / _median(f_high):.1f}x"
             rss = f"{o['peak_rss_mib']:.0f} / {y['peak_rss_mib']:.0f}"
         else:
             yt_load = yt_frame = y["error"] if y else "not run (--no-yt)"
-            ratio2 = ratio10 = "-"
+            ratio_low = ratio_high = "-"
             rss = f"{o['peak_rss_mib']:.0f} / -"
         lines.append(
             f"| {r['name']} ({r['field']}) | {prep['cells']:,} ({prep['levels']}) "
             f"| {prep['read_s']:.2f} + {prep['build_s']:.2f} "
             f"| {o['load_s']:.2f} / {o['kernel_build_s']:.2f} / {o['upload_s']:.2f} "
-            f"| {fmt_s(f2)} | {fmt_s(f10)} "
-            f"| {yt_load} | {yt_frame} | {ratio2} | {ratio10} | {rss} "
+            f"| {fmt_s(f_low)} | {fmt_s(f_high)} "
+            f"| {yt_load} | {yt_frame} | {ratio_low} | {ratio_high} | {rss} "
             f"| {fmt_agreement(r.get('agreement', {}).get('yt'))} |")
     lines += [
         "",
@@ -951,13 +846,13 @@ def report(rows, machine_line: str, args) -> list[str]:
         "|---|---:|---:|---:|---:|---:|---:|---:|---:|",
     ]
     for r in rows:
-        o, c = r.get("ours", {}), r.get("cell_location")
-        if not o or "error" in o or not c:
+        c = r.get("cell_location")
+        if not _measured(r) or not c:
             continue
         tree = (f"{c['tree_nodes']:,} / {c['tree_depth']} / {1e3 * c['tree_build_s']:.1f} "
                 f"({1e3 * c['tree_first_build_s']:.0f})")
-        for rate in ("2.0", "10.0"):
-            a, b = o["rates"][rate], c["rates"][rate]
+        for rate in RATE_KEYS:
+            a, b = r["ours"]["rates"][rate], c["rates"][rate]
             pairs = np.asarray(b["kernel_s"]) / np.asarray(a["kernel_s"])
             same = "yes" if b["samples"] == a["samples"] else f"no: {b['samples']:,} samples"
             lines.append(
@@ -976,30 +871,34 @@ def report(rows, machine_line: str, args) -> list[str]:
         "|---|---|---:|---:|---:|---:|---:|---:|---:|---:|",
     ]
     for r in rows:
-        o, u = r.get("ours", {}), r.get("uniform")
-        if not o or "error" in o or not u:
+        u = r.get("uniform")
+        if not _measured(r) or not u:
             continue
         grid = "x".join(map(str, u["dims"]))
         if not u.get("fits"):
             lines.append(f"| {r['name']} | {grid}: does not fit (> {args.max_voxels:,} voxels) |"
                          + " |" * 8)
             continue
-        for rate in ("2.0", "10.0"):
-            a, b = o["rates"][rate], u["rates"][rate]
+        for rate in RATE_KEYS:
+            a, b = r["ours"]["rates"][rate], u["rates"][rate]
             ka, kb = _median(a["kernel_s"]), _median(b["kernel_s"])
             rate_a, rate_b = a["samples"] / ka, b["samples"] / kb
             lines.append(
                 f"| {r['name']} | {grid} | {float(rate):g} | {a['samples']:,} "
                 f"| {rate_a / 1e6:.1f} | {b['samples']:,} | {rate_b / 1e6:.1f} "
                 f"| {rate_a / rate_b:.2f} | {kb / ka:.2f} "
-                f"| {fmt_agreement(r.get('agreement', {}).get('uniform-' + rate[:-2]))} |")
+                f"| {fmt_agreement(r.get('agreement', {}).get(f'uniform-{float(rate):g}'))} |")
+    preps = [r["prep"] for r in rows if "camera" in r.get("prep", {})]
+    tf_names = sorted({f"`{p['transfer_function'].get('Name', 'custom')}`" for p in preps})
+    skipped = [r["name"] for r in rows
+               if r.get("yt") and str(r["yt"].get("error", "")).startswith("skipped")]
     lines += [
         "",
-        "Ours: pure emission-absorption (shading none), jitter on (seed 0), early termination at "
-        "0.98, the default preset (viridis) over the field's range with its opacity ramp scaled "
-        f"by {args.alpha_scale:g}, default three-quarter camera, "
-        f"opacity unit = largest domain extent / {OPACITY_UNIT_CELLS} (the finest cell of amrex, "
-        "athena and gerris; 16 finest cells of enzo, 4 of big). "
+        f"Ours: pure emission-absorption (shading none), jitter on (seed {SEED}), early "
+        f"termination at {MAX_OPACITY:g}, the preset {', '.join(tf_names) or '-'} "
+        f"over the field's range with its opacity ramp scaled by {args.alpha_scale:g}, default "
+        f"three-quarter camera, opacity unit = largest domain extent / {OPACITY_UNIT_CELLS} "
+        f"({unit_note(rows) or '-'}). "
         "Offline: readers.read, then brick + regions + BVH in memory (the stages `exabricks "
         "ingest/brick/regions/bvh` run once per dataset). Ours load: the three .npz files "
         "(schema.load); kernel build: OpenCL context + program (pyopencl's binary cache warm "
@@ -1007,18 +906,18 @@ def report(rows, machine_line: str, args) -> list[str]:
         "yt: `yt.load` + `ds.index`; "
         "scene = Scene, VolumeSource, transfer function, perspective camera and the AMRKDTree "
         "(vertex-centred bricks). Peak RSS of each tool in its own process (ours: before the "
-        "uniform grid is resampled in the same process). yt is skipped above "
-        f"--yt-max-cells ({args.yt_max_cells:,} leaf cells): on the 23.6 M-cell big dataset "
-        "it never finished loading. The uniform grid is resampled with exabricks' own basis "
+        "uniform grid is resampled in the same process). yt is skipped on datasets with more "
+        f"than --yt-max-cells ({args.yt_max_cells:,}) leaf cells"
+        + (f" ({', '.join(skipped)} in this run). " if skipped else ". ")
+        + "The uniform grid is resampled with exabricks' own basis "
         "reconstruction at every finest-cell centre (probe) and marched trilinearly with a "
         "constant step (kernels/uniform_grid.cl), with the same transfer function lookup, "
         "opacity correction and compositing code as ours. See workflows/bench_peers.py for "
         "how the yt camera and transfer function were matched and what still differs.",
         "",
-        *GAPS.strip().splitlines(),
+        *gaps(rows, machine_line),
         "",
-        "How yt was matched (details and the yt source lines in workflows/bench_peers.py; "
-        "checked by tests/test_bench_peers.py):",
+        "How yt was matched (details and the yt source lines in workflows/bench_peers.py):",
         "",
         "- Camera: `cam.focus = look_at`, `cam.set_position(position, north_vector=up)`, "
         "`lens_type=\"perspective\"`, `cam.width = [w0, w0, w2]` with "
@@ -1026,16 +925,19 @@ def report(rows, machine_line: str, args) -> list[str]:
         "ours through pixel centres; with this width every yt ray is exactly one of ours), "
         "w2 = 2 L (L below) so that yt's brick-ordering viewpoint lies behind the data; "
         "square images only. yt's image is ours transposed (`ours[row, col] = yt[col, row]`).",
-        "- Transfer function: ColorTransferFunction(grey_opacity=True, nbins=4096) over the "
-        "field range widened by 0.1 % (yt makes values on or outside its bounds transparent), "
+        f"- Transfer function: ColorTransferFunction(grey_opacity=True, nbins={YT_NBINS}) over "
+        f"the field range widened by {100 * YT_PAD:g} % (yt makes values on or outside its "
+        "bounds transparent), "
         "`log_field = False`; tables filled at yt's nodes from our piecewise-linear function: "
         "colour = ours, alpha table = extinction `-ln(1 - alpha) L / unit_distance` per unit of "
         "yt's ray parameter (t in [0, 1] spans L = |camera - domain centre| + |domain width|/2 "
         "on the central ray); yt's step `1 - dt sigma` is the linearisation of our "
-        "`(1 - alpha)^(dt / unit)`. Off-axis rays are up to 1/cos(angle) longer in t "
-        "(<= 7 % at fovy 30), so slightly less opaque per world length in yt.",
-        "- Sampling: yt's default 10 samples per cell crossing (`num_samples`); ours at the "
-        "default 2 and at 10 samples per finest cell of each region.",
+        "`(1 - alpha)^(dt / unit)`. Off-axis rays are up to 1/cos(angle) longer in t"
+        + (f" (<= {100 * max(_off_axis_stretch(p['camera'], args.size) for p in preps):.1f} % "
+           "in these frames)" if preps else "")
+        + ", so slightly less opaque per world length in yt.",
+        f"- Sampling: yt's default {YT_NUM_SAMPLES} samples per cell crossing (`num_samples`); "
+        f"ours at the default {rl:g} and at {rh:g} samples per finest cell of each region.",
         "- Still different: yt walks each ray from the camera but composites each new sample "
         "*in front of* what it has accumulated, so occlusion is reversed relative to ours "
         "(two opaque slabs along the view: yt shows the far one); yt reconstructs trilinearly "

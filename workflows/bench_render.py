@@ -49,43 +49,28 @@ NOTES = """
 ms/frame is the kernel's wall time per frame (`Renderer.render` stats "ms": enqueue
 to finish, no upload or read-back); samples are the reconstructions the kernel
 counts (one per sub-interval of the adaptive sampling, §4.2-4.3); CPU ms/frame is
-the process CPU time of a `render` call (both PoCL threads). Both walks give the
-same image (max abs difference printed by the script).
-
-Changes that helped (each checked against the float64 reference tests; figures
-are kernel ms per 512x512 frame, headlight / shading none, quiet machine):
-the ordered min-heap walk (one BVH traversal per ray instead of one per region;
-re-tracing costs 3.5-4.5x the ordered walk per region visited, which matters
-most on octree data such as the Gerris plume, about one region per cell);
-forcing inlining of the per-brick and heap helpers (PoCL had kept eb_add_brick
-and eb_queue_expand as calls); -cl-no-signed-zeros -cl-denorms-are-zero (about
-5 %); the opacity correction 1 - (1 - alpha)^(len / unit) with log2 and exp2
-inlined as polynomials (PoCL calls its library pair out of line; that one line
-was a quarter of a shading-none frame) and headlight shading with rsqrt on a
-gradient prescaled on the host, so that no length() and division are needed:
-AMReX 343 / 314 -> 293 / 247 ms, Gerris 412 / 345 -> 373 / 301 ms, Enzo
-263 / 223 -> 236 / 186 ms; images within 1e-4 of before (rounding of the
-shading normal where the field is locally constant), opacity within 2e-7 of
-float64 (tests/test_render.py).
-Tried without a measurable gain (within the +-5 % noise of interleaved runs):
-work-groups of 16x16, 32x4 and 64x1 instead of 8x8; copying a region's brick
-boxes, dims and value pointers into private memory once per region; one
-32-byte record per brick instead of three arrays; guessing the transfer-function
-segment from uniform knots before the binary search (the search is about 5 %
-of a frame); native_exp2/native_log2 (the same code as exp2/log2 on PoCL).
-
-Where the time goes now: PoCL runs the kernel as scalar code, one work-item
-after another (the divergent loops defeat its work-group vectorizer), so a
-frame costs the latency of each sample's dependent chain: the reconstruction
-(the hat sums of every brick of the region's list, 3.2-4.4 per region by count,
-1.1-2.9 by volume), the transfer function, the opacity and the compositing;
-headlight shading adds 20-30 %. The walk alone is 8-30 % of a frame. The
-uniform-grid marcher (same transfer function, opacity and compositing code, one
-trilinear lookup per sample) is measured in the same run as ours in the section
-"exabricks vs yt, cell location and the uniform-grid ceiling". Left to try:
-several rays of a tile traced together with explicit SIMD (float8 over 8 rays),
-which is what it takes to use the cores' vector units here.
+the process CPU time of a `render` call (all of the OpenCL runtime's threads). Both
+walks give the same image (max abs difference printed by the script).
 """
+
+
+def time_notes(region_stats: dict) -> str:
+    """Where a frame's time goes, with the bricks per region of the rendered datasets
+    (`region_stats`: {dataset name: regions meta["statistics"]})."""
+    if not region_stats:
+        return ""
+    count = [s["avg_bricks_per_region_by_count"] for s in region_stats.values()]
+    volume = [s["avg_bricks_per_region_by_volume"] for s in region_stats.values()]
+    return (
+        "Where the time goes: a frame costs the latency of each sample's dependent chain: "
+        "the reconstruction (the hat sums of every brick of the region's list, "
+        f"{min(count):.1f}-{max(count):.1f} bricks per region by count and "
+        f"{min(volume):.1f}-{max(volume):.1f} by volume on these datasets), the transfer "
+        "function, the opacity and the compositing. On PoCL the kernel runs as scalar code, "
+        "one work-item after another (the divergent loops defeat its work-group vectorizer). "
+        "The uniform-grid marcher (same transfer function, opacity and compositing code, one "
+        "trilinear lookup per sample) is measured in the same run as ours in the section "
+        "\"exabricks vs yt, cell location and the uniform-grid ceiling\".")
 
 
 def stage(*args: str) -> None:
@@ -110,7 +95,8 @@ def ensure_scene(work: Path, dataset: benchdoc.Dataset) -> Path:
 
 
 def bench_one(d: Path, field: str, frames: int, size: int):
-    """{traversal: (times ms, samples, rgba)}, plus the device description."""
+    """{traversal: (times ms, samples, rgba, CPU ms)}, the device description and the
+    regions' statistics (their meta["statistics"])."""
     b = schema.load(d / "bricks.npz", "bricks")
     r = schema.load(d / "regions.npz", "regions")
     v = schema.load(d / "bvh.npz", "bvh")
@@ -137,7 +123,7 @@ def bench_one(d: Path, field: str, frames: int, size: int):
     scene = renderer.scene
     device = (f"{scene.device.name.strip()} ({scene.device.platform.version.strip()}, "
               f"{scene.device.max_compute_units} compute units)")
-    return out, device
+    return out, device, r.meta["statistics"]
 
 
 def main(argv=None) -> int:
@@ -153,13 +139,13 @@ def main(argv=None) -> int:
     if args.runs < 1:
         parser.error("--runs must be at least 1")
 
-    rows, device = [], "?"
+    rows, device, region_stats = [], "?", {}
     sets = benchdoc.datasets()
     keys = benchdoc.chosen(args.only, list(sets)) if args.only else DEFAULT
     for key in keys:
         name, field = sets[key].name, sets[key].field
         d = ensure_scene(args.work, sets[key])
-        results, device = bench_one(d, field, args.runs, args.size)
+        results, device, region_stats[name] = bench_one(d, field, args.runs, args.size)
         images = [results[t][2] for t in TRAVERSALS]
         diff = float(np.max(np.abs(images[0] - images[1])))
         for traversal in TRAVERSALS:
@@ -182,7 +168,7 @@ def main(argv=None) -> int:
                f"frame by frame (min-max in brackets)\n\n"
                "| dataset | field | traversal | ms/frame | samples/frame | M samples/s | CPU ms/frame |\n"
                "|---|---|---|---:|---:|---:|---:|\n"
-               + "\n".join(rows) + "\n" + NOTES)
+               + "\n".join(rows) + "\n" + NOTES + "\n" + time_notes(region_stats) + "\n")
     benchdoc.publish(SECTION, section, args.write_docs)
     return 0
 
