@@ -10,7 +10,7 @@ OUT    ?= out
 DATA    = exabricks/data/gerris-plume
 SUDO   := $(shell [ "$$(id -u)" = 0 ] || echo sudo)
 
-.PHONY: setup system-deps demo test bench clean
+.PHONY: setup system-deps demo test test-slow fuzz test-all bench clean
 
 system-deps:
 	@if ! ls /etc/OpenCL/vendors/*.icd >/dev/null 2>&1; then \
@@ -47,8 +47,21 @@ $(OUT)/plume.png: $(OUT)/bvh.npz
 demo: setup $(OUT)/plume.png
 	@echo "image: $(OUT)/plume.png"
 
+# The fast suite (minutes): everything but the `slow` tests; each fuzzer runs a
+# few examples (EXABRICKS_FUZZ_EXAMPLES, default in tests/conftest.py).
 test: setup
-	$(PY) -m pytest -q
+	$(PY) -m pytest -q -m "not slow"
+
+# The slow tests (real datasets end to end, random layouts, no-JIT runs).
+test-slow: setup
+	$(PY) -m pytest -q -m "slow"
+
+# The fuzzers with many examples each.
+fuzz: setup
+	EXABRICKS_FUZZ_EXAMPLES=150 $(PY) -m pytest -q -m "fuzz"
+
+# What CI runs: all three.
+test-all: test test-slow fuzz
 
 # Every benchmark, in order, each replacing its own "## section" of docs/benchmarks.md
 # (median of 5 runs after a warm-up; figures are only meaningful on a quiet machine).

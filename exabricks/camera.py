@@ -16,10 +16,8 @@ rays of the NumPy reference integrator from the same vectors.
 
 from __future__ import annotations
 
-import json
 import math
 from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
 
@@ -126,15 +124,9 @@ class Camera:
     @classmethod
     def from_json(cls, path) -> Camera:
         """Read a camera JSON file; ExabricksError naming the file if unreadable or invalid."""
-        try:
-            text = Path(path).read_text(encoding="utf-8")
-        except (OSError, UnicodeDecodeError) as e:
-            raise ExabricksError(f"{path}: cannot read camera file: {getattr(e, 'strerror', None) or e}") from None
-        try:
-            d = json.loads(text)
-        except json.JSONDecodeError as e:
-            raise ExabricksError(f"{path}: camera file is not valid JSON: {e.msg} (line {e.lineno})") from None
-        return cls.from_dict(d, source=str(path))
+        from .jsonfile import read_json
+
+        return cls.from_dict(read_json(path, "camera file"), source=str(path))
 
     def to_dict(self) -> dict:
         """The JSON form (lists of floats), readable by `from_dict`."""

@@ -17,20 +17,20 @@ and images"); row 0 is the top of the image.
   with ``.png`` is refused.
 
 Both formats also carry the standard ``software`` attribute / ``Software``
-chunk. Writes go to a temporary file in the target directory renamed into place.
+chunk. Writes go through exabricks.output (atomic for files, direct for devices).
 """
 
 from __future__ import annotations
 
 import json
 import os
-import tempfile
 from pathlib import Path
 
 import numpy as np
 
 from . import __version__
 from .errors import ExabricksError
+from .output import write_output
 
 METADATA_PREFIX = "exabricks:"
 FORMATS = (".exr", ".png")
@@ -81,13 +81,20 @@ def _decoded_metadata(attributes: dict) -> dict:
 
 
 def to_png_pixels(rgba) -> np.ndarray:
-    """Premultiplied float RGBA (H, W, 4) -> un-premultiplied 8-bit RGBA (H, W, 4) uint8."""
-    rgba = np.asarray(rgba, dtype=np.float64)
-    alpha = np.clip(rgba[..., 3:4], 0.0, 1.0)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        rgb = np.where(alpha > 0, rgba[..., :3] / alpha, 0.0)
-    out = np.concatenate([np.clip(rgb, 0.0, 1.0), alpha], axis=-1)
-    return np.rint(out * 255.0).astype(np.uint8)
+    """Premultiplied float RGBA (H, W, 4) -> un-premultiplied 8-bit RGBA (H, W, 4) uint8.
+
+    Converted in bands of rows, so a large frame needs no float64 copy."""
+    rgba = np.asarray(rgba)
+    out = np.empty(rgba.shape, np.uint8)
+    rows = max(1, (1 << 22) // max(1, rgba.shape[1] * 4))
+    for r in range(0, rgba.shape[0], rows):
+        band = np.asarray(rgba[r:r + rows], dtype=np.float64)
+        alpha = np.clip(band[..., 3:4], 0.0, 1.0)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            rgb = np.where(alpha > 0, band[..., :3] / alpha, 0.0)
+        band = np.concatenate([np.clip(rgb, 0.0, 1.0), alpha], axis=-1)
+        out[r:r + rows] = np.rint(band * 255.0)
+    return out
 
 
 def from_png_pixels(pixels) -> np.ndarray:
@@ -110,12 +117,13 @@ def _checked(rgba, depth, path: Path):
     return rgba, depth
 
 
-def write_image(path, rgba, *, metadata: dict | None = None, depth=None) -> None:
+def write_image(path, rgba, *, metadata: dict | None = None, depth=None, inputs=()) -> None:
     """Write premultiplied `rgba` (H, W, 4) float to `path` (.exr or .png), atomically.
 
     `metadata`: JSON-serialisable values by short ASCII key (camera, transfer
     function, dataset, settings). `depth`: optional (H, W) float32 world-unit
-    distances, .exr only (channel Z).
+    distances, .exr only (channel Z). `inputs`: paths the output must not
+    replace (exabricks.output).
     """
     path = Path(path)
     suffix = _suffix(path)
@@ -123,29 +131,18 @@ def write_image(path, rgba, *, metadata: dict | None = None, depth=None) -> None
     if depth is not None and suffix == ".png":
         raise ExabricksError(f"{path}: a depth image needs .exr output (PNG has no depth channel)")
     attributes = _encoded_metadata(metadata, path)
-    directory = path.parent if str(path.parent) else Path(".")
-    if not directory.is_dir():
-        raise ExabricksError(f"{path}: directory {directory} does not exist")
-    try:
-        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=directory)
-    except OSError as e:
-        raise ExabricksError(f"{path}: cannot write image: {e.strerror}") from None
-    os.close(fd)
-    try:
-        if suffix == ".exr":
-            _write_exr(tmp, rgba, depth, attributes)
-        else:
-            _write_png(tmp, rgba, attributes)
-        os.chmod(tmp, 0o644)
-        os.replace(tmp, path)
-    except BaseException as e:
+
+    def write(tmp: str) -> None:
         try:
-            os.unlink(tmp)
-        except FileNotFoundError:
-            pass
-        if isinstance(e, (OSError, RuntimeError)):
-            raise ExabricksError(f"{path}: cannot write image: {getattr(e, 'strerror', None) or e}") from None
-        raise
+            if suffix == ".exr":
+                _write_exr(tmp, rgba, depth, attributes)
+            else:
+                _write_png(tmp, rgba, attributes)
+        except (OSError, RuntimeError) as e:
+            raise ExabricksError(f"{path}: cannot write image: "
+                                 f"{getattr(e, 'strerror', None) or e}") from None
+
+    write_output(path, write, inputs=inputs)
 
 
 def _write_exr(tmp: str, rgba: np.ndarray, depth, attributes: dict) -> None:

@@ -23,6 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .constants import MAX_SAMPLES_PER_RAY, MAX_TREE_DEPTH
 from .errors import ExabricksError
 
 # The source file holding the __kernel entry points; it #includes the rest.
@@ -33,7 +34,9 @@ ENTRY_SOURCE = "render.cl"
 # denormals and ignoring the sign of zero keep both (the slab test takes
 # fmin/fmax of both planes, so the sign of an infinite 1/dir does not matter)
 # and make frames about 5 % faster on PoCL (docs/benchmarks.md, "render (PoCL)").
-BUILD_OPTIONS = ("-cl-mad-enable", "-cl-no-signed-zeros", "-cl-denorms-are-zero")
+# The limits every kernel loop and stack obeys are defined once, in constants.py.
+BUILD_OPTIONS = ("-cl-mad-enable", "-cl-no-signed-zeros", "-cl-denorms-are-zero",
+                 f"-DEB_STACK_SIZE={MAX_TREE_DEPTH}", f"-DEB_MAX_SAMPLES={MAX_SAMPLES_PER_RAY}")
 
 _NO_PLATFORM = (
     "no OpenCL platform found; install an OpenCL driver "
@@ -166,20 +169,21 @@ def context_for(device):
     return _CONTEXTS[key]
 
 
-def program_for(context, defines=()):
-    """The built kernel program of `context` with preprocessor `defines` (e.g.
-    ``("EB_CELL_LOCATION",)``, each passed as ``-D``), compiled once per process."""
+def program_for(context, defines=(), source_name: str = ENTRY_SOURCE):
+    """The built kernel program `source_name` (a main file of kernels/) of
+    `context` with preprocessor `defines` (e.g. ``("EB_CELL_LOCATION",)``, each
+    passed as ``-D``), compiled once per process."""
     cl = _cl()
     defines = tuple(defines)
-    key = (context.int_ptr, defines)
+    key = (context.int_ptr, defines, source_name)
     if key not in _PROGRAMS:
         directory = kernel_dir()
-        source = (directory / ENTRY_SOURCE).read_text(encoding="utf-8")
+        source = (directory / source_name).read_text(encoding="utf-8")
         options = [*BUILD_OPTIONS, f"-I{directory}", *(f"-D{d}" for d in defines)]
         try:
             _PROGRAMS[key] = cl.Program(context, source).build(options=options)
         except cl.RuntimeError as e:
-            raise ExabricksError(f"{directory / ENTRY_SOURCE}: OpenCL build failed: {e}") from None
+            raise ExabricksError(f"{directory / source_name}: OpenCL build failed: {e}") from None
     return _PROGRAMS[key]
 
 

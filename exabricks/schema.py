@@ -18,7 +18,6 @@ import json
 import os
 import shlex
 import sys
-import tempfile
 import zipfile
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -33,14 +32,18 @@ from .constants import (
     LATTICE_DTYPE,
     LEVEL_DTYPE,
     MAX_LEVEL,
+    MAX_TREE_DEPTH,
     OFFSET_DTYPE,
     VALUE_DTYPE,
     WORLD_DTYPE,
 )
 from .errors import ExabricksError
+from .output import write_output
 
 FORMAT = "exabricks"
 HEADER_KEYS = ("format", "kind", "version", "meta")
+# The header entries are short strings; meta (provenance, statistics) stays far below this.
+MAX_HEADER_BYTES = 64 << 20
 
 
 @dataclass(frozen=True)
@@ -264,14 +267,18 @@ def _check_shapes(obj: _Kind, where: str) -> None:
 
 
 def _check_semantics(obj: _Kind, where: str) -> None:
-    """Cheap whole-array checks that catch inconsistent files (O(N), vectorised)."""
-    if not (np.all(np.isfinite(obj.origin_world)) and np.all(obj.spacing_world > 0)):
-        raise ExabricksError(f"{where}: origin must be finite and spacing positive")
+    """Cheap whole-array checks (O(N), vectorised) that catch inconsistent files,
+    including everything a kernel follows: no file can make one read out of
+    bounds or loop."""
+    spacing = obj.spacing_world
+    if not (np.all(np.isfinite(obj.origin_world)) and np.all(np.isfinite(spacing))
+            and np.all(spacing >= np.finfo(np.float64).tiny)):
+        raise ExabricksError(f"{where}: origin must be finite and spacing finite, positive and "
+                             f"normal (origin {obj.origin_world.tolist()}, spacing {spacing.tolist()})")
     if len(set(obj.fields)) != len(obj.fields):
         raise ExabricksError(f"{where}: duplicate field names {list(obj.fields)}")
     if isinstance(obj, (Cells, Bricks)):
-        if obj.level.size and (obj.level.min() < 0 or obj.level.max() > MAX_LEVEL):
-            raise ExabricksError(f"{where}: levels must lie in 0..{MAX_LEVEL}")
+        _check_levels(obj.level, where, obj.KIND[:-1])
         # int32 throughout: this runs on every read and write of tens of millions of cells.
         mask = (np.int32(1) << obj.level.astype(np.int32)) - np.int32(1)
         lo = obj.lower_lattice
@@ -283,26 +290,106 @@ def _check_semantics(obj: _Kind, where: str) -> None:
                 f"aligned to its level-{int(obj.level[i])} width {1 << int(obj.level[i])}"
             )
     if isinstance(obj, Bricks):
-        if obj.dims.size and obj.dims.min() < 1:
-            raise ExabricksError(f"{where}: brick dims must be at least 1")
-        n = obj.dims.astype(np.int64).prod(axis=1)
-        expected = np.concatenate([[0], np.cumsum(n)[:-1]]) if n.size else n
-        if not np.array_equal(obj.offset, expected) or int(n.sum()) != obj.values.shape[1]:
-            raise ExabricksError(f"{where}: brick offsets do not match brick dims and values")
+        _check_bricks(obj, where)
     if isinstance(obj, Regions):
         s = obj.brick_start
         if s[0] != 0 or s[-1] != obj.brick_ids.shape[0] or np.any(np.diff(s) < 0):
             raise ExabricksError(f"{where}: region brick lists (brick_start) are inconsistent")
-        if np.any(obj.upper_lattice < obj.lower_lattice):
-            raise ExabricksError(f"{where}: a region has upper < lower bounds")
+        if obj.brick_ids.size and int(obj.brick_ids.min()) < 0:
+            i = int(np.argmin(obj.brick_ids))
+            raise ExabricksError(f"{where}: region brick list entry {i} is a negative brick id "
+                                 f"({int(obj.brick_ids[i])})")
+        _check_boxes(obj.lower_lattice, obj.upper_lattice, where, "region")
+        _check_levels(obj.finest_level, where, "region")
     if isinstance(obj, Bvh):
-        m = obj.n_nodes
-        inner = obj.count == 0
-        if m and (np.any(obj.first < 0) or np.any(obj.first[inner] + 1 >= m)):
-            raise ExabricksError(f"{where}: BVH child indices out of range")
-        leaf_end = obj.first[~inner].astype(np.int64) + obj.count[~inner]
-        if leaf_end.size and leaf_end.max() > obj.region_index.shape[0]:
-            raise ExabricksError(f"{where}: BVH leaf ranges exceed the region index")
+        _check_bvh(obj, where)
+
+
+def _check_levels(level: np.ndarray, where: str, item: str) -> None:
+    if level.size and (int(level.min()) < 0 or int(level.max()) > MAX_LEVEL):
+        i = int(np.flatnonzero((level < 0) | (level > MAX_LEVEL))[0])
+        raise ExabricksError(f"{where}: {item} {i} has level {int(level[i])}, outside 0..{MAX_LEVEL}")
+
+
+def _check_boxes(lower: np.ndarray, upper: np.ndarray, where: str, item: str) -> None:
+    """Finite bounds with lower <= upper on every axis."""
+    bad = ~(np.isfinite(lower).all(axis=1) & np.isfinite(upper).all(axis=1)
+            & (lower <= upper).all(axis=1))
+    if bad.any():
+        i = int(np.flatnonzero(bad)[0])
+        raise ExabricksError(f"{where}: {item} {i} has bounds {lower[i].tolist()} .. "
+                             f"{upper[i].tolist()} (must be finite, lower <= upper)")
+
+
+def _check_bricks(obj: "Bricks", where: str) -> None:
+    dims = obj.dims.astype(np.int64)
+    if dims.size and dims.min() < 1:
+        i = int(np.flatnonzero(dims.min(axis=1) < 1)[0])
+        raise ExabricksError(f"{where}: brick {i} has dims {obj.dims[i].tolist()} (at least 1 each)")
+    n = dims.prod(axis=1) if dims.size else np.zeros(0, np.int64)
+    # The kernels index a brick's values with 32-bit integers.
+    if n.size and n.max() >= 2**31:
+        i = int(np.argmax(n))
+        raise ExabricksError(f"{where}: brick {i} has {int(n[i])} cells, more than 2**31 - 1")
+    expected = np.concatenate([[0], np.cumsum(n)[:-1]]) if n.size else n
+    if not np.array_equal(obj.offset, expected) or int(n.sum()) != obj.values.shape[1]:
+        raise ExabricksError(f"{where}: brick offsets do not match brick dims and values")
+    upper = obj.lower_lattice.astype(np.int64) + dims * (np.int64(1) << obj.level.astype(np.int64))[:, None]
+    if upper.size and upper.max() > np.iinfo(LATTICE_DTYPE).max:
+        i = int(np.argmax(upper.max(axis=1)))
+        raise ExabricksError(f"{where}: brick {i} reaches lattice {upper[i].tolist()}, beyond "
+                             "the int32 lattice")
+
+
+def _check_bvh(obj: "Bvh", where: str) -> None:
+    """Children at larger indices than their parent, each node the child of exactly
+    one parent (a tree: every walk ends), leaf ranges inside the region index,
+    finite nested bounds and a depth the kernels' stacks hold."""
+    m = obj.n_nodes
+    first = obj.first.astype(np.int64)
+    count = obj.count.astype(np.int64)
+    if count.size and count.min() < 0:
+        i = int(np.argmin(count))
+        raise ExabricksError(f"{where}: BVH node {i} has a negative region count ({int(count[i])})")
+    inner = np.flatnonzero(count == 0)
+    leaf = np.flatnonzero(count > 0)
+    if inner.size and (np.any(first[inner] <= inner) or np.any(first[inner] + 1 >= m)):
+        i = int(inner[(first[inner] <= inner) | (first[inner] + 1 >= m)][0])
+        raise ExabricksError(f"{where}: BVH node {i} has children {int(first[i])}, "
+                             f"{int(first[i]) + 1}: they must follow it and lie below {m}")
+    if m:
+        parents = np.bincount(np.concatenate([first[inner], first[inner] + 1]), minlength=m)
+        bad = np.flatnonzero(parents[1:] != 1)
+        if bad.size:
+            i = int(bad[0]) + 1
+            raise ExabricksError(f"{where}: BVH node {i} is the child of {int(parents[i])} "
+                                 "nodes (a tree has exactly one parent per node)")
+    if leaf.size and (first[leaf].min() < 0 or (first[leaf] + count[leaf]).max()
+                      > obj.region_index.shape[0]):
+        raise ExabricksError(f"{where}: BVH leaf ranges exceed the region index")
+    _check_boxes(obj.lower_lattice, obj.upper_lattice, where, "BVH node")
+    _check_levels(obj.finest_level, where, "BVH node")
+    depth = tree_depth(first, count)
+    if depth > MAX_TREE_DEPTH:
+        raise ExabricksError(f"{where}: the BVH is {depth} levels deep, more than the "
+                             f"{MAX_TREE_DEPTH} the kernels' traversal stacks hold")
+
+
+def tree_depth(first: np.ndarray, count: np.ndarray) -> int:
+    """Levels of a flat binary tree (node 0 the root; inner nodes, count 0, have
+    children first and first + 1): one vectorised step per level. The tree
+    must be valid (children after parents, one parent each); 0 for no nodes."""
+    if first.shape[0] == 0:
+        return 0
+    frontier = np.zeros(1, np.int64)
+    depth = 0
+    while frontier.size:
+        depth += 1
+        if depth > MAX_TREE_DEPTH:
+            return depth
+        inner = frontier[count[frontier] == 0]
+        frontier = np.concatenate([first[inner], first[inner] + 1]).astype(np.int64)
+    return depth
 
 
 def validate(obj: _Kind, where: str = "<memory>") -> None:
@@ -347,9 +434,9 @@ def make_meta(
 # file I/O
 
 
-def save(path: str | os.PathLike, obj: _Kind) -> None:
-    """Validate `obj` and write it atomically to `path` (temporary file, then rename)."""
-    path = Path(path)
+def save(path: str | os.PathLike, obj: _Kind, *, inputs=()) -> None:
+    """Validate `obj` and write it to `path` through exabricks.output (atomic
+    for files, direct for devices; refused if `path` names one of `inputs`)."""
     validate(obj, str(path))
     meta = dict(obj.meta)
     meta["fields"] = list(obj.fields)
@@ -359,23 +446,14 @@ def save(path: str | os.PathLike, obj: _Kind) -> None:
         "version": np.array(obj.VERSION, dtype=np.int32),
         "meta": np.array(json.dumps(meta, sort_keys=True, default=_json_default)),
     }
-    directory = path.parent if str(path.parent) else Path(".")
-    if not directory.is_dir():
-        raise ExabricksError(f"{path}: directory {directory} does not exist")
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=directory)
-    try:
-        with os.fdopen(fd, "wb") as f:
+
+    def write(tmp: str) -> None:
+        with open(tmp, "wb") as f:
             np.savez(f, **header, **obj.arrays())
             f.flush()
             os.fsync(f.fileno())
-        os.chmod(tmp, 0o644)
-        os.replace(tmp, path)
-    except BaseException:
-        try:
-            os.unlink(tmp)
-        except FileNotFoundError:
-            pass
-        raise
+
+    write_output(path, write, inputs=inputs)
 
 
 def _json_default(x):
@@ -387,15 +465,20 @@ def _json_default(x):
 
 
 def peek(path: str | os.PathLike) -> tuple[str, int, dict]:
-    """(kind, version, meta) of an exabricks file, without checking the arrays."""
-    with _open(path) as z:
+    """(kind, version, meta) of an exabricks file, without reading the arrays."""
+    with NpzArchive(path) as z:
         return _header(z, str(path))
 
 
 def load(path: str | os.PathLike, kind: str | None = None) -> _Kind:
-    """Read and validate an exabricks file; with `kind`, refuse any other kind."""
+    """Read and validate an exabricks file; with `kind`, refuse any other kind.
+
+    The arrays' dtypes and shapes are read from their .npy headers and checked
+    against the schema (and against the sizes the zip directory records)
+    before any array is decompressed, so a crafted file cannot make the
+    loader allocate more than the file claims consistently."""
     where = str(path)
-    with _open(path) as z:
+    with NpzArchive(path) as z:
         found, version, meta = _header(z, where)
         if kind is not None and found != kind:
             raise ExabricksError(f"{where}: expected a {kind} file, found a {found} file")
@@ -406,65 +489,195 @@ def load(path: str | os.PathLike, kind: str | None = None) -> _Kind:
                 f"{where}: {found} file version {version} is {newer} than this exabricks "
                 f"reads (version {cls.VERSION}); rebuild it with exabricks {__version__}"
             )
-        arrays = {}
+        fields = meta.pop("fields", None)
+        if not isinstance(fields, list) or not all(isinstance(f, str) for f in fields):
+            raise ExabricksError(f"{where}: meta has no list of field names")
+        headers = {}
         for name in cls.SPECS:
             if name not in z.files:
                 raise ExabricksError(f"{where}: array {name!r} is missing")
-            try:
-                arrays[name] = z[name]
-            except Exception as e:  # truncated member, bad header: numpy/zipfile raise many types
-                raise ExabricksError(f"{where}: array {name!r} cannot be read ({e})") from e
-    fields = meta.pop("fields", None)
-    if not isinstance(fields, list) or not all(isinstance(f, str) for f in fields):
-        raise ExabricksError(f"{where}: meta has no list of field names")
+            headers[name] = z.header(name)
+        _check_declared(cls, headers, len(fields), where)
+        sizes = {name: int(np.prod(shape)) * dtype.itemsize for name, (shape, dtype) in headers.items()}
+        _check_memory(sum(sizes.values()), where)
+        # Smallest first: the sizes the small arrays imply are checked against the
+        # large ones' headers before those are decompressed.
+        arrays = {}
+        for name in sorted(cls.SPECS, key=sizes.get):
+            _check_implied_sizes(cls, arrays, headers, where)
+            arrays[name] = z.array(name)
     obj = cls(fields=tuple(fields), meta=meta, **arrays)
     validate(obj, where)
     return obj
 
 
-class _open:
-    """np.load as a context manager that turns every failure into ExabricksError."""
+def _check_declared(cls, headers: dict, n_fields: int, where: str) -> None:
+    """Dtypes and shapes from the .npy headers against the schema, before reading."""
+    stub = cls.__new__(cls)
+    object.__setattr__(stub, "fields", tuple(f"f{i}" for i in range(n_fields)))
+    for name, (shape, dtype) in headers.items():
+        object.__setattr__(stub, name, np.lib.stride_tricks.as_strided(
+            np.zeros(1, dtype), shape=shape, strides=(0,) * len(shape)))
+    _check_shapes(stub, where)
+
+
+def _check_implied_sizes(cls, arrays: dict, headers: dict, where: str) -> None:
+    """Sizes that arrays read so far imply for the free axes of the others (brick
+    values from brick dims, region brick lists from brick_start)."""
+    implied = {}
+    if cls is Bricks and "dims" in arrays:
+        implied["values"] = (1, int(arrays["dims"].astype(np.int64).prod(axis=1).sum()))
+    if cls is Regions and "brick_start" in arrays and arrays["brick_start"].size:
+        implied["brick_ids"] = (0, int(arrays["brick_start"][-1]))
+    for name, (axis, size) in implied.items():
+        shape = headers[name][0]
+        if name not in arrays and len(shape) > axis and shape[axis] != size:
+            raise ExabricksError(f"{where}: array {name!r} has shape {shape}, inconsistent "
+                                 f"with the {size} entries the other arrays imply")
+
+
+def _check_memory(nbytes: int, where: str) -> None:
+    """Refuse arrays that cannot fit this machine's memory (or the process's limit)."""
+    limit = memory_limit()
+    if limit is not None and nbytes > limit:
+        raise ExabricksError(f"{where}: its arrays need {nbytes / 2**30:.1f} GiB, more than the "
+                             f"{limit / 2**30:.1f} GiB of memory available")
+
+
+def memory_limit() -> int | None:
+    """Bytes this process can hold: physical memory, or a lower RLIMIT_AS; None if unknown."""
+    limits = []
+    try:
+        limits.append(os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES"))
+    except (ValueError, OSError, AttributeError):
+        pass
+    try:
+        import resource
+
+        soft, _ = resource.getrlimit(resource.RLIMIT_AS)
+        if soft != resource.RLIM_INFINITY:
+            limits.append(soft)
+    except (ImportError, ValueError, OSError):
+        pass
+    return min(limits) if limits else None
+
+
+class NpzArchive:
+    """A .npz file read member by member, with every failure an ExabricksError.
+
+    `files` lists the member names (without ".npy"); `header(name)` is the
+    (shape, dtype) of a member's .npy header, checked against the size the zip
+    directory records; `array(name)` reads it (never with pickles)."""
 
     def __init__(self, path):
-        self.path = path
+        self.path = Path(path)
+        self.zip = None
 
     def __enter__(self):
-        p = Path(self.path)
+        p = self.path
         if not p.exists():
             raise ExabricksError(f"{p}: no such file")
         if not p.is_file():
             raise ExabricksError(f"{p}: not a file")
-        with open(p, "rb") as f:
-            head = f.read(6)
+        try:
+            with open(p, "rb") as f:
+                head = f.read(4)
+        except OSError as e:
+            raise ExabricksError(f"{p}: cannot read ({e.strerror or e})") from None
         if not head:
             raise ExabricksError(f"{p}: empty file, not an exabricks .npz file")
-        if not head.startswith(b"PK") and not head.startswith(b"\x93NUMPY"):
+        if head.startswith(b"\x93NUM"):
+            raise ExabricksError(f"{p}: a plain .npy array, not an exabricks .npz file")
+        if head != b"PK\x03\x04":
             raise ExabricksError(f"{p}: not an exabricks .npz file (not a zip archive; "
                                  "an image, a raw data file or text?)")
         try:
-            self.z = np.load(p, allow_pickle=False)
-        except (zipfile.BadZipFile, ValueError, OSError, EOFError) as e:
-            raise ExabricksError(
-                f"{p}: not a readable exabricks .npz file (truncated or another format: {e})"
-            ) from e
-        if not hasattr(self.z, "files"):
-            raise ExabricksError(f"{p}: a plain .npy array, not an exabricks .npz file")
-        return self.z
+            self.zip = zipfile.ZipFile(p)
+            self.members = {i.filename[:-4]: i for i in self.zip.infolist()
+                            if i.filename.endswith(".npy")}
+        except (zipfile.BadZipFile, zipfile.LargeZipFile, ValueError, OSError, EOFError,
+                NotImplementedError, RuntimeError) as e:
+            raise ExabricksError(f"{p}: not a readable exabricks .npz file "
+                                 f"(truncated or another format: {e})") from None
+        return self
 
     def __exit__(self, *exc):
-        self.z.close()
+        if self.zip is not None:
+            self.zip.close()
         return False
 
+    @property
+    def files(self) -> list[str]:
+        return list(self.members)
 
-def _header(z, where: str) -> tuple[str, int, dict]:
+    def _fail(self, name, problem):
+        return ExabricksError(f"{self.path}: array {name!r} {problem}")
+
+    def _open_member(self, name):
+        try:
+            return self.zip.open(self.members[name])
+        except (zipfile.BadZipFile, NotImplementedError, RuntimeError, ValueError, OSError) as e:
+            raise self._fail(name, f"cannot be read ({e})") from None
+
+    def header(self, name) -> tuple[tuple[int, ...], np.dtype]:
+        fmt = np.lib.format
+        info = self.members[name]
+        try:
+            with self._open_member(name) as f:
+                version = fmt.read_magic(f)
+                if version == (1, 0):
+                    shape, fortran, dtype = fmt.read_array_header_1_0(f)
+                elif version == (2, 0):
+                    shape, fortran, dtype = fmt.read_array_header_2_0(f)
+                else:
+                    raise ValueError(f"unsupported .npy version {version}")
+                header_bytes = f.tell()
+        except ExabricksError:
+            raise
+        except Exception as e:  # zlib, zipfile and numpy raise many types for bad bytes
+            raise self._fail(name, f"has no readable .npy header ({e})") from None
+        if dtype.hasobject or dtype.fields is not None or dtype.subdtype is not None:
+            raise self._fail(name, f"has dtype {dtype}, not a plain numeric array")
+        if fortran and len(shape) > 1:
+            raise self._fail(name, "is stored in Fortran order (exabricks writes C order)")
+        size = int(np.prod(shape, dtype=object)) * dtype.itemsize
+        if header_bytes + size != info.file_size:
+            raise self._fail(name, f"claims shape {shape} of {dtype} ({size} bytes) but the "
+                                   f"archive holds {info.file_size - header_bytes} bytes for it")
+        return tuple(int(x) for x in shape), dtype
+
+    def array(self, name) -> np.ndarray:
+        try:
+            with self._open_member(name) as f:
+                return np.lib.format.read_array(f, allow_pickle=False)
+        except ExabricksError:
+            raise
+        except MemoryError:
+            raise
+        except Exception as e:  # truncated member, CRC error, ...
+            raise self._fail(name, f"cannot be read ({e})") from None
+
+    def __getitem__(self, name) -> np.ndarray:
+        return self.array(name)
+
+
+def _header(z: NpzArchive, where: str) -> tuple[str, int, dict]:
     for key in HEADER_KEYS:
         if key not in z.files:
             raise ExabricksError(f"{where}: not an exabricks file (no {key!r} entry)")
+        shape, dtype = z.header(key)
+        if shape != () or dtype.itemsize > MAX_HEADER_BYTES or dtype.kind not in "Uiu":
+            raise ExabricksError(f"{where}: not an exabricks file (its {key!r} entry is a "
+                                 f"{dtype} array of shape {shape})")
     try:
         fmt = str(z["format"])
         kind = str(z["kind"])
         version = int(z["version"])
         meta = json.loads(str(z["meta"]))
+    except ExabricksError:
+        raise
+    except RecursionError:
+        raise ExabricksError(f"{where}: unreadable header (meta is nested too deeply)") from None
     except Exception as e:
         raise ExabricksError(f"{where}: unreadable header ({e})") from e
     if fmt != FORMAT:

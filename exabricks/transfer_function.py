@@ -22,7 +22,6 @@ at its last.
 
 from __future__ import annotations
 
-import json
 import math
 from dataclasses import dataclass
 from importlib import resources
@@ -158,17 +157,9 @@ class TransferFunction:
     @classmethod
     def from_paraview(cls, path) -> TransferFunction:
         """Read a ParaView colour-map preset JSON file; ExabricksError naming the file if bad."""
-        try:
-            text = Path(path).read_text(encoding="utf-8")
-        except (OSError, UnicodeDecodeError) as e:
-            raise ExabricksError(
-                f"{path}: cannot read transfer function: {getattr(e, 'strerror', None) or e}"
-            ) from None
-        try:
-            preset = json.loads(text, parse_constant=_reject_constant)
-        except (json.JSONDecodeError, ValueError) as e:
-            msg = f"{e.msg} (line {e.lineno})" if isinstance(e, json.JSONDecodeError) else str(e)
-            raise ExabricksError(f"{path}: transfer function is not valid JSON: {msg}") from None
+        from .jsonfile import read_json
+
+        preset = read_json(path, "transfer function", parse_constant=_reject_constant)
         return cls.from_paraview_dict(preset, source=str(path))
 
     @classmethod

@@ -7,6 +7,7 @@
 #pragma once
 #include "common.h"
 #include "reconstruction.cl"
+#include "traversal.cl"
 
 /* Bricks a sample sorts before summing; any beyond are summed unsorted (still
  * correct, only no longer in the regions' order). */
@@ -18,6 +19,7 @@ typedef struct {
     __global const float4 *upper;
     __global const int2 *link;      /* (first, count); count 0: inner node */
     __global const int *brick_index;
+    int n_nodes;
 } eb_brick_tree;
 
 /* The bricks and the tree over their supports: what a cell-location sample reads. */
@@ -27,7 +29,7 @@ typedef struct {
 } eb_located_bricks;
 
 /* Sums of eq. 1-2 at lattice point p over the bricks of the leaves whose boxes
- * contain p, found by a stack descent of the tree (eb_add_brick tests each
+ * contain p, found by the descent of traversal.cl (eb_add_brick tests each
  * brick's support itself; one touched only on its boundary adds zero weight).
  * The bricks are summed in ascending id, the order of a region's list, so
  * both reconstructions round alike and give the same frame bit for bit: in a
@@ -42,43 +44,24 @@ EB_INLINE eb_basis_sums eb_locate_reconstruct(eb_located_bricks located, float3 
     s.weighted = 0.0f;
     s.d_weight = (float3)(0.0f);
     s.d_weighted = (float3)(0.0f);
-    if (!eb_point_in_box(p, tree.lower[0].xyz, tree.upper[0].xyz))
-        return s;
     int found[EB_LOCATE_MAX];
     int n_found = 0;
-    int stack[EB_STACK_SIZE];
-    int sp = 0;
-    int node = 0;
-    for (;;) {
-        int2 link = tree.link[node];
-        if (link.y > 0) {
-            for (int i = link.x; i < link.x + link.y; ++i) {
-                int b = tree.brick_index[i];
-                if (n_found == EB_LOCATE_MAX) {
-                    eb_add_brick(located.bricks, b, p, &s, want_gradient);
-                    continue;
-                }
-                int k = n_found++;
-                for (; k > 0 && found[k - 1] > b; --k)
-                    found[k] = found[k - 1];
-                found[k] = b;
-            }
-        } else {
-            int c = link.x;
-            int in0 = eb_point_in_box(p, tree.lower[c].xyz, tree.upper[c].xyz);
-            int in1 = eb_point_in_box(p, tree.lower[c + 1].xyz, tree.upper[c + 1].xyz);
-            if (in0 || in1) {
-                /* Descend into one child, defer the other (the builder keeps the
-                 * depth within EB_STACK_SIZE). */
-                if (in0 && in1 && sp < EB_STACK_SIZE)
-                    stack[sp++] = c + 1;
-                node = in0 ? c : c + 1;
+    eb_descent d;
+    eb_descent_start(&d, tree.lower, tree.upper, p);
+    int leaf;
+    while ((leaf = eb_descent_next(&d, tree.lower, tree.upper, tree.link, p, tree.n_nodes)) >= 0) {
+        int2 link = tree.link[leaf];
+        for (int i = link.x; i < link.x + link.y; ++i) {
+            int b = tree.brick_index[i];
+            if (n_found == EB_LOCATE_MAX) {
+                eb_add_brick(located.bricks, b, p, &s, want_gradient);
                 continue;
             }
+            int k = n_found++;
+            for (; k > 0 && found[k - 1] > b; --k)
+                found[k] = found[k - 1];
+            found[k] = b;
         }
-        if (sp == 0)
-            break;
-        node = stack[--sp];
     }
     for (int k = 0; k < n_found; ++k)
         eb_add_brick(located.bricks, found[k], p, &s, want_gradient);

@@ -6,9 +6,21 @@
  * in world units (docs/design.md, "Integration and images"). */
 #pragma once
 
-/* Depth of the private BVH traversal stack: a BVH over 2**31 regions built by
- * any sane builder is far shallower (each stack entry is one deferred sibling). */
-#define EB_STACK_SIZE 64
+/* Capacity of the private tree-descent stacks, from the host
+ * (exabricks.constants.MAX_TREE_DEPTH, passed by exabricks.opencl as
+ * -DEB_STACK_SIZE): every tree is checked on load to be at most this many
+ * levels deep, and a descent that pushes both children of a node and pops one
+ * never holds more entries than the tree has levels, so no push is dropped. */
+#ifndef EB_STACK_SIZE
+#error "build with -DEB_STACK_SIZE=n (exabricks.opencl.BUILD_OPTIONS)"
+#endif
+
+/* Most samples one ray takes (exabricks.constants.MAX_SAMPLES_PER_RAY, passed
+ * as -DEB_MAX_SAMPLES): the host refuses settings that would need more, and
+ * every sampling loop stops there, so no input makes a kernel loop forever. */
+#ifndef EB_MAX_SAMPLES
+#error "build with -DEB_MAX_SAMPLES=n (exabricks.opencl.BUILD_OPTIONS)"
+#endif
 
 #define EB_INF INFINITY
 

@@ -3,12 +3,9 @@
  *
  * Adaptive sampling (paper §4.2-4.3, Fig. 5): in a region whose finest
  * influencing level is l, the step is dt = 2**l * min(spacing) / sampling_rate
- * (world units). The points t_k = (k + rho) dt, k integer, rho the ray's
- * interleaved-sampling offset in [0, 1), are delimiters: they split the
- * region's interval [t_in, t_out] into sub-intervals [t_in, t_a], [t_a, t_b],
- * ..., [t_z, t_out], each sampled once at its midpoint and weighted by its
- * length. Every region hit is sampled at least once, and consecutive regions
- * never leave gaps or overlaps.
+ * (world units), and the region's interval is split into sub-intervals by the
+ * delimiters (k + rho) dt, rho the ray's interleaved-sampling offset in
+ * [0, 1) (sampler.cl, eb_intervals).
  * Opacity (paper §4.3): a = 1 - (1 - alpha)^(len / unit_distance).
  * Compositing: C += T a rgb, T *= 1 - a (premultiplied), stopping once the
  * accumulated opacity 1 - T reaches max_opacity.
@@ -18,6 +15,7 @@
  * Everything else, the samples taken included, is the same in both. */
 #pragma once
 #include "common.h"
+#include "sampler.cl"
 #include "traversal.cl"
 #include "reconstruction.cl"
 #include "transfer_function.cl"
@@ -60,6 +58,18 @@ typedef struct {
     uint samples;
 } eb_ray_state;
 
+/* Composite one step of opacity a and colour rgb at distance tm into `st`
+ * (front to back, premultiplied); returns 1 once the ray is opaque enough to
+ * stop (early ray termination). */
+EB_INLINE int eb_composite(eb_ray_state *st, float a, float3 rgb, float tm, float max_opacity)
+{
+    st->color += (st->transmittance * a) * rgb;
+    st->transmittance *= 1.0f - a;
+    if (st->t_depth == EB_INF && 1.0f - st->transmittance >= EB_DEPTH_OPACITY)
+        st->t_depth = tm;
+    return 1.0f - st->transmittance >= max_opacity;
+}
+
 /* Integrate region r over [t_in, t_out] into `st` (paper §4.2-4.3); returns 1
  * once the ray is opaque enough to stop (early ray termination). */
 EB_INLINE int eb_integrate_region(eb_regions regions, eb_sample_bricks bricks, eb_transfer tf,
@@ -71,16 +81,9 @@ EB_INLINE int eb_integrate_region(eb_regions regions, eb_sample_bricks bricks, e
     long b0 = regions.brick_start[r], b1 = regions.brick_start[r + 1];
 #endif
     float dt = ldexp(in.step_base, (int)regions.finest_level[r]);
-    /* First delimiter at or after t_in on this region's grid (k + rho) dt. */
-    float t_first = (ceil(t_in / dt - rho) + rho) * dt;
-    float ta = t_in;
-    for (int j = 0; ta < t_out; ++j) {
-        float tb = fmin(t_first + (float)j * dt, t_out);
-        if (tb <= ta)
-            continue;
-        float len = tb - ta;
-        float tm = 0.5f * (ta + tb);
-        ta = tb;
+    eb_intervals it = eb_intervals_start(t_in, t_out, dt, rho);
+    float tm, len;
+    while (eb_intervals_next(&it, &tm, &len)) {
         float3 p = org_lattice + tm * dir_lattice;
 #ifdef EB_CELL_LOCATION
         eb_basis_sums s = shade ? eb_locate_reconstruct(bricks, p, 1) : eb_locate_reconstruct(bricks, p, 0);
@@ -106,11 +109,7 @@ EB_INLINE int eb_integrate_region(eb_regions regions, eb_sample_bricks bricks, e
             if (g2 > 0.0f)
                 rgb *= EB_AMBIENT + EB_DIFFUSE * fabs(dot(g, dir_world)) * rsqrt(g2);
         }
-        st->color += (st->transmittance * a) * rgb;
-        st->transmittance *= 1.0f - a;
-        if (st->t_depth == EB_INF && 1.0f - st->transmittance >= EB_DEPTH_OPACITY)
-            st->t_depth = tm;
-        if (1.0f - st->transmittance >= in.max_opacity)
+        if (eb_composite(st, a, rgb, tm, in.max_opacity))
             return 1;
     }
     return 0;
@@ -136,7 +135,9 @@ EB_INLINE float4 eb_integrate(eb_bvh bvh, eb_regions regions, eb_sample_bricks b
     if (!retrace) {
         eb_queue q;
         eb_queue_start(&q, bvh, org_lattice, inv_dir);
-        while (q.size > 0 && !done) {
+        /* Each node and region is queued at most once (the BVH is a tree). */
+        int pops = bvh.n_nodes + bvh.n_regions;
+        while (q.size > 0 && !done && pops-- > 0) {
             int item = eb_queue_pop(&q);
             if (item >= 0) {
                 if (!eb_queue_expand(&q, bvh, regions, item, org_lattice, inv_dir, t_cur)) {
@@ -158,8 +159,11 @@ EB_INLINE float4 eb_integrate(eb_bvh bvh, eb_regions regions, eb_sample_bricks b
     if (retrace) {
         float t_in, t_out;
         int r;
-        while (!done && (r = eb_next_region(bvh, regions, org_lattice, inv_dir, t_cur, EB_INF,
-                                            &t_in, &t_out)) >= 0) {
+        /* t_cur strictly increases past each region's exit: each is visited once. */
+        int visits = bvh.n_regions;
+        while (!done && visits-- > 0
+               && (r = eb_next_region(bvh, regions, org_lattice, inv_dir, t_cur, EB_INF,
+                                      &t_in, &t_out)) >= 0) {
             done = eb_integrate_region(regions, bricks, tf, in, r, t_in, t_out, org_lattice,
                                        dir_lattice, dir_world, rho, shade, &st);
             t_cur = t_out;

@@ -11,7 +11,7 @@
 #define EB_BVH_ARGS                                                             \
     __global const float4 *bvh_lower, __global const float4 *bvh_upper,         \
     __global const int2 *bvh_link, __global const int *bvh_region_index,        \
-    __global const uchar *bvh_visible
+    __global const uchar *bvh_visible, int bvh_n_nodes, int bvh_n_regions
 #define EB_REGION_ARGS                                                          \
     __global const float4 *region_lower, __global const float4 *region_upper,   \
     __global const long *region_brick_start, __global const int *region_brick_ids, \
@@ -20,7 +20,8 @@
     __global const float4 *brick_box, __global const int4 *brick_dims,          \
     __global const long *brick_offset, __global const float *brick_values
 #define EB_BVH_STRUCT                                                           \
-    {bvh_lower, bvh_upper, bvh_link, bvh_region_index, bvh_visible}
+    {bvh_lower, bvh_upper, bvh_link, bvh_region_index, bvh_visible,            \
+     bvh_n_nodes, bvh_n_regions}
 #define EB_REGION_STRUCT                                                        \
     {region_lower, region_upper, region_brick_start, region_brick_ids,          \
      region_finest_level, region_visible}
@@ -31,21 +32,27 @@
 #ifdef EB_CELL_LOCATION
 #define EB_LOCATION_ARGS                                                        \
     , __global const float4 *tree_lower, __global const float4 *tree_upper,     \
-    __global const int2 *tree_link, __global const int *tree_brick_index
+    __global const int2 *tree_link, __global const int *tree_brick_index,      \
+    int tree_n_nodes
 #define EB_SAMPLE_BRICKS_STRUCT                                                 \
-    {EB_BRICK_STRUCT, {tree_lower, tree_upper, tree_link, tree_brick_index}}
+    {EB_BRICK_STRUCT, {tree_lower, tree_upper, tree_link, tree_brick_index,     \
+                       tree_n_nodes}}
 #else
 #define EB_LOCATION_ARGS
 #define EB_SAMPLE_BRICKS_STRUCT EB_BRICK_STRUCT
 #endif
 
-/* Sample `sample_index` of `spp` of every pixel of a width x height frame,
- * averaged into rgba (sample 0 overwrites, so the buffer needs no clearing).
+/* Sample `sample_index` of `spp` of every pixel in rows row0 .. row0 + rows - 1
+ * of a width x height frame (the host renders a frame in bands of rows, so
+ * that each enqueue ends well within a second and a signal can stop the run),
+ * averaged into rgba, which holds that band (sample 0 overwrites, so the
+ * buffer needs no clearing).
  * Sub-pixel position: the pixel centre for spp == 1, else uniform from the
  * seeded hash. Interleaving offset rho: from the hash with jitter, else 0.5.
  * samples[pixel] and depth[pixel] collect the reconstruction count and the
  * smallest depth over the pixel's samples. */
-__kernel void eb_render(int width, int height, int sample_index, int spp, uint seed, int jitter,
+__kernel void eb_render(int width, int height, int row0, int rows,
+                        int sample_index, int spp, uint seed, int jitter,
                         float4 cam_origin, float4 cam_forward, float4 cam_du, float4 cam_dv,
                         float4 origin_world, float4 inv_spacing, float4 gradient_scale,
                         float step_base, float inv_unit_distance, float max_opacity, int shading,
@@ -54,10 +61,12 @@ __kernel void eb_render(int width, int height, int sample_index, int spp, uint s
                         __global const float *tf_xs, __global const float4 *tf_rgba, int tf_n,
                         __global float4 *rgba, __global float *depth, __global uint *samples)
 {
-    int col = get_global_id(0), row = get_global_id(1);
-    if (col >= width || row >= height)
+    int col = get_global_id(0), band_row = get_global_id(1);
+    int row = row0 + band_row;
+    if (col >= width || band_row >= rows || row >= height)
         return;
-    uint pixel = (uint)row * (uint)width + (uint)col;
+    uint pixel = (uint)row * (uint)width + (uint)col;  /* seeds the hash: bands change nothing */
+    uint slot = (uint)band_row * (uint)width + (uint)col;
     eb_bvh bvh = EB_BVH_STRUCT;
     eb_regions regions = EB_REGION_STRUCT;
     eb_sample_bricks bricks = EB_SAMPLE_BRICKS_STRUCT;
@@ -87,13 +96,13 @@ __kernel void eb_render(int width, int height, int sample_index, int spp, uint s
             : eb_integrate(bvh, regions, bricks, tf, in, org_lattice, dir_lattice, dir_world, rho, 0, 0, &n, &t_depth);
     c /= (float)spp;
     if (sample_index == 0) {
-        rgba[pixel] = c;
-        samples[pixel] = n;
-        depth[pixel] = t_depth;
+        rgba[slot] = c;
+        samples[slot] = n;
+        depth[slot] = t_depth;
     } else {
-        rgba[pixel] += c;
-        samples[pixel] += n;
-        depth[pixel] = fmin(depth[pixel], t_depth);
+        rgba[slot] += c;
+        samples[slot] += n;
+        depth[slot] = fmin(depth[slot], t_depth);
     }
 }
 

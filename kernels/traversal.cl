@@ -13,7 +13,11 @@
  * opacity under the current transfer function carry visible = 0 (computed on
  * the host per frame, so a new transfer function needs no BVH rebuild) and are
  * never entered.
- * Points (probe): the first region containing the point. */
+ * Points (probe, cell location): one descent (eb_descent) that yields the
+ * leaves whose boxes contain a point.
+ * The trees are checked on load (exabricks.schema): children follow their
+ * parent, every node has one parent, and the depth fits EB_STACK_SIZE; every
+ * loop here is also bounded by the node and region counts. */
 #pragma once
 #include "common.h"
 
@@ -25,6 +29,8 @@ typedef struct {
     __global const int2 *link;         /* (first, count); count 0: inner node */
     __global const int *region_index;
     __global const uchar *visible;
+    int n_nodes;                       /* loop bounds: every walk visits each */
+    int n_regions;                     /* node and region at most once        */
 } eb_bvh;
 
 /* exabricks.schema.Regions on the device. */
@@ -59,7 +65,7 @@ inline int eb_next_region(eb_bvh bvh, eb_regions regions, float3 org, float3 inv
     stack[sp] = 0;
     stack_t[sp++] = fmax(root.x, t_cur);
 
-    while (sp > 0) {
+    for (int steps = 0; sp > 0 && steps < bvh.n_nodes; ++steps) {
         --sp;
         if (stack_t[sp] >= best_in)
             continue;  /* a nearer region was found since this node was pushed */
@@ -206,28 +212,57 @@ EB_INLINE int eb_queue_expand(eb_queue *q, eb_bvh bvh, eb_regions regions, int n
     return 1;
 }
 
+/* A depth-first descent of a flat binary tree (node boxes lower/upper,
+ * (first, count) links, count 0 for inner nodes) to the leaves whose boxes
+ * contain point p, in tree order (left child first). Shared by eb_find_region
+ * and the cell-location variant (cell_location.cl). */
+typedef struct {
+    int stack[EB_STACK_SIZE];
+    int sp;
+    int steps;
+} eb_descent;
+
+EB_INLINE void eb_descent_start(eb_descent *d, __global const float4 *lower,
+                                __global const float4 *upper, float3 p)
+{
+    d->sp = 0;
+    d->steps = 0;
+    if (eb_point_in_box(p, lower[0].xyz, upper[0].xyz))
+        d->stack[d->sp++] = 0;
+}
+
+/* The next leaf containing p, or -1. n_nodes bounds the loop. */
+EB_INLINE int eb_descent_next(eb_descent *d, __global const float4 *lower,
+                              __global const float4 *upper, __global const int2 *link,
+                              float3 p, int n_nodes)
+{
+    while (d->sp > 0 && d->steps++ < n_nodes) {
+        int node = d->stack[--d->sp];
+        int2 l = link[node];
+        if (l.y > 0)
+            return node;
+        /* Right child first on the stack, so the left one is visited first. */
+        for (int c = l.x + 1; c >= l.x; --c)
+            if (eb_point_in_box(p, lower[c].xyz, upper[c].xyz) && d->sp < EB_STACK_SIZE)
+                d->stack[d->sp++] = c;
+    }
+    return -1;
+}
+
 /* The first region (in BVH order) whose box contains lattice point p; -1 if none.
  * Regions are disjoint, and a point on a shared face gets the same value from
  * either side (each lists every brick with support there). Visibility is ignored. */
 inline int eb_find_region(eb_bvh bvh, eb_regions regions, float3 p)
 {
-    int stack[EB_STACK_SIZE];
-    int sp = 0;
-    stack[sp++] = 0;
-    while (sp > 0) {
-        int node = stack[--sp];
-        if (!eb_point_in_box(p, bvh.lower[node].xyz, bvh.upper[node].xyz))
-            continue;
-        int2 link = bvh.link[node];
-        if (link.y > 0) {
-            for (int i = link.x; i < link.x + link.y; ++i) {
-                int r = bvh.region_index[i];
-                if (eb_point_in_box(p, regions.lower[r].xyz, regions.upper[r].xyz))
-                    return r;
-            }
-        } else if (sp + 2 <= EB_STACK_SIZE) {
-            stack[sp++] = link.x + 1;
-            stack[sp++] = link.x;
+    eb_descent d;
+    eb_descent_start(&d, bvh.lower, bvh.upper, p);
+    int leaf;
+    while ((leaf = eb_descent_next(&d, bvh.lower, bvh.upper, bvh.link, p, bvh.n_nodes)) >= 0) {
+        int2 link = bvh.link[leaf];
+        for (int i = link.x; i < link.x + link.y; ++i) {
+            int r = bvh.region_index[i];
+            if (eb_point_in_box(p, regions.lower[r].xyz, regions.upper[r].xyz))
+                return r;
         }
     }
     return -1;

@@ -20,11 +20,14 @@
  * eb_render.
  *
  * Like render.cl this is a program's main file (built on its own by
- * workflows/bench_peers.py), so it has no #pragma once; what it includes does. */
+ * exabricks.stages.uniform_grid), so it has no #pragma once; what it includes
+ * does. The sub-intervals (sampler.cl) and the compositing (integrator.cl) are
+ * the renderer's own functions. */
 #include "common.h"
 #include "sampler.cl"
 #include "camera.cl"
 #include "transfer_function.cl"
+#include "integrator.cl"
 
 /* Trilinear value of `volume` (dims n) at voxel coordinate x (voxel centres at
  * integers), clamped to the edge voxels. */
@@ -68,33 +71,23 @@ __kernel void eb_uniform_render(int width, int height, uint seed, int jitter,
     float2 iv = eb_box_interval((float3)(-1.0f), convert_float3(dims.xyz), org_voxel, 1.0f / dir);
     float t_in = fmax(iv.x, 0.0f), t_out = iv.y;
 
-    float3 color = (float3)(0.0f);
-    float transmittance = 1.0f;
-    uint n = 0;
+    eb_ray_state st = {(float3)(0.0f), 1.0f, EB_INF, 0u};
     if (t_out > t_in) {
-        float t_first = (ceil(t_in / dt - rho) + rho) * dt;
-        float ta = t_in;
-        for (int j = 0; ta < t_out; ++j) {
-            float tb = fmin(t_first + (float)j * dt, t_out);
-            if (tb <= ta)
-                continue;
-            float len = tb - ta;
-            float tm = 0.5f * (ta + tb);
-            ta = tb;
+        eb_intervals it = eb_intervals_start(t_in, t_out, dt, rho);
+        float tm, len;
+        while (eb_intervals_next(&it, &tm, &len)) {
             float value = eb_uniform_trilinear(volume, dims, org_voxel + tm * dir);
-            ++n;
+            ++st.samples;
             if (isnan(value))
                 continue;
             float4 c = eb_transfer_function(value, tf_xs, tf_rgba, tf_n);
             if (!(c.w > 0.0f))
                 continue;
             float a = eb_opacity_correct(c.w, len, inv_unit_distance);
-            color += (transmittance * a) * c.xyz;
-            transmittance *= 1.0f - a;
-            if (1.0f - transmittance >= max_opacity)
+            if (eb_composite(&st, a, c.xyz, tm, max_opacity))
                 break;
         }
     }
-    rgba[pixel] = (float4)(color, 1.0f - transmittance);
-    samples[pixel] = n;
+    rgba[pixel] = (float4)(st.color, 1.0f - st.transmittance);
+    samples[pixel] = st.samples;
 }

@@ -98,6 +98,11 @@ def cli():
     return run_cli
 
 
-@pytest.fixture(scope="session")
+@pytest.fixture
 def rng():
+    """A fresh generator per test: no test depends on what others drew."""
     return np.random.default_rng(12345)
+
+
+# Examples per fuzzer (tests marked `fuzz`): a few in `make test`, many in `make fuzz`.
+FUZZ_EXAMPLES = int(os.environ.get("EXABRICKS_FUZZ_EXAMPLES", "8"))

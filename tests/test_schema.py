@@ -99,7 +99,7 @@ def test_truncated_and_missing(tmp_path, cli):
 
 def test_write_refuses_invalid_and_leaves_nothing(tmp_path):
     cells = two_level_cells().replace(level=np.full(15, -1, np.int8))
-    with pytest.raises(ExabricksError, match="levels"):
+    with pytest.raises(ExabricksError, match="has level -1, outside"):
         schema.save(tmp_path / "x.npz", cells)
     assert list(tmp_path.iterdir()) == []
 

@@ -5,6 +5,7 @@ from __future__ import annotations
 import click
 
 from .. import schema
+from ..output import check_output
 from ..errors import ExabricksError
 from .options import input_path, output_option
 
@@ -22,6 +23,7 @@ def brick(cells_path, output, max_brick_width):
     """
     from ..stages.brick import build_bricks  # numba import only when the command runs
 
+    check_output(output, [cells_path])
     cells = schema.load(cells_path, "cells")
     try:
         bricks = build_bricks(cells, max_brick_width=max_brick_width)
@@ -32,4 +34,4 @@ def brick(cells_path, output, max_brick_width):
         parameters={"max_brick_width": max_brick_width},
         statistics=bricks.meta["statistics"],
     )
-    schema.save(output, bricks.replace(meta=meta))
+    schema.save(output, bricks.replace(meta=meta), inputs=[cells_path])

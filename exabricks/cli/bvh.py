@@ -5,6 +5,7 @@ from __future__ import annotations
 import click
 
 from .. import schema
+from ..output import check_output
 from ..errors import ExabricksError
 from .options import input_path, output_option
 
@@ -20,6 +21,7 @@ def bvh(regions_path, output, leaf_size, bins):
     """Build a bounding-volume hierarchy with per-node value ranges over the regions."""
     from ..stages.bvh import build_bvh
 
+    check_output(output, [regions_path])
     regions = schema.load(regions_path, "regions")
     check_regions(regions, regions_path)
     try:
@@ -38,7 +40,7 @@ def bvh(regions_path, output, leaf_size, bins):
             "bricks_inputs": regions.meta.get("inputs", []),
         },
     )
-    schema.save(output, result.replace(meta=meta))
+    schema.save(output, result.replace(meta=meta), inputs=[regions_path])
 
 
 def check_regions(regions: schema.Regions, path) -> None:

@@ -8,6 +8,7 @@ import math
 import click
 
 from ..errors import ExabricksError
+from ..output import check_output
 
 # (metric, option flag, True if the metric must stay at or below the threshold)
 THRESHOLDS = (
@@ -48,7 +49,12 @@ def compare(ctx, image_a, image_b, max_rmse, min_psnr, max_abs, min_ssim, diff_p
     from ..stages.compare import compare_images, diff_image
 
     limits = {"rmse": max_rmse, "psnr": min_psnr, "max_abs": max_abs, "ssim": min_ssim}
+    for name, flag, _ in THRESHOLDS:
+        if limits[name] is not None and math.isnan(limits[name]):
+            raise click.BadParameter("a threshold must be a number, not nan", param_hint=flag)
     try:
+        if diff_path is not None:
+            check_output(diff_path, [image_a, image_b])
         a, _ = read_image(image_a)
         b, _ = read_image(image_b)
         metrics = compare_images(a, b, names=(image_a, image_b))
@@ -58,7 +64,7 @@ def compare(ctx, image_a, image_b, max_rmse, min_psnr, max_abs, min_ssim, diff_p
             write_image(diff_path, diff_image(a, b), metadata={
                 "compare": {"a": image_a, "b": image_b,
                             **{k: _json_number(v) for k, v in metrics.items()}},
-            })
+            }, inputs=[image_a, image_b])
     except ExabricksError as e:
         click.echo(f"error: {e}", err=True)
         ctx.exit(2)

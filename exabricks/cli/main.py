@@ -5,10 +5,11 @@ from __future__ import annotations
 import logging
 import os
 import sys
+import warnings
 
 import click
 
-from .. import __version__
+from .. import __version__, interrupt
 from ..errors import ExabricksError
 
 COMMANDS = (
@@ -66,17 +67,30 @@ def cli(ctx, verbose, quiet, debug):
         os.environ["EXABRICKS_QUIET"] = "1"
 
 
+def _fail(message: str, status: int = 1) -> None:
+    click.echo(f"error: {message}", err=True)
+    sys.exit(status)
+
+
 def main(argv=None) -> None:
-    """Console entry point: exit 0 on success, 1 on bad data or failure, 2 on bad usage."""
+    """Console entry point: exit 0 on success, 1 on bad data or failure, 2 on bad usage,
+    128 + N when signal N (SIGTERM, SIGHUP, SIGINT) ended the run."""
     debug = os.environ.get("EXABRICKS_DEBUG", "") not in ("", "0") or "--debug" in (
         argv if argv is not None else sys.argv[1:]
     )
+    interrupt.install()
+    if not debug:
+        # numpy's RuntimeWarnings (overflow, invalid value) would precede the one
+        # `error:` line; every condition that matters is checked and named instead.
+        warnings.simplefilter("ignore", RuntimeWarning)
     try:
         # Without standalone mode click *returns* the status of ctx.exit(N) instead of raising.
         status = cli.main(args=argv, prog_name="exabricks", standalone_mode=False)
-    except click.exceptions.Abort:
-        click.echo("error: interrupted", err=True)
-        sys.exit(1)
+        interrupt.raise_pending()
+    except interrupt.Interrupted as e:
+        _fail(f"interrupted ({signal_name(e.signum)})", e.exit_status)
+    except (KeyboardInterrupt, click.exceptions.Abort):
+        _fail("interrupted (SIGINT)", 128 + 2)
     except click.exceptions.Exit as e:
         sys.exit(e.exit_code)
     except click.ClickException as e:
@@ -85,22 +99,26 @@ def main(argv=None) -> None:
     except ExabricksError as e:
         if debug:
             raise
-        click.echo(f"error: {e}", err=True)
-        sys.exit(1)
+        _fail(str(e))
     except MemoryError:
         if debug:
             raise
-        click.echo("error: out of memory", err=True)
-        sys.exit(1)
-    except KeyboardInterrupt:
-        click.echo("error: interrupted", err=True)
-        sys.exit(1)
+        _fail("out of memory")
+    except RecursionError:
+        if debug:
+            raise
+        _fail("input nested too deeply (a JSON file or header with thousands of levels?)")
     except Exception as e:  # the last line of defence: one line, no traceback
         if debug:
             raise
-        click.echo(f"error: internal error: {type(e).__name__}: {e} (rerun with --debug for a traceback)", err=True)
-        sys.exit(1)
+        _fail(f"internal error: {type(e).__name__}: {e} (rerun with --debug for a traceback)")
     sys.exit(status if isinstance(status, int) else 0)
+
+
+def signal_name(signum: int) -> str:
+    import signal
+
+    return signal.Signals(signum).name
 
 
 if __name__ == "__main__":

@@ -2,22 +2,26 @@
 
 from __future__ import annotations
 
-import os
-import tempfile
-from pathlib import Path
-
 import click
 import numpy as np
 
 from ..errors import ExabricksError
+from ..output import check_output, write_output
 from .options import device_option, field_option, input_path, output_option
 from .render import load_scene
 
 
 def _load_points(path) -> np.ndarray:
+    with open(path, "rb") as f:
+        magic = f.read(6)
+    if magic != b"\x93NUMPY":
+        raise ExabricksError(f"{path}: not a .npy array file (it must start with numpy's "
+                             "\\x93NUMPY magic; save points with numpy.save)")
     try:
         points = np.load(path, allow_pickle=False)
-    except Exception as e:  # numpy raises ValueError, OSError, EOFError, UnpicklingError...
+    except MemoryError:
+        raise
+    except Exception as e:  # numpy raises ValueError, OSError, EOFError...
         raise ExabricksError(f"{path}: not a readable .npy array ({e})") from None
     if not isinstance(points, np.ndarray) or points.ndim != 2 or points.shape[1] != 3 \
             or not (np.issubdtype(points.dtype, np.floating) or np.issubdtype(points.dtype, np.integer)):
@@ -25,19 +29,6 @@ def _load_points(path) -> np.ndarray:
         raise ExabricksError(f"{path}: points must be a numeric (N, 3) array, got shape {shape} "
                              f"and dtype {getattr(points, 'dtype', type(points).__name__)}")
     return points
-
-
-def _save_npy(path, values) -> None:
-    path = Path(path)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent or ".")
-    try:
-        with os.fdopen(fd, "wb") as f:
-            np.save(f, values)
-        os.chmod(tmp, 0o644)
-        os.replace(tmp, path)
-    except BaseException:
-        os.unlink(tmp)
-        raise
 
 
 @click.command()
@@ -53,7 +44,13 @@ def probe(bricks_path, regions_path, bvh_path, points_path, field, output, devic
     """Reconstructed FIELD at world points (float32 .npy, NaN where no cell has support)."""
     from ..stages.probe import probe as probe_points
 
+    inputs = [bricks_path, regions_path, bvh_path, points_path]
+    check_output(output, inputs)
     points = _load_points(points_path)
     bricks, regions, bvh = load_scene(bricks_path, regions_path, bvh_path)
     values = probe_points(bricks, regions, bvh, points, field=field, device=device)
-    _save_npy(output, values)
+    def write(tmp):
+        with open(tmp, "wb") as f:
+            np.save(f, values)
+
+    write_output(output, write, inputs=inputs)

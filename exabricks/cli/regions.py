@@ -5,6 +5,7 @@ from __future__ import annotations
 import click
 
 from .. import schema
+from ..output import check_output
 from ..errors import ExabricksError
 from .options import input_path, output_option
 
@@ -16,6 +17,7 @@ def regions(bricks_path, output):
     """Partition the brick supports into Active Brick Regions."""
     from ..stages.regions import build_regions
 
+    check_output(output, [bricks_path])
     bricks = schema.load(bricks_path, "bricks")
     try:
         result = build_regions(bricks)
@@ -28,4 +30,4 @@ def regions(bricks_path, output):
         # Lets bvh/render/probe check that bricks, regions and BVH belong together.
         consistency={"n_bricks": bricks.n_bricks, "n_regions": result.n_regions},
     )
-    schema.save(output, result.replace(meta=meta))
+    schema.save(output, result.replace(meta=meta), inputs=[bricks_path])

@@ -10,6 +10,7 @@ import numpy as np
 
 from .. import __version__, schema
 from ..errors import ExabricksError
+from ..output import check_output
 from .options import device_option, field_option, input_path, output_option
 
 log = logging.getLogger(__name__)
@@ -116,6 +117,8 @@ def render(bricks_path, regions_path, bvh_path, output, camera_path, position, l
 
     if Path(output).suffix.lower() not in (".exr", ".png"):
         raise click.BadParameter("the image must end in .exr or .png", param_hint="-o")
+    inputs = [bricks_path, regions_path, bvh_path, camera_path, preset]
+    check_output(output, inputs)
     bricks, regions, bvh = load_scene(bricks_path, regions_path, bvh_path)
     field = bricks.fields[bricks.field_index(field)]
     if camera_path:
@@ -137,7 +140,7 @@ def render(bricks_path, regions_path, bvh_path, output, camera_path, position, l
                     "source": bricks.meta.get("inputs", [])},
         "settings": result.stats,
     }
-    write_image(output, result.rgba, metadata=metadata, depth=result.depth)
+    write_image(output, result.rgba, metadata=metadata, depth=result.depth, inputs=inputs)
     s = result.stats
     log.info("%s: %dx%d, %s samples, %.1f ms, %.1f M samples/s on %s", output, s["width"],
              s["height"], f"{s['samples']:,}", s["ms"], s["samples_per_second"] / 1e6, s["device"])

@@ -26,6 +26,7 @@ import numpy as np
 from .. import schema
 from ..constants import LATTICE_DTYPE, LEVEL_DTYPE, OFFSET_DTYPE, VALUE_DTYPE
 from ..errors import ExabricksError
+from .ingest import find_overlap
 
 # Columns of a cell row in `rec` and fields of a node row.
 _LEVEL, _ID = 3, 4
@@ -340,6 +341,13 @@ def build_bricks(cells: schema.Cells, *, max_brick_width: int = 32) -> schema.Br
         raise ExabricksError("no cells")
     if n >= np.iinfo(np.int32).max:
         raise ExabricksError(f"{n} cells: at most {np.iinfo(np.int32).max - 1} are supported")
+    # Checked at ingest too, but a cells file can be edited after it: O(N log N).
+    pair = find_overlap(cells.lower_lattice, cells.level)
+    if pair is not None:
+        a, b = pair
+        lo, lv = cells.lower_lattice, cells.level
+        raise ExabricksError(f"cells overlap: cell {b} at {lo[b].tolist()} level {int(lv[b])} and "
+                             f"cell {a} at {lo[a].tolist()} level {int(lv[a])}")
     threads = numba.get_num_threads()
     rec, root = _pack(cells.lower_lattice, cells.level, 4 * threads)
     brick_end = np.full(n, -1, np.int32)
@@ -378,6 +386,39 @@ def build_bricks(cells: schema.Cells, *, max_brick_width: int = 32) -> schema.Br
         # A full brick holds exactly its run of cells, so its offset is the run's start.
         offset=starts.astype(OFFSET_DTYPE), values=values,
     )
+
+
+def require_disjoint(bricks: schema.Bricks) -> None:
+    """ExabricksError naming two bricks that share a cell, if any (O(N log N) in the
+    cells, through the Morton-order check of exabricks.stages.ingest)."""
+    if bricks.n_bricks < 2:
+        return
+    lower, level = brick_cells(bricks.lower_lattice, bricks.level, bricks.dims, bricks.offset,
+                               bricks.values.shape[1])
+    pair = find_overlap(lower, level)
+    if pair is not None:
+        a, b = (int(np.searchsorted(bricks.offset, i, side="right")) - 1 for i in pair)
+        raise ExabricksError(f"bricks overlap: brick {b} at {bricks.lower_lattice[b].tolist()} "
+                             f"and brick {a} at {bricks.lower_lattice[a].tolist()} share a cell")
+
+
+@numba.njit(cache=True, parallel=True)
+def brick_cells(lower, level, dims, offset, n_cells):
+    """The cells of every brick, in value order: lower corners int32 (N, 3), levels int8 (N,)."""
+    out_lower = np.empty((n_cells, 3), np.int32)
+    out_level = np.empty(n_cells, np.int8)
+    for b in numba.prange(lower.shape[0]):
+        w = np.int32(1) << np.int32(level[b])
+        i = offset[b]
+        for z in range(dims[b, 2]):
+            for y in range(dims[b, 1]):
+                for x in range(dims[b, 0]):
+                    out_lower[i, 0] = lower[b, 0] + x * w
+                    out_lower[i, 1] = lower[b, 1] + y * w
+                    out_lower[i, 2] = lower[b, 2] + z * w
+                    out_level[i] = level[b]
+                    i += 1
+    return out_lower, out_level
 
 
 def statistics(level: np.ndarray, dims: np.ndarray) -> dict:

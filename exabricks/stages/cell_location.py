@@ -17,7 +17,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .. import schema
-from ..constants import BOUNDS_DTYPE, INDEX_DTYPE
+from ..constants import BOUNDS_DTYPE, INDEX_DTYPE, MAX_TREE_DEPTH
 from ..errors import ExabricksError
 from .bvh import _depths, build_tree, tree_bounds
 
@@ -26,9 +26,6 @@ from .bvh import _depths, build_tree, tree_bounds
 # (PoCL, Gerris, AMReX and Enzo at 256^2, shading none).
 LEAF_SIZE = 1
 
-# Deferred siblings the kernel can hold (EB_STACK_SIZE in kernels/common.h); a deeper
-# tree could drop subtrees.
-STACK_SIZE = 64
 
 
 @dataclass(frozen=True)
@@ -65,9 +62,9 @@ def build_brick_tree(bricks: schema.Bricks, *, leaf_size: int = LEAF_SIZE) -> Br
     first, count, order = build_tree(lo, hi, leaf_size=leaf_size, item="brick")
     node_lo, node_hi = tree_bounds(first, count, order, lo, hi)
     depth = int(_depths(first, count).max()) + 1
-    if depth > STACK_SIZE:
+    if depth > MAX_TREE_DEPTH:
         raise ExabricksError(f"the brick tree is {depth} levels deep, more than the cell-location "
-                             f"kernel's stack of {STACK_SIZE}")
+                             f"kernel's stack of {MAX_TREE_DEPTH}")
     return BrickTree(node_lo, node_hi, first.astype(INDEX_DTYPE), count.astype(INDEX_DTYPE),
                      order.astype(INDEX_DTYPE), depth)
 

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .. import opencl, schema
+from .. import interrupt, opencl, schema
 from ..errors import ExabricksError
 from .scene import DeviceScene
 
@@ -29,14 +29,25 @@ def probe_scene(scene: DeviceScene, points_world) -> np.ndarray:
     if n == 0 or scene.empty:
         return out
     q = scene.queue
-    values_buf = opencl.empty_buffer(q, 4 * n)
     local = 64
     kernel = opencl.kernel(scene.program, "eb_probe")
-    kernel(q, (-(-n // local) * local,), (local,),
-           np.int32(n), opencl.to_device(q, points, np.float32),
-           scene.origin_world4, scene.inv_spacing4,
-           *scene.scene_args(), values_buf)
-    return opencl.read_back(q, values_buf, out)
+    # In chunks, so that a signal can stop a large probe between enqueues.
+    chunk = min(n, PROBE_CHUNK)
+    values_buf = opencl.empty_buffer(q, 4 * chunk)
+    points = np.ascontiguousarray(points, np.float32)
+    for start in range(0, n, chunk):
+        m = min(chunk, n - start)
+        kernel(q, (-(-m // local) * local,), (local,),
+               np.int32(m), opencl.to_device(q, points[start:start + m]),
+               scene.origin_world4, scene.inv_spacing4,
+               *scene.scene_args(), values_buf)
+        opencl.read_back(q, values_buf, out[start:start + m])
+        interrupt.raise_pending()
+    return out
+
+
+# Points per enqueue: a fraction of a second on a CPU device.
+PROBE_CHUNK = 1 << 18
 
 
 def probe(bricks: schema.Bricks, regions: schema.Regions, bvh: schema.Bvh, points_world,

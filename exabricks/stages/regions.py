@@ -24,6 +24,7 @@ import numpy as np
 from .. import schema
 from ..constants import BOUNDS_DTYPE, INDEX_DTYPE, OFFSET_DTYPE
 from ..errors import ExabricksError
+from .brick import require_disjoint
 
 # float32 holds every half-integer exactly up to 2**23, i.e. doubled coordinates up to 2**24.
 _MAX_DOUBLED = 1 << 24
@@ -41,6 +42,7 @@ def build_regions(bricks: schema.Bricks) -> schema.Regions:
     n = bricks.n_bricks
     if n == 0:
         raise ExabricksError("the bricks contain no cells; there is nothing to build regions for")
+    require_disjoint(bricks)
     sup_lo, sup_hi = support_boxes_doubled(bricks)
     if max(-int(sup_lo.min()), int(sup_hi.max())) > _MAX_DOUBLED:
         raise ExabricksError(

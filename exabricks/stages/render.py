@@ -48,7 +48,8 @@ from dataclasses import dataclass, field as dataclass_field
 
 import numpy as np
 
-from .. import opencl, schema
+from .. import interrupt, opencl, schema
+from ..constants import MAX_SAMPLES_PER_RAY
 from ..errors import ExabricksError
 from .scene import DeviceScene, _float4
 
@@ -167,43 +168,104 @@ class Renderer:
             "device": self.device_name,
             "visible_regions": int(region_vis.sum()), "regions": s.regions.n_regions,
         }
-        n_pixels = width * height
         if s.empty or not node_vis[0]:
             stats.update(samples=0, ms=0.0, samples_per_second=0.0)
             rgba = np.zeros((height, width, 4), np.float32)
             d = np.full((height, width), np.inf, np.float32) if depth else None
             return RenderResult(rgba, d, stats)
+        self._check_samples_per_ray(sampling_rate)
+        rgba = _host_image(width, height, 4, "the image")
+        d = _host_image(width, height, 1, "the depth image")[..., 0] if depth else None
 
         q = s.queue
         up = opencl.to_device
-        rgba_buf = opencl.empty_buffer(q, n_pixels * 16)
-        depth_buf = opencl.empty_buffer(q, n_pixels * 4)
-        samples_buf = opencl.empty_buffer(q, n_pixels * 4)
+        band_rows = _band_rows(s.device, width, height)
+        band_pixels = width * band_rows
+        rgba_buf = opencl.empty_buffer(q, band_pixels * 16)
+        depth_buf = opencl.empty_buffer(q, band_pixels * 4)
+        samples_buf = opencl.empty_buffer(q, band_pixels * 4)
+        samples = np.empty(band_pixels, np.uint32)
         scene_args = s.scene_args(up(q, node_vis), up(q, region_vis))
         tf_args = [up(q, xs, np.float32), up(q, rgba_knots, np.float32), np.int32(xs.shape[0])]
         fixed = [
+            np.uint32(int(seed) & 0xFFFFFFFF), np.int32(bool(jitter)),
             _float4(origin), _float4(forward), _float4(du), _float4(dv),
             s.origin_world4, s.inv_spacing4, s.gradient_scale4,
             np.float32(s.min_spacing_world / sampling_rate), np.float32(1.0 / unit),
             np.float32(max_opacity), np.int32(shading != "none"), np.int32(traversal == "ordered"),
             *scene_args, *self.location_args, *tf_args, rgba_buf, depth_buf, samples_buf,
         ]
-        global_size = (-(-width // TILE) * TILE, -(-height // TILE) * TILE)
         q.finish()
         start = time.perf_counter()
-        for sample in range(spp):
-            self.kernel(q, global_size, (TILE, TILE),
-                        np.int32(width), np.int32(height), np.int32(sample), np.int32(spp),
-                        np.uint32(int(seed) & 0xFFFFFFFF), np.int32(bool(jitter)), *fixed)
-        q.finish()
+        total = 0
+        row0, rows = 0, TILE
+        while row0 < height:
+            rows = min(rows, band_rows, height - row0)
+            band_start = time.perf_counter()
+            global_size = (-(-width // TILE) * TILE, -(-rows // TILE) * TILE)
+            for sample in range(spp):
+                self.kernel(q, global_size, (TILE, TILE),
+                            np.int32(width), np.int32(height), np.int32(row0), np.int32(rows),
+                            np.int32(sample), np.int32(spp), *fixed)
+            n = width * rows
+            opencl.read_back(q, rgba_buf, rgba[row0:row0 + rows].reshape(n, 4))
+            opencl.read_back(q, samples_buf, samples[:n])
+            if depth:
+                opencl.read_back(q, depth_buf, d[row0:row0 + rows].reshape(n))
+            total += int(samples[:n].sum(dtype=np.int64))
+            row0 += rows
+            rows = _next_band(rows, time.perf_counter() - band_start)
+            interrupt.raise_pending()
         seconds = time.perf_counter() - start
-        rgba = opencl.read_back(q, rgba_buf, np.empty((height, width, 4), np.float32))
-        samples = opencl.read_back(q, samples_buf, np.empty(n_pixels, np.uint32))
-        d = opencl.read_back(q, depth_buf, np.empty((height, width), np.float32)) if depth else None
-        total = int(samples.sum(dtype=np.int64))
         stats.update(samples=total, ms=1e3 * seconds / spp,
                      samples_per_second=total / seconds if seconds > 0 else 0.0)
         return RenderResult(rgba, d, stats)
+
+    def _check_samples_per_ray(self, sampling_rate: float) -> None:
+        """Refuse a sampling rate that would take more than MAX_SAMPLES_PER_RAY samples
+        on a ray through the whole dataset (its bounding box's world diagonal at the
+        finest step)."""
+        s = self.scene
+        extent = (s.bvh.upper_lattice[0].astype(np.float64) - s.bvh.lower_lattice[0])
+        diagonal = float(np.linalg.norm(extent * s.bricks.spacing_world))
+        finest = int(s.regions.finest_level.min())
+        step = s.min_spacing_world * 2.0 ** finest / sampling_rate
+        bound = diagonal / step
+        if not bound <= MAX_SAMPLES_PER_RAY:
+            raise ExabricksError(
+                f"a sampling rate of {sampling_rate:g} takes up to {bound:,.0f} samples on a ray "
+                f"through the data, more than the {MAX_SAMPLES_PER_RAY:,} allowed: lower it")
+
+
+# A frame is rendered in bands of whole rows, each enqueue sized to take about
+# BAND_SECONDS (measured band after band), so that SIGINT/SIGTERM end a run
+# within a second and the device buffers stay small; bands never exceed
+# BAND_BYTES of device output buffers.
+BAND_SECONDS = 0.1
+BAND_BYTES = 64 << 20
+
+
+def _band_rows(device, width: int, height: int) -> int:
+    """Most rows of one band (a multiple of TILE), from the buffer limits."""
+    largest = min(int(device.max_mem_alloc_size), BAND_BYTES)
+    rows = max(TILE, largest // (16 * width) // TILE * TILE)
+    return min(rows, -(-height // TILE) * TILE)
+
+
+def _next_band(rows: int, seconds: float) -> int:
+    """Rows of the next band: scaled towards BAND_SECONDS, at most 4x larger."""
+    scale = 4.0 if seconds <= 0 else min(4.0, BAND_SECONDS / seconds)
+    return max(TILE, int(rows * scale) // TILE * TILE)
+
+
+def _host_image(width: int, height: int, channels: int, what: str) -> np.ndarray:
+    """A float32 (height, width, channels) array, or one clear error if it cannot fit."""
+    nbytes = width * height * channels * 4
+    limit = schema.memory_limit()
+    if limit is not None and nbytes > limit:
+        raise ExabricksError(f"{what} of {width}x{height} needs {nbytes / 2**30:.1f} GiB, more "
+                             f"than the {limit / 2**30:.1f} GiB of memory available")
+    return np.empty((height, width, channels), np.float32)
 
 
 def render(bricks: schema.Bricks, regions: schema.Regions, bvh: schema.Bvh, *, camera,

@@ -37,8 +37,10 @@ def check_inputs(bricks: schema.Bricks, regions: schema.Regions, bvh: schema.Bvh
             raise ExabricksError(
                 f"the {name} input has another world frame (origin/spacing) than the bricks: "
                 "they were not built from the same dataset")
-    if regions.brick_ids.size and (regions.brick_ids.min() < 0
-                                   or regions.brick_ids.max() >= bricks.n_bricks):
+    if regions.brick_ids.size and regions.brick_ids.min() < 0:
+        raise ExabricksError(f"the regions refer to brick {int(regions.brick_ids.min())}: "
+                             "brick ids cannot be negative (the regions file is corrupt)")
+    if regions.brick_ids.size and regions.brick_ids.max() >= bricks.n_bricks:
         raise ExabricksError(
             f"the regions refer to brick {int(regions.brick_ids.max())} but there are only "
             f"{bricks.n_bricks} bricks: the regions were built from other bricks")
@@ -58,6 +60,22 @@ def check_inputs(bricks: schema.Bricks, regions: schema.Regions, bvh: schema.Bvh
                                  "the bvh was built from other regions")
     if n and not bvh.n_nodes:
         raise ExabricksError("the bvh has no nodes but there are regions to render")
+
+
+def check_device_memory(device, buffers: dict[str, int]) -> None:
+    """ExabricksError unless every buffer (name -> bytes) fits the device's
+    largest allocation and all of them its global memory, so that a dataset or
+    image too large fails with a message instead of in the OpenCL runtime."""
+    largest = int(device.max_mem_alloc_size)
+    total = int(device.global_mem_size)
+    name = device.name.strip()
+    for what, nbytes in buffers.items():
+        if nbytes > largest:
+            raise ExabricksError(f"the {what} need {nbytes / 2**30:.2f} GiB in one buffer, more "
+                                 f"than the {largest / 2**30:.2f} GiB the device {name} allows")
+    if sum(buffers.values()) > total:
+        raise ExabricksError(f"the dataset needs {sum(buffers.values()) / 2**30:.2f} GiB on the "
+                             f"device, more than the {total / 2**30:.2f} GiB of {name}")
 
 
 def finest_cell_width_world(bricks: schema.Bricks) -> float:
@@ -102,6 +120,13 @@ class DeviceScene:
         self.field_index = bricks.field_index(field)
         self.device = device if device is not None and not isinstance(device, str) \
             else opencl.choose_device(device)
+        check_device_memory(self.device, {
+            "brick values": bricks.values.shape[1] * 4,
+            "brick boxes": bricks.n_bricks * 40,
+            "region lists": regions.brick_ids.nbytes + regions.brick_start.nbytes,
+            "region boxes": regions.n_regions * 34,
+            "BVH nodes": bvh.n_nodes * 42 + bvh.region_index.nbytes,
+        })
         self.context, self.queue = opencl.context_for(self.device)
         self.program = opencl.program_for(self.context)
         q = self.queue
@@ -152,7 +177,8 @@ class DeviceScene:
         given, or all visible)."""
         nv = self._all_visible[0] if node_visible is None else node_visible
         rv = self._all_visible[1] if region_visible is None else region_visible
-        return [*self._bvh_static, nv, *self._region_static, rv, *self.brick_args]
+        counts = [np.int32(self.bvh.n_nodes), np.int32(self.regions.n_regions)]
+        return [*self._bvh_static, nv, *counts, *self._region_static, rv, *self.brick_args]
 
     def location_args(self) -> list:
         """Kernel arguments EB_LOCATION_ARGS: the tree over the brick supports
@@ -166,5 +192,5 @@ class DeviceScene:
             lo, hi = _boxes4(tree.lower, tree.upper)
             link = np.column_stack([tree.first, tree.count]).astype(np.int32)
             self._location_args = [up(q, lo), up(q, hi), up(q, link),
-                                   up(q, tree.brick_index, np.int32)]
+                                   up(q, tree.brick_index, np.int32), np.int32(link.shape[0])]
         return self._location_args
