@@ -33,7 +33,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from conftest import AMREX, ATHENA, FUZZ_EXAMPLES, GERRIS, run_cli  # noqa: F401
+from conftest import AMREX, ATHENA, FUZZ_EXAMPLES, GERRIS, run_cli
 
 from exabricks import schema
 
@@ -388,9 +388,7 @@ def test_link_fields(tiny, gerris, tmp_path, data):
         v = link_value(data, name, a, i)
         row = a[i].reshape(-1)
         j = data.draw(st.integers(-1, row.size - 1), label="column (-1: all)")
-        if a.ndim == 1:
-            a[i] = cast(v, a.dtype)
-        elif j < 0:
+        if a.ndim == 1 or j < 0:
             a[i] = cast(v, a.dtype)
         else:
             a.reshape(a.shape[0], -1)[i, j] = cast(v, a.dtype)
@@ -774,42 +772,40 @@ OUTPUT_KINDS = ("symlink to input", "symlink to new", "directory", "/dev/null", 
                 "symlink loop", "dangling symlink in missing dir")
 
 
-def output_path(data, work: Path, inp: Path, suffix: str) -> tuple[str, bool]:
-    """(output path, whether it may legitimately be written) for one drawn case."""
+def output_path(data, work: Path, inp: Path, suffix: str) -> str:
+    """The output path of one drawn case (created as the case needs) next to input `inp`."""
     case = data.draw(st.sampled_from(OUTPUT_KINDS), label="output case")
     if case == "symlink to input":
         (work / f"link{suffix}").symlink_to(inp)
-        return str(work / f"link{suffix}"), False
+        return str(work / f"link{suffix}")
     if case == "symlink to new":
         (work / f"link{suffix}").symlink_to(work / f"target{suffix}")
-        return str(work / f"link{suffix}"), True
+        return str(work / f"link{suffix}")
     if case == "directory":
         (work / f"dir{suffix}").mkdir()
-        return str(work / f"dir{suffix}"), False
+        return str(work / f"dir{suffix}")
     if case == "/dev/null":
-        return "/dev/null", True
+        return "/dev/null"
     if case == "existing":
         (work / f"old{suffix}").write_bytes(b"old contents")
-        return str(work / f"old{suffix}"), True
+        return str(work / f"old{suffix}")
     if case == "missing directory":
-        return str(work / "no" / "such" / f"out{suffix}"), False
+        return str(work / "no" / "such" / f"out{suffix}")
     if case == "long name":
         n = data.draw(st.integers(240, 300), label="name length")
-        return str(work / ("x" * (n - len(suffix)) + suffix)), True
-    if case == "newline":
-        where = data.draw(st.sampled_from(("here", "missing dir")), label="newline where")
-        name = f"out\nput{suffix}"
-        return str(work / name if where == "here" else work / "no\ndir" / name), True
+        return str(work / ("x" * (n - len(suffix)) + suffix))
+    if case == "newline":  # (a failure naming such a path: test_newline_in_path_error)
+        return str(work / f"out\nput{suffix}")
     if case == "input itself":
-        return str(inp), False
+        return str(inp)
     if case == "hard link to input":
         os.link(inp, work / f"hard{suffix}")
-        return str(work / f"hard{suffix}"), False
+        return str(work / f"hard{suffix}")
     if case == "symlink loop":
         (work / f"loop{suffix}").symlink_to(work / f"loop{suffix}")
-        return str(work / f"loop{suffix}"), False
+        return str(work / f"loop{suffix}")
     (work / f"dangling{suffix}").symlink_to(work / "missing" / f"x{suffix}")
-    return str(work / f"dangling{suffix}"), False
+    return str(work / f"dangling{suffix}")
 
 
 @pytest.mark.fuzz
@@ -825,10 +821,11 @@ def test_output_paths(tiny, tmp_path, data):
         shutil.copyfile(tiny.path[p.stem], p)
     suffix = ".npz" if command == "bvh" else data.draw(st.sampled_from((".exr", ".png")))
     target = data.draw(st.sampled_from(inputs), label="input to alias")
-    out, _ = output_path(data, work, target, suffix)
+    out = output_path(data, work, target, suffix)
     before = {p: sha256(p) for p in inputs}
     existed = os.path.lexists(out)
-    old = Path(out).read_bytes() if existed and Path(out).is_file() and out != "/dev/null" else None
+    was_link = os.path.islink(out)
+    old = Path(out).read_bytes() if existed and os.path.isfile(out) and out != "/dev/null" else None
     if command == "bvh":
         args = ["bvh", inputs[0], "-o", out]
     else:
@@ -842,8 +839,24 @@ def test_output_paths(tiny, tmp_path, data):
     assert stat.S_ISCHR(os.stat("/dev/null").st_mode), f"/dev/null replaced\n{note}"
     if proc.returncode != 0 and old is not None:
         assert Path(out).read_bytes() == old, f"failed run changed the existing {out}\n{note}"
-    if Path(out).is_symlink():  # a link stays a link
-        assert os.path.lexists(out)
+    if was_link:  # a link stays a link
+        assert os.path.islink(out), f"the symbolic link {out} was replaced\n{note}"
+
+
+@pytest.mark.parametrize("case", ["bvh output in a missing directory", "info of a non-npz file",
+                                  "ingest of a missing input"])
+def test_newline_in_path_error(tiny, tmp_path, case):
+    odd = tmp_path / "no\nsuch"
+    if case == "bvh output in a missing directory":
+        args, out = ["bvh", tiny.path["regions"], "-o", odd / "bvh.npz"], odd / "bvh.npz"
+    elif case == "info of a non-npz file":
+        odd.write_text("junk")
+        args, out = ["info", odd], None
+    else:
+        args, out = ["ingest", odd / "x.cells", "-o", tmp_path / "cells.npz"], tmp_path / "cells.npz"
+    proc = cli(*args, cwd=tmp_path, tmpdir=tmp_path)
+    assert proc.returncode == 1
+    assert_contract(proc, outputs=[out] if out else [], dirs=[tmp_path], note=case)
 
 
 # ---------------------------------------------------------------------------

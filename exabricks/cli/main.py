@@ -67,8 +67,14 @@ def cli(ctx, verbose, quiet, debug):
         os.environ["EXABRICKS_QUIET"] = "1"
 
 
+def one_line(message: str) -> str:
+    """`message` with control characters (a newline in a file name) escaped, so that
+    an error stays one line."""
+    return "".join(c if c.isprintable() or c == " " else repr(c)[1:-1] for c in message)
+
+
 def _fail(message: str, status: int = 1) -> None:
-    click.echo(f"error: {message}", err=True)
+    click.echo(f"error: {one_line(message)}", err=True)
     sys.exit(status)
 
 
