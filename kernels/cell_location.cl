@@ -39,11 +39,7 @@ EB_INLINE eb_basis_sums eb_locate_reconstruct(eb_located_bricks located, float3 
                                               const int want_gradient)
 {
     eb_brick_tree tree = located.tree;
-    eb_basis_sums s;
-    s.weight = 0.0f;
-    s.weighted = 0.0f;
-    s.d_weight = (float3)(0.0f);
-    s.d_weighted = (float3)(0.0f);
+    eb_basis_sums s = eb_basis_zero();
     int found[EB_LOCATE_MAX];
     int n_found = 0;
     eb_descent d;

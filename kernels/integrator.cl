@@ -1,175 +1,106 @@
 /* The integrator: front-to-back emission-absorption along one ray through the
- * Active Brick Regions (paper §4; docs/design.md "Integration and images").
+ * Active Brick Regions (paper §4; docs/design.md "Integration and images"),
+ * with iso-surfaces and slices composited where the ray meets them
+ * (surfaces.cl), inside the ray's clip interval (clipping.cl).
  *
  * Adaptive sampling (paper §4.2-4.3, Fig. 5): in a region whose finest
  * influencing level is l, the step is dt = 2**l * min(spacing) / sampling_rate
  * (world units), and the region's interval is split into sub-intervals by the
  * delimiters (k + rho) dt, rho the ray's interleaved-sampling offset in
- * [0, 1) (sampler.cl, eb_intervals).
- * Opacity (paper §4.3): a = 1 - (1 - alpha)^(len / unit_distance).
+ * [0, 1) (sampler.cl, eb_intervals), each sampled at its midpoint.
+ * Opacity and colour of a step: the mixture of the volume layers (medium.cl).
  * Compositing: C += T a rgb, T *= 1 - a (premultiplied), stopping once the
  * accumulated opacity 1 - T reaches max_opacity.
- * Reconstruction: from the region's brick list (paper §3.2); built with
- * -DEB_CELL_LOCATION, from the bricks a per-sample descent of a tree over the
- * brick supports finds (cell_location.cl, the comparison of paper §6.4.2).
- * Everything else, the samples taken included, is the same in both. */
+ *
+ * Built with -DEB_SURFACES when the frame has iso-surfaces or slices, so that
+ * a volume-only frame runs none of that code. */
 #pragma once
 #include "common.h"
 #include "sampler.cl"
-#include "traversal.cl"
-#include "reconstruction.cl"
-#include "transfer_function.cl"
-
-/* What a sample reconstructs from. */
-#ifdef EB_CELL_LOCATION
-#include "cell_location.cl"
-typedef eb_located_bricks eb_sample_bricks;
-#else
-typedef eb_bricks eb_sample_bricks;
+#include "scene.cl"
+#ifdef EB_SURFACES
+#include "surfaces.cl"
 #endif
-
-/* Headlight shading constants: emitted rgb *= AMBIENT + DIFFUSE |n . v|, with
- * n the normalised analytic gradient and v the view direction. A zero gradient
- * (constant field) leaves the colour unshaded (factor 1). */
-#define EB_AMBIENT 0.3f
-#define EB_DIFFUSE 0.7f
-
-/* Accumulated opacity at which the depth output records the distance. */
-#define EB_DEPTH_OPACITY 0.5f
-
-typedef struct {
-    __global const float *xs;
-    __global const float4 *rgba;
-    int n;
-} eb_transfer;
-
-typedef struct {
-    float step_base;          /* min(spacing) / sampling_rate: dt of a level-0 region */
-    float inv_unit_distance;  /* 1 / unit_distance (world units)                       */
-    float max_opacity;        /* early ray termination threshold                       */
-    float3 gradient_scale;    /* lattice -> world gradient, times a constant (below)   */
-} eb_integration;
-
-/* What a ray has accumulated so far. */
-typedef struct {
-    float3 color;
-    float transmittance;
-    float t_depth;
-    uint samples;
-} eb_ray_state;
-
-/* Composite one step of opacity a and colour rgb at distance tm into `st`
- * (front to back, premultiplied); returns 1 once the ray is opaque enough to
- * stop (early ray termination). */
-EB_INLINE int eb_composite(eb_ray_state *st, float a, float3 rgb, float tm, float max_opacity)
-{
-    st->color += (st->transmittance * a) * rgb;
-    st->transmittance *= 1.0f - a;
-    if (st->t_depth == EB_INF && 1.0f - st->transmittance >= EB_DEPTH_OPACITY)
-        st->t_depth = tm;
-    return 1.0f - st->transmittance >= max_opacity;
-}
 
 /* Integrate region r over [t_in, t_out] into `st` (paper §4.2-4.3); returns 1
  * once the ray is opaque enough to stop (early ray termination). */
-EB_INLINE int eb_integrate_region(eb_regions regions, eb_sample_bricks bricks, eb_transfer tf,
-                                  eb_integration in, int r, float t_in, float t_out,
-                                  float3 org_lattice, float3 dir_lattice, float3 dir_world,
-                                  float rho, const int shade, eb_ray_state *st)
+EB_INLINE int eb_integrate_region(eb_frame *fr, eb_ray *ray, int r, float t_in, float t_out,
+                                  const int shade, eb_ray_state *st)
 {
-#ifndef EB_CELL_LOCATION
-    long b0 = regions.brick_start[r], b1 = regions.brick_start[r + 1];
+    int level = fr->regions.finest_level[r];
+    float dt = ldexp(fr->step_base, level);
+#ifdef EB_SURFACES
+    if (fr->surf.n_iso > 0 && (!st->prev_valid || t_in > st->last_exit)) {
+        /* Start the crossing test at the region's entry (after a gap, or the first region). */
+        eb_basis_sums s0 = eb_sample_region(fr, r, ray->org + t_in * ray->dir, 0);
+        st->prev_valid = s0.weight > 0.0f;
+        st->prev_t = t_in;
+        for (int f = 0; f < EB_N_FIELDS; ++f)
+            st->prev[f] = eb_basis_value(s0, f);
+    }
+    st->last_exit = t_out;
 #endif
-    float dt = ldexp(in.step_base, (int)regions.finest_level[r]);
-    eb_intervals it = eb_intervals_start(t_in, t_out, dt, rho);
+    eb_intervals it = eb_intervals_start(t_in, t_out, dt, ray->rho);
     float tm, len;
     while (eb_intervals_next(&it, &tm, &len)) {
-        float3 p = org_lattice + tm * dir_lattice;
-#ifdef EB_CELL_LOCATION
-        eb_basis_sums s = shade ? eb_locate_reconstruct(bricks, p, 1) : eb_locate_reconstruct(bricks, p, 0);
-#else
-        eb_basis_sums s = shade ? eb_reconstruct(bricks, regions.brick_ids, b0, b1, p, 1)
-                                : eb_reconstruct(bricks, regions.brick_ids, b0, b1, p, 0);
-#endif
+        float3 p = ray->org + tm * ray->dir;
+        eb_basis_sums s = shade && !fr->central ? eb_sample_region(fr, r, p, 1)
+                                                : eb_sample_region(fr, r, p, 0);
         ++st->samples;
-        if (!(s.weight > 0.0f))
+        int valid = s.weight > 0.0f;
+        float value[EB_N_FIELDS];
+        if (valid)
+            eb_fields(s, value);
+#ifdef EB_SURFACES
+        if (eb_surfaces_until(fr, ray, st, tm, value, valid))
+            return 1;
+#endif
+        if (!valid || fr->look.n_layers == 0)
             continue;  /* no cell has support here: transparent */
-        float4 c = eb_transfer_function(s.weighted / s.weight, tf.xs, tf.rgba, tf.n);
+        float4 c = eb_medium_step(fr, &s, p, level, value, len, ray->dir_world, shade);
         if (!(c.w > 0.0f))
             continue;
-        float a = eb_opacity_correct(c.w, len, in.inv_unit_distance);
-        float3 rgb = c.xyz;
-        if (shade) {
-            /* The world-space gradient up to a positive constant (only its
-             * direction matters), scaled so that dot(g, g) neither overflows
-             * nor underflows for any field magnitude (render.py); rsqrt is
-             * cheaper than length() and a division. */
-            float3 g = eb_basis_gradient(s) * in.gradient_scale;
-            float g2 = dot(g, g);
-            if (g2 > 0.0f)
-                rgb *= EB_AMBIENT + EB_DIFFUSE * fabs(dot(g, dir_world)) * rsqrt(g2);
-        }
-        if (eb_composite(st, a, rgb, tm, in.max_opacity))
+        if (eb_composite(st, c.w, c.xyz, tm, fr->max_opacity))
             return 1;
     }
     return 0;
 }
 
-/* Premultiplied RGBA of one ray. org_lattice, dir_lattice: the ray in lattice
- * space with t in world distance (dir_world unit length); rho: interleaving
- * offset; ordered: 1 for the ordered walk, 0 for the paper's re-trace walk
- * (traversal.cl); *samples counts reconstructions; *depth is the world
- * distance where the accumulated opacity first reaches EB_DEPTH_OPACITY
- * (infinity if never). */
-EB_INLINE float4 eb_integrate(eb_bvh bvh, eb_regions regions, eb_sample_bricks bricks,
-                              eb_transfer tf, eb_integration in,
-                              float3 org_lattice, float3 dir_lattice, float3 dir_world,
-                              float rho, const int shade, const int ordered,
+/* Premultiplied RGBA of one ray; ordered: 1 for the ordered walk, 0 for the
+ * paper's re-trace walk (traversal.cl); *samples counts reconstructions;
+ * *depth is the distance to the first opaque surface hit, else where the
+ * accumulated opacity first reaches EB_DEPTH_OPACITY (infinity if never). */
+EB_INLINE float4 eb_integrate(eb_frame *fr, eb_ray *ray, const int shade, const int ordered,
                               uint *samples, float *depth)
 {
-    int retrace = !ordered;
-    float3 inv_dir = 1.0f / dir_lattice;
-    eb_ray_state st = {(float3)(0.0f), 1.0f, EB_INF, 0u};
-    float t_cur = 0.0f;
-    int done = 0;
-    if (!retrace) {
-        eb_queue q;
-        eb_queue_start(&q, bvh, org_lattice, inv_dir);
-        /* Each node and region is queued at most once (the BVH is a tree). */
-        int pops = bvh.n_nodes + bvh.n_regions;
-        while (q.size > 0 && !done && pops-- > 0) {
-            int item = eb_queue_pop(&q);
-            if (item >= 0) {
-                if (!eb_queue_expand(&q, bvh, regions, item, org_lattice, inv_dir, t_cur)) {
-                    retrace = 1;  /* heap full: finish with the re-trace walk from t_cur */
-                    break;
-                }
-                continue;
-            }
-            int r = ~item;
-            float2 iv = eb_box_interval(regions.lower[r].xyz, regions.upper[r].xyz, org_lattice, inv_dir);
-            float t_in = fmax(iv.x, t_cur);
-            if (!(iv.y > t_in))
-                continue;
-            done = eb_integrate_region(regions, bricks, tf, in, r, t_in, iv.y, org_lattice,
-                                       dir_lattice, dir_world, rho, shade, &st);
-            t_cur = iv.y;
-        }
-    }
-    if (retrace) {
-        float t_in, t_out;
-        int r;
-        /* t_cur strictly increases past each region's exit: each is visited once. */
-        int visits = bvh.n_regions;
-        while (!done && visits-- > 0
-               && (r = eb_next_region(bvh, regions, org_lattice, inv_dir, t_cur, EB_INF,
-                                      &t_in, &t_out)) >= 0) {
-            done = eb_integrate_region(regions, bricks, tf, in, r, t_in, t_out, org_lattice,
-                                       dir_lattice, dir_world, rho, shade, &st);
-            t_cur = t_out;
-        }
-    }
+    eb_ray_state st;
+    st.color = (float3)(0.0f);
+    st.transmittance = 1.0f;
+    st.t_depth = EB_INF;
+    st.t_opaque = EB_INF;
+    st.samples = 0u;
+    st.prev_valid = 0;
+    st.last_exit = 0.0f;
+    st.n_slices = 0;
+    st.next_slice = 0;
+    float2 keep = eb_clip_interval(fr->clip, ray->org_world, ray->dir_world, 0.0f);
+    int done = !(keep.y > keep.x);
+#ifdef EB_SURFACES
+    if (!done)
+        eb_slices_start(fr, ray, keep.x, keep.y, &st);
+#endif
+    eb_walk w;
+    eb_walk_start(&w, fr->bvh, ray->org, ray->inv_dir, keep.x, keep.y, ordered);
+    float t_in, t_out;
+    int r;
+    while (!done && (r = eb_walk_next(&w, fr->bvh, fr->regions, ray->org, ray->inv_dir,
+                                      &t_in, &t_out)) >= 0)
+        done = eb_integrate_region(fr, ray, r, t_in, t_out, shade, &st);
+#ifdef EB_SURFACES
+    if (!done)  /* slices behind the last region */
+        eb_surfaces_until(fr, ray, &st, EB_INF, st.prev, 0);
+#endif
     *samples = st.samples;
-    *depth = st.t_depth;
+    *depth = st.t_opaque < EB_INF ? st.t_opaque : st.t_depth;
     return (float4)(st.color, 1.0f - st.transmittance);
 }

@@ -11,24 +11,45 @@
 #pragma once
 #include "common.h"
 
-/* The bricks on the device (exabricks.schema.Bricks, one field):
+/* Fields reconstructed together: the frame's fields (exabricks.scene.Scene.fields),
+ * passed by the host as -DEB_N_FIELDS (one program per count). */
+#ifndef EB_N_FIELDS
+#define EB_N_FIELDS 1
+#endif
+
+/* The bricks on the device (exabricks.schema.Bricks, the frame's fields):
  *   box[b]    = (L.x, L.y, L.z, 1 / w), lattice units
  *   dims[b]   = (N.x, N.y, N.z, level)
- *   offset[b] = index of the brick's first value in `values` (x fastest). */
+ *   offset[b] = index of the brick's first value in a field's values (x fastest)
+ *   values    = EB_N_FIELDS fields one after the other, `field_stride` apart. */
 typedef struct {
     __global const float4 *box;
     __global const int4 *dims;
     __global const long *offset;
     __global const float *values;
+    long field_stride;
 } eb_bricks;
 
-/* Sums of eq. 1-2 and their derivatives at one point. */
+/* Sums of eq. 1-2 and their derivatives at one point: the weights are the
+ * same for every field (the same cells), the weighted sums one per field. */
 typedef struct {
-    float weight;        /* sum H                        */
-    float weighted;      /* sum H v                      */
-    float3 d_weight;     /* sum dH/dp (lattice units)    */
-    float3 d_weighted;   /* sum dH/dp v                  */
+    float weight;                           /* sum H                     */
+    float3 d_weight;                        /* sum dH/dp (lattice units) */
+    float weighted[EB_N_FIELDS];            /* sum H v                   */
+    float3 d_weighted[EB_N_FIELDS];         /* sum dH/dp v               */
 } eb_basis_sums;
+
+EB_INLINE eb_basis_sums eb_basis_zero(void)
+{
+    eb_basis_sums s;
+    s.weight = 0.0f;
+    s.d_weight = (float3)(0.0f);
+    for (int f = 0; f < EB_N_FIELDS; ++f) {
+        s.weighted[f] = 0.0f;
+        s.d_weighted[f] = (float3)(0.0f);
+    }
+    return s;
+}
 
 /* Add the contributions of brick b at lattice point p to `s`. With
  * want_gradient == 0 the derivative sums are left untouched (the compiler
@@ -53,30 +74,34 @@ EB_INLINE void eb_add_brick(eb_bricks bricks, int b, float3 p, eb_basis_sums *s,
     int y0 = max(i0.y, 0) * n.x, y1 = min(i0.y + 1, n.y - 1) * n.x;
     int nxy = n.x * n.y;
     int z0 = max(i0.z, 0) * nxy, z1 = min(i0.z + 1, n.z - 1) * nxy;
-    __global const float *v = bricks.values + bricks.offset[b];
-    float v000 = v[z0 + y0 + x0], v100 = v[z0 + y0 + x1];
-    float v010 = v[z0 + y1 + x0], v110 = v[z0 + y1 + x1];
-    float v001 = v[z1 + y0 + x0], v101 = v[z1 + y0 + x1];
-    float v011 = v[z1 + y1 + x0], v111 = v[z1 + y1 + x1];
-    /* Along x, then y, then z. */
-    float c00 = wx0 * v000 + wx1 * v100, c10 = wx0 * v010 + wx1 * v110;
-    float c01 = wx0 * v001 + wx1 * v101, c11 = wx0 * v011 + wx1 * v111;
-    float c0 = wy0 * c00 + wy1 * c10, c1 = wy0 * c01 + wy1 * c11;
     float sx = wx0 + wx1, sy = wy0 + wy1, sz = wz0 + wz1;
-    s->weighted += wz0 * c0 + wz1 * c1;
     s->weight += sx * sy * sz;
-    if (want_gradient) {
-        /* dH/dp_a of cell i0 is -1/w, of cell i0 + 1 is +1/w (where they exist). */
-        float iw = box.w;
-        float dx0 = i0.x >= 0 ? -iw : 0.0f, dx1 = i0.x + 1 < n.x ? iw : 0.0f;
-        float dy0 = i0.y >= 0 ? -iw : 0.0f, dy1 = i0.y + 1 < n.y ? iw : 0.0f;
-        float dz0 = i0.z >= 0 ? -iw : 0.0f, dz1 = i0.z + 1 < n.z ? iw : 0.0f;
-        float e00 = dx0 * v000 + dx1 * v100, e10 = dx0 * v010 + dx1 * v110;
-        float e01 = dx0 * v001 + dx1 * v101, e11 = dx0 * v011 + dx1 * v111;
-        s->d_weighted.x += wz0 * (wy0 * e00 + wy1 * e10) + wz1 * (wy0 * e01 + wy1 * e11);
-        s->d_weighted.y += wz0 * (dy0 * c00 + dy1 * c10) + wz1 * (dy0 * c01 + dy1 * c11);
-        s->d_weighted.z += dz0 * c0 + dz1 * c1;
+    /* dH/dp_a of cell i0 is -1/w, of cell i0 + 1 is +1/w (where they exist). */
+    float iw = box.w;
+    float dx0 = i0.x >= 0 ? -iw : 0.0f, dx1 = i0.x + 1 < n.x ? iw : 0.0f;
+    float dy0 = i0.y >= 0 ? -iw : 0.0f, dy1 = i0.y + 1 < n.y ? iw : 0.0f;
+    float dz0 = i0.z >= 0 ? -iw : 0.0f, dz1 = i0.z + 1 < n.z ? iw : 0.0f;
+    if (want_gradient)
         s->d_weight += (float3)((dx0 + dx1) * sy * sz, sx * (dy0 + dy1) * sz, sx * sy * (dz0 + dz1));
+    __global const float *v = bricks.values + bricks.offset[b];
+    for (int k = 0; k < EB_N_FIELDS; ++k, v += bricks.field_stride) {
+        float v000 = v[z0 + y0 + x0], v100 = v[z0 + y0 + x1];
+        float v010 = v[z0 + y1 + x0], v110 = v[z0 + y1 + x1];
+        float v001 = v[z1 + y0 + x0], v101 = v[z1 + y0 + x1];
+        float v011 = v[z1 + y1 + x0], v111 = v[z1 + y1 + x1];
+        /* Along x, then y, then z. */
+        float c00 = wx0 * v000 + wx1 * v100, c10 = wx0 * v010 + wx1 * v110;
+        float c01 = wx0 * v001 + wx1 * v101, c11 = wx0 * v011 + wx1 * v111;
+        float c0 = wy0 * c00 + wy1 * c10, c1 = wy0 * c01 + wy1 * c11;
+        s->weighted[k] += wz0 * c0 + wz1 * c1;
+        if (want_gradient) {
+            float e00 = dx0 * v000 + dx1 * v100, e10 = dx0 * v010 + dx1 * v110;
+            float e01 = dx0 * v001 + dx1 * v101, e11 = dx0 * v011 + dx1 * v111;
+            s->d_weighted[k] += (float3)(
+                wz0 * (wy0 * e00 + wy1 * e10) + wz1 * (wy0 * e01 + wy1 * e11),
+                wz0 * (dy0 * c00 + dy1 * c10) + wz1 * (dy0 * c01 + dy1 * c11),
+                dz0 * c0 + dz1 * c1);
+        }
     }
 }
 
@@ -85,18 +110,20 @@ EB_INLINE void eb_add_brick(eb_bricks bricks, int b, float3 p, eb_basis_sums *s,
 EB_INLINE eb_basis_sums eb_reconstruct(eb_bricks bricks, __global const int *brick_ids,
                                        long begin, long end, float3 p, const int want_gradient)
 {
-    eb_basis_sums s;
-    s.weight = 0.0f;
-    s.weighted = 0.0f;
-    s.d_weight = (float3)(0.0f);
-    s.d_weighted = (float3)(0.0f);
+    eb_basis_sums s = eb_basis_zero();
     for (long k = begin; k < end; ++k)
         eb_add_brick(bricks, brick_ids[k], p, &s, want_gradient);
     return s;
 }
 
-/* Gradient of B = sum H v / sum H (quotient rule, paper §5.1.2), lattice units. */
-EB_INLINE float3 eb_basis_gradient(eb_basis_sums s)
+/* Value of field f (eq. 2); only where s.weight > 0. */
+EB_INLINE float eb_basis_value(eb_basis_sums s, int f)
 {
-    return (s.weight * s.d_weighted - s.weighted * s.d_weight) / (s.weight * s.weight);
+    return s.weighted[f] / s.weight;
+}
+
+/* Gradient of field f of B = sum H v / sum H (quotient rule, paper §5.1.2), lattice units. */
+EB_INLINE float3 eb_basis_gradient(eb_basis_sums s, int f)
+{
+    return (s.weight * s.d_weighted[f] - s.weighted[f] * s.d_weight) / (s.weight * s.weight);
 }

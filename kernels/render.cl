@@ -3,9 +3,6 @@
 #include "common.h"
 #include "sampler.cl"
 #include "camera.cl"
-#include "transfer_function.cl"
-#include "reconstruction.cl"
-#include "traversal.cl"
 #include "integrator.cl"
 
 #define EB_BVH_ARGS                                                             \
@@ -18,14 +15,27 @@
     __global const char *region_finest_level, __global const uchar *region_visible
 #define EB_BRICK_ARGS                                                           \
     __global const float4 *brick_box, __global const int4 *brick_dims,          \
-    __global const long *brick_offset, __global const float *brick_values
+    __global const long *brick_offset, __global const float *brick_values,      \
+    long field_stride
 #define EB_BVH_STRUCT                                                           \
     {bvh_lower, bvh_upper, bvh_link, bvh_region_index, bvh_visible,            \
      bvh_n_nodes, bvh_n_regions}
 #define EB_REGION_STRUCT                                                        \
     {region_lower, region_upper, region_brick_start, region_brick_ids,          \
      region_finest_level, region_visible}
-#define EB_BRICK_STRUCT {brick_box, brick_dims, brick_offset, brick_values}
+#define EB_BRICK_STRUCT {brick_box, brick_dims, brick_offset, brick_values, field_stride}
+
+/* The frame's look, surfaces and clipping (exabricks.stages.render.frame_args). */
+#define EB_FRAME_ARGS                                                           \
+    __global const float *tf_xs, __global const float4 *tf_rgba,                \
+    __global const int4 *layers, int n_layers, __global const float4 *gradient_scale, \
+    __global const int4 *iso, __global const float4 *iso_value,                 \
+    __global const float4 *iso_color, int n_iso,                                \
+    __global const int4 *slice, __global const float4 *slice_point,             \
+    __global const float4 *slice_normal, int n_slices,                          \
+    float iso_tolerance, float specular, float shininess,                       \
+    int clip_box, float4 clip_lower, float4 clip_upper,                         \
+    __global const float4 *clip_planes, int n_clip_planes
 
 /* eb_render's extra arguments for the cell-location variant (integrator.cl):
  * the tree over the brick supports, exabricks.stages.cell_location.BrickTree. */
@@ -54,11 +64,11 @@
 __kernel void eb_render(int width, int height, int row0, int rows,
                         int sample_index, int spp, uint seed, int jitter,
                         float4 cam_origin, float4 cam_forward, float4 cam_du, float4 cam_dv,
-                        float4 origin_world, float4 inv_spacing, float4 gradient_scale,
+                        float4 origin_world, float4 inv_spacing,
                         float step_base, float inv_unit_distance, float max_opacity, int shading,
-                        int ordered,
+                        int ordered, int central, int ao_samples, float ao_distance,
                         EB_BVH_ARGS, EB_REGION_ARGS, EB_BRICK_ARGS EB_LOCATION_ARGS,
-                        __global const float *tf_xs, __global const float4 *tf_rgba, int tf_n,
+                        EB_FRAME_ARGS,
                         __global float4 *rgba, __global float *depth, __global uint *samples)
 {
     int col = get_global_id(0), band_row = get_global_id(1);
@@ -67,33 +77,42 @@ __kernel void eb_render(int width, int height, int row0, int rows,
         return;
     uint pixel = (uint)row * (uint)width + (uint)col;  /* seeds the hash: bands change nothing */
     uint slot = (uint)band_row * (uint)width + (uint)col;
-    eb_bvh bvh = EB_BVH_STRUCT;
-    eb_regions regions = EB_REGION_STRUCT;
-    eb_sample_bricks bricks = EB_SAMPLE_BRICKS_STRUCT;
-    eb_transfer tf = {tf_xs, tf_rgba, tf_n};
-    eb_integration in = {step_base, inv_unit_distance, max_opacity, gradient_scale.xyz};
+    eb_frame fr = {
+        EB_BVH_STRUCT, EB_REGION_STRUCT, EB_SAMPLE_BRICKS_STRUCT,
+        {tf_xs, tf_rgba, layers, n_layers, gradient_scale},
+        {iso, iso_value, iso_color, n_iso, slice, slice_point, slice_normal, n_slices,
+         iso_tolerance, specular, shininess},
+        {clip_box, clip_lower, clip_upper, clip_planes, n_clip_planes},
+        step_base, inv_unit_distance, max_opacity, shading, central, ao_samples, ao_distance,
+        origin_world, inv_spacing,
+    };
 
     float jx = 0.5f, jy = 0.5f;
     if (spp > 1) {
         jx = eb_random(pixel, (uint)sample_index, seed, 1u);
         jy = eb_random(pixel, (uint)sample_index, seed, 2u);
     }
-    float rho = jitter ? eb_random(pixel, (uint)sample_index, seed, 0u) : 0.5f;
-    float3 dir_world = eb_camera_direction(cam_forward.xyz, cam_du.xyz, cam_dv.xyz,
-                                           col, row, width, height, jx, jy);
-    float3 org_lattice = eb_world_to_lattice(cam_origin.xyz, origin_world.xyz, inv_spacing.xyz);
-    float3 dir_lattice = dir_world * inv_spacing.xyz;
+    eb_ray ray;
+    ray.rho = jitter ? eb_random(pixel, (uint)sample_index, seed, 0u) : 0.5f;
+    ray.pixel = pixel;
+    ray.sample = (uint)sample_index;
+    ray.seed = seed;
+    ray.org_world = cam_origin.xyz;
+    ray.dir_world = eb_camera_direction(cam_forward.xyz, cam_du.xyz, cam_dv.xyz,
+                                        col, row, width, height, jx, jy);
+    ray.org = eb_world_to_lattice(cam_origin.xyz, origin_world.xyz, inv_spacing.xyz);
+    ray.dir = ray.dir_world * inv_spacing.xyz;
+    ray.inv_dir = 1.0f / ray.dir;
     uint n;
     float t_depth;
     float4 c;
+    /* Constant shade/ordered arguments let the compiler drop the unused paths. */
     if (ordered)
-        c = shading
-            ? eb_integrate(bvh, regions, bricks, tf, in, org_lattice, dir_lattice, dir_world, rho, 1, 1, &n, &t_depth)
-            : eb_integrate(bvh, regions, bricks, tf, in, org_lattice, dir_lattice, dir_world, rho, 0, 1, &n, &t_depth);
+        c = shading ? eb_integrate(&fr, &ray, 1, 1, &n, &t_depth)
+                    : eb_integrate(&fr, &ray, 0, 1, &n, &t_depth);
     else
-        c = shading
-            ? eb_integrate(bvh, regions, bricks, tf, in, org_lattice, dir_lattice, dir_world, rho, 1, 0, &n, &t_depth)
-            : eb_integrate(bvh, regions, bricks, tf, in, org_lattice, dir_lattice, dir_world, rho, 0, 0, &n, &t_depth);
+        c = shading ? eb_integrate(&fr, &ray, 1, 0, &n, &t_depth)
+                    : eb_integrate(&fr, &ray, 0, 0, &n, &t_depth);
     c /= (float)spp;
     if (sample_index == 0) {
         rgba[slot] = c;
@@ -126,7 +145,7 @@ __kernel void eb_probe(int n, __global const float *points_world,
         eb_basis_sums s = eb_reconstruct(bricks, regions.brick_ids, regions.brick_start[r],
                                          regions.brick_start[r + 1], p, 0);
         if (s.weight > 0.0f)
-            value = s.weighted / s.weight;
+            value = eb_basis_value(s, 0);
     }
     values[i] = value;
 }

@@ -165,22 +165,24 @@ EB_INLINE int eb_queue_pop(eb_queue *q)
 }
 
 /* Queue items: a node as its index, a region r as ~r (negative). */
-EB_INLINE void eb_queue_start(eb_queue *q, eb_bvh bvh, float3 org, float3 inv_dir)
+EB_INLINE void eb_queue_start(eb_queue *q, eb_bvh bvh, float3 org, float3 inv_dir,
+                              float t_min, float t_max)
 {
     q->size = 0;
     if (!bvh.visible[0])
         return;
     float2 iv = eb_box_interval(bvh.lower[0].xyz, bvh.upper[0].xyz, org, inv_dir);
-    float t0 = fmax(iv.x, 0.0f);
-    if (iv.y > t0)
+    float t0 = fmax(iv.x, t_min);
+    if (fmin(iv.y, t_max) > t0)
         eb_queue_push(q, t0, 0);
 }
 
 /* Expand node `node` into the queue: its visible children, or the visible
  * regions of a leaf, that the ray overlaps over a non-empty interval after
- * t_cur. Returns 0 if the queue overflowed (the caller must fall back). */
+ * t_cur (and before t_max). Returns 0 if the queue overflowed (the caller
+ * must fall back). */
 EB_INLINE int eb_queue_expand(eb_queue *q, eb_bvh bvh, eb_regions regions, int node,
-                              float3 org, float3 inv_dir, float t_cur)
+                              float3 org, float3 inv_dir, float t_cur, float t_max)
 {
     int2 link = bvh.link[node];
     if (link.y > 0) {
@@ -190,7 +192,7 @@ EB_INLINE int eb_queue_expand(eb_queue *q, eb_bvh bvh, eb_regions regions, int n
                 continue;
             float2 iv = eb_box_interval(regions.lower[r].xyz, regions.upper[r].xyz, org, inv_dir);
             float t0 = fmax(iv.x, t_cur);
-            if (iv.y > t0) {
+            if (fmin(iv.y, t_max) > t0) {
                 if (q->size == EB_QUEUE_SIZE)
                     return 0;
                 eb_queue_push(q, t0, ~r);
@@ -203,13 +205,71 @@ EB_INLINE int eb_queue_expand(eb_queue *q, eb_bvh bvh, eb_regions regions, int n
             continue;
         float2 iv = eb_box_interval(bvh.lower[c].xyz, bvh.upper[c].xyz, org, inv_dir);
         float t0 = fmax(iv.x, t_cur);
-        if (iv.y > t0) {
+        if (fmin(iv.y, t_max) > t0) {
             if (q->size == EB_QUEUE_SIZE)
                 return 0;
             eb_queue_push(q, t0, c);
         }
     }
     return 1;
+}
+
+/* The regions along a ray segment [t_min, t_max], front to back: the ordered
+ * walk, finishing with the re-trace walk from where it stopped if its heap
+ * fills up (or throughout with ordered == 0). Every region is returned at most
+ * once, with its overlap [*t_in, *t_out] (t_in >= the previous t_out). */
+typedef struct {
+    eb_queue q;
+    float t_cur, t_max;
+    int retrace;
+    int pops, visits;  /* loop bounds: each node and region is queued at most once */
+} eb_walk;
+
+EB_INLINE void eb_walk_start(eb_walk *w, eb_bvh bvh, float3 org, float3 inv_dir,
+                             float t_min, float t_max, const int ordered)
+{
+    w->t_cur = t_min;
+    w->t_max = t_max;
+    w->retrace = !ordered;
+    w->pops = bvh.n_nodes + bvh.n_regions;
+    w->visits = bvh.n_regions;
+    w->q.size = 0;
+    if (ordered)
+        eb_queue_start(&w->q, bvh, org, inv_dir, t_min, t_max);
+}
+
+EB_INLINE int eb_walk_next(eb_walk *w, eb_bvh bvh, eb_regions regions, float3 org,
+                           float3 inv_dir, float *t_in, float *t_out)
+{
+    if (!w->retrace) {
+        while (w->q.size > 0 && w->pops-- > 0) {
+            int item = eb_queue_pop(&w->q);
+            if (item >= 0) {
+                if (!eb_queue_expand(&w->q, bvh, regions, item, org, inv_dir, w->t_cur, w->t_max)) {
+                    w->retrace = 1;  /* heap full: go on with the re-trace walk from t_cur */
+                    break;
+                }
+                continue;
+            }
+            int r = ~item;
+            float2 iv = eb_box_interval(regions.lower[r].xyz, regions.upper[r].xyz, org, inv_dir);
+            float a = fmax(iv.x, w->t_cur), b = fmin(iv.y, w->t_max);
+            if (!(b > a))
+                continue;
+            *t_in = a;
+            *t_out = b;
+            w->t_cur = b;
+            return r;
+        }
+        if (!w->retrace)
+            return -1;
+    }
+    if (w->visits-- <= 0)
+        return -1;
+    int r = eb_next_region(bvh, regions, org, inv_dir, w->t_cur, w->t_max, t_in, t_out);
+    if (r >= 0)
+        w->t_cur = *t_out;
+    return r;
 }
 
 /* A depth-first descent of a flat binary tree (node boxes lower/upper,

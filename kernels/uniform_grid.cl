@@ -71,7 +71,11 @@ __kernel void eb_uniform_render(int width, int height, uint seed, int jitter,
     float2 iv = eb_box_interval((float3)(-1.0f), convert_float3(dims.xyz), org_voxel, 1.0f / dir);
     float t_in = fmax(iv.x, 0.0f), t_out = iv.y;
 
-    eb_ray_state st = {(float3)(0.0f), 1.0f, EB_INF, 0u};
+    eb_ray_state st;
+    st.color = (float3)(0.0f);
+    st.transmittance = 1.0f;
+    st.t_depth = EB_INF;
+    st.samples = 0u;
     if (t_out > t_in) {
         eb_intervals it = eb_intervals_start(t_in, t_out, dt, rho);
         float tm, len;

@@ -28,7 +28,7 @@ from exabricks.stages.bvh import build_bvh  # noqa: E402
 from exabricks.stages.compare import compare_images  # noqa: E402
 from exabricks.stages.regions import build_regions  # noqa: E402
 from exabricks.stages.render import Renderer  # noqa: E402
-from exabricks.stages.scene import DeviceScene  # noqa: E402
+from exabricks.stages.device_data import DeviceScene  # noqa: E402
 from exabricks.transfer_function import TransferFunction, default_transfer_function  # noqa: E402
 
 SIZE = 64

@@ -248,7 +248,7 @@ def scene_paths(spec: dict) -> dict:
 def worker_prepare(spec: dict) -> dict:
     """The offline stages (ingest, brick, regions, bvh) in memory, saved as .npz; the view."""
     from exabricks import schema
-    from exabricks.stages.scene import finest_cell_width_world
+    from exabricks.stages.device_data import finest_cell_width_world
 
     cells, bricks, regions, bvh, t_read, t_build = build_scene(Path(spec["path"]), spec["field"])
     camera, tf, bounds, value_range = view_of(cells, spec["alpha_scale"])

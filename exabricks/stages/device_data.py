@@ -110,25 +110,32 @@ def _boxes4(lower, upper):
 
 
 class DeviceScene:
-    """One dataset (one field) resident on one OpenCL device."""
+    """One dataset resident on one OpenCL device: the structures and the values
+    of `fields` (default: `field`, else the first field) only, one after the
+    other (the kernels' field f is fields[f]; the program is built with
+    -DEB_N_FIELDS)."""
 
     def __init__(self, bricks: schema.Bricks, regions: schema.Regions, bvh: schema.Bvh,
-                 *, field: str | None = None, device=None):
+                 *, field: str | None = None, fields=None, device=None):
         check_inputs(bricks, regions, bvh)
         self.bricks, self.regions, self.bvh = bricks, regions, bvh
-        self.field = bricks.fields[bricks.field_index(field)] if bricks.fields else field
-        self.field_index = bricks.field_index(field)
+        if fields is None or not len(fields):
+            fields = (bricks.fields[bricks.field_index(field)],) if bricks.fields else ()
+        self.fields = tuple(dict.fromkeys(fields))
+        self.field_indices = [bricks.field_index(f) for f in self.fields]
+        self.field = self.fields[0] if self.fields else field
+        self.field_index = self.field_indices[0] if self.fields else 0
         self.device = device if device is not None and not isinstance(device, str) \
             else opencl.choose_device(device)
         check_device_memory(self.device, {
-            "brick values": bricks.values.shape[1] * 4,
+            "brick values": bricks.values.shape[1] * 4 * max(1, len(self.fields)),
             "brick boxes": bricks.n_bricks * 40,
             "region lists": regions.brick_ids.nbytes + regions.brick_start.nbytes,
             "region boxes": regions.n_regions * 34,
             "BVH nodes": bvh.n_nodes * 42 + bvh.region_index.nbytes,
         })
         self.context, self.queue = opencl.context_for(self.device)
-        self.program = opencl.program_for(self.context)
+        self.program = self.program_for()
         q = self.queue
         up = opencl.to_device
 
@@ -137,8 +144,10 @@ class DeviceScene:
         box = np.hstack([b.lower_lattice.astype(np.float32),
                          (1.0 / width).astype(np.float32)[:, None]])
         dims = np.hstack([b.dims, b.level.astype(np.int32)[:, None]]).astype(np.int32)
+        values = b.values[self.field_indices] if self.fields else b.values[:1]
         self.brick_args = [up(q, box, np.float32), up(q, dims, np.int32),
-                           up(q, b.offset, np.int64), up(q, b.values[self.field_index], np.float32)]
+                           up(q, b.offset, np.int64), up(q, values, np.float32),
+                           np.int64(b.values.shape[1])]
 
         r = regions
         lo, hi = _boxes4(r.lower_lattice, r.upper_lattice)
@@ -152,25 +161,39 @@ class DeviceScene:
 
         self.origin_world4 = _float4(b.origin_world)
         self.inv_spacing4 = _float4(1.0 / b.spacing_world)
-        self.gradient_scale4 = _float4(gradient_scale(b.spacing_world, b.values[self.field_index]))
+        self.gradient_scales = np.array(
+            [[*gradient_scale(b.spacing_world, b.values[i]), 0.0] for i in self.field_indices]
+            or [[1.0, 1.0, 1.0, 0.0]], np.float32)
         self.finest_width_world = finest_cell_width_world(b)
         self.min_spacing_world = float(b.spacing_world.min())
         self._location_args = None
         self.brick_tree = self.brick_tree_seconds = None
 
+    def program_for(self, defines=()):
+        """The kernel program for this scene's field count, with extra `defines`."""
+        return opencl.program_for(self.context, (f"EB_N_FIELDS={max(1, len(self.fields))}",
+                                                 *defines))
+
     @property
     def empty(self) -> bool:
         return self.bvh.n_nodes == 0 or self.regions.n_regions == 0
 
-    def visibility(self, transfer_function):
-        """Per node and per region: 1 where the transfer function's maximum alpha over
-        the value range is above 0 (paper §4.1 space skipping), uint8 (M,), (R,)."""
-        f = self.field_index
-        node_range = self.bvh.value_range[:, f]
-        region_range = self.regions.value_range[:, f]
-        node = transfer_function.max_alpha(node_range[:, 0], node_range[:, 1]) > 0
-        region = transfer_function.max_alpha(region_range[:, 0], region_range[:, 1]) > 0
-        return node.astype(np.uint8), region.astype(np.uint8)
+    def visibility(self, layers=(), isovalues=()):
+        """Per node and per region (paper §4.1 space skipping, per frame, no
+        rebuild): 1 where some volume layer (field name, transfer function) has
+        a maximum alpha above 0 over the value range, or some iso-value (field
+        name, value) lies inside it; uint8 (M,), (R,)."""
+        out = []
+        for ranges in (self.bvh.value_range, self.regions.value_range):
+            seen = np.zeros(ranges.shape[0], bool)
+            for name, tf in layers:
+                r = ranges[:, self.bricks.field_index(name)]
+                seen |= tf.max_alpha(r[:, 0], r[:, 1]) > 0
+            for name, value in isovalues:
+                r = ranges[:, self.bricks.field_index(name)]
+                seen |= (r[:, 0] <= value) & (value <= r[:, 1])
+            out.append(seen.astype(np.uint8))
+        return tuple(out)
 
     def scene_args(self, node_visible=None, region_visible=None) -> list:
         """Kernel arguments EB_BVH_ARGS, EB_REGION_ARGS, EB_BRICK_ARGS (visibility buffers

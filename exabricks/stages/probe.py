@@ -11,7 +11,7 @@ import numpy as np
 
 from .. import interrupt, opencl, schema
 from ..errors import ExabricksError
-from .scene import DeviceScene
+from .device_data import DeviceScene
 
 
 def probe_scene(scene: DeviceScene, points_world) -> np.ndarray:

@@ -51,9 +51,8 @@ import numpy as np
 from .. import interrupt, opencl, schema
 from ..constants import MAX_SAMPLES_PER_RAY
 from ..errors import ExabricksError
-from .scene import DeviceScene, _float4
-
-SHADING_MODES = ("headlight", "none")
+from ..scene import Lighting, Scene, Settings, VolumeLayer
+from .device_data import DeviceScene, _float4
 
 # Region walks (kernels/traversal.cl): "ordered" keeps a private min-heap of
 # BVH nodes and regions per ray (one traversal per ray); "retrace" is the
@@ -85,20 +84,20 @@ class RenderResult:
     stats: dict = dataclass_field(default_factory=dict)
 
 
-def _check_settings(width, height, sampling_rate, spp, max_opacity, unit_distance, shading,
-                    traversal="ordered"):
-    if int(width) < 1 or int(height) < 1:
-        raise ExabricksError(f"image size must be positive, got {width}x{height}")
-    if not (math.isfinite(sampling_rate) and sampling_rate > 0):
-        raise ExabricksError(f"sampling rate must be positive, got {sampling_rate:g}")
-    if int(spp) < 1:
-        raise ExabricksError(f"samples per pixel must be at least 1, got {spp}")
-    if not (0.0 < max_opacity <= 1.0):
-        raise ExabricksError(f"max opacity must be in (0, 1], got {max_opacity:g}")
-    if unit_distance is not None and not (math.isfinite(unit_distance) and unit_distance > 0):
-        raise ExabricksError(f"unit distance must be positive, got {unit_distance:g}")
-    if shading not in SHADING_MODES:
-        raise ExabricksError(f"unknown shading {shading!r} (one of {', '.join(SHADING_MODES)})")
+def _check_settings(settings: Settings, traversal: str) -> None:
+    w, h = settings.width, settings.height
+    if int(w) < 1 or int(h) < 1:
+        raise ExabricksError(f"image size must be positive, got {w}x{h}")
+    rate = settings.sampling_rate
+    if not (math.isfinite(rate) and rate > 0):
+        raise ExabricksError(f"sampling rate must be positive, got {rate:g}")
+    if int(settings.spp) < 1:
+        raise ExabricksError(f"samples per pixel must be at least 1, got {settings.spp}")
+    if not (0.0 < settings.max_opacity <= 1.0):
+        raise ExabricksError(f"max opacity must be in (0, 1], got {settings.max_opacity:g}")
+    unit = settings.unit_distance
+    if unit is not None and not (math.isfinite(unit) and unit > 0):
+        raise ExabricksError(f"unit distance must be positive, got {unit:g}")
     if traversal not in TRAVERSALS:
         raise ExabricksError(f"unknown traversal {traversal!r} (one of {', '.join(TRAVERSALS)})")
 
@@ -110,23 +109,27 @@ def _check_reconstruction(reconstruction):
 
 
 class Renderer:
-    """A dataset on an OpenCL device, ready to render frames of one field."""
+    """A dataset on an OpenCL device, ready to render frames of the uploaded fields
+    (`fields`, default: `field`, else the first field of the bricks)."""
 
     def __init__(self, bricks: schema.Bricks, regions: schema.Regions, bvh: schema.Bvh,
-                 *, field: str | None = None, device=None, reconstruction: str = "regions"):
+                 *, field: str | None = None, fields=None, device=None,
+                 reconstruction: str = "regions"):
         _check_reconstruction(reconstruction)
-        self.scene = DeviceScene(bricks, regions, bvh, field=field, device=device)
+        self.scene = DeviceScene(bricks, regions, bvh, field=field, fields=fields, device=device)
         self._use(reconstruction)
 
     def _use(self, reconstruction: str) -> None:
         _check_reconstruction(reconstruction)
         self.reconstruction = reconstruction
-        program = self.scene.program
         self.location_args = []
         if reconstruction == "cell-location":
-            program = opencl.program_for(self.scene.context, ("EB_CELL_LOCATION",))
             self.location_args = self.scene.location_args()
-        self.kernel = opencl.kernel(program, "eb_render")
+
+    def _kernel(self, surfaces: bool):
+        defines = (("EB_CELL_LOCATION",) if self.reconstruction == "cell-location" else ()) \
+            + (("EB_SURFACES",) if surfaces else ())
+        return opencl.kernel(self.scene.program_for(defines), "eb_render")
 
     def with_reconstruction(self, reconstruction: str) -> "Renderer":
         """A Renderer of the same uploaded scene (no second upload) with another
@@ -148,34 +151,60 @@ class Renderer:
                max_opacity: float = 0.98, unit_distance: float | None = None,
                shading: str = "headlight", depth: bool = False,
                traversal: str = "ordered") -> RenderResult:
-        """Render one frame; see the module docstring for the conventions.
+        """One frame of one volume layer (the first uploaded field); see the module
+        docstring for the conventions and `render_scene` for everything else."""
+        scene = Scene(
+            camera=camera, volumes=(VolumeLayer(self.field, transfer_function),),
+            lighting=Lighting(shading=shading),
+            settings=Settings(width=int(width), height=int(height), spp=int(spp),
+                              sampling_rate=float(sampling_rate), max_opacity=float(max_opacity),
+                              seed=int(seed), jitter=bool(jitter), unit_distance=unit_distance,
+                              depth=bool(depth)))
+        return self.render_scene(scene, traversal=traversal)
+
+    def render_scene(self, scene: Scene, *, traversal: str = "ordered") -> RenderResult:
+        """Render `scene` (exabricks.scene.Scene; its fields must be uploaded).
 
         `traversal` picks the region walk (TRAVERSALS); both give the same
         image up to float rounding, only the speed differs."""
-        _check_settings(width, height, sampling_rate, spp, max_opacity, unit_distance, shading,
-                        traversal)
-        width, height, spp = int(width), int(height), int(spp)
+        scene.check()
+        cfg = scene.settings
+        _check_settings(cfg, traversal)
+        missing = [f for f in scene.fields() if f not in self.scene.fields]
+        if missing:
+            raise ExabricksError(f"field(s) {', '.join(missing)} are not on the device "
+                                 f"(uploaded: {', '.join(self.scene.fields)})")
+        width, height, spp = int(cfg.width), int(cfg.height), int(cfg.spp)
         s = self.scene
-        unit = s.finest_width_world if unit_distance is None else float(unit_distance)
-        origin, forward, du, dv = camera.frame(width, height)
-        node_vis, region_vis = s.visibility(transfer_function)
-        xs, rgba_knots = transfer_function.merged_knots()
+        unit = s.finest_width_world if cfg.unit_distance is None else float(cfg.unit_distance)
+        origin, forward, du, dv = scene.camera.frame(width, height)
+        node_vis, region_vis = s.visibility(
+            [(v.field, v.transfer_function) for v in scene.volumes],
+            [(i.field, i.value) for i in scene.isosurfaces])
+        shading = scene.lighting.shading
         stats = {
-            "field": self.field, "width": width, "height": height, "spp": spp,
-            "sampling_rate": float(sampling_rate), "seed": int(seed), "jitter": bool(jitter),
-            "max_opacity": float(max_opacity), "unit_distance": unit, "shading": shading,
+            "fields": list(scene.fields()), "width": width, "height": height, "spp": spp,
+            "sampling_rate": float(cfg.sampling_rate), "seed": int(cfg.seed),
+            "jitter": bool(cfg.jitter), "max_opacity": float(cfg.max_opacity),
+            "unit_distance": unit, "shading": shading, "gradient": scene.lighting.gradient,
+            "volumes": len(scene.volumes), "isosurfaces": len(scene.isosurfaces),
+            "slices": len(scene.slices), "clip": scene.clip.active,
+            "ao_samples": scene.lighting.ao_samples,
             "traversal": traversal, "reconstruction": self.reconstruction,
             "device": self.device_name,
             "visible_regions": int(region_vis.sum()), "regions": s.regions.n_regions,
         }
-        if s.empty or not node_vis[0]:
-            stats.update(samples=0, ms=0.0, samples_per_second=0.0)
-            rgba = np.zeros((height, width, 4), np.float32)
-            d = np.full((height, width), np.inf, np.float32) if depth else None
-            return RenderResult(rgba, d, stats)
-        self._check_samples_per_ray(sampling_rate)
+        if scene.volumes:
+            stats["field"] = scene.volumes[0].field
         rgba = _host_image(width, height, 4, "the image")
-        d = _host_image(width, height, 1, "the depth image")[..., 0] if depth else None
+        d = _host_image(width, height, 1, "the depth image")[..., 0] if cfg.depth else None
+        if s.empty or not (node_vis[0] or scene.slices):
+            rgba[:] = 0.0
+            if d is not None:
+                d[:] = np.inf
+            stats.update(samples=0, ms=0.0, samples_per_second=0.0)
+            return RenderResult(_over_background(rgba, scene.background), d, stats)
+        self._check_samples_per_ray(cfg.sampling_rate)
 
         q = s.queue
         up = opencl.to_device
@@ -185,15 +214,19 @@ class Renderer:
         depth_buf = opencl.empty_buffer(q, band_pixels * 4)
         samples_buf = opencl.empty_buffer(q, band_pixels * 4)
         samples = np.empty(band_pixels, np.uint32)
-        scene_args = s.scene_args(up(q, node_vis), up(q, region_vis))
-        tf_args = [up(q, xs, np.float32), up(q, rgba_knots, np.float32), np.int32(xs.shape[0])]
+        kernel = self._kernel(bool(scene.isosurfaces or scene.slices))
+        lighting = scene.lighting
+        ao_distance = lighting.ao_distance or AO_DISTANCE_CELLS * s.finest_width_world
         fixed = [
-            np.uint32(int(seed) & 0xFFFFFFFF), np.int32(bool(jitter)),
+            np.uint32(int(cfg.seed) & 0xFFFFFFFF), np.int32(bool(cfg.jitter)),
             _float4(origin), _float4(forward), _float4(du), _float4(dv),
-            s.origin_world4, s.inv_spacing4, s.gradient_scale4,
-            np.float32(s.min_spacing_world / sampling_rate), np.float32(1.0 / unit),
-            np.float32(max_opacity), np.int32(shading != "none"), np.int32(traversal == "ordered"),
-            *scene_args, *self.location_args, *tf_args, rgba_buf, depth_buf, samples_buf,
+            s.origin_world4, s.inv_spacing4,
+            np.float32(s.min_spacing_world / cfg.sampling_rate), np.float32(1.0 / unit),
+            np.float32(cfg.max_opacity), np.int32(shading != "none"),
+            np.int32(traversal == "ordered"), np.int32(lighting.gradient == "central"),
+            np.int32(lighting.ao_samples), np.float32(ao_distance),
+            *s.scene_args(up(q, node_vis), up(q, region_vis)), *self.location_args,
+            *frame_args(scene, s, q), rgba_buf, depth_buf, samples_buf,
         ]
         q.finish()
         start = time.perf_counter()
@@ -204,13 +237,13 @@ class Renderer:
             band_start = time.perf_counter()
             global_size = (-(-width // TILE) * TILE, -(-rows // TILE) * TILE)
             for sample in range(spp):
-                self.kernel(q, global_size, (TILE, TILE),
-                            np.int32(width), np.int32(height), np.int32(row0), np.int32(rows),
-                            np.int32(sample), np.int32(spp), *fixed)
+                kernel(q, global_size, (TILE, TILE),
+                       np.int32(width), np.int32(height), np.int32(row0), np.int32(rows),
+                       np.int32(sample), np.int32(spp), *fixed)
             n = width * rows
             opencl.read_back(q, rgba_buf, rgba[row0:row0 + rows].reshape(n, 4))
             opencl.read_back(q, samples_buf, samples[:n])
-            if depth:
+            if d is not None:
                 opencl.read_back(q, depth_buf, d[row0:row0 + rows].reshape(n))
             total += int(samples[:n].sum(dtype=np.int64))
             row0 += rows
@@ -219,7 +252,7 @@ class Renderer:
         seconds = time.perf_counter() - start
         stats.update(samples=total, ms=1e3 * seconds / spp,
                      samples_per_second=total / seconds if seconds > 0 else 0.0)
-        return RenderResult(rgba, d, stats)
+        return RenderResult(_over_background(rgba, scene.background), d, stats)
 
     def _check_samples_per_ray(self, sampling_rate: float) -> None:
         """Refuse a sampling rate that would take more than MAX_SAMPLES_PER_RAY samples
@@ -274,10 +307,84 @@ def render(bricks: schema.Bricks, regions: schema.Regions, bvh: schema.Bvh, *, c
            max_opacity: float = 0.98, unit_distance: float | None = None,
            shading: str = "headlight", depth: bool = False, device=None,
            traversal: str = "ordered", reconstruction: str = "regions") -> RenderResult:
-    """Render one frame of `field` (default: the first); see `Renderer.render`."""
+    """Render one frame of one volume layer of `field` (default: the first); see
+    `Renderer.render`."""
     return Renderer(bricks, regions, bvh, field=field, device=device,
                     reconstruction=reconstruction).render(
         camera=camera, transfer_function=transfer_function, width=width, height=height,
         sampling_rate=sampling_rate, spp=spp, seed=seed, jitter=jitter,
         max_opacity=max_opacity, unit_distance=unit_distance, shading=shading, depth=depth,
         traversal=traversal)
+
+
+def render_scene(bricks: schema.Bricks, regions: schema.Regions, bvh: schema.Bvh,
+                 scene: Scene, *, device=None, traversal: str = "ordered",
+                 reconstruction: str = "regions") -> RenderResult:
+    """Render `scene` (exabricks.scene.Scene), uploading only the fields it uses."""
+    return Renderer(bricks, regions, bvh, fields=scene.fields(), device=device,
+                    reconstruction=reconstruction).render_scene(scene, traversal=traversal)
+
+
+# Default ambient-occlusion distance, in finest cell widths of the dataset.
+AO_DISTANCE_CELLS = 10.0
+# Iso-hit refinement tolerance, in finest cell widths (docs/design.md).
+ISO_TOLERANCE_CELLS = 1e-3
+
+
+def frame_args(scene: Scene, device_scene: DeviceScene, queue) -> list:
+    """Kernel arguments EB_FRAME_ARGS (kernels/render.cl) of `scene`: every transfer
+    function and colour map as merged knots one after the other, the volume
+    layers, iso-surfaces and slices by field index on the device, and clipping."""
+    up = opencl.to_device
+    index = {name: i for i, name in enumerate(device_scene.fields)}
+    xs, rgba = [], []
+
+    def knots(tf) -> tuple[int, int]:
+        x, c = tf.merged_knots()
+        first = sum(len(k) for k in xs)
+        xs.append(np.asarray(x, np.float32))
+        rgba.append(np.asarray(c, np.float32))
+        return first, len(x)
+
+    layers = [(index[v.field], *knots(v.transfer_function), 0) for v in scene.volumes]
+    iso, iso_value, iso_color = [], [], []
+    for surface in scene.isosurfaces:
+        first, n = knots(surface.colormap) if surface.colormap is not None else (0, 0)
+        color_field = index[surface.color_field] if surface.color_field else -1
+        iso.append((index[surface.field], color_field, first, n))
+        iso_value.append((surface.value, surface.opacity, 0.0, 0.0))
+        iso_color.append((*surface.color, 0.0))
+    slices, slice_point, slice_normal = [], [], []
+    for plane in scene.slices:
+        slices.append((index[plane.field], *knots(plane.colormap), 0))
+        normal = np.asarray(plane.normal, np.float64)
+        slice_point.append((*plane.point, plane.opacity))
+        slice_normal.append((*(normal / np.linalg.norm(normal)), 0.0))
+    clip = scene.clip
+    box = clip.box or ((0.0, 0.0, 0.0), (0.0, 0.0, 0.0))
+    planes = [(*p, 0.0) for point, normal in clip.planes
+              for p in (point, np.asarray(normal, np.float64) / np.linalg.norm(normal))]
+    cat = lambda parts, shape: np.concatenate(parts) if parts else np.zeros(shape, np.float32)
+    i4 = lambda rows: np.asarray(rows or [(0, 0, 0, 0)], np.int32).reshape(-1, 4)
+    f4 = lambda rows: np.asarray(rows or [(0.0,) * 4], np.float32).reshape(-1, 4)
+    tolerance = ISO_TOLERANCE_CELLS * device_scene.finest_width_world
+    return [
+        up(queue, cat(xs, (1,))), up(queue, cat(rgba, (1, 4))),
+        up(queue, i4(layers)), np.int32(len(layers)), up(queue, device_scene.gradient_scales),
+        up(queue, i4(iso)), up(queue, f4(iso_value)), up(queue, f4(iso_color)), np.int32(len(iso)),
+        up(queue, i4(slices)), up(queue, f4(slice_point)), up(queue, f4(slice_normal)),
+        np.int32(len(slices)),
+        np.float32(tolerance), np.float32(scene.lighting.specular),
+        np.float32(scene.lighting.shininess),
+        np.int32(clip.box is not None), _float4(box[0]), _float4(box[1]),
+        up(queue, f4(planes)), np.int32(len(clip.planes)),
+    ]
+
+
+def _over_background(rgba: np.ndarray, background) -> np.ndarray:
+    """`rgba` (premultiplied) composited over the RGBA `background`, in place."""
+    r, g, b, a = (float(c) for c in background)
+    if a > 0.0:
+        behind = 1.0 - rgba[..., 3:4]
+        rgba += behind * np.array([r * a, g * a, b * a, a], np.float32)
+    return rgba

@@ -1,0 +1,45 @@
+/* The participating medium: any number of volume layers, each a field with its
+ * own transfer function, mixed per step (docs/design.md, "Several volume
+ * layers"). Layer i has slab opacity alpha_i per unit_distance, extinction
+ * sigma_i = -ln(1 - alpha_i) / unit_distance; a step of length dt has opacity
+ * 1 - exp(-sum_i sigma_i dt) and colour sum_i sigma_i rgb_i / sum_i sigma_i.
+ * Computed in base 2 (s_i = -log2(1 - alpha_i), the factor ln 2 cancels) with
+ * the inlined polynomials of transfer_function.cl; one layer takes exactly the
+ * single-field path 1 - (1 - alpha)^(dt / unit_distance) (paper §4.3).
+ * The step itself is eb_medium_step (scene.cl), which computes a field's
+ * gradient only when a layer of it is visible and shaded. */
+#pragma once
+#include "common.h"
+#include "reconstruction.cl"
+#include "transfer_function.cl"
+
+/* Headlight shading: emitted rgb *= AMBIENT + DIFFUSE |n . v|, with n the
+ * normalised gradient and v the view direction; a zero gradient leaves the
+ * colour unshaded (factor 1). */
+#define EB_AMBIENT 0.3f
+#define EB_DIFFUSE 0.7f
+
+/* The frame's look: every transfer function and colour map as merged knots
+ * (exabricks.transfer_function.TransferFunction.merged_knots) one after the
+ * other, and the volume layers (field, first knot, knot count). */
+typedef struct {
+    __global const float *xs;
+    __global const float4 *rgba;
+    __global const int4 *layers;
+    int n_layers;
+    __global const float4 *gradient_scale;  /* per field: lattice -> world gradient, times a constant */
+} eb_look;
+
+/* Colour map (knots first .. first + n - 1) at `value`. */
+EB_INLINE float4 eb_lookup(eb_look look, int first, int n, float value)
+{
+    return eb_transfer_function(value, look.xs + first, look.rgba + first, n);
+}
+
+/* Headlight factor of a world-direction gradient g (any scale) seen along dir. */
+EB_INLINE float eb_headlight(float3 g, float3 dir_world)
+{
+    float g2 = dot(g, g);
+    /* rsqrt is cheaper than length() and a division. */
+    return g2 > 0.0f ? EB_AMBIENT + EB_DIFFUSE * fabs(dot(g, dir_world)) * rsqrt(g2) : 1.0f;
+}

@@ -1,0 +1,102 @@
+/* Ambient occlusion of surface hits (iso-surfaces and slices): `ao_samples`
+ * cosine-weighted rays from the hit, each of length `ao_distance` (world),
+ * whose visibility is the transmittance of the volume layers along them times
+ * (1 - opacity) of every iso-surface and slice they cross, inside the clip
+ * interval. The rays' directions are seeded hashes of (pixel, sample), so
+ * the result is reproducible and converges with --spp. (ExaBricks lets only
+ * surfaces occlude; the volume's opacity occludes here too.) */
+#pragma once
+#include "common.h"
+#include "sampler.cl"
+#include "scene.cl"
+
+/* Below this visibility a ray counts as blocked. */
+#define EB_AO_CUTOFF 1e-3f
+
+/* Visibility along world ray org_world + t dir_world, t in [t_min, t_max]. */
+EB_INLINE float eb_visibility(eb_frame *fr, float3 org_world, float3 dir_world,
+                              float t_min, float t_max, float rho)
+{
+    float2 keep = eb_clip_interval(fr->clip, org_world, dir_world, t_min);
+    t_min = keep.x;
+    t_max = fmin(t_max, keep.y);
+    if (!(t_max > t_min))
+        return 1.0f;
+    float vis = 1.0f;
+    /* Slices: crossed where the plane meets the segment and the field has data. */
+    for (int k = 0; k < fr->surf.n_slices; ++k) {
+        float3 n = fr->surf.slice_normal[k].xyz;
+        float along = dot(dir_world, n);
+        if (along == 0.0f)
+            continue;
+        float t = dot(fr->surf.slice_point[k].xyz - org_world, n) / along;
+        if (t > t_min && t < t_max) {
+            float3 p = eb_world_to_lattice(org_world + t * dir_world, fr->origin_world.xyz,
+                                           fr->inv_spacing.xyz);
+            if (eb_evaluate(fr, p, 0).weight > 0.0f)
+                vis *= 1.0f - fr->surf.slice_point[k].w;
+        }
+    }
+    float3 org = eb_world_to_lattice(org_world, fr->origin_world.xyz, fr->inv_spacing.xyz);
+    float3 dir = dir_world * fr->inv_spacing.xyz;
+    float3 inv_dir = 1.0f / dir;
+    eb_walk w;
+    eb_walk_start(&w, fr->bvh, org, inv_dir, t_min, t_max, 1);
+    float t_in, t_out, last_exit = t_min;
+    float prev[EB_N_FIELDS];
+    int prev_valid = 0;
+    int r;
+    while (vis > EB_AO_CUTOFF && (r = eb_walk_next(&w, fr->bvh, fr->regions, org, inv_dir,
+                                                     &t_in, &t_out)) >= 0) {
+        if (t_in > last_exit)
+            prev_valid = 0;  /* a skipped gap: no crossing can be told across it */
+        last_exit = t_out;
+        float dt = ldexp(fr->step_base, (int)fr->regions.finest_level[r]);
+        eb_intervals it = eb_intervals_start(t_in, t_out, dt, rho);
+        float tm, len;
+        while (vis > EB_AO_CUTOFF && eb_intervals_next(&it, &tm, &len)) {
+            eb_basis_sums s = eb_sample_region(fr, r, org + tm * dir, 0);
+            if (!(s.weight > 0.0f)) {
+                prev_valid = 0;
+                continue;
+            }
+            float value[EB_N_FIELDS];
+            eb_fields(s, value);
+            for (int j = 0; j < fr->surf.n_iso && prev_valid; ++j) {
+                int f = fr->surf.iso[j].x;
+                float iso = fr->surf.iso_value[j].x;
+                if ((prev[f] < iso) != (value[f] < iso))
+                    vis *= 1.0f - fr->surf.iso_value[j].y;
+            }
+            for (int f = 0; f < EB_N_FIELDS; ++f)
+                prev[f] = value[f];
+            prev_valid = 1;
+            if (fr->look.n_layers > 0)
+                vis *= 1.0f - eb_medium_step(fr, &s, org + tm * dir, 0, value, len, dir_world, 0).w;
+        }
+    }
+    return vis;
+}
+
+/* Mean visibility of ao_samples cosine-weighted rays about the unit world
+ * normal n from world point p. */
+EB_INLINE float eb_ambient_occlusion(eb_frame *fr, float3 p_world, float3 n, uint pixel,
+                                     uint sample, uint seed, float rho)
+{
+    /* An orthonormal frame (t, b, n) (Duff et al. 2017). */
+    float sign = n.z >= 0.0f ? 1.0f : -1.0f;
+    float a = -1.0f / (sign + n.z), bxy = n.x * n.y * a;
+    float3 t = (float3)(1.0f + sign * n.x * n.x * a, sign * bxy, -sign * n.x);
+    float3 b = (float3)(bxy, sign + n.y * n.y * a, -n.y);
+    /* Start a little off the surface so that it does not occlude itself. */
+    float eps = 1e-3f * fr->ao_distance;
+    float sum = 0.0f;
+    for (int k = 0; k < fr->ao_samples; ++k) {
+        uint index = sample * (uint)fr->ao_samples + (uint)k;
+        float u1 = eb_random(pixel, index, seed, 3u), u2 = eb_random(pixel, index, seed, 4u);
+        float r = sqrt(u1), phi = 6.28318531f * u2;
+        float3 d = r * cos(phi) * t + r * sin(phi) * b + sqrt(fmax(0.0f, 1.0f - u1)) * n;
+        sum += eb_visibility(fr, p_world, normalize(d), eps, fr->ao_distance, rho);
+    }
+    return sum / (float)fr->ao_samples;
+}

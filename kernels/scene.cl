@@ -1,0 +1,211 @@
+/* One frame's scene on the device (exabricks.stages.device_data + the
+ * per-frame arguments of render.cl): the BVH, regions and bricks, the medium,
+ * surfaces, clipping and lighting, and what every part of the integrator
+ * needs from them: the fields (and gradients) at any point. */
+#pragma once
+#include "common.h"
+#include "traversal.cl"
+#include "reconstruction.cl"
+#include "medium.cl"
+#include "clipping.cl"
+
+/* What a sample reconstructs from: the region's brick list (paper §3.2) or,
+ * built with -DEB_CELL_LOCATION, a per-sample descent of a tree over the brick
+ * supports (cell_location.cl, the comparison of paper §6.4.2). */
+#ifdef EB_CELL_LOCATION
+#include "cell_location.cl"
+typedef eb_located_bricks eb_sample_bricks;
+#else
+typedef eb_bricks eb_sample_bricks;
+#endif
+
+#ifndef EB_MAX_ISO
+#define EB_MAX_ISO 32
+#endif
+#ifndef EB_MAX_SLICES
+#define EB_MAX_SLICES 8
+#endif
+
+/* Iso-surfaces and slices (exabricks.scene.IsoSurface, Slice). */
+typedef struct {
+    __global const int4 *iso;          /* (field, colour field or -1, first knot, knot count) */
+    __global const float4 *iso_value;  /* (value, opacity, 0, 0) */
+    __global const float4 *iso_color;  /* fixed colour (r, g, b, 0) */
+    int n_iso;
+    __global const int4 *slice;        /* (field, first knot, knot count, 0) */
+    __global const float4 *slice_point;   /* world point, w = opacity */
+    __global const float4 *slice_normal;  /* world unit normal */
+    int n_slices;
+    float tolerance;                   /* iso-hit refinement, world units */
+    float specular, shininess;         /* Blinn-Phong term of surfaces (headlight) */
+} eb_surfaces;
+
+typedef struct {
+    eb_bvh bvh;
+    eb_regions regions;
+    eb_sample_bricks bricks;
+    eb_look look;
+    eb_surfaces surf;
+    eb_clip clip;
+    float step_base;          /* min(spacing) / sampling_rate: dt of a level-0 region */
+    float inv_unit_distance;  /* 1 / unit_distance (world units)                       */
+    float max_opacity;        /* early ray termination threshold                       */
+    int shade;                /* headlight shading of volumes and surfaces              */
+    int central;              /* central-difference gradients instead of analytic ones */
+    int ao_samples;           /* ambient-occlusion rays per surface hit (0: none)      */
+    float ao_distance;        /* their length, world units                             */
+    float4 origin_world, inv_spacing;
+} eb_frame;
+
+/* The reconstruction sums at lattice point p in region r. */
+EB_INLINE eb_basis_sums eb_sample_region(eb_frame *fr, int r, float3 p, const int grad)
+{
+#ifdef EB_CELL_LOCATION
+    return eb_locate_reconstruct(fr->bricks, p, grad);
+#else
+    return eb_reconstruct(fr->bricks, fr->regions.brick_ids, fr->regions.brick_start[r],
+                          fr->regions.brick_start[r + 1], p, grad);
+#endif
+}
+
+/* The sums at any lattice point p (zero weight outside every region); *level,
+ * if given, receives the finest level influencing p (0 if unknown). */
+EB_INLINE eb_basis_sums eb_evaluate_at(eb_frame *fr, float3 p, const int grad, int *level)
+{
+    *level = 0;
+#ifdef EB_CELL_LOCATION
+    return eb_locate_reconstruct(fr->bricks, p, grad);
+#else
+    int r = eb_find_region(fr->bvh, fr->regions, p);
+    if (r < 0)
+        return eb_basis_zero();
+    *level = fr->regions.finest_level[r];
+    return eb_sample_region(fr, r, p, grad);
+#endif
+}
+
+EB_INLINE eb_basis_sums eb_evaluate(eb_frame *fr, float3 p, const int grad)
+{
+    int level;
+    return eb_evaluate_at(fr, p, grad, &level);
+}
+
+/* Values of every field from the sums s (weight > 0). */
+EB_INLINE void eb_fields(eb_basis_sums s, float *value)
+{
+    for (int f = 0; f < EB_N_FIELDS; ++f)
+        value[f] = eb_basis_value(s, f);
+}
+
+/* World-scaled gradient of field f at lattice point p (sums s, finest level
+ * `level` there): analytic (paper §5.1.2, s must hold the derivative sums),
+ * or central differences of the reconstructed field with a step of half a
+ * cell of that level along each lattice axis (the analytic one where a
+ * neighbour has no data). Scaled per field (gradient_scale): only its
+ * direction matters. */
+EB_INLINE float3 eb_field_gradient(eb_frame *fr, eb_basis_sums *s, float3 p, int level, int f)
+{
+    float3 g = eb_basis_gradient(*s, f);
+    if (fr->central) {
+        float h = ldexp(0.5f, level);
+        float d[3];
+        int ok = 1;
+        for (int a = 0; a < 3 && ok; ++a) {
+            float3 e = (float3)(a == 0, a == 1, a == 2) * h;
+            eb_basis_sums sm = eb_evaluate(fr, p - e, 0), sp = eb_evaluate(fr, p + e, 0);
+            ok = sm.weight > 0.0f && sp.weight > 0.0f;
+            d[a] = ok ? (eb_basis_value(sp, f) - eb_basis_value(sm, f)) / (2.0f * h) : 0.0f;
+        }
+        if (ok)
+            g = (float3)(d[0], d[1], d[2]);
+    }
+    return g * fr->look.gradient_scale[f].xyz;
+}
+
+/* Opacity (w) and colour (xyz) of a step of length len at lattice point p
+ * (sums s, field values `value`, finest level `level`), the mixture of the
+ * volume layers (medium.cl); shaded layers use their field's gradient. */
+EB_INLINE float4 eb_medium_step(eb_frame *fr, eb_basis_sums *s, float3 p, int level,
+                                const float *value, float len, float3 dir_world, const int shade)
+{
+    eb_look look = fr->look;
+    if (look.n_layers == 1) {
+        int4 layer = look.layers[0];
+        float4 c = eb_lookup(look, layer.y, layer.z, value[layer.x]);
+        if (!(c.w > 0.0f))
+            return (float4)(0.0f);
+        float a = eb_opacity_correct(c.w, len, fr->inv_unit_distance);
+        float3 rgb = c.xyz;
+        if (shade)
+            rgb *= eb_headlight(eb_field_gradient(fr, s, p, level, layer.x), dir_world);
+        return (float4)(rgb, a);
+    }
+    float s_sum = 0.0f;
+    float3 rgb = (float3)(0.0f), rgb_opaque = (float3)(0.0f);
+    int opaque = 0;
+    for (int i = 0; i < look.n_layers; ++i) {
+        int4 layer = look.layers[i];
+        float4 c = eb_lookup(look, layer.y, layer.z, value[layer.x]);
+        if (!(c.w > 0.0f))
+            continue;
+        float3 ci = c.xyz;
+        if (shade)
+            ci *= eb_headlight(eb_field_gradient(fr, s, p, level, layer.x), dir_world);
+        if (c.w >= 1.0f) {  /* infinite extinction: these layers alone give the colour */
+            rgb_opaque += ci;
+            ++opaque;
+            continue;
+        }
+        float sl = -eb_log2_positive(1.0f - c.w);
+        s_sum += sl;
+        rgb += sl * ci;
+    }
+    if (opaque)
+        return (float4)(rgb_opaque / (float)opaque, 1.0f);
+    if (!(s_sum > 0.0f))
+        return (float4)(0.0f);
+    float a = 1.0f - eb_exp2_nonpositive(fmax(-s_sum * (len * fr->inv_unit_distance), -126.0f));
+    return (float4)(rgb / s_sum, a);
+}
+
+/* One ray: in lattice space with t in world distance (dir_world unit length),
+ * and what seeds its random numbers. */
+typedef struct {
+    float3 org, dir, inv_dir;      /* lattice space */
+    float3 org_world, dir_world;
+    float rho;                     /* interleaved-sampling offset */
+    uint pixel, sample, seed;
+} eb_ray;
+
+/* What a ray has accumulated so far. */
+typedef struct {
+    float3 color;
+    float transmittance;
+    float t_depth;                 /* where the accumulated opacity first reached EB_DEPTH_OPACITY */
+    float t_opaque;                /* the first opaque surface hit */
+    uint samples;
+    /* iso crossings: the previous sample (field values at prev_t) */
+    int prev_valid;
+    float prev_t;
+    float prev[EB_N_FIELDS];
+    float last_exit;               /* where the last region ended (a gap resets prev) */
+    /* slices the ray crosses inside its clip interval, by distance */
+    float slice_t[EB_MAX_SLICES];
+    int slice_k[EB_MAX_SLICES];
+    int n_slices, next_slice;
+} eb_ray_state;
+
+/* Accumulated opacity at which the depth output records the distance. */
+#define EB_DEPTH_OPACITY 0.5f
+
+/* Composite one step of opacity a and colour rgb at distance tm into `st`
+ * (front to back, premultiplied: C += T a rgb, T *= 1 - a); returns 1 once
+ * the ray is opaque enough to stop (early ray termination). */
+EB_INLINE int eb_composite(eb_ray_state *st, float a, float3 rgb, float tm, float max_opacity)
+{
+    st->color += (st->transmittance * a) * rgb;
+    st->transmittance *= 1.0f - a;
+    if (st->t_depth == EB_INF && 1.0f - st->transmittance >= EB_DEPTH_OPACITY)
+        st->t_depth = tm;
+    return 1.0f - st->transmittance >= max_opacity;
+}

@@ -1,0 +1,176 @@
+/* Iso-surfaces and slices along a ray (docs/design.md, "Surfaces").
+ *
+ * Iso-surfaces live on the basis field. A crossing of iso-value v on field f
+ * is detected between consecutive samples of the adaptive sampling (values on
+ * both sides of v), across region boundaries too as long as no skipped gap
+ * separates the samples (at the entry of a region after a gap the field is
+ * evaluated once at the entry point to start from). The crossing is then
+ * refined by bisection on the reconstructed field (any point: the BVH finds
+ * its region) to within `tolerance` (1e-3 of a finest cell), and placed by
+ * linear interpolation in the last bracket. What can still be missed: two
+ * crossings of the same value between two samples (a shell thinner than a
+ * sample step), and a crossing within half a step of where a region is
+ * followed by a skipped gap. Any number of iso-values (EB_MAX_ISO) on any
+ * fields; the hits between two samples are composited in distance order.
+ *
+ * Slices: planes (world point and normal) that show a colour map of a field
+ * where it has data; their distances along the ray are found once per ray.
+ *
+ * A surface hit is shaded with the normal from the gradient (iso) or the plane
+ * (slice), flipped toward the viewer: headlight diffuse (EB_AMBIENT +
+ * EB_DIFFUSE |n . v|) plus an optional Blinn-Phong term specular |n . v|^shininess
+ * (the half vector of a headlight is the view direction), times the ambient
+ * occlusion; it composites as C += T a rgb, T *= 1 - a. The volume in front of
+ * it (up to the previous sample) is integrated first. */
+#pragma once
+#include "common.h"
+#include "scene.cl"
+#include "occlusion.cl"
+
+/* Bisection steps at most: from any sample step down to the tolerance. */
+#define EB_REFINE_STEPS 40
+
+/* The slices the ray crosses inside [t0, t1], sorted by distance into `st`. */
+EB_INLINE void eb_slices_start(eb_frame *fr, eb_ray *ray, float t0, float t1, eb_ray_state *st)
+{
+    st->n_slices = 0;
+    st->next_slice = 0;
+    for (int k = 0; k < fr->surf.n_slices && k < EB_MAX_SLICES; ++k) {
+        float3 n = fr->surf.slice_normal[k].xyz;
+        float along = dot(ray->dir_world, n);
+        if (along == 0.0f)
+            continue;
+        float t = dot(fr->surf.slice_point[k].xyz - ray->org_world, n) / along;
+        if (!(t >= t0 && t <= t1))
+            continue;
+        int i = st->n_slices++;
+        for (; i > 0 && st->slice_t[i - 1] > t; --i) {
+            st->slice_t[i] = st->slice_t[i - 1];
+            st->slice_k[i] = st->slice_k[i - 1];
+        }
+        st->slice_t[i] = t;
+        st->slice_k[i] = k;
+    }
+}
+
+/* Where field f crosses iso between ta and tb, given da = B(ta) - iso and
+ * db = B(tb) - iso of opposite signs. A point without data shrinks the bracket
+ * toward its front (the crossing nearest the eye is wanted). */
+EB_INLINE float eb_refine_crossing(eb_frame *fr, eb_ray *ray, int f, float iso,
+                                   float ta, float da, float tb, float db)
+{
+    for (int i = 0; i < EB_REFINE_STEPS && tb - ta > fr->surf.tolerance; ++i) {
+        float tm = 0.5f * (ta + tb);
+        eb_basis_sums s = eb_evaluate(fr, ray->org + tm * ray->dir, 0);
+        if (!(s.weight > 0.0f)) {
+            tb = tm;
+            continue;
+        }
+        float dm = eb_basis_value(s, f) - iso;
+        if ((dm < 0.0f) == (da < 0.0f)) {
+            ta = tm;
+            da = dm;
+        } else {
+            tb = tm;
+            db = dm;
+        }
+    }
+    return da != db ? ta + (tb - ta) * (da / (da - db)) : 0.5f * (ta + tb);
+}
+
+/* Shade and composite one surface hit at distance t: iso-surface j (k < 0) or
+ * slice k (j < 0). Returns 1 once the ray is opaque enough to stop. */
+EB_INLINE int eb_surface_hit(eb_frame *fr, eb_ray *ray, eb_ray_state *st, float t, int j, int k)
+{
+    float3 p = ray->org + t * ray->dir;
+    int level;
+    eb_basis_sums s = eb_evaluate_at(fr, p, 1, &level);
+    if (!(s.weight > 0.0f))
+        return 0;  /* no data here: nothing to draw */
+    float value[EB_N_FIELDS];
+    eb_fields(s, value);
+    float3 n, rgb;
+    float a;
+    if (j >= 0) {
+        int4 iso = fr->surf.iso[j];
+        n = eb_field_gradient(fr, &s, p, level, iso.x);
+        rgb = iso.y >= 0 ? eb_lookup(fr->look, iso.z, iso.w, value[iso.y]).xyz
+                         : fr->surf.iso_color[j].xyz;
+        a = fr->surf.iso_value[j].y;
+    } else {
+        int4 slice = fr->surf.slice[k];
+        n = fr->surf.slice_normal[k].xyz;
+        rgb = eb_lookup(fr->look, slice.y, slice.z, value[slice.x]).xyz;
+        a = fr->surf.slice_point[k].w;
+    }
+    if (!(a > 0.0f))
+        return 0;
+    float n2 = dot(n, n);
+    n = n2 > 0.0f ? n * rsqrt(n2) : -ray->dir_world;
+    if (dot(n, ray->dir_world) > 0.0f)
+        n = -n;  /* toward the viewer */
+    if (fr->shade) {
+        float c = -dot(n, ray->dir_world);
+        rgb = rgb * (EB_AMBIENT + EB_DIFFUSE * c);
+        if (fr->surf.specular > 0.0f)
+            rgb += fr->surf.specular * pow(c, fr->surf.shininess);
+    }
+    if (fr->ao_samples > 0)
+        rgb *= eb_ambient_occlusion(fr, ray->org_world + t * ray->dir_world, n, ray->pixel,
+                                    ray->sample, ray->seed, ray->rho);
+    if (a >= 1.0f && st->t_opaque == EB_INF)
+        st->t_opaque = t;
+    return eb_composite(st, a, rgb, t, fr->max_opacity);
+}
+
+/* Composite every surface hit before distance t_limit: iso crossings between
+ * the previous sample and this one (field values `value`, valid if it has
+ * data) and slices, in distance order; then this sample becomes the previous
+ * one. Returns 1 once the ray is opaque enough to stop. */
+EB_INLINE int eb_surfaces_until(eb_frame *fr, eb_ray *ray, eb_ray_state *st, float t_limit,
+                                const float *value, int valid)
+{
+    float hit_t[EB_MAX_ISO];
+    int hit_j[EB_MAX_ISO];
+    int n_hits = 0;
+    if (valid && st->prev_valid) {
+        for (int j = 0; j < fr->surf.n_iso; ++j) {
+            int f = fr->surf.iso[j].x;
+            float iso = fr->surf.iso_value[j].x;
+            float da = st->prev[f] - iso, db = value[f] - iso;
+            if ((da < 0.0f) == (db < 0.0f))
+                continue;
+            float t = eb_refine_crossing(fr, ray, f, iso, st->prev_t, da, t_limit, db);
+            int i = n_hits++;
+            for (; i > 0 && hit_t[i - 1] > t; --i) {
+                hit_t[i] = hit_t[i - 1];
+                hit_j[i] = hit_j[i - 1];
+            }
+            hit_t[i] = t;
+            hit_j[i] = j;
+        }
+    }
+    for (int h = 0; h < n_hits || st->next_slice < st->n_slices;) {
+        int iso_next = h < n_hits;
+        int slice_next = st->next_slice < st->n_slices;
+        float ti = iso_next ? hit_t[h] : EB_INF;
+        float ts = slice_next ? st->slice_t[st->next_slice] : EB_INF;
+        if (!(fmin(ti, ts) <= t_limit))
+            break;
+        int done;
+        if (iso_next && (!slice_next || ti <= ts)) {
+            done = eb_surface_hit(fr, ray, st, ti, hit_j[h++], -1);
+        } else {
+            done = eb_surface_hit(fr, ray, st, ts, -1, st->slice_k[st->next_slice++]);
+        }
+        if (done)
+            return 1;
+    }
+    st->prev_valid = valid;
+    if (valid) {
+        st->prev_t = t_limit;
+        for (int f = 0; f < EB_N_FIELDS; ++f)
+            st->prev[f] = value[f];
+    }
+    return 0;
+}
