@@ -40,9 +40,14 @@ $(OUT)/regions.npz: $(OUT)/bricks.npz
 $(OUT)/bvh.npz: $(OUT)/regions.npz
 	$(EB) bvh $< -o $@
 
+# The hot core as an iso-surface (T = 0.45, with ambient occlusion and a little
+# specular) inside the translucent volume of T, on a dark background.
 $(OUT)/plume.png: $(OUT)/bvh.npz
 	$(EB) -v render $(OUT)/bricks.npz $(OUT)/regions.npz $(OUT)/bvh.npz -o $@ \
-	  --field T --camera $(DATA)/camera.json --colormap inferno --range 0 0.8 --opacity 0,0.05,0.3,1
+	  --field T --camera $(DATA)/camera.json \
+	  --colormap inferno --range -0.1 0.6 --opacity 0,0,0.1,0.18,0.25,0.3,0.35,0.4 \
+	  --iso 0.45 --iso-color 0.95,0.95,1 --specular 0.3 --ao-samples 8 \
+	  --background 0.05,0.05,0.08
 
 demo: setup $(OUT)/plume.png
 	@echo "image: $(OUT)/plume.png"
