@@ -20,6 +20,8 @@ from .transfer_function import TransferFunction
 
 SHADING_MODES = ("headlight", "none")
 GRADIENTS = ("analytic", "central")
+# How a point's value comes from the cells (docs/design.md, "Reconstructions").
+RECONSTRUCTIONS = ("basis", "nearest", "vertex")
 
 # Limits of one frame (the kernels keep these in private arrays).
 MAX_VOLUMES = 8
@@ -106,6 +108,7 @@ class Settings:
     jitter: bool = True
     unit_distance: float | None = None
     depth: bool = False
+    reconstruction: str = "basis"
 
 
 @dataclass(frozen=True)
@@ -143,6 +146,9 @@ class Scene:
         if self.lighting.shading not in SHADING_MODES:
             raise ExabricksError(f"unknown shading {self.lighting.shading!r} "
                                  f"(one of {', '.join(SHADING_MODES)})")
+        if self.settings.reconstruction not in RECONSTRUCTIONS:
+            raise ExabricksError(f"unknown reconstruction {self.settings.reconstruction!r} "
+                                 f"(one of {', '.join(RECONSTRUCTIONS)})")
         if self.lighting.gradient not in GRADIENTS:
             raise ExabricksError(f"unknown gradient {self.lighting.gradient!r} "
                                  f"(one of {', '.join(GRADIENTS)})")
@@ -201,6 +207,7 @@ FLAGS = (
     "shading", "gradient", "specular", "shininess", "ao_samples", "ao_distance",
     "background",
     "size", "spp", "sampling_rate", "max_opacity", "seed", "jitter", "unit_distance", "depth",
+    "reconstruction",
 )
 _VOLUME_FLAGS = ("field", "transfer_function", "colormap", "range", "opacity")
 
@@ -737,7 +744,8 @@ def _settings(file: _SceneFile, f) -> Settings:
         seed=int(_pick(f, "seed", file, ("seed",), d.seed)),
         jitter=bool(_pick(f, "jitter", file, ("jitter",), d.jitter)),
         unit_distance=None if unit_distance is None else float(unit_distance),
-        depth=bool(_pick(f, "depth", file, ("depth",), d.depth)))
+        depth=bool(_pick(f, "depth", file, ("depth",), d.depth)),
+        reconstruction=_pick(f, "reconstruction", file, ("reconstruction",), d.reconstruction))
 
 
 def scene_from_options(bricks, *, scene_path=None, camera_path=None, flags: dict | None = None) -> Scene:
@@ -810,6 +818,7 @@ def scene_to_dict(scene: Scene) -> dict:
         "seed": s.seed,
         "jitter": s.jitter,
         "depth": s.depth,
+        "reconstruction": s.reconstruction,
     }
     if s.unit_distance is not None:
         out["unit_distance"] = s.unit_distance

@@ -1,5 +1,11 @@
-/* Basis-method reconstruction (paper §3.2, eq. 1-2) from the bricks listed by
- * one Active Brick Region, with the analytic gradient of paper §5.1.2.
+/* Reconstruction of the fields at a point from the bricks listed by one Active
+ * Brick Region: the basis method (paper §3.2, eq. 1-2, default) with its
+ * analytic gradient (paper §5.1.2), or, built with -DEB_RECON_NEAREST or
+ * -DEB_RECON_VERTEX, the value of the containing leaf cell (Kähler & Abel) or
+ * trilinear interpolation of stitched vertex values within the containing
+ * brick (Kähler & Hege; exabricks.stages.vertex). All three return their
+ * result as eb_basis_sums (weight 1 for the other two), so everything
+ * downstream is the same.
  *
  * A cell of width w and centre c has the hat H(p) = prod_a max(0, 1 - |c_a - p_a| / w).
  * In a brick with lower corner L, cell width w and dims N, cell i has centre
@@ -28,6 +34,11 @@ typedef struct {
     __global const long *offset;
     __global const float *values;
     long field_stride;
+    /* -DEB_RECON_VERTEX: per brick (N.x+1)(N.y+1)(N.z+1) vertex values (x fastest)
+     * from vertex_offset[b], fields vertex_stride apart. */
+    __global const long *vertex_offset;
+    __global const float *vertex_values;
+    long vertex_stride;
 } eb_bricks;
 
 /* Sums of eq. 1-2 and their derivatives at one point: the weights are the
@@ -105,14 +116,84 @@ EB_INLINE void eb_add_brick(eb_bricks bricks, int b, float3 p, eb_basis_sums *s,
     }
 }
 
-/* Sums of eq. 1-2 at lattice point p over the bricks brick_ids[begin:end]
- * (one region's list: every brick whose support overlaps the region). */
+/* The cell of brick b that contains lattice point p (boxes half-open, so a
+ * point on a shared face belongs to one brick): 1 and its index i and the
+ * position x in cell units within the brick, else 0. */
+EB_INLINE int eb_containing_cell(eb_bricks bricks, int b, float3 p, int3 *i, float3 *x)
+{
+    float4 box = bricks.box[b];
+    int4 n = bricks.dims[b];
+    *x = (p - box.xyz) * box.w;
+    *i = convert_int3(floor(*x));
+    return i->x >= 0 && i->y >= 0 && i->z >= 0 && i->x < n.x && i->y < n.y && i->z < n.z;
+}
+
+/* Nearest: the values of the leaf cell containing p (zero derivatives). */
+EB_INLINE int eb_nearest(eb_bricks bricks, int b, float3 p, eb_basis_sums *s)
+{
+    int3 i;
+    float3 x;
+    if (!eb_containing_cell(bricks, b, p, &i, &x))
+        return 0;
+    int4 n = bricks.dims[b];
+    __global const float *v = bricks.values + bricks.offset[b] + (i.z * n.y + i.y) * n.x + i.x;
+    s->weight = 1.0f;
+    for (int k = 0; k < EB_N_FIELDS; ++k, v += bricks.field_stride)
+        s->weighted[k] = *v;
+    return 1;
+}
+
+/* Vertex: trilinear interpolation of the brick's vertex values around the
+ * cell containing p, with its analytic derivative (lattice units). */
+EB_INLINE int eb_vertex(eb_bricks bricks, int b, float3 p, eb_basis_sums *s, const int want_gradient)
+{
+    int3 i;
+    float3 x;
+    if (!eb_containing_cell(bricks, b, p, &i, &x))
+        return 0;
+    int4 n = bricks.dims[b];
+    float3 f = x - convert_float3(i);
+    int nx = n.x + 1, nxy = (n.x + 1) * (n.y + 1);
+    __global const float *v = bricks.vertex_values + bricks.vertex_offset[b]
+                              + i.z * nxy + i.y * nx + i.x;
+    float iw = bricks.box[b].w;
+    s->weight = 1.0f;
+    for (int k = 0; k < EB_N_FIELDS; ++k, v += bricks.vertex_stride) {
+        float v000 = v[0], v100 = v[1], v010 = v[nx], v110 = v[nx + 1];
+        float v001 = v[nxy], v101 = v[nxy + 1], v011 = v[nxy + nx], v111 = v[nxy + nx + 1];
+        float c00 = mix(v000, v100, f.x), c10 = mix(v010, v110, f.x);
+        float c01 = mix(v001, v101, f.x), c11 = mix(v011, v111, f.x);
+        float c0 = mix(c00, c10, f.y), c1 = mix(c01, c11, f.y);
+        s->weighted[k] = mix(c0, c1, f.z);
+        if (want_gradient) {
+            float e00 = v100 - v000, e10 = v110 - v010, e01 = v101 - v001, e11 = v111 - v011;
+            s->d_weighted[k] = (float3)(
+                mix(mix(e00, e10, f.y), mix(e01, e11, f.y), f.z),
+                mix(c10 - c00, c11 - c01, f.z),
+                c1 - c0) * iw;
+        }
+    }
+    return 1;
+}
+
+/* Sums at lattice point p over the bricks brick_ids[begin:end] (one region's
+ * list: every brick whose support overlaps the region, so also every brick
+ * containing a point of it). */
 EB_INLINE eb_basis_sums eb_reconstruct(eb_bricks bricks, __global const int *brick_ids,
                                        long begin, long end, float3 p, const int want_gradient)
 {
     eb_basis_sums s = eb_basis_zero();
-    for (long k = begin; k < end; ++k)
+    for (long k = begin; k < end; ++k) {
+#if defined(EB_RECON_NEAREST)
+        if (eb_nearest(bricks, brick_ids[k], p, &s))
+            break;
+#elif defined(EB_RECON_VERTEX)
+        if (eb_vertex(bricks, brick_ids[k], p, &s, want_gradient))
+            break;
+#else
         eb_add_brick(bricks, brick_ids[k], p, &s, want_gradient);
+#endif
+    }
     return s;
 }
 

@@ -16,14 +16,16 @@
 #define EB_BRICK_ARGS                                                           \
     __global const float4 *brick_box, __global const int4 *brick_dims,          \
     __global const long *brick_offset, __global const float *brick_values,      \
-    long field_stride
+    long field_stride, __global const long *vertex_offset,                      \
+    __global const float *vertex_values, long vertex_stride
 #define EB_BVH_STRUCT                                                           \
     {bvh_lower, bvh_upper, bvh_link, bvh_region_index, bvh_visible,            \
      bvh_n_nodes, bvh_n_regions}
 #define EB_REGION_STRUCT                                                        \
     {region_lower, region_upper, region_brick_start, region_brick_ids,          \
      region_finest_level, region_visible}
-#define EB_BRICK_STRUCT {brick_box, brick_dims, brick_offset, brick_values, field_stride}
+#define EB_BRICK_STRUCT {brick_box, brick_dims, brick_offset, brick_values, field_stride, \
+                         vertex_offset, vertex_values, vertex_stride}
 
 /* The frame's look, surfaces and clipping (exabricks.stages.render.frame_args). */
 #define EB_FRAME_ARGS                                                           \
@@ -125,8 +127,9 @@ __kernel void eb_render(int width, int height, int row0, int rows,
     }
 }
 
-/* Reconstructed field (eq. 1-2) at n world points (x, y, z packed, float);
- * NaN where no region contains the point or no cell has support there. */
+/* The reconstructed fields at n world points (x, y, z packed, float): field f
+ * of point i in values[f * n + i]; NaN where no region contains the point or
+ * no cell has support there (no containing cell, for nearest and vertex). */
 __kernel void eb_probe(int n, __global const float *points_world,
                        float4 origin_world, float4 inv_spacing,
                        EB_BVH_ARGS, EB_REGION_ARGS, EB_BRICK_ARGS,
@@ -140,12 +143,10 @@ __kernel void eb_probe(int n, __global const float *points_world,
     eb_bricks bricks = EB_BRICK_STRUCT;
     float3 p = eb_world_to_lattice(vload3(i, points_world), origin_world.xyz, inv_spacing.xyz);
     int r = eb_find_region(bvh, regions, p);
-    float value = NAN;
-    if (r >= 0) {
-        eb_basis_sums s = eb_reconstruct(bricks, regions.brick_ids, regions.brick_start[r],
-                                         regions.brick_start[r + 1], p, 0);
-        if (s.weight > 0.0f)
-            value = eb_basis_value(s, 0);
-    }
-    values[i] = value;
+    eb_basis_sums s = eb_basis_zero();
+    if (r >= 0)
+        s = eb_reconstruct(bricks, regions.brick_ids, regions.brick_start[r],
+                           regions.brick_start[r + 1], p, 0);
+    for (int f = 0; f < EB_N_FIELDS; ++f)
+        values[f * n + i] = s.weight > 0.0f ? eb_basis_value(s, f) : NAN;
 }

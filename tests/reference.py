@@ -361,16 +361,12 @@ def integrate_scene(cells: schema.Cells, camera, layers, width: int, height: int
         valid = k[None, :] < n_steps[rows][:, None]
         t = t_near[rows][:, None] + (k[None, :] + 0.5) * step[rows][:, None]
         points = to_lattice(cells, o[rows][:, None, :] + t[..., None] * d[rows][:, None, :])[valid]
-        weight, _ = index.level_sums(points, values[0])
-        has_data = np.zeros(valid.shape, bool)
-        has_data[valid] = weight.sum(axis=0) > 0
         rgba = np.full((len(layers),) + valid.shape + (4,), np.nan)
         for i, (_, tf) in enumerate(layers):
             value = np.full(valid.shape, np.nan)
-            value[valid] = index.reconstruct(points, values[i])
+            value[valid] = index.reconstruct(points, values[i])   # NaN: no data
             rgba[i] = tf.evaluate(value)
         a, rgb = medium(rgba, step[rows][:, None], unit)
-        a = np.where(has_data, a, 0.0)
         transmit = np.cumprod(1.0 - a, axis=1)
         before = np.concatenate([np.ones((len(rows), 1)), transmit[:, :-1]], axis=1)
         image[rows, :3] = np.einsum("rk,rkc->rc", before * a, rgb)

@@ -96,15 +96,15 @@ def test_tree_finds_exactly_the_supports_containing_a_point(name, leaf_size):
 def test_cell_location_frame_equals_regions_frame(name, device, shading):
     bricks, regions, bvh, field, camera, tf = scene(name)
     frames = {}
-    for reconstruction in ("regions", "cell-location"):
+    for lookup in ("regions", "cell-location"):
         renderer = Renderer(bricks, regions, bvh, field=field, device=device,
-                            reconstruction=reconstruction)
-        frames[reconstruction] = renderer.render(camera=camera, transfer_function=tf, width=SIZE,
+                            lookup=lookup)
+        frames[lookup] = renderer.render(camera=camera, transfer_function=tf, width=SIZE,
                                                  height=SIZE, shading=shading)
     ours, located = frames["regions"], frames["cell-location"]
     assert ours.stats["samples"] > SIZE * SIZE  # the view is not empty
     assert located.stats["samples"] == ours.stats["samples"]
-    assert located.stats["reconstruction"] == "cell-location"
+    assert located.stats["lookup"] == "cell-location"
     # Every sample sums the same bricks in the same (ascending) order in both kernels, so
     # they round alike: bit-identical on PoCL. 1e-6 leaves room only for a compiler that
     # contracts a multiply-add differently in the two programs. (Summed in tree order,
@@ -113,9 +113,9 @@ def test_cell_location_frame_equals_regions_frame(name, device, shading):
     np.testing.assert_allclose(located.rgba, ours.rgba, rtol=0, atol=1e-6)
 
 
-def test_unknown_reconstruction_is_one_clear_error():
+def test_unknown_lookup_is_one_clear_error():
     if not DEVICES:
         pytest.skip("no OpenCL device")
     bricks, regions, bvh, field, *_ = scene("amrex")
-    with pytest.raises(ExabricksError, match="unknown reconstruction 'kd-tree'"):
-        Renderer(bricks, regions, bvh, field=field, device=DEVICES[0], reconstruction="kd-tree")
+    with pytest.raises(ExabricksError, match="unknown brick lookup 'kd-tree'"):
+        Renderer(bricks, regions, bvh, field=field, device=DEVICES[0], lookup="kd-tree")

@@ -13,7 +13,7 @@ field, camera, transfer function and image size:
    exabricks.schema; it also fixes the shared view (below).
 1. exabricks: loading the three .npz files, the OpenCL program build (pyopencl's
    binary cache warm after the first run), `Renderer` construction (buffer
-   uploads), then the same Renderer with reconstruction="cell-location" (the
+   uploads), then the same Renderer with lookup="cell-location" (the
    tree over the brick supports built in memory, the -DEB_CELL_LOCATION
    program, no second upload), and the uniform-grid ceiling: the dataset
    resampled at its finest resolution (lattice bounding box, capped at
@@ -320,7 +320,7 @@ def worker_exabricks(spec: dict) -> dict:
     renderer = Renderer(bricks, regions, bvh, field=field, device=device)
     t_renderer = time.perf_counter() - t
     t = time.perf_counter()
-    located = renderer.with_reconstruction("cell-location")
+    located = renderer.with_lookup("cell-location")
     t_located = time.perf_counter() - t
     tree = renderer.scene.brick_tree
     t = time.perf_counter()

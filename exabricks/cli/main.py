@@ -14,6 +14,7 @@ from ..errors import ExabricksError
 
 COMMANDS = (
     "ingest",
+    "coarsen",
     "brick",
     "regions",
     "bvh",

@@ -7,6 +7,7 @@ import numpy as np
 
 from ..errors import ExabricksError
 from ..output import check_output, write_output
+from ..scene import RECONSTRUCTIONS
 from .options import device_option, field_option, input_path, output_option
 from .render import load_scene
 
@@ -38,9 +39,13 @@ def _load_points(path) -> np.ndarray:
 @click.option("--points", "points_path", required=True, type=click.Path(exists=True, dir_okay=False),
               help="World points, a .npy array of shape (N, 3).")
 @field_option
+@click.option("--reconstruction", type=click.Choice(RECONSTRUCTIONS), default="basis",
+              show_default=True,
+              help="basis: the paper's continuous blend of cells; nearest: the value of the "
+                   "containing leaf cell; vertex: trilinear in stitched vertex values.")
 @output_option
 @device_option
-def probe(bricks_path, regions_path, bvh_path, points_path, field, output, device):
+def probe(bricks_path, regions_path, bvh_path, points_path, field, reconstruction, output, device):
     """Reconstructed FIELD at world points (float32 .npy, NaN where no cell has support)."""
     from ..stages.probe import probe as probe_points
 
@@ -48,7 +53,8 @@ def probe(bricks_path, regions_path, bvh_path, points_path, field, output, devic
     check_output(output, inputs)
     points = _load_points(points_path)
     bricks, regions, bvh = load_scene(bricks_path, regions_path, bvh_path)
-    values = probe_points(bricks, regions, bvh, points, field=field, device=device)
+    values = probe_points(bricks, regions, bvh, points, field=field, device=device,
+                          reconstruction=reconstruction)
     def write(tmp):
         with open(tmp, "wb") as f:
             np.save(f, values)

@@ -12,7 +12,7 @@ import click
 from .. import __version__, schema
 from ..errors import ExabricksError
 from ..output import check_output
-from ..scene import GRADIENTS, MAX_AO_SAMPLES, SHADING_MODES
+from ..scene import GRADIENTS, MAX_AO_SAMPLES, RECONSTRUCTIONS, SHADING_MODES
 from .options import device_option, field_option, input_path, output_option
 
 log = logging.getLogger(__name__)
@@ -32,8 +32,9 @@ def _finite(ctx, param, value):
     return value
 
 
-def _numbers(counts, low=0.0, high=1.0):
-    """Callback: comma-separated numbers in [low, high], as many as one of `counts`."""
+def _numbers(counts=None, low=0.0, high=1.0):
+    """Callback: comma-separated numbers in [low, high], as many as one of `counts`
+    (None: any number)."""
     def parse(ctx, param, text):
         if text is None:
             return None
@@ -41,24 +42,12 @@ def _numbers(counts, low=0.0, high=1.0):
             values = tuple(float(a) for a in text.split(","))
         except ValueError:
             raise click.BadParameter(f"{text!r} is not a comma-separated list of numbers") from None
-        if len(values) not in counts:
+        if counts is not None and len(values) not in counts:
             raise click.BadParameter(f"expected {' or '.join(map(str, counts))} numbers, got {text!r}")
         if not all(low <= a <= high for a in values):
             raise click.BadParameter(f"values must lie in [{low:g}, {high:g}], got {text}")
         return values
     return parse
-
-
-def _alphas(ctx, param, text):
-    if text is None:
-        return None
-    try:
-        alphas = tuple(float(a) for a in text.split(","))
-    except ValueError:
-        raise click.BadParameter(f"{text!r} is not a comma-separated list of numbers") from None
-    if not all(0.0 <= a <= 1.0 for a in alphas):
-        raise click.BadParameter(f"alpha values must lie in [0, 1], got {text}")
-    return alphas
 
 
 def load_scene(bricks_path, regions_path, bvh_path):
@@ -93,7 +82,7 @@ POSITIVE = click.FloatRange(min=0, min_open=True)
 @click.option("--colormap", metavar="NAME", help="A matplotlib colormap over --range (default: the field's range).")
 @click.option("--range", type=float, nargs=2, default=None, metavar="LO HI",
               help="Data range of the colormap (and rescales a preset file to it).")
-@click.option("--opacity", callback=_alphas, metavar="A0,A1,...",
+@click.option("--opacity", callback=_numbers(), metavar="A0,A1,...",
               help="With --colormap: alpha knots spread evenly over the range (default 0,1: a ramp).")
 @click.option("--volume/--no-volume", default=None,
               help="Draw the volume layers (default) or none. --field, --transfer-function, --colormap, "
@@ -121,6 +110,9 @@ POSITIVE = click.FloatRange(min=0, min_open=True)
 @click.option("--shading", type=click.Choice(SHADING_MODES), default=None,
               help="headlight (default): diffuse (+ --specular) light from the camera; none: "
                    "emission-absorption only.")
+@click.option("--reconstruction", type=click.Choice(RECONSTRUCTIONS), default=None,
+              help="basis (default): the paper's continuous blend of cells; nearest: the value "
+                   "of the containing leaf cell; vertex: trilinear in stitched vertex values.")
 @click.option("--gradient", type=click.Choice(GRADIENTS), default=None,
               help="Normals from the analytic gradient (default) or central differences.")
 @click.option("--specular", type=click.FloatRange(min=0), default=None, callback=_finite,

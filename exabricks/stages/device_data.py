@@ -14,8 +14,23 @@ import time
 import numpy as np
 
 from .. import opencl, schema
+from ..scene import RECONSTRUCTIONS
 from ..errors import ExabricksError
 from .cell_location import build_brick_tree
+
+
+# Reconstructions (exabricks.scene.RECONSTRUCTIONS, docs/design.md): the basis
+# method (paper eq. 1-2), the containing leaf cell's value (Kähler & Abel), or
+# trilinear interpolation of stitched vertex values (Kähler & Hege), each a
+# program variant.
+RECONSTRUCTION_DEFINES = {"basis": (), "nearest": ("EB_RECON_NEAREST",),
+                          "vertex": ("EB_RECON_VERTEX",)}
+
+
+def check_reconstruction(reconstruction: str) -> None:
+    if reconstruction not in RECONSTRUCTIONS:
+        raise ExabricksError(f"unknown reconstruction {reconstruction!r} "
+                             f"(one of {', '.join(RECONSTRUCTIONS)})")
 
 
 def check_inputs(bricks: schema.Bricks, regions: schema.Regions, bvh: schema.Bvh) -> None:
@@ -148,6 +163,10 @@ class DeviceScene:
         self.brick_args = [up(q, box, np.float32), up(q, dims, np.int32),
                            up(q, b.offset, np.int64), up(q, values, np.float32),
                            np.int64(b.values.shape[1])]
+        # Vertex values (reconstruction "vertex"): made and uploaded on first use.
+        self._no_vertices = [up(q, np.zeros(1, np.int64)), up(q, np.zeros(1, np.float32)),
+                             np.int64(0)]
+        self._vertex_args = None
 
         r = regions
         lo, hi = _boxes4(r.lower_lattice, r.upper_lattice)
@@ -169,9 +188,12 @@ class DeviceScene:
         self._location_args = None
         self.brick_tree = self.brick_tree_seconds = None
 
-    def program_for(self, defines=()):
-        """The kernel program for this scene's field count, with extra `defines`."""
+    def program_for(self, defines=(), reconstruction: str = "basis"):
+        """The kernel program for this scene's field count and `reconstruction`
+        (RECONSTRUCTIONS), with extra `defines`."""
+        check_reconstruction(reconstruction)
         return opencl.program_for(self.context, (f"EB_N_FIELDS={max(1, len(self.fields))}",
+                                                 *RECONSTRUCTION_DEFINES[reconstruction],
                                                  *defines))
 
     @property
@@ -195,13 +217,34 @@ class DeviceScene:
             out.append(seen.astype(np.uint8))
         return tuple(out)
 
-    def scene_args(self, node_visible=None, region_visible=None) -> list:
+    def scene_args(self, node_visible=None, region_visible=None,
+                   reconstruction: str = "basis") -> list:
         """Kernel arguments EB_BVH_ARGS, EB_REGION_ARGS, EB_BRICK_ARGS (visibility buffers
-        given, or all visible)."""
+        given, or all visible) for `reconstruction`."""
         nv = self._all_visible[0] if node_visible is None else node_visible
         rv = self._all_visible[1] if region_visible is None else region_visible
         counts = [np.int32(self.bvh.n_nodes), np.int32(self.regions.n_regions)]
-        return [*self._bvh_static, nv, *counts, *self._region_static, rv, *self.brick_args]
+        vertices = self.vertex_args() if reconstruction == "vertex" else self._no_vertices
+        return [*self._bvh_static, nv, *counts, *self._region_static, rv, *self.brick_args,
+                *vertices]
+
+    def vertex_args(self) -> list:
+        """The vertex values of every brick for reconstruction "vertex"
+        (exabricks.stages.vertex: the basis field at the vertices, stitched at
+        level boundaries), made with the device's basis probe on first use."""
+        if self._vertex_args is None:
+            from .probe import probe_fields
+            from .vertex import vertex_values
+
+            points_world = lambda lattice: self.bricks.origin_world + \
+                self.bricks.spacing_world * lattice
+            offset, values = vertex_values(
+                self.bricks, lambda lattice: probe_fields(self, points_world(lattice)))
+            check_device_memory(self.device, {"vertex values": values.nbytes})
+            q, up = self.queue, opencl.to_device
+            self._vertex_args = [up(q, offset, np.int64), up(q, values, np.float32),
+                                 np.int64(values.shape[1])]
+        return self._vertex_args
 
     def location_args(self) -> list:
         """Kernel arguments EB_LOCATION_ARGS: the tree over the brick supports

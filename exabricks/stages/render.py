@@ -29,11 +29,11 @@ absorption. Conventions the design leaves open, chosen here:
   ``"retrace"`` re-traces from the root for every region as the paper does
   (§4). Same regions, same image; ordered is 1.1-1.5x faster on PoCL
   (docs/benchmarks.md, "render (PoCL)").
-* ``Renderer(..., reconstruction="cell-location")`` (Python API only) is the
+* ``Renderer(..., lookup="cell-location")`` (Python API only) is the
   comparison of paper §6.4.2 (Table 3): the regions still decide where to
   sample, but each sample finds its bricks by descending a tree over the brick
   supports from the root (kernels/cell_location.cl, built in memory when the
-  Renderer is made, or shared by `Renderer.with_reconstruction`) instead of
+  Renderer is made, or shared by `Renderer.with_lookup`) instead of
   reading the region's brick list. Same samples, and the same bricks summed in
   the same order, so the same frame; only the speed differs. ``"regions"``
   (default) is the paper's method.
@@ -61,7 +61,7 @@ TRAVERSALS = ("ordered", "retrace")
 
 # Where a sample finds the bricks it reconstructs from: the region's list (paper
 # §3.2) or a per-sample descent of a tree over the brick supports (§6.4.2).
-RECONSTRUCTIONS = ("regions", "cell-location")
+LOOKUPS = ("regions", "cell-location")
 
 # Pixels per work-group side: 8 x 8 tiles keep neighbouring rays (which walk the
 # same regions and bricks) together on one core.
@@ -102,10 +102,9 @@ def _check_settings(settings: Settings, traversal: str) -> None:
         raise ExabricksError(f"unknown traversal {traversal!r} (one of {', '.join(TRAVERSALS)})")
 
 
-def _check_reconstruction(reconstruction):
-    if reconstruction not in RECONSTRUCTIONS:
-        raise ExabricksError(f"unknown reconstruction {reconstruction!r} "
-                             f"(one of {', '.join(RECONSTRUCTIONS)})")
+def _check_lookup(lookup):
+    if lookup not in LOOKUPS:
+        raise ExabricksError(f"unknown brick lookup {lookup!r} (one of {', '.join(LOOKUPS)})")
 
 
 class Renderer:
@@ -114,28 +113,30 @@ class Renderer:
 
     def __init__(self, bricks: schema.Bricks, regions: schema.Regions, bvh: schema.Bvh,
                  *, field: str | None = None, fields=None, device=None,
-                 reconstruction: str = "regions"):
-        _check_reconstruction(reconstruction)
+                 lookup: str = "regions"):
+        _check_lookup(lookup)
         self.scene = DeviceScene(bricks, regions, bvh, field=field, fields=fields, device=device)
-        self._use(reconstruction)
+        self._use(lookup)
 
-    def _use(self, reconstruction: str) -> None:
-        _check_reconstruction(reconstruction)
-        self.reconstruction = reconstruction
+    def _use(self, lookup: str) -> None:
+        _check_lookup(lookup)
+        self.lookup = lookup
         self.location_args = []
-        if reconstruction == "cell-location":
+        if lookup == "cell-location":
             self.location_args = self.scene.location_args()
 
-    def _kernel(self, surfaces: bool):
-        defines = (("EB_CELL_LOCATION",) if self.reconstruction == "cell-location" else ()) \
+    def _kernel(self, surfaces: bool, reconstruction: str):
+        if self.lookup == "cell-location" and reconstruction != "basis":
+            raise ExabricksError("the cell-location lookup exists for the basis reconstruction only")
+        defines = (("EB_CELL_LOCATION",) if self.lookup == "cell-location" else ()) \
             + (("EB_SURFACES",) if surfaces else ())
-        return opencl.kernel(self.scene.program_for(defines), "eb_render")
+        return opencl.kernel(self.scene.program_for(defines, reconstruction), "eb_render")
 
-    def with_reconstruction(self, reconstruction: str) -> "Renderer":
-        """A Renderer of the same uploaded scene (no second upload) with another
-        reconstruction (RECONSTRUCTIONS)."""
+    def with_lookup(self, lookup: str) -> "Renderer":
+        """A Renderer of the same uploaded scene (no second upload) whose samples
+        find their bricks another way (LOOKUPS)."""
         other = copy.copy(self)
-        other._use(reconstruction)
+        other._use(lookup)
         return other
 
     @property
@@ -150,7 +151,7 @@ class Renderer:
                sampling_rate: float = 2.0, spp: int = 1, seed: int = 0, jitter: bool = True,
                max_opacity: float = 0.98, unit_distance: float | None = None,
                shading: str = "headlight", depth: bool = False,
-               traversal: str = "ordered") -> RenderResult:
+               traversal: str = "ordered", reconstruction: str = "basis") -> RenderResult:
         """One frame of one volume layer (the first uploaded field); see the module
         docstring for the conventions and `render_scene` for everything else."""
         scene = Scene(
@@ -159,7 +160,7 @@ class Renderer:
             settings=Settings(width=int(width), height=int(height), spp=int(spp),
                               sampling_rate=float(sampling_rate), max_opacity=float(max_opacity),
                               seed=int(seed), jitter=bool(jitter), unit_distance=unit_distance,
-                              depth=bool(depth)))
+                              depth=bool(depth), reconstruction=reconstruction))
         return self.render_scene(scene, traversal=traversal)
 
     def render_scene(self, scene: Scene, *, traversal: str = "ordered") -> RenderResult:
@@ -190,7 +191,8 @@ class Renderer:
             "volumes": len(scene.volumes), "isosurfaces": len(scene.isosurfaces),
             "slices": len(scene.slices), "clip": scene.clip.active,
             "ao_samples": scene.lighting.ao_samples,
-            "traversal": traversal, "reconstruction": self.reconstruction,
+            "traversal": traversal, "lookup": self.lookup,
+            "reconstruction": cfg.reconstruction,
             "device": self.device_name,
             "visible_regions": int(region_vis.sum()), "regions": s.regions.n_regions,
         }
@@ -214,7 +216,7 @@ class Renderer:
         depth_buf = opencl.empty_buffer(q, band_pixels * 4)
         samples_buf = opencl.empty_buffer(q, band_pixels * 4)
         samples = np.empty(band_pixels, np.uint32)
-        kernel = self._kernel(bool(scene.isosurfaces or scene.slices))
+        kernel = self._kernel(bool(scene.isosurfaces or scene.slices), cfg.reconstruction)
         lighting = scene.lighting
         ao_distance = lighting.ao_distance or AO_DISTANCE_CELLS * s.finest_width_world
         fixed = [
@@ -223,9 +225,12 @@ class Renderer:
             s.origin_world4, s.inv_spacing4,
             np.float32(s.min_spacing_world / cfg.sampling_rate), np.float32(1.0 / unit),
             np.float32(cfg.max_opacity), np.int32(shading != "none"),
-            np.int32(traversal == "ordered"), np.int32(lighting.gradient == "central"),
+            np.int32(traversal == "ordered"),
+            # nearest is piecewise constant: its normals come from central differences
+            np.int32(lighting.gradient == "central" or cfg.reconstruction == "nearest"),
             np.int32(lighting.ao_samples), np.float32(ao_distance),
-            *s.scene_args(up(q, node_vis), up(q, region_vis)), *self.location_args,
+            *s.scene_args(up(q, node_vis), up(q, region_vis), cfg.reconstruction),
+            *self.location_args,
             *frame_args(scene, s, q), rgba_buf, depth_buf, samples_buf,
         ]
         q.finish()
@@ -306,23 +311,23 @@ def render(bricks: schema.Bricks, regions: schema.Regions, bvh: schema.Bvh, *, c
            sampling_rate: float = 2.0, spp: int = 1, seed: int = 0, jitter: bool = True,
            max_opacity: float = 0.98, unit_distance: float | None = None,
            shading: str = "headlight", depth: bool = False, device=None,
-           traversal: str = "ordered", reconstruction: str = "regions") -> RenderResult:
+           traversal: str = "ordered", lookup: str = "regions",
+           reconstruction: str = "basis") -> RenderResult:
     """Render one frame of one volume layer of `field` (default: the first); see
     `Renderer.render`."""
-    return Renderer(bricks, regions, bvh, field=field, device=device,
-                    reconstruction=reconstruction).render(
+    return Renderer(bricks, regions, bvh, field=field, device=device, lookup=lookup).render(
         camera=camera, transfer_function=transfer_function, width=width, height=height,
         sampling_rate=sampling_rate, spp=spp, seed=seed, jitter=jitter,
         max_opacity=max_opacity, unit_distance=unit_distance, shading=shading, depth=depth,
-        traversal=traversal)
+        traversal=traversal, reconstruction=reconstruction)
 
 
 def render_scene(bricks: schema.Bricks, regions: schema.Regions, bvh: schema.Bvh,
                  scene: Scene, *, device=None, traversal: str = "ordered",
-                 reconstruction: str = "regions") -> RenderResult:
+                 lookup: str = "regions") -> RenderResult:
     """Render `scene` (exabricks.scene.Scene), uploading only the fields it uses."""
     return Renderer(bricks, regions, bvh, fields=scene.fields(), device=device,
-                    reconstruction=reconstruction).render_scene(scene, traversal=traversal)
+                    lookup=lookup).render_scene(scene, traversal=traversal)
 
 
 # Default ambient-occlusion distance, in finest cell widths of the dataset.
