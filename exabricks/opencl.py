@@ -199,13 +199,15 @@ def kernel(program, name: str):
     return _KERNELS[key]
 
 
-def to_device(queue, array, dtype=None):
-    """A read-only device buffer holding `array` (at least one element: OpenCL forbids 0 bytes)."""
+def to_device(queue, array, dtype=None, writable: bool = False):
+    """A device buffer holding `array` (at least one element: OpenCL forbids 0
+    bytes), read-only unless `writable`."""
     cl = _cl()
     host = np.ascontiguousarray(array, dtype=dtype)
     if host.nbytes == 0:
         host = np.zeros(1, dtype=host.dtype)
-    return cl.Buffer(queue.context, cl.mem_flags.READ_ONLY | cl.mem_flags.COPY_HOST_PTR, hostbuf=host)
+    access = cl.mem_flags.READ_WRITE if writable else cl.mem_flags.READ_ONLY
+    return cl.Buffer(queue.context, access | cl.mem_flags.COPY_HOST_PTR, hostbuf=host)
 
 
 def empty_buffer(queue, nbytes: int):

@@ -109,6 +109,7 @@ class Settings:
     unit_distance: float | None = None
     depth: bool = False
     reconstruction: str = "basis"
+    lod: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -149,6 +150,9 @@ class Scene:
         if self.settings.reconstruction not in RECONSTRUCTIONS:
             raise ExabricksError(f"unknown reconstruction {self.settings.reconstruction!r} "
                                  f"(one of {', '.join(RECONSTRUCTIONS)})")
+        if not (np.isfinite(self.settings.lod) and self.settings.lod >= 0):
+            raise ExabricksError(f"--lod must be 0 (off) or a positive number of pixels, "
+                                 f"got {self.settings.lod}")
         if self.lighting.gradient not in GRADIENTS:
             raise ExabricksError(f"unknown gradient {self.lighting.gradient!r} "
                                  f"(one of {', '.join(GRADIENTS)})")
@@ -207,7 +211,7 @@ FLAGS = (
     "shading", "gradient", "specular", "shininess", "ao_samples", "ao_distance",
     "background",
     "size", "spp", "sampling_rate", "max_opacity", "seed", "jitter", "unit_distance", "depth",
-    "reconstruction",
+    "reconstruction", "lod",
 )
 _VOLUME_FLAGS = ("field", "transfer_function", "colormap", "range", "opacity")
 
@@ -745,7 +749,8 @@ def _settings(file: _SceneFile, f) -> Settings:
         jitter=bool(_pick(f, "jitter", file, ("jitter",), d.jitter)),
         unit_distance=None if unit_distance is None else float(unit_distance),
         depth=bool(_pick(f, "depth", file, ("depth",), d.depth)),
-        reconstruction=_pick(f, "reconstruction", file, ("reconstruction",), d.reconstruction))
+        reconstruction=_pick(f, "reconstruction", file, ("reconstruction",), d.reconstruction),
+        lod=float(_pick(f, "lod", file, ("lod",), d.lod)))
 
 
 def scene_from_options(bricks, *, scene_path=None, camera_path=None, flags: dict | None = None) -> Scene:
@@ -819,6 +824,7 @@ def scene_to_dict(scene: Scene) -> dict:
         "jitter": s.jitter,
         "depth": s.depth,
         "reconstruction": s.reconstruction,
+        "lod": s.lod,
     }
     if s.unit_distance is not None:
         out["unit_distance"] = s.unit_distance

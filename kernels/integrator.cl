@@ -27,7 +27,9 @@
 EB_INLINE int eb_integrate_region(eb_frame *fr, eb_ray *ray, int r, float t_in, float t_out,
                                   const int shade, eb_ray_state *st)
 {
-    int level = fr->regions.finest_level[r];
+    /* Sampling rate and opacity correction follow the level actually used
+     * (Kähler & Hege's per-level correction: dt scales with the cell width). */
+    int level = eb_sample_level(fr, r, t_in);
     float dt = ldexp(fr->step_base, level);
 #ifdef EB_SURFACES
     if (fr->surf.n_iso > 0 && (!st->prev_valid || t_in > st->last_exit)) {
@@ -44,9 +46,12 @@ EB_INLINE int eb_integrate_region(eb_frame *fr, eb_ray *ray, int r, float t_in, 
     float tm, len;
     while (eb_intervals_next(&it, &tm, &len)) {
         float3 p = ray->org + tm * ray->dir;
-        eb_basis_sums s = shade && !fr->central ? eb_sample_region(fr, r, p, 1)
-                                                : eb_sample_region(fr, r, p, 0);
+        eb_basis_sums s = shade && !fr->central ? eb_sample_region_at(fr, r, p, level, 1)
+                                                : eb_sample_region_at(fr, r, p, level, 0);
         ++st->samples;
+#ifdef EB_LOD
+        ++st->level_samples[min(level, EB_LOD_LEVELS - 1)];
+#endif
         int valid = s.weight > 0.0f;
         float value[EB_N_FIELDS];
         if (valid)
@@ -71,7 +76,7 @@ EB_INLINE int eb_integrate_region(eb_frame *fr, eb_ray *ray, int r, float t_in, 
  * *depth is the distance to the first opaque surface hit, else where the
  * accumulated opacity first reaches EB_DEPTH_OPACITY (infinity if never). */
 EB_INLINE float4 eb_integrate(eb_frame *fr, eb_ray *ray, const int shade, const int ordered,
-                              uint *samples, float *depth)
+                              uint *samples, float *depth, __global uint *level_samples)
 {
     eb_ray_state st;
     st.color = (float3)(0.0f);
@@ -83,6 +88,10 @@ EB_INLINE float4 eb_integrate(eb_frame *fr, eb_ray *ray, const int shade, const 
     st.last_exit = 0.0f;
     st.n_slices = 0;
     st.next_slice = 0;
+#ifdef EB_LOD
+    for (int l = 0; l < EB_LOD_LEVELS; ++l)
+        st.level_samples[l] = 0u;
+#endif
     float2 keep = eb_clip_interval(fr->clip, ray->org_world, ray->dir_world, 0.0f);
     int done = !(keep.y > keep.x);
 #ifdef EB_SURFACES
@@ -101,6 +110,11 @@ EB_INLINE float4 eb_integrate(eb_frame *fr, eb_ray *ray, const int shade, const 
         eb_surfaces_until(fr, ray, &st, EB_INF, st.prev, 0);
 #endif
     *samples = st.samples;
+#ifdef EB_LOD
+    for (int l = 0; l < EB_LOD_LEVELS; ++l)
+        if (st.level_samples[l])
+            atomic_add(&level_samples[l], st.level_samples[l]);
+#endif
     *depth = st.t_opaque < EB_INF ? st.t_opaque : st.t_depth;
     return (float4)(st.color, 1.0f - st.transmittance);
 }

@@ -39,6 +39,11 @@ typedef struct {
     __global const long *vertex_offset;
     __global const float *vertex_values;
     long vertex_stride;
+    /* render --lod: per brick EB_MAX_MIP offsets of its mip levels 1.. in
+     * mip_values (exabricks.stages.lod), fields mip_stride apart. */
+    __global const long *mip_offset;
+    __global const float *mip_values;
+    long mip_stride;
 } eb_bricks;
 
 /* Sums of eq. 1-2 and their derivatives at one point: the weights are the
@@ -62,14 +67,13 @@ EB_INLINE eb_basis_sums eb_basis_zero(void)
     return s;
 }
 
-/* Add the contributions of brick b at lattice point p to `s`. With
- * want_gradient == 0 the derivative sums are left untouched (the compiler
- * drops that code for a constant argument). */
-EB_INLINE void eb_add_brick(eb_bricks bricks, int b, float3 p, eb_basis_sums *s,
-                            const int want_gradient)
+/* Add the contributions of a grid of cells at lattice point p to `s`: lower
+ * corner box.xyz, 1 / cell width box.w, n cells per axis, values v (fields
+ * `stride` apart). With want_gradient == 0 the derivative sums are left
+ * untouched (the compiler drops that code for a constant argument). */
+EB_INLINE void eb_add_grid(float4 box, int4 n, __global const float *v, long stride, float3 p,
+                           eb_basis_sums *s, const int want_gradient)
 {
-    float4 box = bricks.box[b];
-    int4 n = bricks.dims[b];
     float3 x = (p - box.xyz) * box.w - 0.5f;
     float3 fl = floor(x);
     int3 i0 = convert_int3(fl);
@@ -94,8 +98,7 @@ EB_INLINE void eb_add_brick(eb_bricks bricks, int b, float3 p, eb_basis_sums *s,
     float dz0 = i0.z >= 0 ? -iw : 0.0f, dz1 = i0.z + 1 < n.z ? iw : 0.0f;
     if (want_gradient)
         s->d_weight += (float3)((dx0 + dx1) * sy * sz, sx * (dy0 + dy1) * sz, sx * sy * (dz0 + dz1));
-    __global const float *v = bricks.values + bricks.offset[b];
-    for (int k = 0; k < EB_N_FIELDS; ++k, v += bricks.field_stride) {
+    for (int k = 0; k < EB_N_FIELDS; ++k, v += stride) {
         float v000 = v[z0 + y0 + x0], v100 = v[z0 + y0 + x1];
         float v010 = v[z0 + y1 + x0], v110 = v[z0 + y1 + x1];
         float v001 = v[z1 + y0 + x0], v101 = v[z1 + y0 + x1];
@@ -114,6 +117,38 @@ EB_INLINE void eb_add_brick(eb_bricks bricks, int b, float3 p, eb_basis_sums *s,
                 dz0 * c0 + dz1 * c1);
         }
     }
+}
+
+/* Add the contributions of brick b at lattice point p to `s`. */
+EB_INLINE void eb_add_brick(eb_bricks bricks, int b, float3 p, eb_basis_sums *s,
+                            const int want_gradient)
+{
+    eb_add_grid(bricks.box[b], bricks.dims[b], bricks.values + bricks.offset[b],
+                bricks.field_stride, p, s, want_gradient);
+}
+
+/* Level of detail (render --lod): brick b seen as cells of level `level` when
+ * that is coarser than its own, from its mip level (level - own level, at most
+ * EB_MAX_MIP): cells 2**m times wider anchored at the brick's lower corner,
+ * ceil(N / 2**m) per axis, each the mean of the brick's cells inside it
+ * (exabricks.stages.lod). */
+#ifndef EB_MAX_MIP
+#define EB_MAX_MIP 6
+#endif
+EB_INLINE void eb_add_brick_lod(eb_bricks bricks, int b, float3 p, int level, eb_basis_sums *s,
+                                const int want_gradient)
+{
+    int4 n = bricks.dims[b];
+    int m = min(level - n.w, EB_MAX_MIP);
+    if (m <= 0) {
+        eb_add_brick(bricks, b, p, s, want_gradient);
+        return;
+    }
+    float4 box = bricks.box[b];
+    box.w = ldexp(box.w, -m);
+    int4 nm = (int4)(((n.x - 1) >> m) + 1, ((n.y - 1) >> m) + 1, ((n.z - 1) >> m) + 1, n.w + m);
+    eb_add_grid(box, nm, bricks.mip_values + bricks.mip_offset[b * EB_MAX_MIP + m - 1],
+                bricks.mip_stride, p, s, want_gradient);
 }
 
 /* The cell of brick b that contains lattice point p (boxes half-open, so a
@@ -174,6 +209,17 @@ EB_INLINE int eb_vertex(eb_bricks bricks, int b, float3 p, eb_basis_sums *s, con
         }
     }
     return 1;
+}
+
+/* Sums of eq. 1-2 with every brick finer than `level` seen at that level (LOD). */
+EB_INLINE eb_basis_sums eb_reconstruct_lod(eb_bricks bricks, __global const int *brick_ids,
+                                           long begin, long end, float3 p, int level,
+                                           const int want_gradient)
+{
+    eb_basis_sums s = eb_basis_zero();
+    for (long k = begin; k < end; ++k)
+        eb_add_brick_lod(bricks, brick_ids[k], p, level, &s, want_gradient);
+    return s;
 }
 
 /* Sums at lattice point p over the bricks brick_ids[begin:end] (one region's

@@ -17,7 +17,8 @@
     __global const float4 *brick_box, __global const int4 *brick_dims,          \
     __global const long *brick_offset, __global const float *brick_values,      \
     long field_stride, __global const long *vertex_offset,                      \
-    __global const float *vertex_values, long vertex_stride
+    __global const float *vertex_values, long vertex_stride,                    \
+    __global const long *mip_offset, __global const float *mip_values, long mip_stride
 #define EB_BVH_STRUCT                                                           \
     {bvh_lower, bvh_upper, bvh_link, bvh_region_index, bvh_visible,            \
      bvh_n_nodes, bvh_n_regions}
@@ -25,7 +26,8 @@
     {region_lower, region_upper, region_brick_start, region_brick_ids,          \
      region_finest_level, region_visible}
 #define EB_BRICK_STRUCT {brick_box, brick_dims, brick_offset, brick_values, field_stride, \
-                         vertex_offset, vertex_values, vertex_stride}
+                         vertex_offset, vertex_values, vertex_stride,                \
+                         mip_offset, mip_values, mip_stride}
 
 /* The frame's look, surfaces and clipping (exabricks.stages.render.frame_args). */
 #define EB_FRAME_ARGS                                                           \
@@ -69,9 +71,11 @@ __kernel void eb_render(int width, int height, int row0, int rows,
                         float4 origin_world, float4 inv_spacing,
                         float step_base, float inv_unit_distance, float max_opacity, int shading,
                         int ordered, int central, int ao_samples, float ao_distance,
+                        float lod_scale,
                         EB_BVH_ARGS, EB_REGION_ARGS, EB_BRICK_ARGS EB_LOCATION_ARGS,
                         EB_FRAME_ARGS,
-                        __global float4 *rgba, __global float *depth, __global uint *samples)
+                        __global float4 *rgba, __global float *depth, __global uint *samples,
+                        __global uint *level_samples)
 {
     int col = get_global_id(0), band_row = get_global_id(1);
     int row = row0 + band_row;
@@ -86,7 +90,7 @@ __kernel void eb_render(int width, int height, int row0, int rows,
          iso_tolerance, specular, shininess},
         {clip_box, clip_lower, clip_upper, clip_planes, n_clip_planes},
         step_base, inv_unit_distance, max_opacity, shading, central, ao_samples, ao_distance,
-        origin_world, inv_spacing,
+        origin_world, inv_spacing, lod_scale,
     };
 
     float jx = 0.5f, jy = 0.5f;
@@ -110,11 +114,11 @@ __kernel void eb_render(int width, int height, int row0, int rows,
     float4 c;
     /* Constant shade/ordered arguments let the compiler drop the unused paths. */
     if (ordered)
-        c = shading ? eb_integrate(&fr, &ray, 1, 1, &n, &t_depth)
-                    : eb_integrate(&fr, &ray, 0, 1, &n, &t_depth);
+        c = shading ? eb_integrate(&fr, &ray, 1, 1, &n, &t_depth, level_samples)
+                    : eb_integrate(&fr, &ray, 0, 1, &n, &t_depth, level_samples);
     else
-        c = shading ? eb_integrate(&fr, &ray, 1, 0, &n, &t_depth)
-                    : eb_integrate(&fr, &ray, 0, 0, &n, &t_depth);
+        c = shading ? eb_integrate(&fr, &ray, 1, 0, &n, &t_depth, level_samples)
+                    : eb_integrate(&fr, &ray, 0, 0, &n, &t_depth, level_samples);
     c /= (float)spp;
     if (sample_index == 0) {
         rgba[slot] = c;

@@ -55,6 +55,7 @@ typedef struct {
     int ao_samples;           /* ambient-occlusion rays per surface hit (0: none)      */
     float ao_distance;        /* their length, world units                             */
     float4 origin_world, inv_spacing;
+    float lod_scale;          /* --lod: pixels * pixel angle / min(spacing), 0 when off */
 } eb_frame;
 
 /* The reconstruction sums at lattice point p in region r. */
@@ -66,6 +67,33 @@ EB_INLINE eb_basis_sums eb_sample_region(eb_frame *fr, int r, float3 p, const in
     return eb_reconstruct(fr->bricks, fr->regions.brick_ids, fr->regions.brick_start[r],
                           fr->regions.brick_start[r + 1], p, grad);
 #endif
+}
+
+/* The sums at lattice point p in region r with the bricks seen at `level`
+ * (level of detail: exabricks.stages.lod; the finest level otherwise). */
+EB_INLINE eb_basis_sums eb_sample_region_at(eb_frame *fr, int r, float3 p, int level,
+                                            const int grad)
+{
+#if defined(EB_LOD) && !defined(EB_CELL_LOCATION)
+    return eb_reconstruct_lod(fr->bricks, fr->regions.brick_ids, fr->regions.brick_start[r],
+                              fr->regions.brick_start[r + 1], p, level, grad);
+#else
+    return eb_sample_region(fr, r, p, grad);
+#endif
+}
+
+/* The level a region is sampled at: its finest level, or with --lod the
+ * coarsest level whose cells project to at most the given pixels at the
+ * region's entry distance t (Kähler & Abel), never finer than the data. */
+EB_INLINE int eb_sample_level(eb_frame *fr, int r, float t)
+{
+    int level = fr->regions.finest_level[r];
+#ifdef EB_LOD
+    float reach = t * fr->lod_scale;
+    if (reach >= 2.0f)
+        level = max(level, min((int)floor(log2(reach)), 30));
+#endif
+    return level;
 }
 
 /* The sums at any lattice point p (zero weight outside every region); *level,
@@ -168,6 +196,9 @@ EB_INLINE float4 eb_medium_step(eb_frame *fr, eb_basis_sums *s, float3 p, int le
     return (float4)(rgb / s_sum, a);
 }
 
+/* Levels whose samples --lod counts (level 0 .. EB_LOD_LEVELS - 1). */
+#define EB_LOD_LEVELS 16
+
 /* One ray: in lattice space with t in world distance (dir_world unit length),
  * and what seeds its random numbers. */
 typedef struct {
@@ -184,6 +215,9 @@ typedef struct {
     float t_depth;                 /* where the accumulated opacity first reached EB_DEPTH_OPACITY */
     float t_opaque;                /* the first opaque surface hit */
     uint samples;
+#ifdef EB_LOD
+    uint level_samples[EB_LOD_LEVELS];  /* reconstructions per level used */
+#endif
     /* iso crossings: the previous sample (field values at prev_t) */
     int prev_valid;
     float prev_t;

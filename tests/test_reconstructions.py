@@ -194,3 +194,75 @@ def test_probe_cli_takes_the_reconstruction(tmp_path):
     assert not np.array_equal(out["basis"], out["nearest"])
     assert run_cli("probe", *paths, "--points", points, "--reconstruction", "cubic",
                    "-o", tmp_path / "x.npy").returncode == 2
+
+
+def lod_scene(camera, field, tf, lod, size=96):
+    from exabricks.scene import Lighting, VolumeLayer
+
+    return Scene(camera=camera, volumes=(VolumeLayer(field, tf),), lighting=Lighting(shading="none"),
+                 settings=Settings(width=size, height=size, lod=lod))
+
+
+@device_param
+def test_lod_zero_leaves_the_image_unchanged(device):
+    bricks, regions, bvh, field, camera, tf = built_scene(AMREX, "phi")
+    renderer = Renderer(bricks, regions, bvh, field=field, device=device)
+    plain = renderer.render(camera=camera, transfer_function=tf, width=96, height=96,
+                            shading="none")
+    zero = renderer.render_scene(lod_scene(camera, field, tf, 0.0))
+    np.testing.assert_array_equal(plain.rgba, zero.rgba)
+    assert "samples_per_level" not in zero.stats
+
+
+@device_param
+@pytest.mark.parametrize("path, field", DATASETS, ids=["gerris", "amrex"])
+def test_lod_samples_coarse_levels_only(path, field, device):
+    """At a large pixel threshold every sample is taken at a coarse level (counted per
+    level by the kernel)."""
+    bricks, regions, bvh, field, camera, tf = built_scene(path, field)
+    renderer = Renderer(bricks, regions, bvh, field=field, device=device)
+    full = renderer.render_scene(lod_scene(camera, field, tf, 0.0))
+    size = 96
+    # A finest cell's size in pixels at the nearest data (camera to the bounds).
+    lo, hi = (np.array(x) for x in schema.world_bounds(bricks))
+    nearest_t = np.linalg.norm(np.clip(camera.position, lo, hi) - np.array(camera.position))
+    pixel = 2 * np.tan(np.radians(camera.fovy) / 2) / size * max(nearest_t, 1e-9)
+    cell_pixels = float(bricks.spacing_world.min() * 2.0 ** int(bricks.level.min()) / pixel)
+    coarse = 2 + int(bricks.level.min())  # the lowest level a threshold of 8 cells allows
+    coarse_frame = renderer.render_scene(lod_scene(camera, field, tf, 8.0 * cell_pixels))
+    levels = {int(k): v for k, v in coarse_frame.stats["samples_per_level"].items()}
+    assert min(levels) >= coarse, levels
+    assert sum(levels.values()) == coarse_frame.stats["samples"]
+    assert coarse_frame.stats["samples"] < full.stats["samples"]
+
+
+@device_param
+def test_lod_keeps_the_opacity_of_a_constant_field(device):
+    """Per-level opacity correction (Kähler & Hege): the step grows with the level
+    used and the opacity of each step with it, so a constant field (whose coarse
+    averages are the same constant) renders the same picture at any LOD."""
+    from exabricks.camera import default_camera
+    from exabricks.transfer_function import TransferFunction
+
+    cells, bricks, regions, bvh = two_level_linear(a=(0.0, 0.0, 0.0), b=0.5)
+    camera = default_camera(np.zeros(3), np.full(3, 24.0))
+    tf = TransferFunction.from_colormap("viridis", (0.0, 1.0), opacity=(0.05, 0.05))
+    renderer = Renderer(bricks, regions, bvh, device=device)
+    full = renderer.render_scene(lod_scene(camera, "v", tf, 0.0, size=48))
+    coarse = renderer.render_scene(lod_scene(camera, "v", tf, 50.0, size=48))
+    assert min(int(k) for k in coarse.stats["samples_per_level"]) >= 1
+    assert coarse.stats["samples"] < full.stats["samples"]
+    # float32 opacity correction of steps twice as long: agreement to ~1e-5
+    np.testing.assert_allclose(coarse.rgba, full.rgba, atol=2e-5)
+
+
+@device_param
+def test_lod_refuses_other_reconstructions(device):
+    from exabricks.errors import ExabricksError
+
+    bricks, regions, bvh, field, camera, tf = built_scene(GERRIS, "T")
+    renderer = Renderer(bricks, regions, bvh, field=field, device=device)
+    scene = lod_scene(camera, field, tf, 2.0)
+    scene = scene.replace(settings=Settings(width=8, height=8, lod=2.0, reconstruction="nearest"))
+    with pytest.raises(ExabricksError, match="level of detail"):
+        renderer.render_scene(scene)

@@ -9,11 +9,16 @@ and analytic scenes. Every test runs on every OpenCL device present.
   intersections of radii R and R - delta, delta the trilinear interpolation
   bound of a convex function (below).
 - Clipping and volume layers: RMSE / max against `reference.integrate_scene`.
-- Ambient occlusion: a slice under a homogeneous black medium (and a
-  semi-transparent slice above it), against the closed-form visibility of a
-  cosine-weighted hemisphere, within a few Monte-Carlo standard errors.
+- Iso colour fields, iso + slice ordering, headlight shading of a plane (a
+  linear field), semi-transparent front and back faces.
+- Ambient occlusion: a slice (or iso plane) under a homogeneous black medium,
+  clipped or not, with a semi-transparent slice or iso-surface above, against the
+  closed-form visibility of a cosine-weighted hemisphere, within a few
+  Monte-Carlo standard errors; seeded.
 - Slices: the colour map of the float64 reconstruction at the ray-plane point.
 - Background: premultiplied "over".
+
+Tests marked xfail(strict=True) document renderer bugs (GAP_BUG and the AO one).
 """
 
 from __future__ import annotations
@@ -252,7 +257,7 @@ def test_iso_colour_field_is_its_colour_map_at_the_hit(device):
                                                          colormap=SLICE_MAP),),
                   lighting=NONE, settings=settings(ISO_SIZE, sampling_rate=ISO_RATE, depth=True))
     result = renderer("gerris", ("T", "V"), device).render_scene(scene)
-    both = check_hits(ref, result.depth, 1.0, "T=0.1 coloured by V")
+    both = check_hits(ref, result.depth, load("gerris").finest_width_world, "T=0.1 coloured by V")
     cells = load("gerris").cells
     p = ref.origins[both] + ref.first[both][:, None] * ref.directions[both]
     v = reference.reconstruct(cells, reference.to_lattice(cells, p), "V")
@@ -277,7 +282,7 @@ def test_iso_surface_and_slice_composite_in_distance_order(device):
                   slices=(Slice(SLICE_POINT, tuple(normal), "T", SLICE_MAP, 0.4),), lighting=NONE,
                   settings=settings(ISO_SIZE, sampling_rate=ISO_RATE, depth=True))
     result = renderer("gerris", ("T",), device).render_scene(scene)
-    both = check_hits(ref, result.depth, 1.0, "T=0.1 with a slice")
+    both = check_hits(ref, result.depth, load("gerris").finest_width_world, "T=0.1 with a slice")
     cells = load("gerris").cells
     o, d = ref.origins, ref.directions
     n = normal / np.linalg.norm(normal)

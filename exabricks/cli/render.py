@@ -113,6 +113,10 @@ POSITIVE = click.FloatRange(min=0, min_open=True)
 @click.option("--reconstruction", type=click.Choice(RECONSTRUCTIONS), default=None,
               help="basis (default): the paper's continuous blend of cells; nearest: the value "
                    "of the containing leaf cell; vertex: trilinear in stitched vertex values.")
+@click.option("--lod", type=click.FloatRange(min=0), default=None, callback=_finite,
+              metavar="PIXELS",
+              help="Level of detail: sample each region at the coarsest level whose cells "
+                   "project to at most PIXELS pixels (default 0: full resolution).")
 @click.option("--gradient", type=click.Choice(GRADIENTS), default=None,
               help="Normals from the analytic gradient (default) or central differences.")
 @click.option("--specular", type=click.FloatRange(min=0), default=None, callback=_finite,

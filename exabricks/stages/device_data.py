@@ -166,7 +166,7 @@ class DeviceScene:
         # Vertex values (reconstruction "vertex"): made and uploaded on first use.
         self._no_vertices = [up(q, np.zeros(1, np.int64)), up(q, np.zeros(1, np.float32)),
                              np.int64(0)]
-        self._vertex_args = None
+        self._vertex_args = self._mip_args = None
 
         r = regions
         lo, hi = _boxes4(r.lower_lattice, r.upper_lattice)
@@ -218,15 +218,29 @@ class DeviceScene:
         return tuple(out)
 
     def scene_args(self, node_visible=None, region_visible=None,
-                   reconstruction: str = "basis") -> list:
+                   reconstruction: str = "basis", lod: bool = False) -> list:
         """Kernel arguments EB_BVH_ARGS, EB_REGION_ARGS, EB_BRICK_ARGS (visibility buffers
-        given, or all visible) for `reconstruction`."""
+        given, or all visible) for `reconstruction` (and level of detail)."""
         nv = self._all_visible[0] if node_visible is None else node_visible
         rv = self._all_visible[1] if region_visible is None else region_visible
         counts = [np.int32(self.bvh.n_nodes), np.int32(self.regions.n_regions)]
         vertices = self.vertex_args() if reconstruction == "vertex" else self._no_vertices
+        mips = self.mip_args() if lod else self._no_vertices
         return [*self._bvh_static, nv, *counts, *self._region_static, rv, *self.brick_args,
-                *vertices]
+                *vertices, *mips]
+
+    def mip_args(self) -> list:
+        """The bricks' mip levels for level of detail (exabricks.stages.lod), made and
+        uploaded on first use."""
+        if self._mip_args is None:
+            from .lod import brick_mips
+
+            offset, values = brick_mips(self.bricks, self.field_indices or [0])
+            check_device_memory(self.device, {"mip levels": values.nbytes})
+            q, up = self.queue, opencl.to_device
+            self._mip_args = [up(q, offset, np.int64), up(q, values, np.float32),
+                              np.int64(values.shape[1])]
+        return self._mip_args
 
     def vertex_args(self) -> list:
         """The vertex values of every brick for reconstruction "vertex"

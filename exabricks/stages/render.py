@@ -125,11 +125,15 @@ class Renderer:
         if lookup == "cell-location":
             self.location_args = self.scene.location_args()
 
-    def _kernel(self, surfaces: bool, reconstruction: str):
-        if self.lookup == "cell-location" and reconstruction != "basis":
-            raise ExabricksError("the cell-location lookup exists for the basis reconstruction only")
+    def _kernel(self, surfaces: bool, reconstruction: str, lod: bool):
+        if self.lookup == "cell-location" and (reconstruction != "basis" or lod):
+            raise ExabricksError("the cell-location lookup exists for the basis reconstruction "
+                                 "without level of detail only")
+        if lod and reconstruction != "basis":
+            raise ExabricksError(f"level of detail (--lod) works with the basis reconstruction, "
+                                 f"not with {reconstruction}")
         defines = (("EB_CELL_LOCATION",) if self.lookup == "cell-location" else ()) \
-            + (("EB_SURFACES",) if surfaces else ())
+            + (("EB_SURFACES",) if surfaces else ()) + (("EB_LOD",) if lod else ())
         return opencl.kernel(self.scene.program_for(defines, reconstruction), "eb_render")
 
     def with_lookup(self, lookup: str) -> "Renderer":
@@ -216,7 +220,13 @@ class Renderer:
         depth_buf = opencl.empty_buffer(q, band_pixels * 4)
         samples_buf = opencl.empty_buffer(q, band_pixels * 4)
         samples = np.empty(band_pixels, np.uint32)
-        kernel = self._kernel(bool(scene.isosurfaces or scene.slices), cfg.reconstruction)
+        lod = cfg.lod > 0
+        kernel = self._kernel(bool(scene.isosurfaces or scene.slices), cfg.reconstruction, lod)
+        level_samples = np.zeros(LOD_LEVELS, np.uint32)
+        level_buf = opencl.to_device(q, level_samples, writable=True)
+        # Pixels of a cell of width w at distance t: w / (t * 2 tan(fovy / 2) / H).
+        pixel_angle = 2.0 * math.tan(math.radians(scene.camera.fovy) / 2.0) / height
+        lod_scale = cfg.lod * pixel_angle / s.min_spacing_world if lod else 0.0
         lighting = scene.lighting
         ao_distance = lighting.ao_distance or AO_DISTANCE_CELLS * s.finest_width_world
         fixed = [
@@ -228,10 +238,10 @@ class Renderer:
             np.int32(traversal == "ordered"),
             # nearest is piecewise constant: its normals come from central differences
             np.int32(lighting.gradient == "central" or cfg.reconstruction == "nearest"),
-            np.int32(lighting.ao_samples), np.float32(ao_distance),
-            *s.scene_args(up(q, node_vis), up(q, region_vis), cfg.reconstruction),
+            np.int32(lighting.ao_samples), np.float32(ao_distance), np.float32(lod_scale),
+            *s.scene_args(up(q, node_vis), up(q, region_vis), cfg.reconstruction, lod),
             *self.location_args,
-            *frame_args(scene, s, q), rgba_buf, depth_buf, samples_buf,
+            *frame_args(scene, s, q), rgba_buf, depth_buf, samples_buf, level_buf,
         ]
         q.finish()
         start = time.perf_counter()
@@ -255,6 +265,10 @@ class Renderer:
             rows = _next_band(rows, time.perf_counter() - band_start)
             interrupt.raise_pending()
         seconds = time.perf_counter() - start
+        if lod:
+            opencl.read_back(q, level_buf, level_samples)
+            stats["samples_per_level"] = {str(l): int(c) for l, c in enumerate(level_samples) if c}
+        stats["lod"] = float(cfg.lod)
         stats.update(samples=total, ms=1e3 * seconds / spp,
                      samples_per_second=total / seconds if seconds > 0 else 0.0)
         return RenderResult(_over_background(rgba, scene.background), d, stats)
@@ -329,6 +343,9 @@ def render_scene(bricks: schema.Bricks, regions: schema.Regions, bvh: schema.Bvh
     return Renderer(bricks, regions, bvh, fields=scene.fields(), device=device,
                     lookup=lookup).render_scene(scene, traversal=traversal)
 
+
+# Levels whose samples a --lod frame counts (kernels/scene.cl EB_LOD_LEVELS).
+LOD_LEVELS = 16
 
 # Default ambient-occlusion distance, in finest cell widths of the dataset.
 AO_DISTANCE_CELLS = 10.0
