@@ -32,6 +32,8 @@ EB_INLINE int eb_integrate_region(eb_frame *fr, eb_ray *ray, int r, float t_in, 
     int level = eb_sample_level(fr, r, t_in);
     float dt = ldexp(fr->step_base, level);
 #ifdef EB_SURFACES
+    if (t_in > st->last_exit && eb_close_bracket(fr, ray, st))
+        return 1;
     if (fr->surf.n_iso > 0 && (!st->prev_valid || t_in > st->last_exit)) {
         /* Start the crossing test at the region's entry (after a gap, or the first region). */
         eb_basis_sums s0 = eb_sample_region(fr, r, ray->org + t_in * ray->dir, 0);
@@ -106,6 +108,8 @@ EB_INLINE float4 eb_integrate(eb_frame *fr, eb_ray *ray, const int shade, const 
                                       &t_in, &t_out)) >= 0)
         done = eb_integrate_region(fr, ray, r, t_in, t_out, shade, &st);
 #ifdef EB_SURFACES
+    if (!done)
+        done = eb_close_bracket(fr, ray, &st);
     if (!done)  /* slices behind the last region */
         eb_surfaces_until(fr, ray, &st, EB_INF, st.prev, 0);
 #endif

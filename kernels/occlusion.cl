@@ -13,6 +13,30 @@
 /* Below this visibility a ray counts as blocked. */
 #define EB_AO_CUTOFF 1e-3f
 
+/* (1 - opacity) of every iso-surface crossed between field values a and b. */
+EB_INLINE float eb_transmittance_of_crossings(eb_frame *fr, const float *a, const float *b)
+{
+    float vis = 1.0f;
+    for (int j = 0; j < fr->surf.n_iso; ++j) {
+        int f = fr->surf.iso[j].x;
+        float iso = fr->surf.iso_value[j].x;
+        if ((a[f] < iso) != (b[f] < iso))
+            vis *= 1.0f - fr->surf.iso_value[j].y;
+    }
+    return vis;
+}
+
+/* The same between values a and the field at lattice point p (1 where it has no data). */
+EB_INLINE float eb_crossings(eb_frame *fr, const float *a, float3 p)
+{
+    eb_basis_sums s = eb_evaluate(fr, p, 0);
+    if (!(s.weight > 0.0f))
+        return 1.0f;
+    float b[EB_N_FIELDS];
+    eb_fields(s, b);
+    return eb_transmittance_of_crossings(fr, a, b);
+}
+
 /* Visibility along world ray org_world + t dir_world, t in [t_min, t_max]. */
 EB_INLINE float eb_visibility(eb_frame *fr, float3 org_world, float3 dir_world,
                               float t_min, float t_max, float rho)
@@ -48,8 +72,16 @@ EB_INLINE float eb_visibility(eb_frame *fr, float3 org_world, float3 dir_world,
     int r;
     while (vis > EB_AO_CUTOFF && (r = eb_walk_next(&w, fr->bvh, fr->regions, org, inv_dir,
                                                      &t_in, &t_out)) >= 0) {
-        if (t_in > last_exit)
-            prev_valid = 0;  /* a skipped gap: no crossing can be told across it */
+        if (!prev_valid || t_in > last_exit) {
+            /* After a gap (or at the start): close the last bracket at the previous
+             * exit, then start again from this region's entry. */
+            if (prev_valid)
+                vis *= eb_crossings(fr, prev, org + last_exit * dir);
+            eb_basis_sums s0 = eb_sample_region(fr, r, org + t_in * dir, 0);
+            prev_valid = s0.weight > 0.0f;
+            if (prev_valid)
+                eb_fields(s0, prev);
+        }
         last_exit = t_out;
         float dt = ldexp(fr->step_base, (int)fr->regions.finest_level[r]);
         eb_intervals it = eb_intervals_start(t_in, t_out, dt, rho);
@@ -62,12 +94,8 @@ EB_INLINE float eb_visibility(eb_frame *fr, float3 org_world, float3 dir_world,
             }
             float value[EB_N_FIELDS];
             eb_fields(s, value);
-            for (int j = 0; j < fr->surf.n_iso && prev_valid; ++j) {
-                int f = fr->surf.iso[j].x;
-                float iso = fr->surf.iso_value[j].x;
-                if ((prev[f] < iso) != (value[f] < iso))
-                    vis *= 1.0f - fr->surf.iso_value[j].y;
-            }
+            if (prev_valid)
+                vis *= eb_transmittance_of_crossings(fr, prev, value);
             for (int f = 0; f < EB_N_FIELDS; ++f)
                 prev[f] = value[f];
             prev_valid = 1;
@@ -75,6 +103,8 @@ EB_INLINE float eb_visibility(eb_frame *fr, float3 org_world, float3 dir_world,
                 vis *= 1.0f - eb_medium_step(fr, &s, org + tm * dir, 0, value, len, dir_world, 0).w;
         }
     }
+    if (prev_valid)  /* the last bracket: up to the end of the last region */
+        vis *= eb_crossings(fr, prev, org + last_exit * dir);
     return vis;
 }
 

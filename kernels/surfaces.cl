@@ -2,15 +2,15 @@
  *
  * Iso-surfaces live on the basis field. A crossing of iso-value v on field f
  * is detected between consecutive samples of the adaptive sampling (values on
- * both sides of v), across region boundaries too as long as no skipped gap
- * separates the samples (at the entry of a region after a gap the field is
- * evaluated once at the entry point to start from). The crossing is then
+ * both sides of v), across region boundaries too. Where the walk leaves a gap
+ * (a skipped region, the end of the clip interval or of the data) the bracket
+ * is closed by evaluating the field at the last region's exit, and the next
+ * region starts from its entry point. The crossing is then
  * refined by bisection on the reconstructed field (any point: the BVH finds
  * its region) to within `tolerance` (1e-3 of a finest cell), and placed by
  * linear interpolation in the last bracket. What can still be missed: two
  * crossings of the same value between two samples (a shell thinner than a
- * sample step), and a crossing within half a step of where a region is
- * followed by a skipped gap. Any number of iso-values (EB_MAX_ISO) on any
+ * sample step). Any number of iso-values (EB_MAX_ISO) on any
  * fields; the hits between two samples are composited in distance order.
  *
  * Slices: planes (world point and normal) that show a colour map of a field
@@ -173,4 +173,19 @@ EB_INLINE int eb_surfaces_until(eb_frame *fr, eb_ray *ray, eb_ray_state *st, flo
             st->prev[f] = value[f];
     }
     return 0;
+}
+
+/* Close the open bracket at the last region's exit (before a gap, and at the
+ * end of the walk): the field there ends the crossing test of the last
+ * samples. Returns 1 once the ray is opaque enough to stop. */
+EB_INLINE int eb_close_bracket(eb_frame *fr, eb_ray *ray, eb_ray_state *st)
+{
+    if (fr->surf.n_iso == 0 || !st->prev_valid || !(st->last_exit > st->prev_t))
+        return 0;
+    eb_basis_sums s = eb_evaluate(fr, ray->org + st->last_exit * ray->dir, 0);
+    float value[EB_N_FIELDS];
+    int valid = s.weight > 0.0f;
+    if (valid)
+        eb_fields(s, value);
+    return eb_surfaces_until(fr, ray, st, st->last_exit, value, valid);
 }

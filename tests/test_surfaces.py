@@ -18,7 +18,9 @@ and analytic scenes. Every test runs on every OpenCL device present.
 - Slices: the colour map of the float64 reconstruction at the ray-plane point.
 - Background: premultiplied "over".
 
-Tests marked xfail(strict=True) document renderer bugs (GAP_BUG and the AO one).
+Regression cases of two bugs found this way: a crossing between a region's last
+sample and its exit before a gap (or the clip exit), and iso-surfaces near either
+end of an ambient-occlusion ray.
 """
 
 from __future__ import annotations
@@ -103,11 +105,6 @@ T_TF = ramp(0.01, 0.5, (0.1, 0.2, 0.9), (0.9, 0.1, 0.1), 1.0)     # Gerris tempe
 V_TF = ramp(0.0, 0.3, (0.9, 0.3, 0.1), (0.2, 0.9, 0.3), 0.6)      # Gerris vertical velocity
 NONE = Lighting(shading="none")
 
-GAP_BUG = (
-    "renderer bug: a crossing between the last sample of a region and the region's end "
-    "is never tested when the next region is skipped (invisible for this iso-value) or "
-    "the kept interval ends there (eb_integrate_region tests crossings between sample "
-    "midpoints only and evaluates the field at a region's entry, never at its exit)")
 
 
 # ---------------------------------------------------------------------------------------
@@ -359,8 +356,6 @@ def test_headlight_shading_of_a_plane(gradient, specular, device):
 
 
 @device_param
-@pytest.mark.xfail(strict=True, reason=GAP_BUG + ": up to half a step of surface in front of "
-                   "the clip exit is dropped")
 def test_iso_crossing_just_before_the_clip_exit(device):
     """The plane of test_headlight_shading_of_a_plane with a clip plane parallel to it,
     0.02 cells behind it (keeping the camera's side): every ray's crossing lies inside
@@ -481,9 +476,7 @@ def test_a_distance_field_gives_a_sphere(two_level, device):
 
 
 @device_param
-@pytest.mark.parametrize("two_level", [False, pytest.param(True, marks=pytest.mark.xfail(
-    strict=True, reason=GAP_BUG + ": the back face is missing at one pixel"))],
-    ids=["one-level", "two-level"])
+@pytest.mark.parametrize("two_level", [False, True], ids=["one-level", "two-level"])
 def test_a_semi_transparent_sphere_shows_front_and_back(two_level, device):
     """Opacity 0.5: every ray that meets the inner sphere (as above) crosses the
     iso-surface twice, C = (0.5 + 0.5 * 0.5) rgb, alpha 0.75; rays missing the outer
@@ -716,13 +709,8 @@ def test_ao_camera_footprint_leaves_room_for_the_occlusion_rays():
 
 
 @device_param
-@pytest.mark.parametrize("case", ["medium", "medium+slice", "clipped-medium", "iso-under-medium"] + [
-    pytest.param(name, marks=pytest.mark.xfail(strict=True, reason=(
-        "renderer bug: eb_visibility (kernels/occlusion.cl) tests iso crossings only "
-        "between consecutive sample midpoints: never between the AO ray's start and its "
-        "first sample (prev_valid starts at 0 and t_min is not evaluated) nor between "
-        "its last sample and ao_distance, so iso-surfaces there do not occlude")))
-    for name in ("medium+iso", "medium+iso-near")])
+@pytest.mark.parametrize("case", ["medium", "medium+slice", "clipped-medium", "iso-under-medium",
+                                  "medium+iso", "medium+iso-near"])
 def test_ambient_occlusion_under_a_homogeneous_medium(case, device):
     """The medium is black, so a pixel is T * 1 * V: T the camera ray's transmittance
     to the plane (and 1 - beta through the upper occluder), V the AO visibility (a
