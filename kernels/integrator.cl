@@ -22,6 +22,36 @@
 #include "surfaces.cl"
 #endif
 
+/* The samples of region r over [t_in, t_out] at step dt (its level `level`). */
+EB_INLINE int eb_sample_interval(eb_frame *fr, eb_ray *ray, int r, int level, float t_in,
+                                 float t_out, float dt, const int shade, eb_ray_state *st)
+{
+    eb_intervals it = eb_intervals_start(t_in, t_out, dt, ray->rho);
+    float tm, len;
+    while (eb_intervals_next(&it, &tm, &len)) {
+        float3 p = ray->org + tm * ray->dir;
+        eb_basis_sums s = shade && !fr->central ? eb_sample_region_at(fr, r, p, level, 1)
+                                                : eb_sample_region_at(fr, r, p, level, 0);
+        ++st->samples;
+        int valid = s.weight > 0.0f;
+        float value[EB_N_FIELDS];
+        if (valid)
+            eb_fields(s, value);
+#ifdef EB_SURFACES
+        if (eb_surfaces_until(fr, ray, st, tm, value, valid))
+            return 1;
+#endif
+        if (!valid || fr->look.n_layers == 0)
+            continue;  /* no cell has support here: transparent */
+        float4 c = eb_medium_step(fr, &s, p, level, value, len, ray->dir_world, shade);
+        if (!(c.w > 0.0f))
+            continue;
+        if (eb_composite(st, c.w, c.xyz, tm, fr->max_opacity))
+            return 1;
+    }
+    return 0;
+}
+
 /* Integrate region r over [t_in, t_out] into `st` (paper §4.2-4.3); returns 1
  * once the ray is opaque enough to stop (early ray termination). */
 EB_INLINE int eb_integrate_region(eb_frame *fr, eb_ray *ray, int r, float t_in, float t_out,
@@ -44,33 +74,15 @@ EB_INLINE int eb_integrate_region(eb_frame *fr, eb_ray *ray, int r, float t_in, 
     }
     st->last_exit = t_out;
 #endif
-    eb_intervals it = eb_intervals_start(t_in, t_out, dt, ray->rho);
-    float tm, len;
-    while (eb_intervals_next(&it, &tm, &len)) {
-        float3 p = ray->org + tm * ray->dir;
-        eb_basis_sums s = shade && !fr->central ? eb_sample_region_at(fr, r, p, level, 1)
-                                                : eb_sample_region_at(fr, r, p, level, 0);
-        ++st->samples;
 #ifdef EB_LOD
-        ++st->level_samples[min(level, EB_LOD_LEVELS - 1)];
+    uint samples_before = st->samples;
 #endif
-        int valid = s.weight > 0.0f;
-        float value[EB_N_FIELDS];
-        if (valid)
-            eb_fields(s, value);
-#ifdef EB_SURFACES
-        if (eb_surfaces_until(fr, ray, st, tm, value, valid))
-            return 1;
+    int done = eb_sample_interval(fr, ray, r, level, t_in, t_out, dt, shade, st);
+#ifdef EB_LOD
+    /* Counted per region (its level is constant), not per sample. */
+    st->level_samples[min(level, EB_LOD_LEVELS - 1)] += st->samples - samples_before;
 #endif
-        if (!valid || fr->look.n_layers == 0)
-            continue;  /* no cell has support here: transparent */
-        float4 c = eb_medium_step(fr, &s, p, level, value, len, ray->dir_world, shade);
-        if (!(c.w > 0.0f))
-            continue;
-        if (eb_composite(st, c.w, c.xyz, tm, fr->max_opacity))
-            return 1;
-    }
-    return 0;
+    return done;
 }
 
 /* Premultiplied RGBA of one ray; ordered: 1 for the ordered walk, 0 for the
