@@ -11,9 +11,10 @@ exabricks.scene.scene_from_options, exactly as `exabricks render` does; the
 frame is then drawn in-process by exabricks.stages.render.Renderer(bricks,
 regions, bvh, fields=scene.fields()).render_scene(scene): one Renderer per set
 of fields (uploaded once), one warm-up frame per mode (it also builds the
-program variant), then --runs timed frames. Every frame is size x size with
-one sample per pixel (`--spp 1` overrides the scene file's), the dataset's
-camera (the one of docs/gallery.md) and the render defaults otherwise.
+program variant), then --runs rounds of one timed frame of every mode (so that
+a change in the machine's load hits every mode alike). Every frame is size x
+size with one sample per pixel (`--spp 1` overrides the scene file's), the
+dataset's gallery camera and the render defaults otherwise.
 
 Reported per mode: the kernel time of a frame (`RenderResult.stats["ms"]`:
 enqueue to finish, no upload or read-back; median and min-max), its ratio to
@@ -128,7 +129,12 @@ def parse_scene(bricks, paths, flags: list[str]):
 
 
 def bench_dataset(key: str, modes: list[str], runs: int, size: int) -> tuple[dict, str]:
-    """{mode: (kernel ms per frame list, samples)} and the device description."""
+    """{mode: (kernel ms per frame, samples, process CPU ms per frame)} (lists by
+    round) and the device description.
+
+    Every mode renders one warm-up frame first; then the timed frames go round
+    the modes (one frame of each mode per round, --runs rounds), so that a change
+    in the machine's load hits every mode alike."""
     d = gallery.WORK / key
     gallery.ensure(benchdoc.datasets()[key])
     paths = [d / "bricks.npz", d / "regions.npz", d / "bvh.npz"]
@@ -136,7 +142,7 @@ def bench_dataset(key: str, modes: list[str], runs: int, size: int) -> tuple[dic
     r = schema.load(paths[1], "regions")
     v = schema.load(paths[2], "bvh")
     renderers: dict[tuple, Renderer] = {}
-    out, device = {}, "?"
+    scenes = {}
     for mode in modes:
         flags = mode_flags(key, mode, size)
         if flags is None:
@@ -145,19 +151,27 @@ def bench_dataset(key: str, modes: list[str], runs: int, size: int) -> tuple[dic
         fields = scene.fields()
         if fields not in renderers:
             renderers[fields] = Renderer(b, r, v, fields=fields)
-        ren = renderers[fields]
-        ren.render_scene(scene)  # warm-up (and the program variant's build)
-        times = []
-        for _ in range(runs):
+        scenes[mode] = (renderers[fields], scene)
+        renderers[fields].render_scene(scene)  # warm-up (and the program variant's build)
+    times = {mode: [] for mode in scenes}
+    cpu = {mode: [] for mode in scenes}
+    samples = {}
+    for _ in range(runs):
+        for mode, (ren, scene) in scenes.items():
+            c0 = time.process_time()
             res = ren.render_scene(scene)
-            times.append(res.stats["ms"] * res.stats["spp"])
-        out[mode] = (times, res.stats["samples"])
+            cpu[mode].append(1e3 * (time.process_time() - c0))
+            times[mode].append(res.stats["ms"] * res.stats["spp"])
+            samples[mode] = res.stats["samples"]
+    device = "?"
+    for ren in renderers.values():
         s = ren.scene
         device = (f"{s.device.name.strip()} ({s.device.platform.version.strip()}, "
                   f"{s.device.max_compute_units} compute units)")
-        print(f"  {key:7s} {mode:16s} {benchdoc.fmt_spread(times, 'ms', 0)}  "
-              f"{res.stats['samples']:,} samples", flush=True)
-    return out, device
+    for mode in scenes:
+        print(f"  {key:7s} {mode:16s} {benchdoc.fmt_spread(times[mode], 'ms', 0)}  "
+              f"CPU {np.median(cpu[mode]):.0f} ms  {samples[mode]:,} samples", flush=True)
+    return {mode: (times[mode], samples[mode], cpu[mode]) for mode in scenes}, device
 
 
 def main(argv=None) -> int:
@@ -188,8 +202,8 @@ def main(argv=None) -> int:
 
     names = {"gerris": "Gerris plume", "amrex": "AMReX advection"}
     head = "| mode | draws | " + " | ".join(
-        f"{names[k]}: ms/frame | x volume | samples/frame" for k in keys) + " |"
-    rule = "|---|---|" + "---:|---:|---:|" * len(keys)
+        f"{names[k]}: ms/frame | x volume | CPU ms/frame | samples/frame" for k in keys) + " |"
+    rule = "|---|---|" + "---:|---:|---:|---:|" * len(keys)
     rows = []
     for mode in modes:
         if not any(mode in results[k] for k in keys):
@@ -197,12 +211,14 @@ def main(argv=None) -> int:
         cells = [f"`{mode}`", MODES[mode][0]]
         for k in keys:
             if mode not in results[k]:
-                cells += ["-", "-", "-"]
+                cells += ["-", "-", "-", "-"]
                 continue
-            times, samples = results[k][mode]
+            times, samples, cpu = results[k][mode]
             base = results[k].get("volume")
-            ratio = (f"{np.median(times) / np.median(base[0]):.2f}" if base else "-")
-            cells += [benchdoc.fmt_spread(times, "", 0), ratio, f"{samples:,}"]
+            # the ratio round by round (both frames of a round saw about the same load)
+            ratio = (f"{np.median(np.divide(times, base[0])):.2f}" if base else "-")
+            cells += [benchdoc.fmt_spread(times, "", 0), ratio, f"{np.median(cpu):.0f}",
+                      f"{samples:,}"]
         rows.append("| " + " | ".join(cells) + " |")
 
     command = "`.venv/bin/python workflows/bench_modes.py" + (
@@ -213,17 +229,22 @@ def main(argv=None) -> int:
         f"Command: {command} (`--list` prints the flags of every mode)\n\n"
         f"- machine: {benchdoc.machine()}, load average {benchdoc.load_average()} at the end "
         f"({time.perf_counter() - t0:.0f} s in all)\n- OpenCL device: {device}\n"
-        f"- frames: {args.size}x{args.size}, 1 sample per pixel, the camera, transfer "
-        f"functions and values of docs/gallery.md, median of {args.runs} frames after one "
-        "warm-up frame per mode (min-max in brackets)\n\n"
+        f"- frames: {args.size}x{args.size}, 1 sample per pixel, one camera and volume "
+        "transfer function per dataset (the gallery's first shot, workflows/gallery.py) and "
+        "the iso-values, fields, clip and slice placements of `--list`; one warm-up frame "
+        f"per mode, then {args.runs} rounds of one frame of every mode; median (min-max in "
+        "brackets)\n\n"
         + head + "\n" + rule + "\n" + "\n".join(rows) + "\n\n"
         "ms/frame is the kernel time of one frame (`Renderer.render_scene(scene).stats"
         "[\"ms\"]`: enqueue to finish, no upload or read-back), the scene built by "
         "`exabricks.scene.scene_from_options` from the flags exactly as `exabricks render` "
-        "builds it; x volume is its ratio to the `volume` row of the same dataset. samples "
+        "builds it; x volume is the median over the rounds of its ratio to the `volume` frame "
+        "of the same dataset and round; CPU ms/frame is the process CPU time of the "
+        "`render_scene` call (all of the OpenCL runtime's threads; less sensitive to other "
+        "jobs than the wall time). samples "
         "are the volume reconstructions the kernel counts (surface-only frames still step "
         "through the regions an iso-value lies in). The background is composited on the host "
-        "after the kernel, so `background` costs the kernel nothing. The AMReX plotfile has "
+        "after the kernel: `background` runs the same kernel as `volume`, and the difference between the two rows is the noise of the measurement. The AMReX plotfile has "
         "one field (phi), so its `iso-colored` and `shells` rows colour phi by phi, and it "
         "has no two-field layers or scene-file rows. These figures come from a machine "
         "shared with other jobs (2 cores): the spread shows how much they moved.\n")

@@ -78,12 +78,13 @@ A_FAINT = "--field rho --colormap viridis --range 1 2.7 --opacity 0,0.01,0.04,0.
 
 # AMReX advection: world [0, 1]^3; phi = 1 outside a tube along z
 # (x in [0.54, 0.82], y in [0.32, 0.86]) where it rises to 1.97.
-X_CAM = "--position 2.1 1.65 2.3 --look-at 0.68 0.59 0.5 --up 0 1 0 --fovy 30"
+X_CAM = "--position 2.1 1.65 2.3 --look-at 0.68 0.6 0.5 --up 0 1 0 --fovy 24"
 X_TF = "--field phi --colormap viridis --range 1 1.97 --opacity 0,0,0.3,0.6,0.9"
 
 # Enzo moving7: world [0, 1]^3, 8 levels; a collapsing clump at (0.75, 0.75, 0.75):
 # Density 0.1 outside, > 10 within 0.06, > 1e4 within 0.002 (up to 2.6e5).
 E_CAM = "--position 1.23 1.04 1.33 --look-at 0.75 0.75 0.75 --up 0 1 0 --fovy 30"
+E_CLOSE = "--position 0.93 0.86 0.97 --look-at 0.75 0.75 0.75 --up 0 1 0 --fovy 30"
 E_TF = ("--field Density --colormap viridis --range 1 30 --opacity 0,0.02,0.1,0.3,0.6 "
         "--unit-distance 0.01")
 
@@ -162,10 +163,10 @@ def shots() -> list[Shot]:
         "The volume of the first shot composited over an opaque dark background.",
         f"{G_CAM} {G_TF} --background 0.05,0.05,0.08")
     add("gerris", "scene", "A scene file",
-        f"Everything at once from `{EXAMPLES}/plume-scene.json`: the T volume, a translucent "
-        "T = 0.1 shell coloured by W, an opaque T = 0.45 core, a grey slice of the pressure P, "
-        "a clip box and a clip plane, specular, ambient occlusion and a dark background, at "
-        "2 samples per pixel.",
+        f"Everything at once from `{EXAMPLES}/plume-scene.json`: the volume of the hot core, "
+        "a translucent T = 0.08 shell coloured by W, an opaque T = 0.5 core, a horizontal "
+        "slice of the vertical velocity V below the cap (viridis), a clip box and an oblique "
+        "clip plane, specular, ambient occlusion and a dark background, at 4 samples per pixel.",
         f"--scene {EXAMPLES}/plume-scene.json")
 
     # -- Athena++ blast ------------------------------------------------------
@@ -276,12 +277,12 @@ def shots() -> list[Shot]:
     add("enzo", "clip-box", "Clip box",
         "The volume and the iso-surface Density = 10 in the box x, z < 0.75 (the far quarter "
         "around the clump's centre).",
-        f"{E_CAM} {E_TF} --iso 10 --iso-color 1,0.6,0.3 --clip-box 0 0 0 0.75 1 0.75")
+        f"{E_CLOSE} {E_TF} --iso 10 --iso-color 1,0.6,0.3 --clip-box 0 0 0 0.75 1 0.75")
     add("enzo", "slices", "Slices with the volume",
         "Slices of Density through the clump's centre (x = 0.75 and y = 0.75, viridis over "
-        "[0, 30]) with the volume.",
+        "[0, 10]) with the volume, in a clip box around the clump.",
         f"{E_CAM} {E_TF} --slice 0.75 0.75 0.75 1 0 0 --slice 0.75 0.75 0.75 0 1 0 "
-        "--slice-colormap viridis --slice-range 0 30 --clip-box 0.55 0.55 0.55 0.95 0.95 0.95")
+        "--slice-colormap viridis --slice-range 0 10 --clip-box 0.55 0.55 0.55 0.95 0.95 0.95")
     return s
 
 
@@ -353,8 +354,12 @@ def write_doc(all_shots: list[Shot], sets: dict) -> None:
            "is relative to the repository root. Each dataset first goes through the four "
            "stage commands into `bench-data/gallery/<dataset>/` (git-ignored). Images are "
            "512 x 512 PNG (8-bit, straight alpha; without `--background` the background is "
-           "transparent), one sample per pixel unless the scene says otherwise. "
-           "The scene flags and the scene file are described in [scene.md](scene.md).", ""]
+           "transparent), one sample per pixel unless the command or the scene file says "
+           "otherwise. The flags and the scene file are described in [scene.md](scene.md); "
+           "render times of every mode are in [benchmarks.md](benchmarks.md#render-modes). "
+           "The faint terraces on shaded iso-surfaces and volumes are the analytic "
+           "gradient's jumps at cell faces ([design.md](design.md), Shading; compare the "
+           "two gradient shots).", ""]
     out += ["Contents: " + ", ".join(f"[{NAMES[k].split(' (')[0]}](#{k})" for k in ORDER), ""]
     for key in ORDER:
         mine = [s for s in all_shots if s.dataset == key]
