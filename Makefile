@@ -10,7 +10,7 @@ OUT    ?= out
 DATA    = exabricks/data/gerris-plume
 SUDO   := $(shell [ "$$(id -u)" = 0 ] || echo sudo)
 
-.PHONY: setup system-deps demo test test-slow fuzz test-all bench clean
+.PHONY: setup system-deps demo test test-slow fuzz test-all bench gallery clean
 
 system-deps:
 	@if ! ls /etc/OpenCL/vendors/*.icd >/dev/null 2>&1; then \
@@ -81,6 +81,14 @@ bench: setup
 	$(PY) workflows/bench_render.py --write-docs
 	@# peers: exabricks vs yt, vs per-sample cell location, and the uniform-grid ceiling (1024², all datasets)
 	$(PY) workflows/bench_peers.py --json bench-data/peers.json
+	@# render modes: iso-surfaces, slices, clipping, AO, layers, gradients (Gerris, AMReX)
+	$(PY) workflows/bench_modes.py --write-docs
+	@# reconstructions (basis, nearest, vertex) and level of detail (speed vs error)
+	$(PY) workflows/bench_reconstructions.py --write-docs
+
+# Every image of docs/gallery.md, with the commands that make them.
+gallery: setup
+	$(PY) workflows/gallery.py
 
 clean:
 	rm -rf $(OUT)

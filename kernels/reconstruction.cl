@@ -249,8 +249,17 @@ EB_INLINE float eb_basis_value(eb_basis_sums s, int f)
     return s.weighted[f] / s.weight;
 }
 
-/* Gradient of field f of B = sum H v / sum H (quotient rule, paper §5.1.2), lattice units. */
+/* Gradient of field f of B = sum H v / sum H (quotient rule, paper §5.1.2),
+ * lattice units. Below the rounding noise of the sums it is zero: in a
+ * constant field the two products of the quotient rule cancel only up to
+ * float rounding, which near the edge of the support (small sum H) would
+ * otherwise give a random full-length normal; the floor, 1e-6 of the terms'
+ * sizes, is far below any gradient the data can have. */
 EB_INLINE float3 eb_basis_gradient(eb_basis_sums s, int f)
 {
-    return (s.weight * s.d_weighted[f] - s.weighted[f] * s.d_weight) / (s.weight * s.weight);
+    float w = s.weight, b = s.weighted[f] / w;
+    float3 g = (s.d_weighted[f] - b * s.d_weight) / w;
+    float noise = 1e-12f * 2.0f * (b * b * dot(s.d_weight, s.d_weight)
+                                   + dot(s.d_weighted[f], s.d_weighted[f])) / (w * w);
+    return dot(g, g) > noise ? g : (float3)(0.0f);
 }

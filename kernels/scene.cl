@@ -75,8 +75,10 @@ EB_INLINE eb_basis_sums eb_sample_region_at(eb_frame *fr, int r, float3 p, int l
                                             const int grad)
 {
 #if defined(EB_LOD) && !defined(EB_CELL_LOCATION)
-    return eb_reconstruct_lod(fr->bricks, fr->regions.brick_ids, fr->regions.brick_start[r],
-                              fr->regions.brick_start[r + 1], p, level, grad);
+    if (level > fr->regions.finest_level[r])
+        return eb_reconstruct_lod(fr->bricks, fr->regions.brick_ids, fr->regions.brick_start[r],
+                                  fr->regions.brick_start[r + 1], p, level, grad);
+    return eb_sample_region(fr, r, p, grad);
 #else
     return eb_sample_region(fr, r, p, grad);
 #endif

@@ -33,9 +33,11 @@ the field's range (what `built_scene` uses; checked).
     error of the frame against the PIXELS 0 frame of the same size (RMSE,
     SSIM). docs/images/lod-curve.png plots speed-up against error, one line per
     dataset; docs/images/lod-<dataset>.png shows PIXELS 0, 4 and 16.
-Pictures (unless --no-images): docs/images/reconstruction-<dataset>-<recon>.png
-    (the headlight frames of (a)) and the close-ups of SHOTS below, each written
-    as `exabricks render` writes it, with its command in the PNG metadata.
+Pictures (unless --no-images): SHOTS below, each with every reconstruction --
+    docs/images/reconstruction-<dataset>[-<shot>]-<recon>.png (the volume with the
+    gallery's camera and transfer function, a slice and iso-surfaces close up) and
+    4 x |vertex - basis| as ...-diff.png -- written as `exabricks render` writes
+    them, with the command in the PNG metadata (exabricks:command).
 
 --write-docs replaces the "## reconstructions and level of detail" section of
 docs/benchmarks.md with tables built from the rows measured in this run.
@@ -85,12 +87,19 @@ NAMES = {"gerris": "Gerris plume", "amrex": "AMReX advection", "athena": "Athena
 # level 3/4 boundary where the cube's faces touch it.
 SHOTS = (
     # The volume of each dataset with the camera and transfer function of docs/gallery.md
+    # (workflows/gallery.py, copied here so that docs/reconstructions.md's commands stay put)
     # (the default view of the benchmark shows the Athena++ blast as an opaque cube and
     # the Enzo clump as a few faint pixels): docs/images/reconstruction-<dataset>-<recon>.png.
-    ("gerris", None, f"{gallery.G_CAM} {gallery.G_TF} --size 400 400"),
-    ("amrex", None, f"{gallery.X_CAM} {gallery.X_TF} --size 400 400"),
-    ("athena", None, f"{gallery.A_CAM} {gallery.A_TF} --size 400 400"),
-    ("enzo", None, f"{gallery.E_CAM} {gallery.E_TF} --size 400 400"),
+    ("gerris", None, "--position 129 63 148 --look-at 64 33 64 --up 0 1 0 --fovy 30 --field T "
+               "--colormap inferno --range 0 0.6 --opacity 0,0.05,0.15,0.3 --size 400 400"),
+    ("amrex", None, "--position 2.1 1.65 2.3 --look-at 0.68 0.6 0.5 --up 0 1 0 --fovy 24 "
+              "--field phi --colormap viridis --range 1 1.97 --opacity 0,0,0.3,0.6,0.9 "
+              "--size 400 400"),
+    ("athena", None, "--position 0.66 0.46 0.8 --look-at 0 0 0 --up 0 1 0 --fovy 30 --field rho "
+               "--colormap viridis --range 1 2.7 --opacity 0,0.02,0.2,0.5 --size 400 400"),
+    ("enzo", None, "--position 1.23 1.04 1.33 --look-at 0.75 0.75 0.75 --up 0 1 0 --fovy 30 "
+             "--field Density --colormap viridis --range 1 30 --opacity 0,0.02,0.1,0.3,0.6 "
+             "--unit-distance 0.01 --size 400 400"),
     ("enzo", "slice",
      "--position 0.775 0.775 0.95 --look-at 0.775 0.775 0.7505 --up 0 1 0 --fovy 20 "
      "--field Density --no-volume --slice 0.775 0.775 0.7505 0 0 1 --slice-colormap viridis "
@@ -492,7 +501,7 @@ the stitched corner values (`DeviceScene.vertex_args`, exabricks/stages/vertex.p
 first vertex frame would otherwise do; a `Renderer` keeps them for every later frame. The
 programs of this table were already in pyopencl's cache; a variant built for the first time
 (each reconstruction is a separate program, and so are frames with iso-surfaces or slices)
-took PoCL 2.5-3 minutes on this busy machine when the pictures of docs/reconstructions.md
+took PoCL 1.5-3 minutes on this busy machine when the pictures of docs/reconstructions.md
 were first made (not measured by this script). What the default view shows: the default
 transfer function (an opacity ramp over the whole range) makes the ambient gas of the
 Athena++ blast nearly opaque, so its frames show the outside of an opaque cube (nearest and
