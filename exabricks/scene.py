@@ -9,7 +9,7 @@ already stretched over its data range; every position is in world units.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field as dataclass_field, replace
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import functools
+from dataclasses import dataclass
 import os
 import subprocess
 import sys
@@ -64,6 +65,30 @@ def built_scene(path: Path, field: str):
     tf = default_transfer_function((float(values.min()), float(values.max())))
     lo, hi = schema.world_bounds(bricks)
     return bricks, regions, bvh, field, default_camera(np.asarray(lo), np.asarray(hi)), tf
+
+
+@dataclass(frozen=True)
+class Built:
+    """A cells set and the structures built from it in memory."""
+
+    cells: object      # exabricks.schema.Cells
+    bricks: object     # exabricks.schema.Bricks
+    regions: object    # exabricks.schema.Regions
+    bvh: object        # exabricks.schema.Bvh
+
+    @property
+    def finest_width_world(self) -> float:
+        return float(2.0 ** self.cells.level.min() * self.cells.spacing_world.min())
+
+
+def build(cells) -> Built:
+    from exabricks.stages.brick import build_bricks
+    from exabricks.stages.bvh import build_bvh
+    from exabricks.stages.regions import build_regions
+
+    bricks = build_bricks(cells)
+    regions = build_regions(bricks)
+    return Built(cells, bricks, regions, build_bvh(regions))
 
 
 LEAF_COUNTS = {"amrex": 505_856, "athena": 491_520, "gerris": 67_712, "enzo": 27_077}

@@ -8,7 +8,6 @@ with nothing replaced and nothing left behind."""
 from __future__ import annotations
 
 import hashlib
-import json
 import os
 import stat
 import subprocess

@@ -20,14 +20,11 @@ import pytest
 from exabricks import opencl, schema
 from exabricks.camera import Camera, default_camera
 from exabricks.readers import read
-from exabricks.stages.brick import build_bricks
-from exabricks.stages.bvh import build_bvh
-from exabricks.stages.regions import build_regions
 from exabricks.stages.render import Renderer
 from exabricks.transfer_function import TransferFunction
 
 import reference
-from conftest import AMREX, ATHENA, GERRIS, device_param
+from conftest import AMREX, ATHENA, GERRIS, Built, build, device_param
 
 RMSE_TOLERANCE = 2e-3
 SLAB_TOLERANCE = 1e-5
@@ -62,24 +59,6 @@ def colour_ramp(lo: float, hi: float) -> TransferFunction:
     return TransferFunction(
         np.array([[lo, 0.1, 0.2, 0.9], [mid, 0.9, 0.9, 0.2], [hi, 0.9, 0.1, 0.1]]),
         np.array([[lo, 0.0], [mid, 0.3], [hi, 1.0]]), "ramp")
-
-
-@dataclass(frozen=True)
-class Built:
-    cells: schema.Cells
-    bricks: schema.Bricks
-    regions: schema.Regions
-    bvh: schema.Bvh
-
-    @property
-    def finest_width_world(self) -> float:
-        return float(2.0 ** self.cells.level.min() * self.cells.spacing_world.min())
-
-
-def build(cells: schema.Cells) -> Built:
-    bricks = build_bricks(cells)
-    regions = build_regions(bricks)
-    return Built(cells, bricks, regions, build_bvh(regions))
 
 
 @functools.lru_cache(maxsize=None)

@@ -35,32 +35,11 @@ from exabricks import schema
 from exabricks.camera import Camera, default_camera
 from exabricks.readers import read
 from exabricks.scene import Clip, IsoSurface, Lighting, Scene, Settings, Slice, VolumeLayer
-from exabricks.stages.brick import build_bricks
-from exabricks.stages.bvh import build_bvh
-from exabricks.stages.regions import build_regions
 from exabricks.stages.render import Renderer
 from exabricks.transfer_function import TransferFunction
 
 import reference
-from conftest import AMREX, GERRIS, device_param
-
-
-@dataclass(frozen=True)
-class Built:
-    cells: schema.Cells
-    bricks: schema.Bricks
-    regions: schema.Regions
-    bvh: schema.Bvh
-
-    @property
-    def finest_width_world(self) -> float:
-        return float(2.0 ** self.cells.level.min() * self.cells.spacing_world.min())
-
-
-def build(cells: schema.Cells) -> Built:
-    bricks = build_bricks(cells)
-    regions = build_regions(bricks)
-    return Built(cells, bricks, regions, build_bvh(regions))
+from conftest import AMREX, GERRIS, Built, build, device_param
 
 
 # The views of tests/test_render.py: lattice boxes framed by the default camera.
@@ -279,7 +258,7 @@ def test_iso_surface_and_slice_composite_in_distance_order(device):
                   slices=(Slice(SLICE_POINT, tuple(normal), "T", SLICE_MAP, 0.4),), lighting=NONE,
                   settings=settings(ISO_SIZE, sampling_rate=ISO_RATE, depth=True))
     result = renderer("gerris", ("T",), device).render_scene(scene)
-    both = check_hits(ref, result.depth, load("gerris").finest_width_world, "T=0.1 with a slice")
+    check_hits(ref, result.depth, load("gerris").finest_width_world, "T=0.1 with a slice")
     cells = load("gerris").cells
     o, d = ref.origins, ref.directions
     n = normal / np.linalg.norm(normal)
