@@ -27,7 +27,10 @@ typedef struct {
     __global const float4 *rgba;
     __global const int4 *layers;
     int n_layers;
-    __global const float4 *gradient_scale;  /* per field: lattice -> world gradient, times a constant */
+    /* Private copies of what every sample reads (kept out of global memory):
+     * the first layer, and per field the lattice -> world gradient factor. */
+    int4 layer0;
+    float3 gradient_scale[EB_N_FIELDS];
 } eb_look;
 
 /* Colour map (knots first .. first + n - 1) at `value`. */

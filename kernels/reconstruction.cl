@@ -257,9 +257,10 @@ EB_INLINE float eb_basis_value(eb_basis_sums s, int f)
  * sizes, is far below any gradient the data can have. */
 EB_INLINE float3 eb_basis_gradient(eb_basis_sums s, int f)
 {
-    float w = s.weight, b = s.weighted[f] / w;
-    float3 g = (s.d_weighted[f] - b * s.d_weight) / w;
-    float noise = 1e-12f * 2.0f * (b * b * dot(s.d_weight, s.d_weight)
-                                   + dot(s.d_weighted[f], s.d_weighted[f])) / (w * w);
-    return dot(g, g) > noise ? g : (float3)(0.0f);
+    float w = s.weight, wv = s.weighted[f];
+    float3 num = w * s.d_weighted[f] - wv * s.d_weight;
+    /* |num / w^2| below 1e-6 of |v dw / w| + |d(wv) / w|, without a division */
+    float noise = 2e-12f * (wv * wv * dot(s.d_weight, s.d_weight)
+                            + w * w * dot(s.d_weighted[f], s.d_weighted[f]));
+    return dot(num, num) > noise ? num / (w * w) : (float3)(0.0f);
 }

@@ -85,13 +85,16 @@ __kernel void eb_render(int width, int height, int row0, int rows,
     uint slot = (uint)band_row * (uint)width + (uint)col;
     eb_frame fr = {
         EB_BVH_STRUCT, EB_REGION_STRUCT, EB_SAMPLE_BRICKS_STRUCT,
-        {tf_xs, tf_rgba, layers, n_layers, gradient_scale},
+        {tf_xs, tf_rgba, layers, n_layers, layers[0]},
         {iso, iso_value, iso_color, n_iso, slice, slice_point, slice_normal, n_slices,
          iso_tolerance, specular, shininess},
         {clip_box, clip_lower, clip_upper, clip_planes, n_clip_planes},
         step_base, inv_unit_distance, max_opacity, shading, central, ao_samples, ao_distance,
         origin_world, inv_spacing, lod_scale,
     };
+
+    for (int f = 0; f < EB_N_FIELDS; ++f)
+        fr.look.gradient_scale[f] = gradient_scale[f].xyz;
 
     float jx = 0.5f, jy = 0.5f;
     if (spp > 1) {

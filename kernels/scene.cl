@@ -149,7 +149,7 @@ EB_INLINE float3 eb_field_gradient(eb_frame *fr, eb_basis_sums *s, float3 p, int
         if (ok)
             g = (float3)(d[0], d[1], d[2]);
     }
-    return g * fr->look.gradient_scale[f].xyz;
+    return g * fr->look.gradient_scale[f];
 }
 
 /* Opacity (w) and colour (xyz) of a step of length len at lattice point p
@@ -160,7 +160,7 @@ EB_INLINE float4 eb_medium_step(eb_frame *fr, eb_basis_sums *s, float3 p, int le
 {
     eb_look look = fr->look;
     if (look.n_layers == 1) {
-        int4 layer = look.layers[0];
+        int4 layer = look.layer0;
         float4 c = eb_lookup(look, layer.y, layer.z, value[layer.x]);
         if (!(c.w > 0.0f))
             return (float4)(0.0f);
