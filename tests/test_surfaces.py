@@ -403,6 +403,19 @@ def ray_sphere(origins, directions, centre, radius):
     return np.where(disc >= 0, -b - root, np.inf), np.where(disc >= 0, 2 * root, 0.0)
 
 
+def sphere_view(two_level):
+    """The sphere dataset, its cell width h, the iso radius, the bound delta of the
+    test below, the centre (world) and a camera looking at it."""
+    built = sphere(two_level)
+    h = SPHERE_SPACING
+    radius = 8.0 * h if two_level else 10.0 * h
+    delta = 3.0 * h * h / (8.0 * (radius - np.sqrt(3.0) * h / 2.0))
+    centre = SPHERE_ORIGIN + h * SPHERE_CENTRE_LATTICE
+    camera = Camera(tuple(centre + 4.2 * radius * np.array([0.6, 0.42, 0.68])), tuple(centre),
+                    (0.0, 1.0, 0.0), 35.0)
+    return built, h, radius, delta, centre, camera
+
+
 @device_param
 @pytest.mark.parametrize("two_level", [False, True], ids=["one-level", "two-level"])
 def test_a_distance_field_gives_a_sphere(two_level, device):
@@ -416,13 +429,7 @@ def test_a_distance_field_gives_a_sphere(two_level, device):
     (|f''| <= 1/r). So {I f = R} lies between the spheres of radius R - delta and R:
     a ray hits at t in [t(R), t(R - delta)] (if it meets the inner sphere), never
     if it misses the outer one. Plus 2e-3 cells for refinement and float32."""
-    built = sphere(two_level)
-    h = SPHERE_SPACING
-    radius = 8.0 * h if two_level else 10.0 * h
-    delta = 3.0 * h * h / (8.0 * (radius - np.sqrt(3.0) * h / 2.0))
-    centre = SPHERE_ORIGIN + h * SPHERE_CENTRE_LATTICE
-    camera = Camera(tuple(centre + 4.2 * radius * np.array([0.6, 0.42, 0.68])), tuple(centre),
-                    (0.0, 1.0, 0.0), 35.0)
+    built, h, radius, delta, centre, camera = sphere_view(two_level)
     size = 48
     scene = Scene(camera=camera, isosurfaces=(IsoSurface("r", radius, (0.2, 0.7, 0.4), 1.0),),
                   lighting=NONE, settings=settings(size, depth=True))
@@ -461,13 +468,7 @@ def test_a_semi_transparent_sphere_shows_front_and_back(two_level, device):
     iso-surface twice, C = (0.5 + 0.5 * 0.5) rgb, alpha 0.75; rays missing the outer
     sphere show nothing. (Two levels: pixel 1037's back crossing lies 0.11 after the
     last sample of a region followed by a skipped region.)"""
-    built = sphere(two_level)
-    h = SPHERE_SPACING
-    radius = 8.0 * h if two_level else 10.0 * h
-    delta = 3.0 * h * h / (8.0 * (radius - np.sqrt(3.0) * h / 2.0))
-    centre = SPHERE_ORIGIN + h * SPHERE_CENTRE_LATTICE
-    camera = Camera(tuple(centre + 4.2 * radius * np.array([0.6, 0.42, 0.68])), tuple(centre),
-                    (0.0, 1.0, 0.0), 35.0)
+    built, h, radius, delta, centre, camera = sphere_view(two_level)
     size = 48
     scene = Scene(camera=camera, isosurfaces=(IsoSurface("r", radius, (0.2, 0.7, 0.4), 0.5),),
                   lighting=NONE, settings=settings(size))

@@ -163,8 +163,9 @@ class DeviceScene:
         self.brick_args = [up(q, box, np.float32), up(q, dims, np.int32),
                            up(q, b.offset, np.int64), up(q, values, np.float32),
                            np.int64(b.values.shape[1])]
-        # Vertex values (reconstruction "vertex"): made and uploaded on first use.
-        self._no_vertices = [up(q, np.zeros(1, np.int64)), up(q, np.zeros(1, np.float32)),
+        # Vertex values (reconstruction "vertex") and mip levels (--lod): made and
+        # uploaded on first use; these dummies stand in until then.
+        self._no_per_brick = [up(q, np.zeros(1, np.int64)), up(q, np.zeros(1, np.float32)),
                              np.int64(0)]
         self._vertex_args = self._mip_args = None
 
@@ -224,8 +225,8 @@ class DeviceScene:
         nv = self._all_visible[0] if node_visible is None else node_visible
         rv = self._all_visible[1] if region_visible is None else region_visible
         counts = [np.int32(self.bvh.n_nodes), np.int32(self.regions.n_regions)]
-        vertices = self.vertex_args() if reconstruction == "vertex" else self._no_vertices
-        mips = self.mip_args() if lod else self._no_vertices
+        vertices = self.vertex_args() if reconstruction == "vertex" else self._no_per_brick
+        mips = self.mip_args() if lod else self._no_per_brick
         return [*self._bvh_static, nv, *counts, *self._region_static, rv, *self.brick_args,
                 *vertices, *mips]
 
@@ -235,11 +236,8 @@ class DeviceScene:
         if self._mip_args is None:
             from .lod import brick_mips
 
-            offset, values = brick_mips(self.bricks, self.field_indices or [0])
-            check_device_memory(self.device, {"mip levels": values.nbytes})
-            q, up = self.queue, opencl.to_device
-            self._mip_args = [up(q, offset, np.int64), up(q, values, np.float32),
-                              np.int64(values.shape[1])]
+            self._mip_args = self._per_brick_args(
+                "mip levels", *brick_mips(self.bricks, self.field_indices or [0]))
         return self._mip_args
 
     def vertex_args(self) -> list:
@@ -252,13 +250,16 @@ class DeviceScene:
 
             points_world = lambda lattice: self.bricks.origin_world + \
                 self.bricks.spacing_world * lattice
-            offset, values = vertex_values(
-                self.bricks, lambda lattice: probe_fields(self, points_world(lattice)))
-            check_device_memory(self.device, {"vertex values": values.nbytes})
-            q, up = self.queue, opencl.to_device
-            self._vertex_args = [up(q, offset, np.int64), up(q, values, np.float32),
-                                 np.int64(values.shape[1])]
+            self._vertex_args = self._per_brick_args("vertex values", *vertex_values(
+                self.bricks, lambda lattice: probe_fields(self, points_world(lattice))))
         return self._vertex_args
+
+    def _per_brick_args(self, what: str, offset: np.ndarray, values: np.ndarray) -> list:
+        """Kernel arguments of extra per-brick data: offsets (int64), values
+        (float32 (F, n)) and the stride between fields, checked against the device."""
+        check_device_memory(self.device, {what: values.nbytes})
+        q, up = self.queue, opencl.to_device
+        return [up(q, offset, np.int64), up(q, values, np.float32), np.int64(values.shape[1])]
 
     def location_args(self) -> list:
         """Kernel arguments EB_LOCATION_ARGS: the tree over the brick supports
