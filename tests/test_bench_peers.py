@@ -7,13 +7,11 @@ from __future__ import annotations
 
 import argparse
 import math
-import sys
 
 import numpy as np
 import pytest
-from conftest import DEVICES, GERRIS, ROOT
+from conftest import DEVICES, GERRIS
 
-sys.path.insert(0, str(ROOT / "workflows"))
 
 import bench_peers  # noqa: E402
 import make_big  # noqa: E402

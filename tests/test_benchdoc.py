@@ -4,13 +4,10 @@ notes around the tables computed from the results."""
 
 from __future__ import annotations
 
-import sys
 
 import numpy as np
 import pytest
-from conftest import ROOT
 
-sys.path.insert(0, str(ROOT / "workflows"))
 
 import bench_ingest  # noqa: E402
 import bench_preprocess  # noqa: E402

@@ -15,9 +15,10 @@ from exabricks import schema
 from exabricks.constants import MAX_LEVEL
 from exabricks.errors import ExabricksError
 from exabricks.readers import read
-from exabricks.stages.coarsen import coarsen_cells
+from exabricks.stages.coarsen import coarsen_cells, coarsen_plotfile
 from exabricks.stages.ingest import validate_cells
 
+import amrex_plotfile
 from amr_strategies import amr_cells
 from conftest import AMREX, GERRIS, assert_one_error_line, run_cli
 
@@ -211,6 +212,69 @@ def test_random_layouts_match_reference(cells, levels):
     assert as_dict(coarse) == reference_coarsen(cells, levels)
 
 
+def sorted_cells(cells: schema.Cells):
+    order = np.lexsort((*cells.lower_lattice.T, cells.level))
+    return cells.lower_lattice[order], cells.level[order], cells.values[:, order]
+
+
+@pytest.mark.parametrize("levels", [1, 2, 3])
+def test_plotfile_covered_data_equals_the_averages(levels):
+    """plt00020 stores covered data averaged down from the finer levels: reading it
+    gives the cells of coarsen_cells on the full read, values within float32 rounding."""
+    from_file = coarsen_plotfile(AMREX, levels=levels)
+    merged = coarsen_cells(read(AMREX), levels=levels)
+    (lo_a, lv_a, v_a), (lo_b, lv_b, v_b) = sorted_cells(from_file), sorted_cells(merged)
+    np.testing.assert_array_equal(lo_a, lo_b)
+    np.testing.assert_array_equal(lv_a, lv_b)
+    np.testing.assert_allclose(v_a, v_b, rtol=2.0**-22, atol=0)
+    levels_read = {1: 2, 2: 1, 3: 1}[levels]
+    assert from_file.meta["source"]["source"]["levels_read"] == levels_read
+    assert from_file.meta["parameters"]["covered_level"] == {1: 1, 2: 2, 3: 2}[levels]
+    assert from_file.meta["statistics"]["cells"] == merged.n_cells
+    read_files = {entry["path"].split("/")[-2] for entry in from_file.meta["inputs"]}
+    assert read_files == {"plt00020", *(f"Level_{L}" for L in range(levels_read))}
+
+
+def _plotfile_with_marked_covered_data(root):
+    """Level 0: one 8^3 box of 7.0; level 1 (ratio 4): one 8^3 box of random values
+    covering the level-0 cells 0..1 per axis.  The covered level-0 cells hold 7.0,
+    not the average of the fine cells, so a result shows which one it used."""
+    rng = np.random.default_rng(3)
+
+    def data(level, lo, hi):
+        shape = (1, *(hi - lo + 1)[::-1])
+        return np.full(shape, 7.0) if level == 0 else rng.random(shape)
+
+    return amrex_plotfile.write_plotfile(root, [[((0, 0, 0), (7, 7, 7))],
+                                                [((0, 0, 0), (7, 7, 7))]], [4], ["a"], data)
+
+
+def test_plotfile_ratio_4_uses_covered_data_and_skips_the_fine_level(tmp_path):
+    root = tmp_path / "plt"
+    written = _plotfile_with_marked_covered_data(root)
+    fine = written[1][0][2][0]  # (8, 8, 8), z y x
+    # K = 1 falls between the AMReX levels (lattice levels 0 and 2): octets of the fine
+    # level merge, their means replace the fine cells, and 7.0 appears only outside.
+    one = coarsen_plotfile(root, levels=1)
+    assert one.meta["parameters"]["covered_level"] == 0
+    assert sorted(set(one.level.tolist())) == [1, 2]
+    means = fine.reshape(4, 2, 4, 2, 4, 2).mean(axis=(1, 3, 5))
+    at = one.level == 1
+    got = {tuple(c // 2): v for c, v in zip(one.lower_lattice[at], one.values[0, at])}
+    np.testing.assert_allclose([got[(x, y, z)] for z in range(4) for y in range(4)
+                                for x in range(4)], means.ravel(), rtol=1e-6)
+    assert np.all(one.values[0, ~at] == 7.0)
+    # K = 2 is AMReX level 0: its stored values, covered ones included; level 1's data
+    # is never read (a truncated Cell_D file would fail a full read).
+    for f in (root / "Level_1").glob("Cell_D_*"):
+        f.write_bytes(b"")
+    two = coarsen_plotfile(root, levels=2)
+    assert two.n_cells == 8**3 and np.all(two.level == 2) and np.all(two.values == 7.0)
+    assert two.meta["source"]["source"]["levels_read"] == 1
+    with pytest.raises(ExabricksError):
+        coarsen_plotfile(root, levels=1)
+
+
 # ---------------------------------------------------------------------------
 # the command line
 
@@ -237,6 +301,20 @@ def test_cli_chain_renders(tmp_path):
 
     rgba, _ = read_image(image)
     assert rgba.shape == (64, 64, 4) and rgba[..., 3].max() > 0.05
+
+
+def test_cli_plotfile(tmp_path):
+    out = tmp_path / "coarse.npz"
+    run_cli("coarsen", AMREX, "--levels", "2", "--field", "phi", "-o", out, check=0)
+    coarse = schema.load(out, "cells")
+    assert coarse.fields == ("phi",) and coarse.n_cells == EXPECTED_CELLS["amrex"][1]
+    assert coarse.meta["parameters"]["covered_level"] == 2
+    assert_one_error_line(run_cli("coarsen", AMREX, "--levels", "1", "--field", "rho",
+                                  "-o", out), "plt00020", "no field 'rho'")
+    assert_one_error_line(run_cli("coarsen", tmp_path, "--levels", "1", "-o", out),
+                          "not an AMReX plotfile")
+    proc = run_cli("coarsen", out, "--levels", "1", "--field", "phi", "-o", tmp_path / "x.npz")
+    assert proc.returncode == 2 and "Traceback" not in proc.stderr
 
 
 def test_cli_refusals(tmp_path):

@@ -10,12 +10,11 @@ from __future__ import annotations
 import itertools
 import re
 import shutil
-import sys
 import time
 
 import numpy as np
 import pytest
-from conftest import (AMREX, ATHENA, ENZO, GERRIS, LEAF_COUNTS, ROOT, assert_one_error_line,
+from conftest import (AMREX, ATHENA, ENZO, GERRIS, LEAF_COUNTS, assert_one_error_line,
                       run_cli)
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
@@ -27,7 +26,6 @@ from exabricks.readers import FORMATS, detect_format
 from exabricks.readers.exajet import scalar_files
 from exabricks.stages.ingest import amr_from_uniform, find_overlap, ingest, validate_cells
 
-sys.path.insert(0, str(ROOT / "workflows"))
 
 import amrex_plotfile  # noqa: E402
 

@@ -23,9 +23,8 @@ from exabricks.errors import ExabricksError
 from exabricks.readers import _blocks, amrex, athena, yt_bridge
 from exabricks.stages.ingest import validate_cells
 
-from conftest import AMREX, ATHENA, ENZO, LEAF_COUNTS, ROOT
+from conftest import AMREX, ATHENA, ENZO, LEAF_COUNTS
 
-sys.path.insert(0, str(ROOT / "workflows"))
 
 import amrex_plotfile  # noqa: E402
 

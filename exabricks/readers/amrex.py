@@ -49,15 +49,22 @@ _IEEE = {
 _VISMF_VERSIONS = (1, 2, 3, 4)  # Version_v1 … NoFabHeaderFAMinMax_v1
 
 
-def read(path: Path, *, fields: Sequence[str] | None = None) -> schema.Cells:
+def read(path: Path, *, fields: Sequence[str] | None = None,
+         level_cap: int | None = None) -> schema.Cells:
     """Leaf cells of an AMReX plotfile directory, fields as float32.
+
+    level_cap: read AMReX levels 0..level_cap only (None: all).  Every cell of level
+        `level_cap` is then a leaf, covered or not: where finer levels cover it, its
+        value is the covered data the plotfile stores (averaged down from the finer
+        levels by the simulation).  The lattice and the levels stay those of the whole
+        hierarchy, so the cells line up with a full read.
 
     Returns Cells with lower_lattice int32 (N, 3) in finest-cell units, level int8
     (N,) (0 = AMReX's finest level), values float32 (F, N) in the file's units,
     origin_world = prob_lo, spacing_world = the finest cell size per axis.
     """
     path = Path(path)
-    header = _read_header(path)
+    header = read_header(path)
     names = header["fields"]
     if fields is None:
         selected = list(range(len(names)))
@@ -70,9 +77,12 @@ def read(path: Path, *, fields: Sequence[str] | None = None) -> schema.Cells:
         if len(set(fields)) != len(fields):
             raise ExabricksError(f"{path}: field listed twice in {list(fields)}")
         selected = [names.index(f) for f in fields]
+    widths = lattice_widths(header)
     finest = header["finest_level"]
-    ratios = header["ratios"]
-    widths = [int(np.prod(ratios[L:], dtype=np.int64)) for L in range(finest + 1)]
+    if level_cap is not None:
+        if level_cap < 0:
+            raise ExabricksError(f"{path}: the level cap must be >= 0, got {level_cap}")
+        finest = min(finest, level_cap)
     domains = header["domains"]
 
     levels = [_read_level_header(path, header["level_paths"][L], L, len(names))
@@ -120,16 +130,30 @@ def read(path: Path, *, fields: Sequence[str] | None = None) -> schema.Cells:
         origin_world=header["prob_lo"].astype(WORLD_DTYPE),
         spacing_world=spacing.astype(WORLD_DTYPE),
         meta={"source": {"format": "amrex", "code": header["version"], "time": header["time"],
-                         "levels": finest + 1}},
+                         "levels": header["finest_level"] + 1,
+                         **({} if finest == header["finest_level"]
+                            else {"levels_read": finest + 1})},
+              # The files read (a capped read leaves the finer levels' files alone).
+              "inputs": [str(path / "Header"), *(
+                  str(f) for L in range(finest + 1)
+                  for f in sorted((path / header["level_paths"][L][0]).parent.glob("*"))
+                  if f.is_file())]},
         lower_lattice=lattice,
         level=level,
         values=values,
     )
 
 
+def lattice_widths(header: dict) -> list[int]:
+    """Width of a cell of each AMReX level in finest-cell units (the product of the
+    refinement ratios below it); the exabricks level is its log2."""
+    ratios = header["ratios"]
+    return [int(np.prod(ratios[L:], dtype=np.int64)) for L in range(header["finest_level"] + 1)]
+
+
 def field_names(path: Path) -> list[str]:
     """The field names listed in the plotfile's Header (nothing else is read)."""
-    return _read_header(Path(path))["fields"]
+    return read_header(Path(path))["fields"]
 
 
 # ---------------------------------------------------------------------------
@@ -236,7 +260,9 @@ def _parse_ratios(c: _Lines, finest: int) -> list[int]:
     return r
 
 
-def _read_header(path: Path) -> dict:
+def read_header(path: Path) -> dict:
+    """The plotfile's Header, checked: fields, finest_level, ratios, domains, prob_lo,
+    spacing, level_paths [(multifab path, box count)] and more (no level data read)."""
     if not path.is_dir():
         kind = "no such file or directory" if not path.exists() else "a file, not a directory"
         raise ExabricksError(f"{path}: not an AMReX plotfile directory ({kind})")

@@ -73,6 +73,7 @@ def ingest(
     nan_policy: str = "error",
     mask: str | None = None,
     auto_mask: bool = True,
+    level_cap: int | None = None,
     on_step: Callable[[], None] | None = None,
 ) -> Cells:
     """Leaf cells of `path`, checked, with their provenance meta (ready for schema.save).
@@ -90,6 +91,8 @@ def ingest(
     mask: drop the cells where this field is exactly 0 (compared as stored, float32);
           they become holes.  The field itself stays unless `fields` leaves it out.
     auto_mask: with no `mask`, use AUTO_MASK_FIELD as the mask when the input has it.
+    level_cap: AMReX only: read levels 0..level_cap, using the covered data the
+          plotfile stores for level `level_cap` (`readers.amrex.read`; `coarsen` uses it).
     on_step: called after reading and after checking (for a progress bar).
 
     The order: read, magnitudes, mask, field selection, `validate_cells`.
@@ -116,6 +119,11 @@ def ingest(
         if given:
             raise ExabricksError(f"{source}: {', '.join(given)} only apply to raw volumes, "
                                  f"not to {fmt} input")
+    if level_cap is not None:
+        if fmt != "amrex":
+            raise ExabricksError(f"{source}: only AMReX plotfiles store covered coarse data, "
+                                 f"not {fmt} input")
+        options["level_cap"] = int(level_cap)
     if scalars:
         if fmt != "exajet":
             raise ExabricksError(f"{source}: --scalars is for exajet .cells files, not {fmt}")
@@ -180,6 +188,7 @@ def ingest(
             "name": name, "max_level": max_level, "threshold": threshold}
            if fmt == "raw" else {}),
         **({"magnitude": {k: ",".join(c) for k, c in derived}} if derived else {}),
+        **({"level_cap": int(level_cap)} if level_cap is not None else {}),
     }
     statistics = {**cell_statistics(cells), "dropped_nonfinite_cells": int(n_read - cells.n_cells),
                   "masked_cells": int(n_masked)}
