@@ -115,7 +115,7 @@ def test_plain_python_outputs_pass_the_independent_checks(both):
     test_regions_bvh's brute-force checks; the overlap found is the repeated cell."""
     from test_brick import check_bricks
     from test_regions_bvh import check_bvh, check_coverage_raster, check_regions_brute_force, \
-        query_points
+        check_support_tiling, query_points
 
     python, _, (cells, _) = both
 
@@ -127,8 +127,9 @@ def test_plain_python_outputs_pass_the_independent_checks(both):
     bricks, regions, bvh = (load("bricks", schema.Bricks), load("regions", schema.Regions),
                             load("bvh", schema.Bvh))
     check_bricks(cells, bricks, 4)
-    check_coverage_raster(bricks, regions)
-    check_regions_brute_force(bricks, regions)
+    check_coverage_raster(bricks, regions, exact=False)  # merged regions (the default)
+    check_support_tiling(bricks, regions)
+    check_regions_brute_force(bricks, regions, exact=False)
     check_bvh(regions, bvh, query_points(regions, np.random.default_rng(0)))
     middle = len(cells.level) // 2
     assert python["overlap"].tolist() == [middle, len(cells.level)]

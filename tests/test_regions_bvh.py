@@ -19,7 +19,7 @@ from exabricks import schema
 from exabricks.errors import ExabricksError
 from exabricks.stages.brick import build_bricks
 from exabricks.stages.bvh import build_bvh
-from exabricks.stages.regions import build_regions, partition, support_boxes_doubled
+from exabricks.stages.regions import EXACT, Merge, build_regions, partition, support_boxes_doubled
 
 from amr_strategies import amr_cells
 from conftest import AMREX, ATHENA, ENZO, GERRIS, assert_one_error_line, run_cli
@@ -95,8 +95,10 @@ def region_doubled(regions):
     return lo2.astype(np.int64), hi2.astype(np.int64)
 
 
-def check_coverage_raster(bricks, regions):
-    """Regions are disjoint and cover exactly the union of brick supports (voxel raster)."""
+def check_coverage_raster(bricks, regions, exact=True):
+    """Regions are disjoint and cover exactly the union of brick supports (voxel raster);
+    merged regions (exact False) cover it and may hold empty space besides, but every
+    region overlaps some support."""
     s_lo, s_hi = support_boxes_doubled(bricks)
     r_lo, r_hi = region_doubled(regions)
     origin = s_lo.min(axis=0)
@@ -106,11 +108,15 @@ def check_coverage_raster(bricks, regions):
     cover = raster_count(r_lo, r_hi, origin, shape)
     union = raster_count(s_lo, s_hi, origin, shape) > 0
     assert cover.max() <= 1, "regions overlap"
-    np.testing.assert_array_equal(cover == 1, union)
+    if exact:
+        np.testing.assert_array_equal(cover == 1, union)
+    else:
+        assert np.all(cover[union] == 1), "a support point outside every region"
 
 
-def check_regions_brute_force(bricks, regions, which=None):
-    """Brick lists, value ranges and finest levels of `which` regions against every cell."""
+def check_regions_brute_force(bricks, regions, which=None, exact=True):
+    """Brick lists, value ranges and finest levels of `which` regions against every cell;
+    with `exact`, also that every listed support covers its whole region."""
     s_lo, s_hi = support_boxes_doubled(bricks)
     r_lo, r_hi = region_doubled(regions)
     c_lower, c_w, c_values, c_brick = brick_cells(bricks)
@@ -121,8 +127,8 @@ def check_regions_brute_force(bricks, regions, which=None):
         overlap = np.all((s_lo < r_hi[r]) & (s_hi > r_lo[r]), axis=1)
         listed = regions.brick_ids[regions.brick_start[r]:regions.brick_start[r + 1]]
         np.testing.assert_array_equal(listed, np.flatnonzero(overlap))
-        # every listed support covers the whole region (the region lies in one ABR piece)
-        assert np.all(s_lo[listed] <= r_lo[r]) and np.all(s_hi[listed] >= r_hi[r])
+        if exact:  # every listed support covers the whole region (it lies in one ABR piece)
+            assert np.all(s_lo[listed] <= r_lo[r]) and np.all(s_hi[listed] >= r_hi[r])
         cells = np.all((c_lo < r_hi[r]) & (c_hi > r_lo[r]), axis=1)
         assert cells.any()
         assert set(np.unique(c_brick[cells])) == set(listed.tolist())
@@ -226,7 +232,7 @@ def test_single_cell_regions_are_its_support():
 def test_two_cells_in_a_row_three_regions():
     """Two unit cells side by side along x: supports [-.5,1.5] and [.5,2.5] overlap in [.5,1.5]."""
     cells = make_cells([(0, 0, 0), (1, 0, 0)], [0, 0], [[1.0, 5.0]])
-    regions = build_regions(bricks_one_per_cell(cells))
+    regions = build_regions(bricks_one_per_cell(cells), EXACT)
     order = np.argsort(regions.lower_lattice[:, 0])
     assert regions.lower_lattice[order, 0].tolist() == [-0.5, 0.5, 1.5]
     assert regions.upper_lattice[order, 0].tolist() == [0.5, 1.5, 2.5]
@@ -247,7 +253,7 @@ def test_value_range_uses_only_cells_whose_support_overlaps():
         dims=np.array([[4, 1, 1], [1, 1, 1]], np.int32), offset=np.array([0, 4], np.int64),
         values=np.array([[-10, 1, 2, 3, 100]], np.float32),
     )
-    regions = build_regions(bricks)
+    regions = build_regions(bricks, EXACT)
     check_coverage_raster(bricks, regions)
     check_regions_brute_force(bricks, regions)
     # the region shared by both bricks, x in [3.5, 4.5]: cells 3 of brick 0 and brick 1
@@ -258,7 +264,7 @@ def test_value_range_uses_only_cells_whose_support_overlaps():
 
 def test_nan_values_are_ignored():
     cells = make_cells([(0, 0, 0), (1, 0, 0)], [0, 0], [[np.nan, 2.0]])
-    regions = build_regions(bricks_one_per_cell(cells))
+    regions = build_regions(bricks_one_per_cell(cells), EXACT)
     order = np.argsort(regions.lower_lattice[:, 0])
     vr = regions.value_range[order, 0]
     assert np.isnan(vr[0]).all() and vr[1].tolist() == [2, 2] and vr[2].tolist() == [2, 2]
@@ -275,18 +281,25 @@ def test_bvh_one_region_is_a_leaf_root():
 # ---------------------------------------------------------------------------
 # properties on random layouts
 
+# Merge settings every property must hold for: exact regions, the default, merging
+# that keeps small pieces only, and merging nearly everything (big lists, empty space).
+MERGES = (EXACT, Merge(), Merge(visit_cost=1.0, brick_cost=0.3, max_bricks=8),
+          Merge(visit_cost=1e6, brick_cost=0.0, max_bricks=1 << 20))
+
 
 @pytest.mark.slow
 @settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(cells=amr_cells(max_cells=1500, max_level=4), width=st.sampled_from([0, 1, 2, 3, 8, 32]),
-       leaf_size=st.integers(1, 6), seed=st.integers(0, 1000))
-def test_random_layouts(cells, width, leaf_size, seed):
+       leaf_size=st.integers(1, 6), seed=st.integers(0, 1000), merge=st.sampled_from(MERGES))
+def test_random_layouts(cells, width, leaf_size, seed, merge):
     """Width 0: one brick per cell; otherwise the brick builder with that maximum width."""
     bricks = bricks_one_per_cell(cells) if width == 0 else build_test_bricks(cells, width)
-    regions = build_regions(bricks)
+    regions = build_regions(bricks, merge)
     schema.validate(regions)
-    check_coverage_raster(bricks, regions)
-    check_regions_brute_force(bricks, regions)
+    exact = not merge.enabled
+    check_coverage_raster(bricks, regions, exact)
+    check_support_tiling(bricks, regions)
+    check_regions_brute_force(bricks, regions, exact=exact)
     stats = regions.meta["statistics"]
     counts = np.diff(regions.brick_start)
     assert stats["n_regions"] == regions.n_regions and stats["max_bricks_per_region"] == counts.max()
@@ -312,28 +325,30 @@ def gerris_cells() -> schema.Cells:
     return make_cells(raw[:, :3], raw[:, 3], values, names)
 
 
-def check_real(cells, n_regions_checked=300, n_points=400):
+def check_real(cells, n_regions_checked=300, n_points=400, merge=Merge()):
     bricks = build_bricks(cells)
-    regions = build_regions(bricks)
+    regions = build_regions(bricks, merge)
     s_lo, s_hi = support_boxes_doubled(bricks)
+    exact = not merge.enabled
     # exact coverage and disjointness by raster where the doubled lattice is small enough;
     # always: every support is tiled exactly by the regions listing it
     if np.prod((s_hi.max(0) - s_lo.min(0)).astype(np.float64)) <= 3e7:
-        check_coverage_raster(bricks, regions)
+        check_coverage_raster(bricks, regions, exact)
     check_support_tiling(bricks, regions)
     rng = np.random.default_rng(1)
     which = rng.choice(regions.n_regions, min(n_regions_checked, regions.n_regions), replace=False)
-    check_regions_brute_force(bricks, regions, which)
+    check_regions_brute_force(bricks, regions, which, exact=exact)
     bvh = build_bvh(regions)
     pts = query_points(regions, rng, n_points)
-    pts = pts[rng.choice(len(pts), 2 * n_points, replace=False)]
+    pts = pts[rng.choice(len(pts), min(len(pts), 2 * n_points), replace=False)]
     check_bvh(regions, bvh, pts)  # also: no sampled point lies in two regions
     return regions, bvh
 
 
 @pytest.mark.slow
-def test_gerris_plume():
-    regions, bvh = check_real(gerris_cells())
+@pytest.mark.parametrize("merge", MERGES[:2], ids=["exact", "merged"])
+def test_gerris_plume(merge):
+    regions, bvh = check_real(gerris_cells(), merge=merge)
     assert regions.meta["statistics"]["n_bricks"] > 0
 
 
@@ -347,7 +362,10 @@ def test_gerris_one_brick_per_cell_threads():
     two = partition(s_lo, s_hi, threads=2)
     for a, b in zip(one, two):
         np.testing.assert_array_equal(a, b)
-    regions = build_regions(bricks)
+    for a, b in zip(partition(s_lo, s_hi, threads=1, level=bricks.level, merge=Merge()),
+                    partition(s_lo, s_hi, threads=2, level=bricks.level, merge=Merge())):
+        np.testing.assert_array_equal(a, b)
+    regions = build_regions(bricks, EXACT)
     assert regions.meta["statistics"]["n_partition_leaves"] == one[0].shape[0]
     check_coverage_raster(bricks, regions)
     check_support_tiling(bricks, regions)
@@ -368,11 +386,17 @@ def test_real_datasets(name):
 
 
 def check_support_tiling(bricks, regions):
+    """Every support is tiled by the regions that list it: the volumes of its overlaps
+    with them add up to its own volume (so no part of it lies in a region that does not
+    list it).  With exact regions each overlap is the whole region."""
     s_lo, s_hi = support_boxes_doubled(bricks)
     r_lo, r_hi = region_doubled(regions)
-    vol = np.prod(r_hi - r_lo, axis=1)
-    per_region = np.repeat(vol, np.diff(regions.brick_start))
-    tiled = np.bincount(regions.brick_ids, weights=per_region, minlength=bricks.n_bricks)
+    region = np.repeat(np.arange(regions.n_regions), np.diff(regions.brick_start))
+    brick = regions.brick_ids
+    overlap = np.minimum(r_hi[region], s_hi[brick]) - np.maximum(r_lo[region], s_lo[brick])
+    assert np.all(overlap > 0), "a listed brick whose support misses the region"
+    tiled = np.bincount(brick, weights=np.prod(overlap.astype(np.float64), axis=1),
+                        minlength=bricks.n_bricks)
     np.testing.assert_array_equal(tiled, np.prod(s_hi - s_lo, axis=1).astype(np.float64))
 
 

@@ -2,6 +2,7 @@
 
     .venv/bin/python workflows/make_big.py [--size 512] [--out bench-data/big512.raw] [--check]
     .venv/bin/python workflows/make_big.py --amrex [--check]   # also bench-data/plt_big512
+    .venv/bin/python workflows/make_big.py --thin-shell [--size 1024]   # bench-data/shell1024.npz
 
 The field is a sum of separable terms (Gaussian blobs of widths from 1/4 to 1/100
 of the domain, and a few sinusoids): one big smooth blob where 2x2x2 groups merge
@@ -14,6 +15,12 @@ With --amrex the 512^3 volume also becomes a block-structured AMReX plotfile (se
 `amrex_hierarchy`): 3 levels, refinement ratio 2, 32^3 boxes (AMReX's
 max_grid_size), properly nested, 23.3 M leaf cells, written by
 workflows/amrex_plotfile.py in double precision as AMReX does by default.
+
+With --thin-shell it writes instead an octree-like cells file directly (see
+`thin_shell_cells`): the layout of tree codes and thin refinement (Gerris, RAMSES,
+ExaJet), where refinement is a cell or two thick around a few spherical fronts,
+with a spherical hole.  At --size 1024 it has 20.6 M cells on 4 levels; the cell
+count scales with size**2 (the fronts' area) plus (size / 8)**3 (the coarse grid).
 """
 
 from __future__ import annotations
@@ -191,6 +198,70 @@ def check_amrex_with_yt(out: Path, volume: np.ndarray, sample: int = 40) -> None
           f"{checked:,} leaves of {3 * sample} sampled boxes", file=sys.stderr)
 
 
+# Thin-shell layout: coarsest level, spherical fronts (centre and radius in units of
+# the domain), the hole, and how far from a front (in cell widths of the level) a
+# cell is refined.  Values: a narrow Gaussian ridge on every front over a smooth
+# background.
+SHELL_LEVELS = 4
+SHELL_FRONTS = ((0.36, 0.40, 0.42, 0.22), (0.62, 0.58, 0.55, 0.28), (0.50, 0.55, 0.40, 0.16),
+                (0.45, 0.42, 0.60, 0.33), (0.30, 0.66, 0.62, 0.29))
+SHELL_HOLE = (0.78, 0.25, 0.30, 0.12)
+SHELL_BAND = 0.9
+
+
+def thin_shell_cells(size: int = 1024):
+    """Octree leaf cells of the thin-shell layout, finest lattice `size` per axis.
+
+    Level SHELL_LEVELS - 1 covers the domain (size / 8 cells per axis for 4 levels);
+    a cell of width w is split into its 8 children while its centre lies within
+    SHELL_BAND * w of a front's sphere, down to level 0, so each level's refinement is
+    about one or two cells thick.  Cells whose centre lies in the hole sphere are
+    dropped at every level.  Returns exabricks.schema.Cells with field "rho"
+    (float32), origin 0 and spacing 1 / size.
+    """
+    from exabricks import schema
+
+    top = SHELL_LEVELS - 1
+    if size % (1 << top):
+        raise SystemExit(f"--size must be a multiple of {1 << top} for the thin-shell layout")
+    fronts = np.array(SHELL_FRONTS) * size
+    hole = np.array(SHELL_HOLE) * size
+    n = size >> top
+    grid = np.stack(np.meshgrid(*(np.arange(n, dtype=np.int32),) * 3, indexing="ij"), -1)
+    lower = (grid.reshape(-1, 3)[:, ::-1] << top).copy()  # x fastest
+    out_lower, out_level = [], []
+    for level in range(top, -1, -1):
+        w = 1 << level
+        centre = lower + 0.5 * w
+        lower = lower[np.sum((centre - hole[:3]) ** 2, axis=1) > hole[3] ** 2]
+        centre = lower + 0.5 * w
+        near = np.zeros(len(lower), bool)
+        for cx, cy, cz, r in fronts:
+            d = np.sqrt(((centre - (cx, cy, cz)) ** 2).sum(axis=1))
+            near |= np.abs(d - r) < SHELL_BAND * w
+        if level == 0:
+            near[:] = False
+        out_lower.append(lower[~near])
+        out_level.append(np.full(int((~near).sum()), level, np.int8))
+        parents = lower[near]
+        half = w >> 1
+        octet = np.array([(x, y, z) for z in (0, 1) for y in (0, 1) for x in (0, 1)],
+                         np.int32) * half
+        lower = (parents[:, None, :] + octet[None]).reshape(-1, 3)
+    lower = np.concatenate(out_lower)
+    level = np.concatenate(out_level)
+    centre = lower + 0.5 * np.left_shift(1, level.astype(np.int32))[:, None]
+    rho = 0.2 + 0.1 * np.sin(centre @ np.array([3.0, 5.0, 7.0]) * (2 * np.pi / size))
+    for k, (cx, cy, cz, r) in enumerate(fronts):
+        d = np.sqrt(((centre - (cx, cy, cz)) ** 2).sum(axis=1))
+        rho += (0.5 + 0.15 * k) * np.exp(-(((d - r) / 1.5) ** 2))
+    return schema.Cells(
+        fields=("rho",), origin_world=np.zeros(3), spacing_world=np.full(3, 1.0 / size),
+        lower_lattice=lower.astype(np.int32), level=level,
+        values=rho.astype(np.float32)[None],
+    )
+
+
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--size", type=int, default=512, help="voxels per axis (default 512)")
@@ -202,7 +273,23 @@ def main(argv=None) -> int:
     p.add_argument("--amrex", action="store_true",
                    help="also write the volume as the AMReX plotfile plt_bigSIZE next to it (an "
                    "existing volume at --out is reused, not regenerated)")
+    p.add_argument("--thin-shell", action="store_true",
+                   help="write the octree-like thin-shell cells file bench-data/shellSIZE.npz "
+                   "instead (default size 1024)")
     args = p.parse_args(argv)
+    if args.thin_shell:
+        from exabricks import schema
+
+        size = 1024 if args.size == 512 and "--size" not in (argv or sys.argv) else args.size
+        out = args.out or ROOT / "bench-data" / f"shell{size}.npz"
+        t = time.perf_counter()
+        cells = thin_shell_cells(size)
+        schema.save(out, cells)
+        per_level = np.bincount(cells.level)
+        print(f"wrote {out}: {cells.n_cells:,} cells in {time.perf_counter() - t:.1f} s; per "
+              "level " + ", ".join(f"{l}: {c:,}" for l, c in enumerate(per_level)),
+              file=sys.stderr, flush=True)
+        return 0
     out = args.out or ROOT / "bench-data" / f"big{args.size}.raw"
     n = args.size
     if not (args.amrex and out.is_file()):  # --amrex reuses an existing volume

@@ -5,27 +5,54 @@ from __future__ import annotations
 import click
 
 from .. import schema
-from ..output import check_output
 from ..errors import ExabricksError
+from ..output import check_output
 from .options import input_path, output_option
-
 
 @click.command()
 @input_path("bricks_path", metavar="BRICKS")
 @output_option
-def regions(bricks_path, output):
-    """Partition the brick supports into Active Brick Regions."""
-    from ..stages.regions import build_regions
+@click.option("--exact", is_flag=True,
+              help="The paper's exact Active Brick Regions: no merging (one set of active "
+              "bricks per region).")
+@click.option("--visit-cost", type=float, default=None, metavar="X",
+              help="Merging: cost of entering a region, in samples [default: 16; 0: exact].")
+@click.option("--brick-cost", type=float, default=None, metavar="X",
+              help="Merging: cost of a listed brick per sample, in samples [default: 0.3].")
+@click.option("--max-merged", type=int, default=None, metavar="N",
+              help="Merging: a piece with more bricks is always split [default: 64].")
+def regions(bricks_path, output, exact, visit_cost, brick_cost, max_merged):
+    """Partition the brick supports into Active Brick Regions.
+
+    By default pieces of the partition whose rays would cost more split than
+    whole are kept whole, with the union of their bricks (docs/design.md
+    "Merged regions"): far fewer, larger regions on octree-like data.
+    """
+    from ..stages.regions import EXACT, Merge, build_regions
 
     check_output(output, [bricks_path])
+    given = [name for name, v in (("--visit-cost", visit_cost), ("--brick-cost", brick_cost),
+                                  ("--max-merged", max_merged)) if v is not None]
+    if exact and given:
+        raise click.UsageError(f"--exact excludes {', '.join(given)}")
+    default = Merge()
+    try:
+        merge = EXACT if exact else Merge(
+            visit_cost=default.visit_cost if visit_cost is None else visit_cost,
+            brick_cost=default.brick_cost if brick_cost is None else brick_cost,
+            max_bricks=default.max_bricks if max_merged is None else max_merged,
+        )
+    except ExabricksError as e:
+        raise click.UsageError(str(e)) from None
     bricks = schema.load(bricks_path, "bricks")
     try:
-        result = build_regions(bricks)
+        result = build_regions(bricks, merge)
     except ExabricksError as e:
         raise ExabricksError(f"{bricks_path}: {e}") from e
     stats = result.meta["statistics"]
     meta = schema.make_meta(
         inputs=[bricks_path],
+        parameters=result.meta["parameters"],
         statistics=stats,
         # Lets bvh/render/probe check that bricks, regions and BVH belong together.
         consistency={"n_bricks": bricks.n_bricks, "n_regions": result.n_regions},

@@ -18,6 +18,8 @@ a half-integer lattice position, so twice it is an exact integer.
 
 from __future__ import annotations
 
+from dataclasses import asdict, dataclass
+
 import numba
 import numpy as np
 
@@ -30,8 +32,56 @@ from .brick import require_disjoint
 _MAX_DOUBLED = 1 << 24
 
 
-def build_regions(bricks: schema.Bricks) -> schema.Regions:
+@dataclass(frozen=True)
+class Merge:
+    """When the partition keeps a piece whole (docs/design.md "Merged regions").
+
+    visit_cost: the cost of entering a region, in units of a sample's cost apart
+        from its bricks (`merged_region_cost`); 0 turns merging off: every region
+        is then an exact ABR piece, one set of active bricks (paper §3.2.3).
+    brick_cost: the cost of one listed brick per sample, same units.
+    max_bricks: a piece with more bricks than this is always split.
+    The defaults were chosen on the thin-shell layout and the four shared
+    datasets (docs/benchmarks.md): regions + BVH within 3x the scalar bytes of
+    octree-like data, no slower render anywhere.
+    """
+
+    visit_cost: float = 16.0
+    brick_cost: float = 0.3
+    max_bricks: int = 64
+
+    def __post_init__(self):
+        for name in ("visit_cost", "brick_cost"):
+            v = getattr(self, name)
+            if not (np.isfinite(v) and 0 <= v <= 1e6):
+                raise ExabricksError(f"the merge {name.replace('_', ' ')} must lie in "
+                                     f"0..1e6, got {v}")
+        if not 0 <= self.max_bricks <= 1 << 20:
+            raise ExabricksError(f"the most bricks of a merged region must lie in 0..{1 << 20}, "
+                                 f"got {self.max_bricks}")
+
+    @property
+    def enabled(self) -> bool:
+        return self.visit_cost > 0 and self.max_bricks > 0
+
+    def as_dict(self) -> dict:
+        return asdict(self)
+
+
+EXACT = Merge(visit_cost=0.0, brick_cost=0.0, max_bricks=0)
+"""Merging off: the paper's exact Active Brick Regions."""
+
+
+def build_regions(bricks: schema.Bricks, merge: Merge = Merge()) -> schema.Regions:
     """Active Brick Regions of `bricks`; statistics (paper Table 1) in meta["statistics"].
+
+    merge: with EXACT every region is an exact ABR piece (one set of active bricks);
+    by default a piece of the partition with up to `merge.max_bricks` bricks stays
+    whole where the cost model (`merged_region_cost`) says its halves would cost
+    rays more, with the union of their bricks.  Either way a region lists exactly
+    the bricks whose support overlaps it, so every brick that can influence a
+    point is in the list of the region that holds it; a merged region may also
+    hold space where no support reaches (a sample there has no weight: empty).
 
     Returns a `schema.Regions` whose regions are disjoint, cover exactly the
     union of brick supports, and list (ascending) exactly the bricks whose
@@ -49,7 +99,7 @@ def build_regions(bricks: schema.Bricks) -> schema.Regions:
             f"brick supports reach lattice coordinate {max(-int(sup_lo.min()), int(sup_hi.max())) / 2}, "
             f"beyond {_MAX_DOUBLED // 2}, where float32 region bounds stop being exact"
         )
-    lo2, hi2, brick_start, brick_ids = partition(sup_lo, sup_hi)
+    lo2, hi2, brick_start, brick_ids = partition(sup_lo, sup_hi, level=bricks.level, merge=merge)
     n_partition = lo2.shape[0]
     lo2, hi2, brick_start, brick_ids = _coalesce(lo2, hi2, brick_start, brick_ids)
     lower = np.ascontiguousarray(bricks.lower_lattice, dtype=np.int64)
@@ -74,10 +124,10 @@ def build_regions(bricks: schema.Bricks) -> schema.Regions:
     stats = region_statistics(regions, lo2, hi2)
     stats["n_bricks"] = n
     stats["n_partition_leaves"] = n_partition
-    return regions.replace(meta={"statistics": stats})
+    return regions.replace(meta={"statistics": stats, "parameters": {"merge": merge.as_dict()}})
 
 
-def partition(sup_lo, sup_hi, *, threads: int | None = None):
+def partition(sup_lo, sup_hi, *, threads: int | None = None, level=None, merge: Merge = EXACT):
     """The k-d partition of the supports (paper §3.2.3), subtrees built on threads.
 
     sup_lo, sup_hi: int64 (B, 3) support boxes, doubled lattice units.
@@ -85,10 +135,12 @@ def partition(sup_lo, sup_hi, *, threads: int | None = None):
     and ids int32 (K,).  The top of the tree is split breadth first here
     until there are enough subtrees; those run in _partition (which releases
     the GIL) and their leaves are concatenated in subtree order, so the result
-    does not depend on the number of threads.
+    does not depend on the number of threads.  level: int (B,) brick levels, which
+    `merge` needs (when enabled).
     """
     threads = numba.get_num_threads() if threads is None else threads
     n = sup_lo.shape[0]
+    lv = np.zeros(n, np.int64) if level is None else np.ascontiguousarray(level, np.int64)
     # The task count depends only on the input size, never on the thread count.
     want = 1 if n < 20_000 else 64
     queue = [(sup_lo.min(axis=0), sup_hi.max(axis=0), np.arange(n, dtype=np.int32))]
@@ -112,7 +164,9 @@ def partition(sup_lo, sup_hi, *, threads: int | None = None):
     tasks += queue
 
     def run(task):
-        return _partition(sup_lo, sup_hi, *task)
+        return _partition(sup_lo, sup_hi, *task, lv,
+                          float(merge.visit_cost) if merge.enabled else 0.0,
+                          float(merge.brick_cost), int(merge.max_bricks))
 
     if threads > 1 and len(tasks) > 1:
         from concurrent.futures import ThreadPoolExecutor
@@ -255,7 +309,8 @@ def _split_plane(sup_lo, sup_hi, ids, lo, hi):
 
 
 @numba.njit(cache=True, nogil=True)
-def _partition(sup_lo, sup_hi, root_lo, root_hi, root_ids):
+def _partition(sup_lo, sup_hi, root_lo, root_hi, root_ids, level, visit_cost, brick_cost,
+               max_merged):
     """Top-down partition of one region into leaf regions (paper §3.2.3).
 
     sup_lo, sup_hi: int64 (B, 3) support boxes in doubled lattice units;
@@ -271,6 +326,11 @@ def _partition(sup_lo, sup_hi, root_lo, root_hi, root_ids):
     region popped last always owns the top of the buffer, and its children are
     written back in its place (right list below, left list above), so the
     buffer never holds more than the lists of the regions still pending.
+
+    Merging (visit_cost > 0, `merged_region_cost`): a region with at most
+    `max_merged` bricks that still has a support face inside is kept whole when
+    that costs a ray no more than its two halves would, with the union of the
+    bricks (level: int (B,) brick levels).
     """
     n = root_ids.shape[0]
     buf = np.empty(2 * n + 16, np.int32)
@@ -306,6 +366,9 @@ def _partition(sup_lo, sup_hi, root_lo, root_hi, root_ids):
         b = st_ab[depth, 1]
 
         axis, plane = _choose_plane(sup_lo, sup_hi, buf, a, b, lo, hi, best, best_d, order)
+        if axis >= 0 and visit_cost > 0 and b - a <= max_merged and _keep_whole(
+                sup_lo, sup_hi, buf, a, b, lo, hi, axis, plane, level, visit_cost, brick_cost):
+            axis = -1
 
         if axis < 0:
             # No support boundary inside: every listed support covers the whole region.
@@ -360,6 +423,57 @@ def _partition(sup_lo, sup_hi, root_lo, root_hi, root_ids):
             st_ab[depth, 1] = a + nr + nl
             depth += 1
     return out_lo[:n_out], out_hi[:n_out], out_start[: n_out + 1], out_ids[:n_ids]
+
+
+@numba.njit(cache=True, inline="always")
+def merged_region_cost(dx, dy, dz, n_bricks, finest, visit_cost, brick_cost):
+    """Expected cost of the rays through one region box (doubled lattice extents
+    dx, dy, dz), up to a common factor: a ray hits a box with probability
+    proportional to its surface area S and then crosses it over a mean chord of
+    4 V / S (Cauchy), sampled at 2 samples per cell of its finest level.  So the
+    cost is S * visit_cost + (4 V / w) * (1 + brick_cost * n_bricks), w the doubled
+    width 2 * 2**finest: visit_cost is a region visit (walk, interval set-up, the
+    extra sample a boundary adds) and brick_cost one listed brick per sample, both
+    in units of the rest of a sample's cost."""
+    area = 2.0 * (dx * dy + dy * dz + dz * dx)
+    volume = dx * dy * dz
+    w = 2.0 * (1 << finest)
+    return area * visit_cost + 4.0 * volume / w * (1.0 + brick_cost * n_bricks)
+
+
+@numba.njit(cache=True)
+def _keep_whole(sup_lo, sup_hi, buf, a, b, lo, hi, axis, plane, level, visit_cost, brick_cost):
+    """Whether region [lo, hi) with fragments buf[a:b] costs no more whole than
+    split at `plane` on `axis` into its two children (each a region; a child
+    without a fragment is empty and costs nothing)."""
+    n_left = 0
+    n_right = 0
+    fin = 127
+    fin_left = 127
+    fin_right = 127
+    for k in range(a, b):
+        i = buf[k]
+        lv = level[i]
+        fin = min(fin, lv)
+        if sup_lo[i, axis] < plane:
+            n_left += 1
+            fin_left = min(fin_left, lv)
+        if sup_hi[i, axis] > plane:
+            n_right += 1
+            fin_right = min(fin_right, lv)
+    d = np.empty(3, np.float64)
+    for ax in range(3):
+        d[ax] = hi[ax] - lo[ax]
+    whole = merged_region_cost(d[0], d[1], d[2], b - a, fin, visit_cost, brick_cost)
+    split = 0.0
+    if n_left > 0:
+        d[axis] = plane - lo[axis]
+        split += merged_region_cost(d[0], d[1], d[2], n_left, fin_left, visit_cost, brick_cost)
+    if n_right > 0:
+        d[axis] = hi[axis] - plane
+        split += merged_region_cost(d[0], d[1], d[2], n_right, fin_right, visit_cost,
+                                    brick_cost)
+    return whole <= split
 
 
 @numba.njit(cache=True)
