@@ -279,12 +279,8 @@ def _check_semantics(obj: _Kind, where: str) -> None:
         raise ExabricksError(f"{where}: duplicate field names {list(obj.fields)}")
     if isinstance(obj, (Cells, Bricks)):
         _check_levels(obj.level, where, obj.KIND[:-1])
-        # int32 throughout: this runs on every read and write of tens of millions of cells.
-        mask = (np.int32(1) << obj.level.astype(np.int32)) - np.int32(1)
-        lo = obj.lower_lattice
-        bad = np.flatnonzero((lo[:, 0] | lo[:, 1] | lo[:, 2]) & mask)
-        if bad.size:
-            i = int(bad[0])
+        i = _first_misaligned(obj.lower_lattice, obj.level)
+        if i >= 0:
             raise ExabricksError(
                 f"{where}: {obj.KIND[:-1]} {i} at {obj.lower_lattice[i].tolist()} is not "
                 f"aligned to its level-{int(obj.level[i])} width {1 << int(obj.level[i])}"
@@ -303,6 +299,15 @@ def _check_semantics(obj: _Kind, where: str) -> None:
         _check_levels(obj.finest_level, where, "region")
     if isinstance(obj, Bvh):
         _check_bvh(obj, where)
+
+
+def _first_misaligned(lower: np.ndarray, level: np.ndarray) -> int:
+    """Index of the first row whose corner is not a multiple of 2**level, else -1
+    (levels already checked to lie in 0..MAX_LEVEL).  One pass at memory speed: this
+    runs on every read and write of tens of millions of cells."""
+    from .stages._checks import first_misaligned
+
+    return int(first_misaligned(np.ascontiguousarray(lower), np.ascontiguousarray(level)))
 
 
 def _check_levels(level: np.ndarray, where: str, item: str) -> None:
@@ -569,9 +574,14 @@ class NpzArchive:
     (shape, dtype) of a member's .npy header, checked against the size the zip
     directory records; `array(name)` reads it (never with pickles)."""
 
+    # Stored (uncompressed, as exabricks writes them) members this large are read
+    # straight into their array: one copy from the file, no chunked copies.
+    DIRECT_BYTES = 1 << 20
+
     def __init__(self, path):
         self.path = Path(path)
         self.zip = None
+        self._header_bytes = {}
 
     def __enter__(self):
         p = self.path
@@ -644,9 +654,13 @@ class NpzArchive:
         if header_bytes + size != info.file_size:
             raise self._fail(name, f"claims shape {shape} of {dtype} ({size} bytes) but the "
                                    f"archive holds {info.file_size - header_bytes} bytes for it")
+        self._header_bytes[name] = header_bytes
         return tuple(int(x) for x in shape), dtype
 
     def array(self, name) -> np.ndarray:
+        info = self.members[name]
+        if info.compress_type == zipfile.ZIP_STORED and info.file_size >= self.DIRECT_BYTES:
+            return self._read_stored(name, info)
         try:
             with self._open_member(name) as f:
                 return np.lib.format.read_array(f, allow_pickle=False)
@@ -656,6 +670,35 @@ class NpzArchive:
             raise
         except Exception as e:  # truncated member, CRC error, ...
             raise self._fail(name, f"cannot be read ({e})") from None
+
+    def _read_stored(self, name, info) -> np.ndarray:
+        """A stored member's array, read with one readinto and checked against the
+        archive's CRC (zlib.crc32 runs at several GB/s)."""
+        import zlib
+
+        shape, dtype = self.header(name)
+        skip = self._header_bytes[name]
+        out = np.empty(shape, dtype)
+        view = memoryview(out.reshape(-1)).cast("B")
+        try:
+            with open(self.path, "rb") as f:
+                f.seek(info.header_offset)
+                local = f.read(30)
+                if len(local) != 30 or local[:4] != b"PK\x03\x04":
+                    raise ValueError("bad local file header")
+                name_len = int.from_bytes(local[26:28], "little")
+                extra_len = int.from_bytes(local[28:30], "little")
+                f.seek(info.header_offset + 30 + name_len + extra_len)
+                head = f.read(skip)
+                if f.readinto(view) != len(view) or len(head) != skip:
+                    raise ValueError("truncated")
+        except OSError as e:
+            raise self._fail(name, f"cannot be read ({e.strerror or e})") from None
+        except ValueError as e:
+            raise self._fail(name, f"cannot be read ({e})") from None
+        if zlib.crc32(view, zlib.crc32(head)) != info.CRC:
+            raise self._fail(name, "cannot be read (bad CRC: the file is damaged)")
+        return out
 
     def __getitem__(self, name) -> np.ndarray:
         return self.array(name)

@@ -120,3 +120,27 @@ def test_files_of_other_kinds_are_named_as_such(tmp_path, cli):
     empty = tmp_path / "empty.npz"
     empty.write_bytes(b"")
     assert_one_error_line(cli("info", empty), str(empty), "empty file")
+
+
+def test_large_stored_members_are_read_directly_and_crc_checked(tmp_path):
+    """Members of at least NpzArchive.DIRECT_BYTES are read with one readinto: the
+    values come back exact, and a flipped byte or a cut file is refused by name."""
+    n = schema.NpzArchive.DIRECT_BYTES // 4 + 1000
+    rng = np.random.default_rng(0)
+    cells = schema.Cells(
+        fields=("a",), origin_world=np.zeros(3), spacing_world=np.ones(3),
+        lower_lattice=np.stack([np.arange(n), np.zeros(n), np.zeros(n)], 1).astype(np.int32),
+        level=np.zeros(n, np.int8), values=rng.random((1, n), np.float32))
+    path = tmp_path / "big.npz"
+    schema.save(path, cells)
+    back = schema.load(path, "cells")
+    np.testing.assert_array_equal(back.values, cells.values)
+    np.testing.assert_array_equal(back.lower_lattice, cells.lower_lattice)
+    raw = bytearray(path.read_bytes())
+    at = raw.find(cells.values[0, n // 2 : n // 2 + 4].tobytes())
+    assert at > 0
+    raw[at] ^= 0xFF
+    bad = tmp_path / "flipped.npz"
+    bad.write_bytes(bytes(raw))
+    with pytest.raises(ExabricksError, match=r"flipped.npz: array 'values' .*CRC"):
+        schema.load(bad, "cells")
