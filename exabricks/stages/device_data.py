@@ -159,7 +159,11 @@ class DeviceScene:
         box = np.hstack([b.lower_lattice.astype(np.float32),
                          (1.0 / width).astype(np.float32)[:, None]])
         dims = np.hstack([b.dims, b.level.astype(np.int32)[:, None]]).astype(np.int32)
-        values = b.values[self.field_indices] if self.fields else b.values[:1]
+        # A run of consecutive fields is a view (no copy of the values on the host).
+        first = self.field_indices[0] if self.fields else 0
+        consecutive = self.field_indices == list(range(first, first + len(self.field_indices)))
+        values = b.values[first:first + max(1, len(self.field_indices))] if consecutive \
+            else b.values[self.field_indices]
         self.brick_args = [up(q, box, np.float32), up(q, dims, np.int32),
                            up(q, b.offset, np.int64), up(q, values, np.float32),
                            np.int64(b.values.shape[1])]
