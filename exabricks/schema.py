@@ -408,6 +408,53 @@ def validate(obj: _Kind, where: str = "<memory>") -> None:
 
 
 def sha256_file(path: str | os.PathLike, chunk: int = 1 << 22) -> str:
+    """The file's sha256 (hex): the one `prefetch_sha256` started, when the file has
+    not changed since, else computed now."""
+    pending = _DIGESTS.get(_file_key(path))
+    if pending is not None:
+        return pending.result()
+    return _sha256_now(path, chunk)
+
+
+def prefetch_sha256(paths) -> None:
+    """Start hashing the regular files among `paths` on a background thread, so that
+    `make_meta` at the end of a command finds their digests ready instead of reading
+    the inputs once more (hashlib and file reads release the GIL; a daemon thread
+    never holds up an interrupted command's exit)."""
+    import threading
+    from concurrent.futures import Future
+
+    for p in paths:
+        key = _file_key(p)
+        if key is None or key in _DIGESTS:
+            continue
+        future = Future()
+        _DIGESTS[key] = future
+
+        def run(p=p, future=future):
+            try:
+                future.set_result(_sha256_now(p))
+            except BaseException as e:  # re-raised by sha256_file in the main thread
+                future.set_exception(e)
+
+        threading.Thread(target=run, name="sha256", daemon=True).start()
+
+
+_DIGESTS: dict = {}
+
+
+def _file_key(path):
+    """(device, inode, size, mtime) of a regular file, else None."""
+    try:
+        st = os.stat(path)
+    except (OSError, ValueError):
+        return None
+    import stat
+
+    return (st.st_dev, st.st_ino, st.st_size, st.st_mtime_ns) if stat.S_ISREG(st.st_mode) else None
+
+
+def _sha256_now(path, chunk: int = 1 << 22) -> str:
     h = hashlib.sha256()
     with open(path, "rb") as f:
         while block := f.read(chunk):

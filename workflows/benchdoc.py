@@ -290,8 +290,21 @@ def ensure_amrex() -> Path:
     return BIG_AMREX
 
 
+SHELL_CELLS = BENCH / "shell1024.cells"
+
+
+def ensure_shell() -> Path:
+    """bench-data/shell1024.cells (+ shell1024.rho.scalars): make_big.py's octree-like
+    thin-shell layout, 20.6 M cells on 4 levels, made when missing."""
+    if not (SHELL_CELLS.is_file() and SHELL_CELLS.with_name("shell1024.rho.scalars").is_file()):
+        make_big = _make_big()
+        print(f"making {SHELL_CELLS} (make_big.py --thin-shell)", flush=True)
+        make_big.write_exajet(make_big.thin_shell_cells(1024), SHELL_CELLS)
+    return SHELL_CELLS
+
+
 def datasets() -> dict[str, Dataset]:
-    """The four shared real datasets and the generated big one, by key."""
+    """The four shared real datasets and the generated big and thin-shell ones, by key."""
     data = data_dir()
     return {d.key: d for d in (
         Dataset("gerris", "Gerris plume (ExaJet)",
@@ -302,4 +315,6 @@ def datasets() -> dict[str, Dataset]:
         Dataset("enzo", "Enzo moving7 (yt)", data / "enzo-moving7" / "moving7_0010", "Density",
                 ["--format", "yt"]),
         Dataset("big", "make_big.py 512^3 AMR (ExaJet)", BIG_CELLS, "value", make=ensure_exajet),
+        Dataset("shell", "make_big.py thin shells (ExaJet)", SHELL_CELLS, "rho",
+                make=ensure_shell),
     )}

@@ -2,7 +2,7 @@
 
     .venv/bin/python workflows/make_big.py [--size 512] [--out bench-data/big512.raw] [--check]
     .venv/bin/python workflows/make_big.py --amrex [--check]   # also bench-data/plt_big512
-    .venv/bin/python workflows/make_big.py --thin-shell [--size 1024]   # bench-data/shell1024.npz
+    .venv/bin/python workflows/make_big.py --thin-shell [--size 1024]   # bench-data/shell1024.cells
 
 The field is a sum of separable terms (Gaussian blobs of widths from 1/4 to 1/100
 of the domain, and a few sinusoids): one big smooth blob where 2x2x2 groups merge
@@ -16,11 +16,12 @@ With --amrex the 512^3 volume also becomes a block-structured AMReX plotfile (se
 max_grid_size), properly nested, 23.3 M leaf cells, written by
 workflows/amrex_plotfile.py in double precision as AMReX does by default.
 
-With --thin-shell it writes instead an octree-like cells file directly (see
-`thin_shell_cells`): the layout of tree codes and thin refinement (Gerris, RAMSES,
-ExaJet), where refinement is a cell or two thick around a few spherical fronts,
-with a spherical hole.  At --size 1024 it has 20.6 M cells on 4 levels; the cell
-count scales with size**2 (the fronts' area) plus (size / 8)**3 (the coarse grid).
+With --thin-shell it writes instead octree-like leaf cells directly, in ExaJet form
+(bench-data/shellSIZE.cells and shellSIZE.rho.scalars; see `thin_shell_cells`): the
+layout of tree codes and thin refinement (Gerris, RAMSES, ExaJet), where
+refinement is a cell or two thick around a few spherical fronts, with a spherical
+hole.  At --size 1024 it has 20.6 M cells on 4 levels; the cell count scales with
+size**2 (the fronts' area) plus (size / 8)**3 (the coarse grid).
 """
 
 from __future__ import annotations
@@ -251,7 +252,7 @@ def thin_shell_cells(size: int = 1024):
     lower = np.concatenate(out_lower)
     level = np.concatenate(out_level)
     centre = lower + 0.5 * np.left_shift(1, level.astype(np.int32))[:, None]
-    rho = 0.2 + 0.1 * np.sin(centre @ np.array([3.0, 5.0, 7.0]) * (2 * np.pi / size))
+    rho = 0.05 + 0.03 * np.sin(centre @ np.array([3.0, 5.0, 7.0]) * (2 * np.pi / size))
     for k, (cx, cy, cz, r) in enumerate(fronts):
         d = np.sqrt(((centre - (cx, cy, cz)) ** 2).sum(axis=1))
         rho += (0.5 + 0.15 * k) * np.exp(-(((d - r) / 1.5) ** 2))
@@ -260,6 +261,19 @@ def thin_shell_cells(size: int = 1024):
         lower_lattice=lower.astype(np.int32), level=level,
         values=rho.astype(np.float32)[None],
     )
+
+
+def write_exajet(cells, path: Path) -> None:
+    """`cells` as ExaJet files: `path` (int32 x, y, z, level per cell) and one
+    STEM.FIELD.scalars float32 file per field beside it."""
+    raw = np.empty((cells.n_cells, 4), "<i4")
+    raw[:, :3] = cells.lower_lattice
+    raw[:, 3] = cells.level
+    path.parent.mkdir(parents=True, exist_ok=True)
+    raw.tofile(path)
+    stem = path.name[: -len(".cells")]
+    for name, values in zip(cells.fields, cells.values):
+        values.astype("<f4").tofile(path.with_name(f"{stem}.{name}.scalars"))
 
 
 def main(argv=None) -> int:
@@ -278,17 +292,16 @@ def main(argv=None) -> int:
                    "instead (default size 1024)")
     args = p.parse_args(argv)
     if args.thin_shell:
-        from exabricks import schema
-
         size = 1024 if args.size == 512 and "--size" not in (argv or sys.argv) else args.size
-        out = args.out or ROOT / "bench-data" / f"shell{size}.npz"
+        out = args.out or ROOT / "bench-data" / f"shell{size}.cells"
         t = time.perf_counter()
         cells = thin_shell_cells(size)
-        schema.save(out, cells)
+        write_exajet(cells, out)
         per_level = np.bincount(cells.level)
         print(f"wrote {out}: {cells.n_cells:,} cells in {time.perf_counter() - t:.1f} s; per "
               "level " + ", ".join(f"{l}: {c:,}" for l, c in enumerate(per_level)),
               file=sys.stderr, flush=True)
+        print(f"exabricks ingest {out} -o {out.with_suffix('.npz')}", flush=True)
         return 0
     out = args.out or ROOT / "bench-data" / f"big{args.size}.raw"
     n = args.size

@@ -32,6 +32,8 @@ def coarsen(input_path, output, levels, fields):
     from ..stages.coarsen import coarsen_cells, coarsen_plotfile
 
     check_output(output, [input_path])
+
+    schema.prefetch_sha256([input_path])
     plotfile = input_path.is_dir()  # the reader refuses a directory that is not one
     if fields and not plotfile:
         raise click.UsageError("--field applies to an AMReX plotfile INPUT; a cells file "

@@ -66,6 +66,7 @@ def ingest(input_path, output, fmt, fields, scalars, dims, dtype, byte_order, ra
     if mask is not None and no_mask:
         raise click.UsageError("--mask and --no-mask exclude each other")
     check_output(output, [input_path, *(path for _, path in scalars)])
+    schema.prefetch_sha256([input_path, *(path for _, path in scalars)])
     with progress.bar(total=3, desc="ingest", unit="step") as bar:
         cells = ingest_stage(
             input_path, format=fmt, fields=fields, scalars=dict(scalars) or None,

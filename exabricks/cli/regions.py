@@ -31,6 +31,8 @@ def regions(bricks_path, output, exact, visit_cost, brick_cost, max_merged):
     from ..stages.regions import EXACT, Merge, build_regions
 
     check_output(output, [bricks_path])
+
+    schema.prefetch_sha256([bricks_path])
     given = [name for name, v in (("--visit-cost", visit_cost), ("--brick-cost", brick_cost),
                                   ("--max-merged", max_merged)) if v is not None]
     if exact and given:
