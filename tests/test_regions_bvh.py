@@ -284,7 +284,7 @@ def test_bvh_one_region_is_a_leaf_root():
 # Merge settings every property must hold for: exact regions, the default, merging
 # that keeps small pieces only, and merging nearly everything (big lists, empty space).
 MERGES = (EXACT, Merge(), Merge(visit_cost=1.0, brick_cost=0.3, max_bricks=8),
-          Merge(visit_cost=1e6, brick_cost=0.0, max_bricks=1 << 20))
+          Merge(visit_cost=1e6, brick_cost=0.0, max_bricks=1 << 20, max_brick_cells=1 << 31))
 
 
 @pytest.mark.slow
@@ -362,8 +362,11 @@ def test_gerris_one_brick_per_cell_threads():
     two = partition(s_lo, s_hi, threads=2)
     for a, b in zip(one, two):
         np.testing.assert_array_equal(a, b)
-    for a, b in zip(partition(s_lo, s_hi, threads=1, level=bricks.level, merge=Merge()),
-                    partition(s_lo, s_hi, threads=2, level=bricks.level, merge=Merge())):
+    cells = bricks.dims.astype(np.int64).prod(axis=1)
+    for a, b in zip(partition(s_lo, s_hi, threads=1, level=bricks.level, cells=cells,
+                              merge=Merge()),
+                    partition(s_lo, s_hi, threads=2, level=bricks.level, cells=cells,
+                              merge=Merge())):
         np.testing.assert_array_equal(a, b)
     regions = build_regions(bricks, EXACT)
     assert regions.meta["statistics"]["n_partition_leaves"] == one[0].shape[0]
@@ -491,3 +494,30 @@ def test_stage_errors():
     regions = build_regions(build_test_bricks(make_cells([(0, 0, 0)], [0], [[1.0]])))
     with pytest.raises(ExabricksError, match="leaf size"):
         build_bvh(regions, leaf_size=0)
+
+
+def test_cli_merge_options(tmp_path):
+    """Default merging, --exact, the tuning options and their refusals; the setting used
+    is recorded in meta["parameters"]["merge"]."""
+    cells, bricks = tmp_path / "cells.npz", tmp_path / "bricks.npz"
+    run_cli("ingest", GERRIS, "-o", cells, check=0)
+    run_cli("brick", cells, "-o", bricks, check=0)
+    runs = {}
+    for name, flags in (("default", []), ("exact", ["--exact"]),
+                        ("zero", ["--visit-cost", "0"]),
+                        ("tuned", ["--visit-cost", "4", "--brick-cost", "1", "--max-merged", "8",
+                                   "--max-brick-cells", "64"])):
+        out = tmp_path / f"{name}.npz"
+        run_cli("regions", bricks, "-o", out, *flags, check=0)
+        runs[name] = schema.load(out, "regions")
+    n = {k: r.n_regions for k, r in runs.items()}
+    assert n["default"] < n["tuned"] < n["exact"] == n["zero"]
+    assert runs["default"].meta["parameters"]["merge"] == Merge().as_dict()
+    assert runs["exact"].meta["parameters"]["merge"] == EXACT.as_dict()
+    assert runs["tuned"].meta["parameters"]["merge"] == {
+        "visit_cost": 4.0, "brick_cost": 1.0, "max_bricks": 8, "max_brick_cells": 64}
+    for flags in (["--exact", "--visit-cost", "3"], ["--visit-cost", "nan"],
+                  ["--brick-cost", "-1"], ["--max-merged", "-2"]):
+        proc = run_cli("regions", bricks, "-o", tmp_path / "bad.npz", *flags)
+        assert proc.returncode == 2 and "Traceback" not in proc.stderr, flags
+    assert not (tmp_path / "bad.npz").exists()

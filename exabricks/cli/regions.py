@@ -16,12 +16,15 @@ from .options import input_path, output_option
               help="The paper's exact Active Brick Regions: no merging (one set of active "
               "bricks per region).")
 @click.option("--visit-cost", type=float, default=None, metavar="X",
-              help="Merging: cost of entering a region, in samples [default: 16; 0: exact].")
+              help="Merging: cost of entering a region, in samples [default: 20; 0: exact].")
 @click.option("--brick-cost", type=float, default=None, metavar="X",
               help="Merging: cost of a listed brick per sample, in samples [default: 0.3].")
 @click.option("--max-merged", type=int, default=None, metavar="N",
               help="Merging: a piece with more bricks is always split [default: 64].")
-def regions(bricks_path, output, exact, visit_cost, brick_cost, max_merged):
+@click.option("--max-brick-cells", type=int, default=None, metavar="N",
+              help="Merging: a piece with a brick of more cells is always split "
+              "[default: 512].")
+def regions(bricks_path, output, exact, visit_cost, brick_cost, max_merged, max_brick_cells):
     """Partition the brick supports into Active Brick Regions.
 
     By default pieces of the partition whose rays would cost more split than
@@ -34,7 +37,8 @@ def regions(bricks_path, output, exact, visit_cost, brick_cost, max_merged):
 
     schema.prefetch_sha256([bricks_path])
     given = [name for name, v in (("--visit-cost", visit_cost), ("--brick-cost", brick_cost),
-                                  ("--max-merged", max_merged)) if v is not None]
+                                  ("--max-merged", max_merged),
+                                  ("--max-brick-cells", max_brick_cells)) if v is not None]
     if exact and given:
         raise click.UsageError(f"--exact excludes {', '.join(given)}")
     default = Merge()
@@ -43,6 +47,8 @@ def regions(bricks_path, output, exact, visit_cost, brick_cost, max_merged):
             visit_cost=default.visit_cost if visit_cost is None else visit_cost,
             brick_cost=default.brick_cost if brick_cost is None else brick_cost,
             max_bricks=default.max_bricks if max_merged is None else max_merged,
+            max_brick_cells=default.max_brick_cells if max_brick_cells is None
+            else max_brick_cells,
         )
     except ExabricksError as e:
         raise click.UsageError(str(e)) from None

@@ -41,14 +41,18 @@ class Merge:
         is then an exact ABR piece, one set of active bricks (paper §3.2.3).
     brick_cost: the cost of one listed brick per sample, same units.
     max_bricks: a piece with more bricks than this is always split.
+    max_brick_cells: a piece with a brick of more cells than this is always split:
+        a large brick already makes long region visits (block-structured data), so
+        merging pays only among small ones (octree-like data, thin refinement).
     The defaults were chosen on the thin-shell layout and the four shared
     datasets (docs/benchmarks.md): regions + BVH within 3x the scalar bytes of
     octree-like data, no slower render anywhere.
     """
 
-    visit_cost: float = 16.0
+    visit_cost: float = 20.0
     brick_cost: float = 0.3
     max_bricks: int = 64
+    max_brick_cells: int = 512
 
     def __post_init__(self):
         for name in ("visit_cost", "brick_cost"):
@@ -56,9 +60,11 @@ class Merge:
             if not (np.isfinite(v) and 0 <= v <= 1e6):
                 raise ExabricksError(f"the merge {name.replace('_', ' ')} must lie in "
                                      f"0..1e6, got {v}")
-        if not 0 <= self.max_bricks <= 1 << 20:
-            raise ExabricksError(f"the most bricks of a merged region must lie in 0..{1 << 20}, "
-                                 f"got {self.max_bricks}")
+        for name, what in (("max_bricks", "bricks of a merged region"),
+                           ("max_brick_cells", "cells of a merged brick")):
+            v = getattr(self, name)
+            if not 0 <= v <= 1 << 31:
+                raise ExabricksError(f"the most {what} must lie in 0..{1 << 31}, got {v}")
 
     @property
     def enabled(self) -> bool:
@@ -68,7 +74,7 @@ class Merge:
         return asdict(self)
 
 
-EXACT = Merge(visit_cost=0.0, brick_cost=0.0, max_bricks=0)
+EXACT = Merge(visit_cost=0.0, brick_cost=0.0, max_bricks=0, max_brick_cells=0)
 """Merging off: the paper's exact Active Brick Regions."""
 
 
@@ -99,7 +105,9 @@ def build_regions(bricks: schema.Bricks, merge: Merge = Merge()) -> schema.Regio
             f"brick supports reach lattice coordinate {max(-int(sup_lo.min()), int(sup_hi.max())) / 2}, "
             f"beyond {_MAX_DOUBLED // 2}, where float32 region bounds stop being exact"
         )
-    lo2, hi2, brick_start, brick_ids = partition(sup_lo, sup_hi, level=bricks.level, merge=merge)
+    lo2, hi2, brick_start, brick_ids = partition(
+        sup_lo, sup_hi, level=bricks.level, cells=bricks.dims.astype(np.int64).prod(axis=1),
+        merge=merge)
     n_partition = lo2.shape[0]
     lo2, hi2, brick_start, brick_ids = _coalesce(lo2, hi2, brick_start, brick_ids)
     lower = np.ascontiguousarray(bricks.lower_lattice, dtype=np.int64)
@@ -127,7 +135,8 @@ def build_regions(bricks: schema.Bricks, merge: Merge = Merge()) -> schema.Regio
     return regions.replace(meta={"statistics": stats, "parameters": {"merge": merge.as_dict()}})
 
 
-def partition(sup_lo, sup_hi, *, threads: int | None = None, level=None, merge: Merge = EXACT):
+def partition(sup_lo, sup_hi, *, threads: int | None = None, level=None, cells=None,
+              merge: Merge = EXACT):
     """The k-d partition of the supports (paper §3.2.3), subtrees built on threads.
 
     sup_lo, sup_hi: int64 (B, 3) support boxes, doubled lattice units.
@@ -135,12 +144,14 @@ def partition(sup_lo, sup_hi, *, threads: int | None = None, level=None, merge: 
     and ids int32 (K,).  The top of the tree is split breadth first here
     until there are enough subtrees; those run in _partition (which releases
     the GIL) and their leaves are concatenated in subtree order, so the result
-    does not depend on the number of threads.  level: int (B,) brick levels, which
-    `merge` needs (when enabled).
+    does not depend on the number of threads.  level, cells: int (B,) brick levels
+    and cell counts, which `merge` needs (when enabled).
     """
     threads = numba.get_num_threads() if threads is None else threads
     n = sup_lo.shape[0]
     lv = np.zeros(n, np.int64) if level is None else np.ascontiguousarray(level, np.int64)
+    # Bricks a merged piece may hold (Merge.max_brick_cells).
+    small = np.ones(n, np.bool_) if cells is None else np.asarray(cells) <= merge.max_brick_cells
     # The task count depends only on the input size, never on the thread count.
     want = 1 if n < 20_000 else 64
     queue = [(sup_lo.min(axis=0), sup_hi.max(axis=0), np.arange(n, dtype=np.int32))]
@@ -164,7 +175,7 @@ def partition(sup_lo, sup_hi, *, threads: int | None = None, level=None, merge: 
     tasks += queue
 
     def run(task):
-        return _partition(sup_lo, sup_hi, *task, lv,
+        return _partition(sup_lo, sup_hi, *task, lv, small,
                           float(merge.visit_cost) if merge.enabled else 0.0,
                           float(merge.brick_cost), int(merge.max_bricks))
 
@@ -309,8 +320,8 @@ def _split_plane(sup_lo, sup_hi, ids, lo, hi):
 
 
 @numba.njit(cache=True, nogil=True)
-def _partition(sup_lo, sup_hi, root_lo, root_hi, root_ids, level, visit_cost, brick_cost,
-               max_merged):
+def _partition(sup_lo, sup_hi, root_lo, root_hi, root_ids, level, small, visit_cost,
+               brick_cost, max_merged):
     """Top-down partition of one region into leaf regions (paper §3.2.3).
 
     sup_lo, sup_hi: int64 (B, 3) support boxes in doubled lattice units;
@@ -328,9 +339,9 @@ def _partition(sup_lo, sup_hi, root_lo, root_hi, root_ids, level, visit_cost, br
     buffer never holds more than the lists of the regions still pending.
 
     Merging (visit_cost > 0, `merged_region_cost`): a region with at most
-    `max_merged` bricks that still has a support face inside is kept whole when
-    that costs a ray no more than its two halves would, with the union of the
-    bricks (level: int (B,) brick levels).
+    `max_merged` bricks, all of them `small`, that still has a support face
+    inside is kept whole when that costs a ray no more than its two halves would,
+    with the union of the bricks (level: int (B,) brick levels; small: bool (B,)).
     """
     n = root_ids.shape[0]
     buf = np.empty(2 * n + 16, np.int32)
@@ -367,7 +378,8 @@ def _partition(sup_lo, sup_hi, root_lo, root_hi, root_ids, level, visit_cost, br
 
         axis, plane = _choose_plane(sup_lo, sup_hi, buf, a, b, lo, hi, best, best_d, order)
         if axis >= 0 and visit_cost > 0 and b - a <= max_merged and _keep_whole(
-                sup_lo, sup_hi, buf, a, b, lo, hi, axis, plane, level, visit_cost, brick_cost):
+                sup_lo, sup_hi, buf, a, b, lo, hi, axis, plane, level, small, visit_cost,
+                brick_cost):
             axis = -1
 
         if axis < 0:
@@ -442,10 +454,11 @@ def merged_region_cost(dx, dy, dz, n_bricks, finest, visit_cost, brick_cost):
 
 
 @numba.njit(cache=True)
-def _keep_whole(sup_lo, sup_hi, buf, a, b, lo, hi, axis, plane, level, visit_cost, brick_cost):
+def _keep_whole(sup_lo, sup_hi, buf, a, b, lo, hi, axis, plane, level, small, visit_cost,
+                brick_cost):
     """Whether region [lo, hi) with fragments buf[a:b] costs no more whole than
     split at `plane` on `axis` into its two children (each a region; a child
-    without a fragment is empty and costs nothing)."""
+    without a fragment is empty and costs nothing); never with a brick not `small`."""
     n_left = 0
     n_right = 0
     fin = 127
@@ -453,6 +466,8 @@ def _keep_whole(sup_lo, sup_hi, buf, a, b, lo, hi, axis, plane, level, visit_cos
     fin_right = 127
     for k in range(a, b):
         i = buf[k]
+        if not small[i]:
+            return False
         lv = level[i]
         fin = min(fin, lv)
         if sup_lo[i, axis] < plane:
