@@ -199,23 +199,25 @@ def kernel(program, name: str):
     return _KERNELS[key]
 
 
-def to_device(queue, array, dtype=None, writable: bool = False):
+def to_device(queue, array, dtype=None, writable: bool = False, share: bool = False):
     """A device buffer holding `array` (at least one element: OpenCL forbids 0
     bytes), read-only unless `writable`.
 
-    On a CPU device a read-only buffer uses the host array's memory itself
-    (CL_MEM_USE_HOST_PTR; the buffer keeps the array alive), so a dataset is not
-    held twice in the same RAM; elsewhere it is copied to the device."""
+    share: on a CPU device, a read-only buffer uses the host array's memory itself
+    (CL_MEM_USE_HOST_PTR; the buffer keeps the array alive), so that a dataset is
+    not held twice in the same RAM; elsewhere it is copied to the device.  Only
+    for buffers that outlive every kernel using them (the resident dataset): when
+    the last reference to a shared buffer goes, so does the memory a queued kernel
+    may still be reading."""
     cl = _cl()
     host = np.ascontiguousarray(array, dtype=dtype)
     if host.nbytes == 0:
         host = np.zeros(1, dtype=host.dtype)
-    if writable:
-        return cl.Buffer(queue.context, cl.mem_flags.READ_WRITE | cl.mem_flags.COPY_HOST_PTR,
-                         hostbuf=host)
-    shared = queue.device.type & cl.device_type.CPU
-    placement = cl.mem_flags.USE_HOST_PTR if shared else cl.mem_flags.COPY_HOST_PTR
-    return cl.Buffer(queue.context, cl.mem_flags.READ_ONLY | placement, hostbuf=host)
+    access = cl.mem_flags.READ_WRITE if writable else cl.mem_flags.READ_ONLY
+    placement = cl.mem_flags.COPY_HOST_PTR
+    if share and not writable and queue.device.type & cl.device_type.CPU:
+        placement = cl.mem_flags.USE_HOST_PTR
+    return cl.Buffer(queue.context, access | placement, hostbuf=host)
 
 
 def empty_buffer(queue, nbytes: int):

@@ -222,6 +222,21 @@ EB_INLINE eb_basis_sums eb_reconstruct_lod(eb_bricks bricks, __global const int 
     return s;
 }
 
+/* Add brick b at lattice point p to `s` by the build's reconstruction; 1 when
+ * the sums are final (nearest and vertex: the brick containing p was found). */
+EB_INLINE int eb_add_reconstruction(eb_bricks bricks, int b, float3 p, eb_basis_sums *s,
+                                    const int want_gradient)
+{
+#if defined(EB_RECON_NEAREST)
+    return eb_nearest(bricks, b, p, s);
+#elif defined(EB_RECON_VERTEX)
+    return eb_vertex(bricks, b, p, s, want_gradient);
+#else
+    eb_add_brick(bricks, b, p, s, want_gradient);
+    return 0;
+#endif
+}
+
 /* Sums at lattice point p over the bricks brick_ids[begin:end] (one region's
  * list: every brick whose support overlaps the region, so also every brick
  * containing a point of it). */
@@ -229,16 +244,51 @@ EB_INLINE eb_basis_sums eb_reconstruct(eb_bricks bricks, __global const int *bri
                                        long begin, long end, float3 p, const int want_gradient)
 {
     eb_basis_sums s = eb_basis_zero();
-    for (long k = begin; k < end; ++k) {
-#if defined(EB_RECON_NEAREST)
-        if (eb_nearest(bricks, brick_ids[k], p, &s))
+    for (long k = begin; k < end; ++k)
+        if (eb_add_reconstruction(bricks, brick_ids[k], p, &s, want_gradient))
             break;
-#elif defined(EB_RECON_VERTEX)
-        if (eb_vertex(bricks, brick_ids[k], p, &s, want_gradient))
+    return s;
+}
+
+/* Most bricks of a region list that eb_ray_bricks filters (one bit each). */
+#define EB_RAY_BRICKS 64
+
+/* Which of the bricks brick_ids[begin:end] (at most EB_RAY_BRICKS) can reach the
+ * ray org + t dir for t in [t_in, t_out]: bit j set for brick_ids[begin + j] when
+ * its support box, grown by a margin far above float rounding, meets the ray
+ * there. A brick whose support the ray misses has zero hat weight at every sample
+ * of the interval, so leaving it out changes no sum (adding +0 is exact): the
+ * sums over the set bits, in list order, are those over the whole list. */
+EB_INLINE ulong eb_ray_bricks(eb_bricks bricks, __global const int *brick_ids, long begin,
+                              long end, float3 org, float3 inv_dir, float t_in, float t_out)
+{
+    ulong mask = 0;
+    for (int j = 0; j < (int)(end - begin); ++j) {
+        int b = brick_ids[begin + j];
+        float4 box = bricks.box[b];
+        int4 n = bricks.dims[b];
+        float w = 1.0f / box.w;
+        float3 lo = box.xyz - 0.5f * w;
+        float3 hi = box.xyz + (convert_float3(n.xyz) + 0.5f) * w;
+        float3 margin = 0.01f * w + 1e-5f * fmax(fabs(lo), fabs(hi));
+        float2 iv = eb_box_interval(lo - margin, hi + margin, org, inv_dir);
+        if (fmin(iv.y, t_out) >= fmax(iv.x, t_in))
+            mask |= (ulong)1 << j;
+    }
+    return mask;
+}
+
+/* eb_reconstruct over the bricks brick_ids[begin + j] of the set bits j of `mask`. */
+EB_INLINE eb_basis_sums eb_reconstruct_masked(eb_bricks bricks, __global const int *brick_ids,
+                                              long begin, ulong mask, float3 p,
+                                              const int want_gradient)
+{
+    eb_basis_sums s = eb_basis_zero();
+    while (mask) {
+        int j = 63 - (int)clz(mask & (~mask + 1));  /* lowest set bit */
+        mask &= mask - 1;
+        if (eb_add_reconstruction(bricks, brick_ids[begin + j], p, &s, want_gradient))
             break;
-#else
-        eb_add_brick(bricks, brick_ids[k], p, &s, want_gradient);
-#endif
     }
     return s;
 }

@@ -43,7 +43,7 @@ from exabricks.stages.render import TRAVERSALS, Renderer  # noqa: E402
 from exabricks.transfer_function import default_transfer_function  # noqa: E402
 
 SECTION = "render (PoCL)"
-DEFAULT = ("gerris", "amrex", "athena", "enzo")
+DEFAULT = ("gerris", "amrex", "athena", "enzo", "shell")
 
 NOTES = """
 ms/frame is the kernel's wall time per frame (`Renderer.render` stats "ms": enqueue
@@ -89,7 +89,7 @@ def ensure_scene(work: Path, dataset: benchdoc.Dataset) -> Path:
         stage("ingest", str(dataset.path), "-o", str(d / "cells.npz"), *dataset.ingest_flags)
     steps = [("brick", "cells", "bricks"), ("regions", "bricks", "regions"), ("bvh", "regions", "bvh")]
     for command, src, out in steps:
-        if not (d / f"{out}.npz").exists():
+        if not benchdoc.up_to_date(d / f"{out}.npz", d / f"{src}.npz"):
             stage(command, str(d / f"{src}.npz"), "-o", str(d / f"{out}.npz"))
     return d
 

@@ -219,6 +219,26 @@ def data_dir() -> Path:
     return ROOT / "tests" / "data"
 
 
+def up_to_date(output: Path, source: Path | None = None) -> bool:
+    """Whether a cached stage output can be reused: it exists, is not older than
+    `source` (the stage's input), and a regions file was built with the current
+    default merge setting (exabricks.stages.regions.Merge)."""
+    output = Path(output)
+    if not output.is_file():
+        return False
+    if source is not None and Path(source).is_file() \
+            and output.stat().st_mtime_ns < Path(source).stat().st_mtime_ns:
+        return False
+    from exabricks import schema
+
+    kind, _, meta = schema.peek(output)
+    if kind == "regions":
+        from exabricks.stages.regions import Merge
+
+        return meta.get("parameters", {}).get("merge") == Merge().as_dict()
+    return True
+
+
 class Dataset:
     """A benchmark input: key, name, source path, field rendered, `exabricks ingest` flags."""
 

@@ -322,7 +322,8 @@ def ensure(dataset: benchdoc.Dataset) -> None:
     """bench-data/gallery/<key>/{cells,bricks,regions,bvh}.npz, made when missing."""
     (WORK / dataset.key).mkdir(parents=True, exist_ok=True)
     for cmd in pipeline(dataset):
-        if not (ROOT / cmd[-1]).exists():
+        source = None if cmd[1] == "ingest" else ROOT / cmd[2]
+        if not benchdoc.up_to_date(ROOT / cmd[-1], source):
             print("  " + shlex.join(cmd), flush=True)
             run(cmd)
 

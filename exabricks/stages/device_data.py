@@ -152,7 +152,9 @@ class DeviceScene:
         self.context, self.queue = opencl.context_for(self.device)
         self.program = self.program_for()
         q = self.queue
-        up = opencl.to_device
+
+        def up(queue, array, dtype=None):  # resident for the scene's life: shared on CPUs
+            return opencl.to_device(queue, array, dtype, share=True)
 
         b = bricks
         width = np.ldexp(1.0, b.level.astype(np.int32))
