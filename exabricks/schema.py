@@ -410,9 +410,12 @@ def validate(obj: _Kind, where: str = "<memory>") -> None:
 def sha256_file(path: str | os.PathLike, chunk: int = 1 << 22) -> str:
     """The file's sha256 (hex): the one `prefetch_sha256` started, when the file has
     not changed since, else computed now."""
-    pending = _DIGESTS.get(_file_key(path))
+    key = _file_key(path)
+    pending = _DIGESTS.get(key)
     if pending is not None:
-        return pending.result()
+        digest = pending.result()
+        if _file_key(path) == key:  # not rewritten while it was hashed
+            return digest
     return _sha256_now(path, chunk)
 
 
@@ -726,7 +729,7 @@ class NpzArchive:
         shape, dtype = self.header(name)
         skip = self._header_bytes[name]
         out = np.empty(shape, dtype)
-        view = memoryview(out.reshape(-1)).cast("B")
+        view = memoryview(out.reshape(-1).view(np.uint8))
         try:
             with open(self.path, "rb") as f:
                 f.seek(info.header_offset)

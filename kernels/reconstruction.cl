@@ -250,8 +250,12 @@ EB_INLINE eb_basis_sums eb_reconstruct(eb_bricks bricks, __global const int *bri
     return s;
 }
 
-/* Most bricks of a region list that eb_ray_bricks filters (one bit each). */
+/* Most bricks of a region list that eb_ray_bricks filters (one bit each; at
+ * most 64, the width of the mask). Longer lists are sampled whole; a build with
+ * -DEB_RAY_BRICKS=0 never filters (tests compare the two). */
+#ifndef EB_RAY_BRICKS
 #define EB_RAY_BRICKS 64
+#endif
 
 /* Which of the bricks brick_ids[begin:end] (at most EB_RAY_BRICKS) can reach the
  * ray org + t dir for t in [t_in, t_out]: bit j set for brick_ids[begin + j] when
@@ -262,6 +266,9 @@ EB_INLINE eb_basis_sums eb_reconstruct(eb_bricks bricks, __global const int *bri
 EB_INLINE ulong eb_ray_bricks(eb_bricks bricks, __global const int *brick_ids, long begin,
                               long end, float3 org, float3 inv_dir, float t_in, float t_out)
 {
+    /* Rounding of the samples' positions org + t dir grows with the ray's reach. */
+    float3 reach = fabs(org) + t_out * fabs(1.0f / inv_dir);
+    float ray_margin = 1e-5f * fmax(reach.x, fmax(reach.y, reach.z));
     ulong mask = 0;
     for (int j = 0; j < (int)(end - begin); ++j) {
         int b = brick_ids[begin + j];
@@ -270,7 +277,7 @@ EB_INLINE ulong eb_ray_bricks(eb_bricks bricks, __global const int *brick_ids, l
         float w = 1.0f / box.w;
         float3 lo = box.xyz - 0.5f * w;
         float3 hi = box.xyz + (convert_float3(n.xyz) + 0.5f) * w;
-        float3 margin = 0.01f * w + 1e-5f * fmax(fabs(lo), fabs(hi));
+        float3 margin = 0.01f * w + ray_margin + 1e-5f * fmax(fabs(lo), fabs(hi));
         float2 iv = eb_box_interval(lo - margin, hi + margin, org, inv_dir);
         if (fmin(iv.y, t_out) >= fmax(iv.x, t_in))
             mask |= (ulong)1 << j;

@@ -85,7 +85,7 @@ def ensure_scene(work: Path, dataset: benchdoc.Dataset) -> Path:
     """--work/<key>/{cells,bricks,regions,bvh}.npz, built on first use."""
     d = work / dataset.key
     d.mkdir(parents=True, exist_ok=True)
-    if not (d / "cells.npz").exists():
+    if not benchdoc.up_to_date(d / "cells.npz"):
         stage("ingest", str(dataset.path), "-o", str(d / "cells.npz"), *dataset.ingest_flags)
     steps = [("brick", "cells", "bricks"), ("regions", "bricks", "regions"), ("bvh", "regions", "bvh")]
     for command, src, out in steps:

@@ -293,11 +293,7 @@ def ensure_exajet() -> Path:
     print(f"making {BIG_CELLS} (AMR merge of {BIG_RAW.name})", flush=True)
     lower, level, values = amr_from_uniform(
         volume, max_level=make_big.MAX_LEVEL, threshold=make_big.THRESHOLD)
-    raw = np.empty((level.size, 4), "<i4")
-    raw[:, :3] = lower
-    raw[:, 3] = level
-    raw.tofile(BIG_CELLS)
-    values.astype("<f4").tofile(scalars)
+    make_big.write_exajet(BIG_CELLS, lower, level, {"value": values})
     return BIG_CELLS
 
 
@@ -319,7 +315,9 @@ def ensure_shell() -> Path:
     if not (SHELL_CELLS.is_file() and SHELL_CELLS.with_name("shell1024.rho.scalars").is_file()):
         make_big = _make_big()
         print(f"making {SHELL_CELLS} (make_big.py --thin-shell)", flush=True)
-        make_big.write_exajet(make_big.thin_shell_cells(1024), SHELL_CELLS)
+        cells = make_big.thin_shell_cells(1024)
+        make_big.write_exajet(SHELL_CELLS, cells.lower_lattice, cells.level,
+                              dict(zip(cells.fields, cells.values)))
     return SHELL_CELLS
 
 

@@ -263,22 +263,23 @@ def thin_shell_cells(size: int = 1024):
     )
 
 
-def write_exajet(cells, path: Path) -> None:
-    """`cells` as ExaJet files: `path` (int32 x, y, z, level per cell) and one
-    STEM.FIELD.scalars float32 file per field beside it."""
-    raw = np.empty((cells.n_cells, 4), "<i4")
-    raw[:, :3] = cells.lower_lattice
-    raw[:, 3] = cells.level
+def write_exajet(path: Path, lower, level, fields: dict) -> None:
+    """Leaf cells as ExaJet files: `path` (int32 x, y, z, level per cell) and one
+    STEM.NAME.scalars float32 file per entry NAME: values of `fields` beside it."""
+    raw = np.empty((len(level), 4), "<i4")
+    raw[:, :3] = lower
+    raw[:, 3] = level
     path.parent.mkdir(parents=True, exist_ok=True)
     raw.tofile(path)
     stem = path.name[: -len(".cells")]
-    for name, values in zip(cells.fields, cells.values):
-        values.astype("<f4").tofile(path.with_name(f"{stem}.{name}.scalars"))
+    for name, values in fields.items():
+        np.asarray(values).astype("<f4").tofile(path.with_name(f"{stem}.{name}.scalars"))
 
 
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    p.add_argument("--size", type=int, default=512, help="voxels per axis (default 512)")
+    p.add_argument("--size", type=int, default=None,
+                   help="voxels per axis (default 512; 1024 with --thin-shell)")
     p.add_argument("--seed", type=int, default=7)
     p.add_argument("--out", type=Path, default=None, help="default bench-data/bigSIZE.raw")
     p.add_argument("--check", action="store_true",
@@ -288,21 +289,23 @@ def main(argv=None) -> int:
                    help="also write the volume as the AMReX plotfile plt_bigSIZE next to it (an "
                    "existing volume at --out is reused, not regenerated)")
     p.add_argument("--thin-shell", action="store_true",
-                   help="write the octree-like thin-shell cells file bench-data/shellSIZE.npz "
-                   "instead (default size 1024)")
+                   help="write the octree-like thin-shell layout as ExaJet files "
+                   "bench-data/shellSIZE.cells and shellSIZE.rho.scalars instead (default "
+                   "size 1024)")
     args = p.parse_args(argv)
     if args.thin_shell:
-        size = 1024 if args.size == 512 and "--size" not in (argv or sys.argv) else args.size
+        size = args.size or 1024
         out = args.out or ROOT / "bench-data" / f"shell{size}.cells"
         t = time.perf_counter()
         cells = thin_shell_cells(size)
-        write_exajet(cells, out)
+        write_exajet(out, cells.lower_lattice, cells.level, dict(zip(cells.fields, cells.values)))
         per_level = np.bincount(cells.level)
         print(f"wrote {out}: {cells.n_cells:,} cells in {time.perf_counter() - t:.1f} s; per "
               "level " + ", ".join(f"{l}: {c:,}" for l, c in enumerate(per_level)),
               file=sys.stderr, flush=True)
         print(f"exabricks ingest {out} -o {out.with_suffix('.npz')}", flush=True)
         return 0
+    args.size = args.size or 512
     out = args.out or ROOT / "bench-data" / f"big{args.size}.raw"
     n = args.size
     if not (args.amrex and out.is_file()):  # --amrex reuses an existing volume

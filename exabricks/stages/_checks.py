@@ -1,5 +1,5 @@
-"""Whole-array checks of the loaded files that NumPy would make in several passes
-with temporaries (exabricks.schema calls them on every load and save): one
+"""Whole-array checks that NumPy would make in several passes with temporaries
+(exabricks.schema on every load and save, stages.ingest on every input): one
 parallel pass each, at memory speed."""
 
 from __future__ import annotations

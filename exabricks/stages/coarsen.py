@@ -106,8 +106,10 @@ def coarsen_cells(cells: Cells, *, levels: int) -> Cells:
 
 def coarsen_plotfile(path: str | Path, *, levels: int, fields=(), mask: str | None = None,
                      auto_mask: bool = True, nan_policy: str = "error") -> Cells:
-    """The cells of `coarsen_cells(ingest(path), levels=levels)` for an AMReX plotfile,
-    with the plotfile's own covered data in place of averages wherever it has them.
+    """`coarsen_cells(ingest(path), levels=levels)` for an AMReX plotfile, with the
+    plotfile's own covered data in place of averages wherever it has them.  (With
+    holes -- a volFrac mask, dropped NaNs -- the two differ: octets with a hole stay
+    fine in the leaf path, while a covered coarse cell is read as stored.)
 
     Let t = f + K (f: the lattice level of AMReX's finest level that has boxes).
     AMReX levels 0..C are read, C the coarsest AMReX level whose lattice level is

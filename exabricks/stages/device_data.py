@@ -9,6 +9,8 @@ variant, EB_LOCATION_ARGS) macros of kernels/render.cl.
 
 from __future__ import annotations
 
+import weakref
+
 import time
 
 import numpy as np
@@ -150,6 +152,10 @@ class DeviceScene:
             "BVH nodes": bvh.n_nodes * 42 + bvh.region_index.nbytes,
         })
         self.context, self.queue = opencl.context_for(self.device)
+        # The resident buffers share host memory on CPU devices (opencl.to_device):
+        # when the scene goes, even unwinding from a signal mid-frame, its kernels
+        # must have finished before that memory is freed.
+        weakref.finalize(self, self.queue.finish)
         self.program = self.program_for()
         q = self.queue
 

@@ -29,6 +29,7 @@ from .. import schema
 from ..constants import LATTICE_DTYPE, LEVEL_DTYPE, MAX_LEVEL, VALUE_DTYPE
 from ..errors import ExabricksError
 from ..schema import Cells
+from ._checks import first_misaligned
 
 NAN_POLICIES = ("error", "zero", "drop", "keep")
 """What `validate_cells` does with NaN or +-Inf values.
@@ -269,7 +270,7 @@ def validate_cells(cells: Cells, *, source: str, nan_policy: str = "error") -> C
             f"{source}: cell {i} at {lower[i].tolist()} has level {int(level[i])}, "
             f"outside 0..{MAX_LEVEL}"
         )
-    i = _first_misaligned(lower, level)
+    i = first_misaligned(np.ascontiguousarray(lower), np.ascontiguousarray(level))
     if i >= 0:
         w = 1 << int(level[i])
         raise ExabricksError(
@@ -323,16 +324,6 @@ def _first_bad_level(level, max_level):
     for i in range(level.shape[0]):
         if level[i] < 0 or level[i] > max_level:
             return i
-    return -1
-
-
-@numba.njit(cache=True)
-def _first_misaligned(lower, level):
-    for i in range(level.shape[0]):
-        mask = (np.int64(1) << np.int64(level[i])) - 1
-        for a in range(3):
-            if np.int64(lower[i, a]) & mask:
-                return i
     return -1
 
 

@@ -156,9 +156,14 @@ def partition(sup_lo, sup_hi, *, threads: int | None = None, level=None, cells=N
     want = 1 if n < 20_000 else 64
     queue = [(sup_lo.min(axis=0), sup_hi.max(axis=0), np.arange(n, dtype=np.int32))]
     tasks = []  # regions the top phase finds to be leaves stay tasks: _partition emits them
+    visit = float(merge.visit_cost) if merge.enabled else 0.0
     while queue and len(queue) + len(tasks) < want:
         lo, hi, ids = queue.pop(0)
         axis, plane = _split_plane(sup_lo, sup_hi, ids, lo, hi)
+        if axis >= 0 and visit > 0 and ids.size <= merge.max_bricks and _keep_whole(
+                sup_lo, sup_hi, ids, 0, ids.size, lo, hi, axis, plane, lv, small, visit,
+                float(merge.brick_cost)):
+            axis = -1  # kept whole: _partition, deciding the same, emits it as it is
         if axis < 0:
             tasks.append((lo, hi, ids))
             continue
@@ -175,9 +180,8 @@ def partition(sup_lo, sup_hi, *, threads: int | None = None, level=None, cells=N
     tasks += queue
 
     def run(task):
-        return _partition(sup_lo, sup_hi, *task, lv, small,
-                          float(merge.visit_cost) if merge.enabled else 0.0,
-                          float(merge.brick_cost), int(merge.max_bricks))
+        return _partition(sup_lo, sup_hi, *task, lv, small, visit, float(merge.brick_cost),
+                          int(merge.max_bricks))
 
     if threads > 1 and len(tasks) > 1:
         from concurrent.futures import ThreadPoolExecutor
@@ -383,7 +387,8 @@ def _partition(sup_lo, sup_hi, root_lo, root_hi, root_ids, level, small, visit_c
             axis = -1
 
         if axis < 0:
-            # No support boundary inside: every listed support covers the whole region.
+            # No support boundary inside (every listed support covers the whole
+            # region), or kept whole by the merge rule (every listed support meets it).
             out_lo = _grow(out_lo, n_out + 1)
             out_hi = _grow(out_hi, n_out + 1)
             out_start = _grow(out_start, n_out + 2)
