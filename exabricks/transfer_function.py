@@ -337,24 +337,3 @@ def default_transfer_function(value_range) -> TransferFunction:
     """
     return TransferFunction.from_paraview(preset_path(DEFAULT_PRESET)).rescaled(
         widen_degenerate_range(value_range))
-
-
-# Buckets per knot of the kernels' knot search (kernels/transfer_function.cl).
-BUCKETS_PER_KNOT = 4
-
-
-def knot_buckets(xs: np.ndarray) -> np.ndarray:
-    """The kernels' index into knots `xs` (float32 (K,), strictly increasing): int32
-    (BUCKETS_PER_KNOT * K,), entry b the last knot at or below
-    xs[0] + b (xs[-1] - xs[0]) / m (m = the entry count), in 0..K-2.
-
-    A lookup finds its bucket by one multiplication and searches only the knots
-    between the entries around it, so evenly spaced knots (every colormap preset)
-    take one or two comparisons instead of log2 K; the result is the same knot as
-    a binary search over all of them (kernels/transfer_function.cl)."""
-    x = np.asarray(xs, np.float64)
-    m = BUCKETS_PER_KNOT * x.shape[0]
-    if x.shape[0] < 2:
-        return np.zeros(m, np.int32)
-    edges = x[0] + np.arange(m) * ((x[-1] - x[0]) / m)
-    return np.clip(np.searchsorted(x, edges, side="right") - 1, 0, x.shape[0] - 2).astype(np.int32)

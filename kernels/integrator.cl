@@ -27,14 +27,11 @@ EB_INLINE int eb_sample_interval(eb_frame *fr, eb_ray *ray, int r, int level, fl
                                  float t_out, float dt, const int shade, eb_ray_state *st)
 {
     eb_intervals it = eb_intervals_start(t_in, t_out, dt, ray->rho);
-    /* Only the listed bricks this stretch of the ray can reach (exact: the others
-     * weigh nothing here); on octree-like data most of a merged region's list. */
-    ulong bricks = eb_region_ray_bricks(fr, r, level, ray->org, ray->inv_dir, t_in, t_out);
     float tm, len;
     while (eb_intervals_next(&it, &tm, &len)) {
         float3 p = ray->org + tm * ray->dir;
-        eb_basis_sums s = shade && !fr->central ? eb_sample_region_ray(fr, r, p, level, bricks, 1)
-                                                : eb_sample_region_ray(fr, r, p, level, bricks, 0);
+        eb_basis_sums s = shade && !fr->central ? eb_sample_region_at(fr, r, p, level, 1)
+                                                : eb_sample_region_at(fr, r, p, level, 0);
         ++st->samples;
         int valid = s.weight > 0.0f;
         float value[EB_N_FIELDS];

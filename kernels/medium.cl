@@ -21,13 +21,10 @@
 
 /* The frame's look: every transfer function and colour map as merged knots
  * (exabricks.transfer_function.TransferFunction.merged_knots) one after the
- * other, their knot buckets likewise (EB_BUCKETS_PER_KNOT per knot, so those of
- * knots first .. first + n - 1 start at EB_BUCKETS_PER_KNOT * first), and the
- * volume layers (field, first knot, knot count). */
+ * other, and the volume layers (field, first knot, knot count). */
 typedef struct {
     __global const float *xs;
     __global const float4 *rgba;
-    __global const int *bucket;
     __global const int4 *layers;
     int n_layers;
     /* Private copies of what every sample reads (kept out of global memory):
@@ -39,8 +36,7 @@ typedef struct {
 /* Colour map (knots first .. first + n - 1) at `value`. */
 EB_INLINE float4 eb_lookup(eb_look look, int first, int n, float value)
 {
-    return eb_transfer_function(value, look.xs + first, look.rgba + first, n,
-                                look.bucket + EB_BUCKETS_PER_KNOT * first);
+    return eb_transfer_function(value, look.xs + first, look.rgba + first, n);
 }
 
 /* Headlight factor of a world-direction gradient g (any scale) seen along dir. */

@@ -250,56 +250,6 @@ EB_INLINE eb_basis_sums eb_reconstruct(eb_bricks bricks, __global const int *bri
     return s;
 }
 
-/* Most bricks of a region list that eb_ray_bricks filters (one bit each; at
- * most 64, the width of the mask). Longer lists are sampled whole; a build with
- * -DEB_RAY_BRICKS=0 never filters (tests compare the two). */
-#ifndef EB_RAY_BRICKS
-#define EB_RAY_BRICKS 64
-#endif
-
-/* Which of the bricks brick_ids[begin:end] (at most EB_RAY_BRICKS) can reach the
- * ray org + t dir for t in [t_in, t_out]: bit j set for brick_ids[begin + j] when
- * its support box, grown by a margin far above float rounding, meets the ray
- * there. A brick whose support the ray misses has zero hat weight at every sample
- * of the interval, so leaving it out changes no sum (adding +0 is exact): the
- * sums over the set bits, in list order, are those over the whole list. */
-EB_INLINE ulong eb_ray_bricks(eb_bricks bricks, __global const int *brick_ids, long begin,
-                              long end, float3 org, float3 inv_dir, float t_in, float t_out)
-{
-    /* Rounding of the samples' positions org + t dir grows with the ray's reach. */
-    float3 reach = fabs(org) + t_out * fabs(1.0f / inv_dir);
-    float ray_margin = 1e-5f * fmax(reach.x, fmax(reach.y, reach.z));
-    ulong mask = 0;
-    for (int j = 0; j < (int)(end - begin); ++j) {
-        int b = brick_ids[begin + j];
-        float4 box = bricks.box[b];
-        int4 n = bricks.dims[b];
-        float w = 1.0f / box.w;
-        float3 lo = box.xyz - 0.5f * w;
-        float3 hi = box.xyz + (convert_float3(n.xyz) + 0.5f) * w;
-        float3 margin = 0.01f * w + ray_margin + 1e-5f * fmax(fabs(lo), fabs(hi));
-        float2 iv = eb_box_interval(lo - margin, hi + margin, org, inv_dir);
-        if (fmin(iv.y, t_out) >= fmax(iv.x, t_in))
-            mask |= (ulong)1 << j;
-    }
-    return mask;
-}
-
-/* eb_reconstruct over the bricks brick_ids[begin + j] of the set bits j of `mask`. */
-EB_INLINE eb_basis_sums eb_reconstruct_masked(eb_bricks bricks, __global const int *brick_ids,
-                                              long begin, ulong mask, float3 p,
-                                              const int want_gradient)
-{
-    eb_basis_sums s = eb_basis_zero();
-    while (mask) {
-        int j = 63 - (int)clz(mask & (~mask + 1));  /* lowest set bit */
-        mask &= mask - 1;
-        if (eb_add_reconstruction(bricks, brick_ids[begin + j], p, &s, want_gradient))
-            break;
-    }
-    return s;
-}
-
 /* Value of field f (eq. 2); only where s.weight > 0. */
 EB_INLINE float eb_basis_value(eb_basis_sums s, int f)
 {

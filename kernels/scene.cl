@@ -84,36 +84,6 @@ EB_INLINE eb_basis_sums eb_sample_region_at(eb_frame *fr, int r, float3 p, int l
 #endif
 }
 
-/* The bricks of region r that can reach the ray over [t_in, t_out]
- * (eb_ray_bricks), or all of them (-1: every bit) when the list is longer than
- * EB_RAY_BRICKS or the samples use another lookup (cell location, LOD). */
-EB_INLINE ulong eb_region_ray_bricks(eb_frame *fr, int r, int level, float3 org, float3 inv_dir,
-                                     float t_in, float t_out)
-{
-#ifdef EB_CELL_LOCATION
-    return ~(ulong)0;
-#else
-    long begin = fr->regions.brick_start[r], end = fr->regions.brick_start[r + 1];
-    if (end - begin > EB_RAY_BRICKS || level > fr->regions.finest_level[r])
-        return ~(ulong)0;
-    return eb_ray_bricks(fr->bricks, fr->regions.brick_ids, begin, end, org, inv_dir, t_in, t_out);
-#endif
-}
-
-/* The sums at lattice point p of region r from the bricks `mask` selects
- * (eb_region_ray_bricks; every bit: the whole list, by eb_sample_region_at). */
-EB_INLINE eb_basis_sums eb_sample_region_ray(eb_frame *fr, int r, float3 p, int level,
-                                             ulong mask, const int grad)
-{
-#ifndef EB_CELL_LOCATION
-    if (mask != ~(ulong)0) {
-        return eb_reconstruct_masked(fr->bricks, fr->regions.brick_ids,
-                                     fr->regions.brick_start[r], mask, p, grad);
-    }
-#endif
-    return eb_sample_region_at(fr, r, p, level, grad);
-}
-
 /* The level a region is sampled at: its finest level, or with --lod the
  * coarsest level whose cells project to at most the given pixels at the
  * region's entry distance t (Kähler & Abel), never finer than the data. */

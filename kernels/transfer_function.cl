@@ -1,35 +1,19 @@
 /* The transfer function as the merged knots of exabricks.transfer_function.
  * TransferFunction.merged_knots: RGBA is linear between consecutive knots xs[i]
  * (strictly increasing) and clamps outside [xs[0], xs[n-1]], so this lookup is
- * the exact piecewise-linear function of the preset (no lookup table).
- * The knot is found through `bucket` (exabricks.transfer_function.knot_buckets,
- * EB_BUCKETS_PER_KNOT * n entries): entry b is the last knot at or below the
- * b-th of m evenly spaced values from xs[0], so the value's bucket, found by one
- * multiplication, narrows the binary search to the knots of three buckets (one
- * or two comparisons for evenly spaced knots instead of log2 n dependent loads);
- * the window holds the answer whatever the float rounding of the bucket index,
- * and a window that did not would fall back to all knots. */
+ * the exact piecewise-linear function of the preset (no lookup table). */
 #pragma once
 #include "common.h"
 
-#define EB_BUCKETS_PER_KNOT 4
-
 EB_INLINE float4 eb_transfer_function(float value, __global const float *xs,
-                                      __global const float4 *rgba, int n,
-                                      __global const int *bucket)
+                                      __global const float4 *rgba, int n)
 {
     if (!(value > xs[0]))
         return rgba[0];
     if (value >= xs[n - 1])
         return rgba[n - 1];
-    int m = EB_BUCKETS_PER_KNOT * n;
-    int b = clamp((int)((value - xs[0]) * ((float)m / (xs[n - 1] - xs[0]))), 0, m - 1);
-    int lo = bucket[max(b - 1, 0)], hi = min(bucket[min(b + 2, m - 1)] + 1, n - 1);
-    if (!(xs[lo] <= value))
-        lo = 0;
-    if (!(xs[hi] > value))
-        hi = n - 1;
     /* Binary search for the last knot lo with xs[lo] <= value (< xs[lo + 1]). */
+    int lo = 0, hi = n - 1;
     while (hi - lo > 1) {
         int mid = (lo + hi) >> 1;
         if (xs[mid] <= value)

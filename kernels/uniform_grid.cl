@@ -55,7 +55,6 @@ __kernel void eb_uniform_render(int width, int height, uint seed, int jitter,
                                 __global const float *volume, int4 dims,
                                 float dt, float inv_unit_distance, float max_opacity,
                                 __global const float *tf_xs, __global const float4 *tf_rgba, int tf_n,
-                                __global const int *tf_bucket,
                                 __global float4 *rgba, __global uint *samples)
 {
     int col = get_global_id(0), row = get_global_id(1);
@@ -85,7 +84,7 @@ __kernel void eb_uniform_render(int width, int height, uint seed, int jitter,
             ++st.samples;
             if (isnan(value))
                 continue;
-            float4 c = eb_transfer_function(value, tf_xs, tf_rgba, tf_n, tf_bucket);
+            float4 c = eb_transfer_function(value, tf_xs, tf_rgba, tf_n);
             if (!(c.w > 0.0f))
                 continue;
             float a = eb_opacity_correct(c.w, len, inv_unit_distance);

@@ -21,8 +21,6 @@ from exabricks.transfer_function import (
     preset_path,
 )
 
-from conftest import DEVICES
-
 # ---------------------------------------------------------------------------------------
 # camera
 
@@ -429,72 +427,3 @@ def test_reading_missing_or_corrupt_images_names_the_file(tmp_path, suffix):
     path.write_bytes(b"\x89PNG\r\n\x1a\n garbage" if suffix == ".png" else b"v/1\x01 garbage")
     with pytest.raises(ExabricksError, match=f"corrupt{suffix}: cannot read"):
         read_image(path)
-
-
-# The kernels' knot search (kernels/transfer_function.cl), run alone on every device.
-_TF_KERNEL = """
-#include "transfer_function.cl"
-__kernel void lookup(int m, __global const float *v, __global const float *xs,
-                     __global const float4 *rgba, int n, __global const int *bucket,
-                     __global float4 *out)
-{
-    int i = get_global_id(0);
-    if (i < m)
-        out[i] = eb_transfer_function(v[i], xs, rgba, n, bucket);
-}
-"""
-
-
-def _lookup_reference(values, xs, rgba):
-    """The exact piecewise-linear lookup in the kernel's float32 arithmetic: the last
-    knot at or below the value by a full search, clamped outside (NaN: the first)."""
-    out = np.empty((values.size, 4), np.float32)
-    for i, v in enumerate(values):
-        if not v > xs[0]:
-            out[i] = rgba[0]
-        elif v >= xs[-1]:
-            out[i] = rgba[-1]
-        else:
-            lo = int(np.searchsorted(xs, v, side="right")) - 1
-            f = np.float32((v - xs[lo]) / (xs[lo + 1] - xs[lo]))
-            out[i] = rgba[lo] + (rgba[lo + 1] - rgba[lo]) * f
-    return out
-
-
-@pytest.mark.parametrize("device", DEVICES)
-@pytest.mark.parametrize("layout", ["even", "clustered", "two", "wide"])
-def test_kernel_knot_search_equals_a_full_search(device, layout, rng):
-    """The bucketed search finds the same knot as a binary search over all knots:
-    evenly spaced knots (presets), knots crowded into one end, two knots, and a range
-    where float rounding of the bucket index matters; values at every knot, at every
-    bucket edge and either side of them, random ones, and NaN and infinities."""
-    import pyopencl as cl
-
-    from exabricks import opencl
-    from exabricks.transfer_function import BUCKETS_PER_KNOT, knot_buckets
-
-    xs = {"even": np.linspace(-3.0, 5.0, 256),
-          "clustered": np.concatenate([np.geomspace(1e-6, 1.0, 200) - 1.0, [50.0]]),
-          "two": np.array([0.5, 0.75]),
-          "wide": np.cumsum(rng.uniform(0.01, 1.0, 300)) * 1e6 + 1e9}[layout].astype(np.float32)
-    xs = np.unique(xs)
-    rgba = rng.uniform(0, 1, (xs.size, 4)).astype(np.float32)
-    m = BUCKETS_PER_KNOT * xs.size
-    edges = (xs[0].astype(np.float64)
-             + np.arange(m) * ((xs[-1].astype(np.float64) - xs[0]) / m)).astype(np.float32)
-    probes = np.concatenate([xs, edges, np.nextafter(xs, -np.inf), np.nextafter(xs, np.inf),
-                             np.nextafter(edges, -np.inf), np.nextafter(edges, np.inf),
-                             rng.uniform(xs[0] - 1, xs[-1] + 1, 4000).astype(np.float32),
-                             np.array([np.nan, np.inf, -np.inf], np.float32)]).astype(np.float32)
-    dev = opencl.choose_device(device)
-    context, queue = opencl.context_for(dev)
-    program = cl.Program(context, _TF_KERNEL).build(
-        options=[*opencl.BUILD_OPTIONS, f"-I{opencl.kernel_dir()}"])
-    out = np.empty((probes.size, 4), np.float32)
-    out_buf = opencl.empty_buffer(queue, out.nbytes)
-    program.lookup(queue, (probes.size,), None, np.int32(probes.size),
-                   opencl.to_device(queue, probes), opencl.to_device(queue, xs),
-                   opencl.to_device(queue, rgba), np.int32(xs.size),
-                   opencl.to_device(queue, knot_buckets(xs)), out_buf)
-    opencl.read_back(queue, out_buf, out)
-    np.testing.assert_allclose(out, _lookup_reference(probes, xs, rgba), rtol=2e-6, atol=2e-7)

@@ -14,7 +14,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from exabricks import opencl, schema
+from exabricks import opencl
 from exabricks.errors import ExabricksError
 from exabricks.stages.render import TRAVERSALS, Renderer
 
@@ -29,6 +29,12 @@ DATASETS = {"gerris": (GERRIS, "T"), "amrex": (AMREX, "phi"), "athena": (ATHENA,
 def scene(name: str):
     """(bricks, regions, bvh, field, camera, transfer function) of a shared dataset."""
     return built_scene(*DATASETS[name])
+
+
+def use_build(renderer, define: str) -> None:
+    """Make `renderer` render with its volume program built with one more define."""
+    kernel = opencl.kernel(renderer.scene.program_for((define,)), "eb_render")
+    renderer._kernel = lambda *args, **kwargs: kernel
 
 
 def frame(renderer, name, **settings):
@@ -56,50 +62,13 @@ def test_ordered_and_retrace_walks_give_the_same_frame(name, device, shading):
 @pytest.mark.parametrize("device", DEVICES)
 def test_heap_overflow_falls_back_to_retrace(device):
     """With a 2-entry heap almost every ray overflows; the frame must not change."""
-    import pyopencl as cl
-
     bricks, regions, bvh, field, *_ = scene("gerris")
     renderer = Renderer(bricks, regions, bvh, field=field, device=device)
     want = frame(renderer, "gerris", traversal="ordered")
-    directory = opencl.kernel_dir()
-    source = (directory / opencl.ENTRY_SOURCE).read_text(encoding="utf-8")
-    program = cl.Program(renderer.scene.context, source).build(
-        options=[*opencl.BUILD_OPTIONS, f"-I{directory}", "-DEB_QUEUE_SIZE=2"])
-    renderer.kernel = cl.Kernel(program, "eb_render")
+    use_build(renderer, "EB_QUEUE_SIZE=2")
     got = frame(renderer, "gerris", traversal="ordered")
     assert got.stats["samples"] == want.stats["samples"]
     np.testing.assert_allclose(got.rgba, want.rgba, rtol=0, atol=1e-6)
-
-
-@pytest.mark.parametrize("device", DEVICES)
-def test_per_ray_brick_filter_changes_nothing(device):
-    """Sampling only the listed bricks whose support the ray meets in a region
-    (kernels/reconstruction.cl eb_ray_bricks) gives the frame of sampling the whole
-    list (a build with -DEB_RAY_BRICKS=0), also from a camera 2,000 cells away with a
-    narrow view, where the samples' rounding is largest: the bricks left out weigh
-    exactly nothing at the ray's samples."""
-    import pyopencl as cl
-
-    from exabricks.camera import Camera
-
-    bricks, regions, bvh, field, camera, tf = scene("gerris")
-    renderer = Renderer(bricks, regions, bvh, field=field, device=device)
-    lo, hi = (np.asarray(b, np.float64) for b in schema.world_bounds(bricks))
-    centre, size = (lo + hi) / 2, float((hi - lo).max())
-    far = Camera(position=tuple(centre + size * np.array([9.0, 5.0, 12.0])),
-                 look_at=tuple(centre), up=(0.0, 1.0, 0.0), fovy=4.0)
-    views = {"default": camera, "far": far}
-    want = {k: renderer.render(camera=c, transfer_function=tf, width=SIZE, height=SIZE)
-            for k, c in views.items()}
-    directory = opencl.kernel_dir()
-    source = (directory / opencl.ENTRY_SOURCE).read_text(encoding="utf-8")
-    program = cl.Program(renderer.scene.context, source).build(
-        options=[*opencl.BUILD_OPTIONS, f"-I{directory}", "-DEB_RAY_BRICKS=0"])
-    renderer.kernel = cl.Kernel(program, "eb_render")
-    for k, c in views.items():
-        got = renderer.render(camera=c, transfer_function=tf, width=SIZE, height=SIZE)
-        assert got.stats["samples"] == want[k].stats["samples"] > SIZE * SIZE, k
-        np.testing.assert_array_equal(got.rgba, want[k].rgba, err_msg=k)
 
 
 def test_unknown_traversal_is_one_clear_error():

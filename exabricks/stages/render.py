@@ -52,7 +52,6 @@ from .. import interrupt, opencl, schema
 from ..constants import MAX_SAMPLES_PER_RAY
 from ..errors import ExabricksError
 from ..scene import Lighting, Scene, Settings, VolumeLayer
-from ..transfer_function import knot_buckets
 from .device_data import DeviceScene, _float4
 
 # Region walks (kernels/traversal.cl): "ordered" keeps a private min-heap of
@@ -393,10 +392,8 @@ def frame_args(scene: Scene, device_scene: DeviceScene, queue) -> list:
     i4 = lambda rows: np.asarray(rows or [(0, 0, 0, 0)], np.int32).reshape(-1, 4)
     f4 = lambda rows: np.asarray(rows or [(0.0,) * 4], np.float32).reshape(-1, 4)
     tolerance = ISO_TOLERANCE_CELLS * device_scene.finest_width_world
-    buckets = [knot_buckets(x) for x in xs]
     return [
         up(queue, cat(xs, (1,))), up(queue, cat(rgba, (1, 4))),
-        up(queue, np.concatenate(buckets) if buckets else np.zeros(1, np.int32)),
         up(queue, i4(layers)), np.int32(len(layers)), up(queue, device_scene.gradient_scales),
         up(queue, i4(iso)), up(queue, f4(iso_value)), up(queue, f4(iso_color)), np.int32(len(iso)),
         up(queue, i4(slices)), up(queue, f4(slice_point)), up(queue, f4(slice_normal)),

@@ -22,7 +22,6 @@ from .. import opencl
 from ..errors import ExabricksError
 from .probe import probe_scene
 from .device_data import _float4
-from ..transfer_function import knot_buckets
 
 # Points per probe call while resampling (float32 (N, 3) points: 24 MiB).
 PROBE_CHUNK = 1 << 21
@@ -131,8 +130,7 @@ class UniformGridRenderer:
                 self.dims4, np.float32(self.finest_width_world / sampling_rate),
                 np.float32(1.0 / unit), np.float32(max_opacity),
                 opencl.to_device(q, xs, np.float32), opencl.to_device(q, knots, np.float32),
-                np.int32(xs.shape[0]), opencl.to_device(q, knot_buckets(xs)), rgba_buf,
-                samples_buf)
+                np.int32(xs.shape[0]), rgba_buf, samples_buf)
         q.finish()
         start = time.perf_counter()
         self.kernel(q, global_size, (TILE, TILE), *args)
