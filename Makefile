@@ -71,13 +71,16 @@ test-all: test test-slow fuzz
 # Every benchmark, in order, each replacing its own "## section" of docs/benchmarks.md
 # (median of 5 runs after a warm-up; figures are only meaningful on a quiet machine).
 # The generated inputs under bench-data/ (make_big.py's 512^3 volume as 23.6 M AMR
-# cells and as an AMReX plotfile) are made on first use by the scripts.
+# cells and as an AMReX plotfile, and its 20.6 M-cell octree-like thin shells) are
+# made on first use by the scripts.
 bench: setup
 	@# ingest: cells/s of the 23 M-cell ExaJet and AMReX inputs and plt00020
 	$(PY) workflows/bench_ingest.py --write-docs
 	@# preprocessing: the four stage commands per dataset (time, peak memory, Table 1, bytes)
 	$(PY) workflows/bench_preprocess.py --write-docs
-	@# render: the OpenCL renderer on the four real datasets, both region walks
+	@# merged regions against the paper's exact ones, bytes per cell and frames
+	$(PY) workflows/bench_merge.py --write-docs
+	@# render: the OpenCL renderer on the four real datasets and the thin shells, both walks
 	$(PY) workflows/bench_render.py --write-docs
 	@# peers: exabricks vs yt, vs per-sample cell location, and the uniform-grid ceiling (1024², all datasets)
 	$(PY) workflows/bench_peers.py --json bench-data/peers.json

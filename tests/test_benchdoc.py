@@ -122,3 +122,33 @@ def test_report_notes_are_computed_from_the_results():
         "y": {"avg_bricks_per_region_by_count": 4.0, "avg_bricks_per_region_by_volume": 2.7}})
     assert "3.3-4.0 bricks per region by count and 1.5-2.7 by volume" in notes
     assert bench_render.time_notes({}) == ""
+
+
+def test_merge_rows_and_stale_regions(tmp_path):
+    """bench_merge's table rows come from the results; a cached regions file built
+    with another merge setting (or older than its bricks) is rebuilt."""
+    import bench_merge
+
+    from exabricks.stages.regions import EXACT, Merge, build_regions
+    from exabricks.stages.brick import build_bricks
+
+    sets = benchdoc.datasets()
+    setting = {"regions": 10, "regions_s": 0.5, "bvh_s": 0.25, "regions_per_cell": 2.0,
+               "bvh_per_cell": 1.0, "ratio": 0.75, "bricks_per_region": 3.0, "ms": 12.0}
+    result = {"dataset": sets["shell"], "cells": 1000, "bricks": 10, "index_per_cell": 0.5,
+              "scalars": 4000, "merged": setting, "exact": None}
+    exact_row, merged_row = bench_merge.rows(result)
+    assert merged_row == (f"| {sets['shell'].name} | merged | 10 | 3.0 | 0.50 | 2.00 | 1.00 "
+                          "| 0.75 | 0.5 | 0.25 | 12 |")
+    assert "| exact | 83,364,768 |" in exact_row and "(not built)" in exact_row
+
+    cells = schema.Cells(fields=("v",), origin_world=np.zeros(3), spacing_world=np.ones(3),
+                         lower_lattice=np.array([[0, 0, 0], [1, 0, 0]], np.int32),
+                         level=np.zeros(2, np.int8), values=np.ones((1, 2), np.float32))
+    bricks = build_bricks(cells)
+    for merge, current in ((Merge(), True), (EXACT, False)):
+        regions = build_regions(bricks, merge)
+        path = tmp_path / "regions.npz"
+        schema.save(path, regions.replace(meta={**regions.meta}))
+        assert benchdoc.up_to_date(path) is current
+    assert not benchdoc.up_to_date(tmp_path / "missing.npz")
