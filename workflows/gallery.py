@@ -4,7 +4,8 @@
                                           [--size N] [--out DIR] [--no-docs]
 
 Each dataset (workflows/benchdoc.py: the embedded Gerris plume, the AMReX
-plotfile, the Athena++ blast, the Enzo moving7 run through yt) goes through the
+plotfile, the Athena++ blast, the Enzo moving7 run through yt, and make_big.py's
+generated thin shells, 20.6 M octree-like cells) goes through the
 `exabricks` stage commands once (ingest, brick, regions, bvh; cached under
 bench-data/gallery/<dataset>/, git-ignored). Then every shot below is one
 `exabricks render` command writing docs/images/gallery-<dataset>-<mode>.png,
@@ -87,6 +88,14 @@ E_CAM = "--position 1.23 1.04 1.33 --look-at 0.75 0.75 0.75 --up 0 1 0 --fovy 30
 E_CLOSE = "--position 0.93 0.86 0.97 --look-at 0.75 0.75 0.75 --up 0 1 0 --fovy 30"
 E_TF = ("--field Density --colormap viridis --range 1 30 --opacity 0,0.02,0.1,0.3,0.6 "
         "--unit-distance 0.01")
+
+
+# Thin shells (make_big.py --thin-shell, ExaJet files: origin 0, spacing 1): world
+# [0, 1024]^3; five fronts of radius 160-340 around (300-640)^3 where rho peaks at
+# 0.5-1.1 (up to 3.4 where they cross) over a background of 0.02-0.08; a hole of
+# radius 123 at (799, 256, 307).
+S_CAM = "--position 1790 1360 2020 --look-at 450 470 470 --up 0 1 0 --fovy 30"
+S_TF = "--field rho --colormap magma --range 0.1 1.2 --opacity 0,0.02,0.15,0.4"
 
 
 def shots() -> list[Shot]:
@@ -283,6 +292,20 @@ def shots() -> list[Shot]:
         "[0, 10]) with the volume, in a clip box around the clump.",
         f"{E_CAM} {E_TF} --slice 0.75 0.75 0.75 1 0 0 --slice 0.75 0.75 0.75 0 1 0 "
         "--slice-colormap viridis --slice-range 0 10 --clip-box 0.55 0.55 0.55 0.95 0.95 0.95")
+
+    # -- make_big.py thin shells ---------------------------------------------------
+    add("shell", "volume", "Volume of octree-like data (merged regions)",
+        "The generated thin-shell layout (20.6 M cells, 2.3 M bricks of 8.9 cells, 1.46 M "
+        "merged regions): five spherical fronts, each a narrow ridge of rho refined two cells "
+        "thick, crossing each other (the faint background and the hole, which lies in it, are "
+        "transparent under this transfer function).",
+        f"{S_CAM} {S_TF}")
+    add("shell", "clip-iso", "Iso-surface and clip plane on octree-like data",
+        "The iso-surface rho = 0.4 on the same data, cut open by a plane through the centre: "
+        "the fronts' shells and where they cross; the rings on the surfaces are the terraces "
+        "of the analytic gradient at cell faces (docs/design.md, Shading).",
+        f"{S_CAM} --field rho --no-volume --iso 0.4 --iso-color 0.9,0.7,0.4 "
+        "--clip-plane 512 512 512 -1 0 -1")
     return s
 
 
@@ -344,8 +367,9 @@ def shell(args: list[str]) -> str:
 NAMES = {"gerris": "Gerris buoyant plume (embedded, ExaJet cells)",
          "athena": "Athena++ blast wave (`.athdf`)",
          "amrex": "AMReX advection (plotfile)",
-         "enzo": "Enzo moving7 (read through yt)"}
-ORDER = ("gerris", "athena", "amrex", "enzo")
+         "enzo": "Enzo moving7 (read through yt)",
+         "shell": "Thin shells (generated octree-like layout, `make_big.py --thin-shell`)"}
+ORDER = ("gerris", "athena", "amrex", "enzo", "shell")
 
 
 def write_doc(all_shots: list[Shot], sets: dict) -> None:
