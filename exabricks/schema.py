@@ -631,7 +631,7 @@ class NpzArchive:
     def __init__(self, path):
         self.path = Path(path)
         self.zip = None
-        self._header_bytes = {}
+        self._headers = {}  # name -> (shape, dtype, bytes of the .npy header)
 
     def __enter__(self):
         p = self.path
@@ -680,6 +680,11 @@ class NpzArchive:
             raise self._fail(name, f"cannot be read ({e})") from None
 
     def header(self, name) -> tuple[tuple[int, ...], np.dtype]:
+        if name not in self._headers:
+            self._headers[name] = self._read_header(name)
+        return self._headers[name][:2]
+
+    def _read_header(self, name) -> tuple[tuple[int, ...], np.dtype, int]:
         fmt = np.lib.format
         info = self.members[name]
         try:
@@ -704,8 +709,7 @@ class NpzArchive:
         if header_bytes + size != info.file_size:
             raise self._fail(name, f"claims shape {shape} of {dtype} ({size} bytes) but the "
                                    f"archive holds {info.file_size - header_bytes} bytes for it")
-        self._header_bytes[name] = header_bytes
-        return tuple(int(x) for x in shape), dtype
+        return tuple(int(x) for x in shape), dtype, header_bytes
 
     def array(self, name) -> np.ndarray:
         info = self.members[name]
@@ -727,7 +731,7 @@ class NpzArchive:
         import zlib
 
         shape, dtype = self.header(name)
-        skip = self._header_bytes[name]
+        skip = self._headers[name][2]
         out = np.empty(shape, dtype)
         view = memoryview(out.reshape(-1).view(np.uint8))
         try:

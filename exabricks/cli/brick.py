@@ -24,7 +24,6 @@ def brick(cells_path, output, max_brick_width):
     from ..stages.brick import build_bricks  # numba import only when the command runs
 
     check_output(output, [cells_path])
-
     schema.prefetch_sha256([cells_path])
     cells = schema.load(cells_path, "cells")
     try:

@@ -22,7 +22,6 @@ def bvh(regions_path, output, leaf_size, bins):
     from ..stages.bvh import build_bvh
 
     check_output(output, [regions_path])
-
     schema.prefetch_sha256([regions_path])
     regions = schema.load(regions_path, "regions")
     check_regions(regions, regions_path)

@@ -32,7 +32,6 @@ def coarsen(input_path, output, levels, fields):
     from ..stages.coarsen import coarsen_cells, coarsen_plotfile
 
     check_output(output, [input_path])
-
     schema.prefetch_sha256([input_path])
     plotfile = input_path.is_dir()  # the reader refuses a directory that is not one
     if fields and not plotfile:

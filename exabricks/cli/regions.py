@@ -9,6 +9,7 @@ from ..errors import ExabricksError
 from ..output import check_output
 from .options import input_path, output_option
 
+
 @click.command()
 @input_path("bricks_path", metavar="BRICKS")
 @output_option
@@ -34,7 +35,6 @@ def regions(bricks_path, output, exact, visit_cost, brick_cost, max_merged, max_
     from ..stages.regions import EXACT, Merge, build_regions
 
     check_output(output, [bricks_path])
-
     schema.prefetch_sha256([bricks_path])
     given = [name for name, v in (("--visit-cost", visit_cost), ("--brick-cost", brick_cost),
                                   ("--max-merged", max_merged),

@@ -77,7 +77,7 @@ def read(path: Path, *, fields: Sequence[str] | None = None,
         if len(set(fields)) != len(fields):
             raise ExabricksError(f"{path}: field listed twice in {list(fields)}")
         selected = [names.index(f) for f in fields]
-    widths = lattice_widths(header)
+    widths, lattice_level = lattice_widths(header), lattice_levels(header)
     finest = header["finest_level"]
     if level_cap is not None:
         if level_cap < 0:
@@ -122,7 +122,7 @@ def read(path: Path, *, fields: Sequence[str] | None = None,
         _read_level_values(lev, selected, header["ncomp"], masks[L], values[:, part])
         _blocks.leaf_lattice(lev["lo"], lev["hi"], masks[L], domains[L][0], widths[L],
                              out=lattice[part])
-        level[part] = widths[L].bit_length() - 1
+        level[part] = lattice_level[L]
 
     spacing = header["spacing"]
     return schema.Cells(
@@ -146,9 +146,14 @@ def read(path: Path, *, fields: Sequence[str] | None = None,
 
 def lattice_widths(header: dict) -> list[int]:
     """Width of a cell of each AMReX level in finest-cell units (the product of the
-    refinement ratios below it); the exabricks level is its log2."""
+    refinement ratios below it, a power of two)."""
     ratios = header["ratios"]
     return [int(np.prod(ratios[L:], dtype=np.int64)) for L in range(header["finest_level"] + 1)]
+
+
+def lattice_levels(header: dict) -> list[int]:
+    """The exabricks level of each AMReX level: log2 of its `lattice_widths`."""
+    return [w.bit_length() - 1 for w in lattice_widths(header)]
 
 
 def field_names(path: Path) -> list[str]:

@@ -22,9 +22,9 @@ those values as they are, merging octets only below an AMReX level boundary
 
 from __future__ import annotations
 
-import numpy as np
-
 from pathlib import Path
+
+import numpy as np
 
 from ..constants import LATTICE_DTYPE, LEVEL_DTYPE, MAX_LEVEL, VALUE_DTYPE
 from ..errors import ExabricksError
@@ -132,7 +132,7 @@ def coarsen_plotfile(path: str | Path, *, levels: int, fields=(), mask: str | No
     if levels < 0:
         raise ExabricksError(f"the number of levels must be >= 0, got {levels}")
     header = amrex.read_header(Path(path))
-    lattice_level = [w.bit_length() - 1 for w in amrex.lattice_widths(header)]
+    lattice_level = amrex.lattice_levels(header)
     present = [lv for lv, (_, boxes) in zip(lattice_level, header["level_paths"]) if boxes]
     finest = min(present) if present else 0
     target = finest + levels

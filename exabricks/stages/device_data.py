@@ -9,9 +9,8 @@ variant, EB_LOCATION_ARGS) macros of kernels/render.cl.
 
 from __future__ import annotations
 
-import weakref
-
 import time
+import weakref
 
 import numpy as np
 

@@ -89,9 +89,9 @@ def build_regions(bricks: schema.Bricks, merge: Merge = Merge()) -> schema.Regio
     point is in the list of the region that holds it; a merged region may also
     hold space where no support reaches (a sample there has no weight: empty).
 
-    Returns a `schema.Regions` whose regions are disjoint, cover exactly the
-    union of brick supports, and list (ascending) exactly the bricks whose
-    support overlaps them.  Bounds are float32 lattice units (half-integers).
+    Returns a `schema.Regions` whose regions are disjoint, cover the union of
+    brick supports (exactly, with EXACT), and list (ascending) exactly the bricks
+    whose support overlaps them.  Bounds are float32 lattice units (half-integers).
     value_range (R, F, 2) float32 is the min/max over every cell whose support
     overlaps the region (NaN values ignored; NaN if no cell has a number).
     """
