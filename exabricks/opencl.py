@@ -115,6 +115,11 @@ def _device_type(device) -> str:
     return "OTHER"
 
 
+def is_cpu(device) -> bool:
+    """Whether `device` is a CPU (PoCL, the Intel CPU runtime, ...)."""
+    return _device_type(device) == "CPU"
+
+
 def list_devices() -> list[DeviceInfo]:
     """Every OpenCL device of every platform; ExabricksError if there is none."""
     infos = []

@@ -277,6 +277,37 @@ class TransferFunction:
         return table
 
 
+# Most buckets of a knot index (knot_buckets): 64 KiB per transfer function.
+MAX_KNOT_BUCKETS = 16384
+
+
+def knot_buckets(xs: np.ndarray) -> np.ndarray:
+    """An index into the merged knots `xs` (strictly increasing float32) for a
+    lookup without a binary search (kernels/packet.cl, eb_packet_lookup):
+    ``[K, M, first_0, ..., first_{K-1}]`` as int32.
+
+    Bucket j of K even buckets over [xs[0], xs[-1]] is what the device computes
+    as ``floor((v - xs[0]) * (K / (xs[-1] - xs[0])))``, clamped to [0, K-1]. So
+    that float rounding on either side cannot matter, first_j is the last knot
+    at or below the start of bucket j - 1, and M the most knots any value of
+    buckets j - 1 .. j + 1 can lie beyond first_j: the knot below v is first_j
+    plus the number of xs[first_j + 1 .. first_j + M] at or below v (a prefix,
+    xs being increasing), M independent comparisons."""
+    xs = np.asarray(xs, np.float64)
+    n = len(xs)
+    if n < 2:
+        return np.array([1, 0, 0], np.int32)
+    k = int(min(4 * n, MAX_KNOT_BUCKETS))
+    width = (xs[-1] - xs[0]) / k
+    j = np.arange(k)
+    low = xs[0] + (j - 1) * width
+    high = xs[0] + (j + 2) * width
+    first = np.clip(np.searchsorted(xs, low, side="right") - 1, 0, n - 1)
+    last = np.clip(np.searchsorted(xs, high, side="right") - 1, 0, n - 1)
+    m = int((last - first).max())
+    return np.concatenate([[k, m], first]).astype(np.int32)
+
+
 def _range_max(table: np.ndarray, first: np.ndarray, stop: np.ndarray) -> np.ndarray:
     """max(alpha[first:stop]) per query from a sparse table; -inf where empty."""
     count = stop - first

@@ -18,8 +18,117 @@
 #include "common.h"
 #include "sampler.cl"
 #include "scene.cl"
+/* Sample packets (packet.cl): the host builds with -DEB_PACKET=W on CPU devices
+ * for the basis reconstruction from the regions' lists only. */
+#ifdef EB_PACKET
+#include "packet.cl"
+#endif
 #ifdef EB_SURFACES
 #include "surfaces.cl"
+#endif
+
+/* One sample at tm (sub-interval length len) of region r, from its
+ * reconstruction sums s at lattice point p: surfaces crossed since the
+ * previous sample, then the medium; returns 1 once the ray is opaque enough
+ * to stop (early ray termination). */
+EB_INLINE int eb_sample_step(eb_frame *fr, eb_ray *ray, eb_basis_sums *s, float3 p, int level,
+                             float tm, float len, const int shade, eb_ray_state *st)
+{
+    ++st->samples;
+    int valid = s->weight > 0.0f;
+    float value[EB_N_FIELDS];
+    if (valid)
+        eb_fields(*s, value);
+#ifdef EB_SURFACES
+    if (eb_surfaces_until(fr, ray, st, tm, value, valid))
+        return 1;
+#endif
+    if (!valid || fr->look.n_layers == 0)
+        return 0;  /* no cell has support here: transparent */
+    float4 c = eb_medium_step(fr, s, p, level, value, len, ray->dir_world, shade);
+    if (!(c.w > 0.0f))
+        return 0;
+    return eb_composite(st, c.w, c.xyz, tm, fr->max_opacity);
+}
+
+#ifdef EB_PACKET
+/* The samples of region r by packets of EB_PACKET (packet.cl), where the
+ * basis reconstruction from the region's list applies: reconstruction and,
+ * for one volume layer with analytic gradients, the medium vectorised; the
+ * surfaces and the compositing lane by lane. */
+__attribute__((noinline)) int eb_sample_packets(eb_frame *fr, eb_ray *ray, int r, int level, eb_intervals *it,
+                                const int shade, eb_ray_state *st)
+{
+    const int grad = shade && !fr->central;
+    const int medium = fr->look.n_layers == 1 && !fr->central;
+    float tm[EB_PACKET], len[EB_PACKET];
+    float ca[EB_PACKET], cr[EB_PACKET], cg[EB_PACKET], cb[EB_PACKET];
+    eb_packet_lanes lanes;
+    long begin = fr->regions.brick_start[r], end = fr->regions.brick_start[r + 1];
+    for (;;) {
+        int m = 0;
+        while (m < EB_PACKET && eb_intervals_next(it, &tm[m], &len[m]))
+            ++m;
+        if (m == 0)
+            return 0;
+        if (m < EB_PACKET_MIN_LANES) {
+            for (int k = 0; k < m; ++k) {
+                float3 p = ray->org + tm[k] * ray->dir;
+                eb_basis_sums s = grad ? eb_sample_region(fr, r, p, 1) : eb_sample_region(fr, r, p, 0);
+                if (eb_sample_step(fr, ray, &s, p, level, tm[k], len[k], shade, st))
+                    return 1;
+            }
+            continue;
+        }
+        for (int k = m; k < EB_PACKET; ++k)
+            tm[k] = tm[0], len[k] = len[0];
+        eb_vf t = eb_vload(0, tm);
+        eb_vf px = ray->org.x + t * ray->dir.x, py = ray->org.y + t * ray->dir.y,
+              pz = ray->org.z + t * ray->dir.z;
+        eb_packet_sums ps = grad
+            ? eb_packet_reconstruct(fr->bricks, fr->regions.brick_ids, begin, end, px, py, pz, 1)
+            : eb_packet_reconstruct(fr->bricks, fr->regions.brick_ids, begin, end, px, py, pz, 0);
+        if (medium) {
+            eb_vf a, cr_, cg_, cb_;
+            if (shade)
+                eb_packet_medium(fr, &ps, eb_vload(0, len), ray->dir_world, 1, &a, &cr_, &cg_, &cb_);
+            else
+                eb_packet_medium(fr, &ps, eb_vload(0, len), ray->dir_world, 0, &a, &cr_, &cg_, &cb_);
+            eb_vstore(a, 0, ca);
+            eb_vstore(cr_, 0, cr);
+            eb_vstore(cg_, 0, cg);
+            eb_vstore(cb_, 0, cb);
+#ifdef EB_SURFACES
+            eb_packet_store(&ps, &lanes, 0);
+#endif
+        } else if (grad) {
+            eb_packet_store(&ps, &lanes, 1);
+        } else {
+            eb_packet_store(&ps, &lanes, 0);
+        }
+        for (int k = 0; k < m; ++k) {
+            if (!medium) {
+                eb_basis_sums s = grad ? eb_packet_lane(&lanes, k, 1) : eb_packet_lane(&lanes, k, 0);
+                if (eb_sample_step(fr, ray, &s, ray->org + tm[k] * ray->dir, level, tm[k], len[k],
+                                   shade, st))
+                    return 1;
+                continue;
+            }
+            ++st->samples;
+#ifdef EB_SURFACES
+            float w = lanes.weight[k];
+            float value[EB_N_FIELDS];
+            for (int f = 0; f < EB_N_FIELDS; ++f)
+                value[f] = lanes.weighted[f][k] / w;
+            if (eb_surfaces_until(fr, ray, st, tm[k], value, w > 0.0f))
+                return 1;
+#endif
+            if (ca[k] > 0.0f && eb_composite(st, ca[k], (float3)(cr[k], cg[k], cb[k]), tm[k],
+                                             fr->max_opacity))
+                return 1;
+        }
+    }
+}
 #endif
 
 /* The samples of region r over [t_in, t_out] at step dt (its level `level`). */
@@ -27,26 +136,16 @@ EB_INLINE int eb_sample_interval(eb_frame *fr, eb_ray *ray, int r, int level, fl
                                  float t_out, float dt, const int shade, eb_ray_state *st)
 {
     eb_intervals it = eb_intervals_start(t_in, t_out, dt, ray->rho);
+#ifdef EB_PACKET
+    if (level <= fr->regions.finest_level[r])
+        return eb_sample_packets(fr, ray, r, level, &it, shade, st);
+#endif
     float tm, len;
     while (eb_intervals_next(&it, &tm, &len)) {
         float3 p = ray->org + tm * ray->dir;
         eb_basis_sums s = shade && !fr->central ? eb_sample_region_at(fr, r, p, level, 1)
                                                 : eb_sample_region_at(fr, r, p, level, 0);
-        ++st->samples;
-        int valid = s.weight > 0.0f;
-        float value[EB_N_FIELDS];
-        if (valid)
-            eb_fields(s, value);
-#ifdef EB_SURFACES
-        if (eb_surfaces_until(fr, ray, st, tm, value, valid))
-            return 1;
-#endif
-        if (!valid || fr->look.n_layers == 0)
-            continue;  /* no cell has support here: transparent */
-        float4 c = eb_medium_step(fr, &s, p, level, value, len, ray->dir_world, shade);
-        if (!(c.w > 0.0f))
-            continue;
-        if (eb_composite(st, c.w, c.xyz, tm, fr->max_opacity))
+        if (eb_sample_step(fr, ray, &s, p, level, tm, len, shade, st))
             return 1;
     }
     return 0;

@@ -21,10 +21,13 @@
 
 /* The frame's look: every transfer function and colour map as merged knots
  * (exabricks.transfer_function.TransferFunction.merged_knots) one after the
- * other, and the volume layers (field, first knot, knot count). */
+ * other, each volume layer's knot index (knot_buckets, for the packet
+ * lookup of packet.cl), and the volume layers (field, first knot, knot count,
+ * offset of the knot index). */
 typedef struct {
     __global const float *xs;
     __global const float4 *rgba;
+    __global const int *buckets;
     __global const int4 *layers;
     int n_layers;
     /* Private copies of what every sample reads (kept out of global memory):

@@ -32,7 +32,7 @@
 /* The frame's look, surfaces and clipping (exabricks.stages.render.frame_args). */
 #define EB_FRAME_ARGS                                                           \
     __global const float *tf_xs, __global const float4 *tf_rgba,                \
-    __global const int4 *layers, int n_layers, __global const float4 *gradient_scale, \
+    __global const int *tf_buckets, __global const int4 *layers, int n_layers, __global const float4 *gradient_scale, \
     __global const int4 *iso, __global const float4 *iso_value,                 \
     __global const float4 *iso_color, int n_iso,                                \
     __global const int4 *slice, __global const float4 *slice_point,             \
@@ -85,7 +85,7 @@ __kernel void eb_render(int width, int height, int row0, int rows,
     uint slot = (uint)band_row * (uint)width + (uint)col;
     eb_frame fr = {
         EB_BVH_STRUCT, EB_REGION_STRUCT, EB_SAMPLE_BRICKS_STRUCT,
-        {tf_xs, tf_rgba, layers, n_layers, layers[0]},
+        {tf_xs, tf_rgba, tf_buckets, layers, n_layers, layers[0]},
         {iso, iso_value, iso_color, n_iso, slice, slice_point, slice_normal, n_slices,
          iso_tolerance, specular, shininess},
         {clip_box, clip_lower, clip_upper, clip_planes, n_clip_planes},

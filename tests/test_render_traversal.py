@@ -14,7 +14,6 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from exabricks import opencl
 from exabricks.errors import ExabricksError
 from exabricks.stages.render import TRAVERSALS, Renderer
 
@@ -33,7 +32,7 @@ def scene(name: str):
 
 def use_build(renderer, define: str) -> None:
     """Make `renderer` render with its volume program built with one more define."""
-    kernel = opencl.kernel(renderer.scene.program_for((define,)), "eb_render")
+    kernel = renderer._kernel(False, "basis", False, extra=(define,))
     renderer._kernel = lambda *args, **kwargs: kernel
 
 

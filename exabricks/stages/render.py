@@ -37,6 +37,12 @@ absorption. Conventions the design leaves open, chosen here:
   reading the region's brick list. Same samples, and the same bricks summed in
   the same order, so the same frame; only the speed differs. ``"regions"``
   (default) is the paper's method.
+* Sample packets: on CPU devices a ray reconstructs the next PACKET_WIDTH
+  samples of a region at once in vector registers (kernels/packet.cl), the
+  transfer function and opacity of one volume layer too; compositing stays in
+  order, so the image equals the one-sample path's up to float rounding.
+  ``Renderer(..., packets=False)`` (or `with_packets`) forces the one-sample
+  path, the one GPUs take.
 """
 
 from __future__ import annotations
@@ -52,6 +58,7 @@ from .. import interrupt, opencl, schema
 from ..constants import MAX_SAMPLES_PER_RAY
 from ..errors import ExabricksError
 from ..scene import Lighting, Scene, Settings, VolumeLayer
+from ..transfer_function import knot_buckets
 from .device_data import DeviceScene, _float4
 
 # Region walks (kernels/traversal.cl): "ordered" keeps a private min-heap of
@@ -62,6 +69,11 @@ TRAVERSALS = ("ordered", "retrace")
 # Where a sample finds the bricks it reconstructs from: the region's list (paper
 # §3.2) or a per-sample descent of a tree over the brick supports (§6.4.2).
 LOOKUPS = ("regions", "cell-location")
+
+# Samples a ray reconstructs at once on CPU devices (kernels/packet.cl): one
+# lane of an 8-wide vector each (docs/design.md, "Sample packets"); GPUs run one
+# sample at a time, their lanes being the work-items.
+PACKET_WIDTH = 8
 
 # Pixels per work-group side: 8 x 8 tiles keep neighbouring rays (which walk the
 # same regions and bricks) together on one core.
@@ -113,10 +125,12 @@ class Renderer:
 
     def __init__(self, bricks: schema.Bricks, regions: schema.Regions, bvh: schema.Bvh,
                  *, field: str | None = None, fields=None, device=None,
-                 lookup: str = "regions"):
+                 lookup: str = "regions", packets: bool | None = None):
         _check_lookup(lookup)
         self.scene = DeviceScene(bricks, regions, bvh, field=field, fields=fields, device=device)
         self._use(lookup)
+        # Sample packets: on CPU devices unless asked otherwise (both give the same image).
+        self.packets = opencl.is_cpu(self.scene.device) if packets is None else bool(packets)
 
     def _use(self, lookup: str) -> None:
         _check_lookup(lookup)
@@ -125,7 +139,8 @@ class Renderer:
         if lookup == "cell-location":
             self.location_args = self.scene.location_args()
 
-    def _kernel(self, surfaces: bool, reconstruction: str, lod: bool):
+    def _kernel(self, surfaces: bool, reconstruction: str, lod: bool, extra=()):
+        """eb_render built for this renderer and frame, with `extra` defines (tests)."""
         if self.lookup == "cell-location" and (reconstruction != "basis" or lod):
             raise ExabricksError("the cell-location lookup exists for the basis reconstruction "
                                  "without level of detail only")
@@ -133,14 +148,29 @@ class Renderer:
             raise ExabricksError(f"level of detail (--lod) works with the basis reconstruction, "
                                  f"not with {reconstruction}")
         defines = (("EB_CELL_LOCATION",) if self.lookup == "cell-location" else ()) \
-            + (("EB_SURFACES",) if surfaces else ()) + (("EB_LOD",) if lod else ())
+            + (("EB_SURFACES",) if surfaces else ()) + (("EB_LOD",) if lod else ()) \
+            + ((f"EB_PACKET={PACKET_WIDTH}",) if self._packet_width(reconstruction) > 1 else ()) \
+            + tuple(extra)
         return opencl.kernel(self.scene.program_for(defines, reconstruction), "eb_render")
+
+    def _packet_width(self, reconstruction: str) -> int:
+        """Samples reconstructed at once: PACKET_WIDTH for the basis reconstruction from
+        the regions' lists on a renderer with packets, else 1."""
+        use = self.packets and self.lookup == "regions" and reconstruction == "basis"
+        return PACKET_WIDTH if use else 1
 
     def with_lookup(self, lookup: str) -> "Renderer":
         """A Renderer of the same uploaded scene (no second upload) whose samples
         find their bricks another way (LOOKUPS)."""
         other = copy.copy(self)
         other._use(lookup)
+        return other
+
+    def with_packets(self, packets: bool) -> "Renderer":
+        """A Renderer of the same uploaded scene that reconstructs samples by packets
+        (kernels/packet.cl) or one at a time; the image is the same."""
+        other = copy.copy(self)
+        other.packets = bool(packets)
         return other
 
     @property
@@ -196,6 +226,7 @@ class Renderer:
             "slices": len(scene.slices), "clip": scene.clip.active,
             "ao_samples": scene.lighting.ao_samples,
             "traversal": traversal, "lookup": self.lookup,
+            "packet_width": self._packet_width(cfg.reconstruction),
             "reconstruction": cfg.reconstruction,
             "device": self.device_name,
             "visible_regions": int(region_vis.sum()), "regions": s.regions.n_regions,
@@ -357,8 +388,8 @@ ISO_TOLERANCE_CELLS = 1e-3
 
 def frame_args(scene: Scene, device_scene: DeviceScene, queue) -> list:
     """Kernel arguments EB_FRAME_ARGS (kernels/render.cl) of `scene`: every transfer
-    function and colour map as merged knots one after the other, the volume
-    layers, iso-surfaces and slices by field index on the device, and clipping."""
+    function and colour map as merged knots one after the other (and each volume
+    layer's knot index, transfer_function.knot_buckets), the volume layers, iso-surfaces and slices by field index on the device, and clipping."""
     up = opencl.to_device
     index = {name: i for i, name in enumerate(device_scene.fields)}
     xs, rgba = [], []
@@ -370,7 +401,15 @@ def frame_args(scene: Scene, device_scene: DeviceScene, queue) -> list:
         rgba.append(np.asarray(c, np.float32))
         return first, len(x)
 
-    layers = [(index[v.field], *knots(v.transfer_function), 0) for v in scene.volumes]
+    buckets = []  # each volume layer's knot index (knot_buckets), its offset in layer.w
+
+    def bucket_index(tf) -> int:
+        first = sum(len(b) for b in buckets)
+        buckets.append(knot_buckets(tf.merged_knots()[0]))
+        return first
+
+    layers = [(index[v.field], *knots(v.transfer_function), bucket_index(v.transfer_function))
+              for v in scene.volumes]
     iso, iso_value, iso_color = [], [], []
     for surface in scene.isosurfaces:
         first, n = knots(surface.colormap) if surface.colormap is not None else (0, 0)
@@ -394,6 +433,7 @@ def frame_args(scene: Scene, device_scene: DeviceScene, queue) -> list:
     tolerance = ISO_TOLERANCE_CELLS * device_scene.finest_width_world
     return [
         up(queue, cat(xs, (1,))), up(queue, cat(rgba, (1, 4))),
+        up(queue, np.concatenate(buckets) if buckets else np.zeros(1, np.int32)),
         up(queue, i4(layers)), np.int32(len(layers)), up(queue, device_scene.gradient_scales),
         up(queue, i4(iso)), up(queue, f4(iso_value)), up(queue, f4(iso_color)), np.int32(len(iso)),
         up(queue, i4(slices)), up(queue, f4(slice_point)), up(queue, f4(slice_normal)),
