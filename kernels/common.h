@@ -29,6 +29,15 @@
  * a constant want_gradient is not folded away. */
 #define EB_INLINE inline __attribute__((always_inline))
 
+/* The few functions that are kept out of line in a profiling build
+ * (-DEB_PROFILE, workflows/profile_render.py), so that a sampling profiler
+ * sees the walk and the sampling as separate symbols. */
+#ifdef EB_PROFILE
+#define EB_PROFILED __attribute__((noinline))
+#else
+#define EB_PROFILED EB_INLINE
+#endif
+
 /* Entry and exit distance of the ray org + t * dir through the box [lo, hi]
  * (inv_dir = 1 / dir, +-inf on axes the ray runs parallel to). The ray misses
  * where .x > .y. fmin/fmax drop the NaN that 0 * inf gives when the origin lies

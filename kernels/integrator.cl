@@ -132,7 +132,7 @@ __attribute__((noinline)) int eb_sample_packets(eb_frame *fr, eb_ray *ray, int r
 #endif
 
 /* The samples of region r over [t_in, t_out] at step dt (its level `level`). */
-EB_INLINE int eb_sample_interval(eb_frame *fr, eb_ray *ray, int r, int level, float t_in,
+EB_PROFILED int eb_sample_interval(eb_frame *fr, eb_ray *ray, int r, int level, float t_in,
                                  float t_out, float dt, const int shade, eb_ray_state *st)
 {
     eb_intervals it = eb_intervals_start(t_in, t_out, dt, ray->rho);

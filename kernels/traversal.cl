@@ -238,7 +238,7 @@ EB_INLINE void eb_walk_start(eb_walk *w, eb_bvh bvh, float3 org, float3 inv_dir,
         eb_queue_start(&w->q, bvh, org, inv_dir, t_min, t_max);
 }
 
-EB_INLINE int eb_walk_next(eb_walk *w, eb_bvh bvh, eb_regions regions, float3 org,
+EB_PROFILED int eb_walk_next(eb_walk *w, eb_bvh bvh, eb_regions regions, float3 org,
                            float3 inv_dir, float *t_in, float *t_out)
 {
     if (!w->retrace) {
