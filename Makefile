@@ -80,9 +80,11 @@ bench: setup
 	$(PY) workflows/bench_preprocess.py --write-docs
 	@# merged regions against the paper's exact ones, bytes per cell and frames
 	$(PY) workflows/bench_merge.py --write-docs
-	@# render: the OpenCL renderer on the four real datasets and the thin shells, both walks
+	@# render: the OpenCL renderer on the four real datasets and the thin shells, both walks, both sample paths
 	$(PY) workflows/bench_render.py --write-docs
-	@# peers: exabricks vs yt, vs per-sample cell location, and the uniform-grid ceiling (1024², all datasets)
+	@# where a frame's time goes: perf samples by kernel function (skipped without perf)
+	@if command -v perf >/dev/null; then $(PY) workflows/profile_render.py --write-docs; fi
+	@# peers: exabricks vs yt, VTK, per-sample cell location and the uniform-grid ceiling (1024², all datasets)
 	$(PY) workflows/bench_peers.py --json bench-data/peers.json
 	@# render modes: iso-surfaces, slices, clipping, AO, layers, gradients (Gerris, AMReX)
 	$(PY) workflows/bench_modes.py --write-docs

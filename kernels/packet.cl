@@ -221,27 +221,14 @@ EB_INLINE eb_vf eb_packet_log2_positive(eb_vf x)
     m = select(m, m * 0.5f, big);
     e = select(e, e + 1, big);
     eb_vf u = m - 1.0f;
-    eb_vf p = -0.208933778f + u * 0.129264207f;
-    p = 0.215212268f + u * p;
-    p = -0.238675687f + u * p;
-    p = 0.287939094f + u * p;
-    p = -0.360716264f + u * p;
-    p = 0.48091028f + u * p;
-    p = -0.721347199f + u * p;
-    p = 1.442695f + u * p;
-    return eb_convert_vf(e) + u * p;
+    return eb_convert_vf(e) + u * EB_LOG2_POLY(u);
 }
 
 EB_INLINE eb_vf eb_packet_exp2_nonpositive(eb_vf y)
 {
     eb_vf i = rint(y);
     eb_vf f = y - i;
-    eb_vf p = 0.00961803986f + f * (0.00133953101f + f * 0.000154653426f);
-    p = 0.0555034061f + f * p;
-    p = 0.240226511f + f * p;
-    p = 0.693147200f + f * p;
-    p = 1.0f + f * p;
-    return p * eb_as_vf((eb_convert_vi(i) + 127) << 23);
+    return EB_EXP2_POLY(f) * eb_as_vf((eb_convert_vi(i) + 127) << 23);
 }
 
 /* Opacity (*a, 0 where a lane is invalid or transparent) and colour of W

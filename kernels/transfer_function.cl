@@ -25,6 +25,16 @@ EB_INLINE float4 eb_transfer_function(float value, __global const float *xs,
     return mix(rgba[lo], rgba[hi], f);
 }
 
+/* The polynomials of eb_log2_positive and eb_exp2_nonpositive in Horner form,
+ * written once for a float and for the vectors of the sample packets (packet.cl). */
+#define EB_LOG2_POLY(u)                                                          \
+    (1.442695f + (u) * (-0.721347199f + (u) * (0.48091028f + (u) * (-0.360716264f \
+     + (u) * (0.287939094f + (u) * (-0.238675687f + (u) * (0.215212268f           \
+     + (u) * (-0.208933778f + (u) * 0.129264207f))))))))
+#define EB_EXP2_POLY(f)                                                          \
+    (1.0f + (f) * (0.693147200f + (f) * (0.240226511f + (f) * (0.0555034061f       \
+     + (f) * (0.00961803986f + (f) * (0.00133953101f + (f) * 0.000154653426f))))))
+
 /* log2(x) for a positive normal float x: exponent from the bits, mantissa
  * m in [sqrt(1/2), sqrt(2)) and log2(m) = u P(u) with u = m - 1 and P of
  * degree 8 fitted to log2(1 + u) / u (relative error below 4e-8 on that
@@ -39,15 +49,7 @@ EB_INLINE float eb_log2_positive(float x)
         e += 1;
     }
     float u = m - 1.0f;
-    float p = -0.208933778f + u * 0.129264207f;
-    p = 0.215212268f + u * p;
-    p = -0.238675687f + u * p;
-    p = 0.287939094f + u * p;
-    p = -0.360716264f + u * p;
-    p = 0.48091028f + u * p;
-    p = -0.721347199f + u * p;
-    p = 1.442695f + u * p;
-    return (float)e + u * p;
+    return (float)e + u * EB_LOG2_POLY(u);
 }
 
 /* 2^y for y in [-126, 0]: y = i + f with f in [-1/2, 1/2], a degree-6
@@ -57,12 +59,7 @@ EB_INLINE float eb_exp2_nonpositive(float y)
 {
     float i = rint(y);
     float f = y - i;
-    float p = 0.00961803986f + f * (0.00133953101f + f * 0.000154653426f);
-    p = 0.0555034061f + f * p;
-    p = 0.240226511f + f * p;
-    p = 0.693147200f + f * p;
-    p = 1.0f + f * p;
-    return p * as_float(((int)i + 127) << 23);
+    return EB_EXP2_POLY(f) * as_float(((int)i + 127) << 23);
 }
 
 /* Opacity of a step of length `len` from the slab opacity `alpha` per

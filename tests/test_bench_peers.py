@@ -407,6 +407,196 @@ def test_yt_is_skipped_only_above_the_cell_cap():
 
 
 # ---------------------------------------------------------------------------
+# VTK: the finest grid, the transfer function, the camera, the image layout
+
+
+def test_vtk_finest_grid_by_hand():
+    # [0, 1]^3 with 1/128 cells: 128 centres from 1/256 to 1 - 1/256.
+    dims, sampling = bench_peers.vtk_finest_grid([0, 1, 0, 1, 0, 1], [1 / 128] * 3)
+    assert dims == [128, 128, 128]
+    assert sampling == pytest.approx([1 / 256, 1 - 1 / 256] * 3)
+    # A ragged box: [-1, 4) x [0, 2) x [0.5, 1.25) with 0.25 cells.
+    dims, sampling = bench_peers.vtk_finest_grid([-1, 4, 0, 2, 0.5, 1.25], [0.25, 0.25, 0.25])
+    assert dims == [20, 8, 3]
+    assert sampling == pytest.approx([-0.875, 3.875, 0.125, 1.875, 0.625, 1.125])
+    with pytest.raises(ValueError):
+        bench_peers.vtk_finest_grid([0, 1, 0, 1, 0, 1], [0.0, 0.1, 0.1])
+    with pytest.raises(ValueError):
+        bench_peers.vtk_finest_grid([0, 0.01, 0, 1, 0, 1], [0.1, 0.1, 0.1])
+
+
+def test_vtk_readers_and_skips(tmp_path):
+    for name in ("gerris", "big"):
+        assert bench_peers.vtk_skip_reason(name, tmp_path / "x.cells") == "no VTK reader"
+    assert bench_peers.vtk_source("amrex", tmp_path) == tmp_path
+    assert bench_peers.vtk_skip_reason("amrex", tmp_path) is None
+    # Enzo opens the .hierarchy, Athena++ the .athdf.xdmf sidecar.
+    assert bench_peers.vtk_source("enzo", tmp_path / "run_0010") == tmp_path / "run_0010.hierarchy"
+    athdf = tmp_path / "nowhere" / "Blast.athdf"
+    assert bench_peers.vtk_source("athena", athdf) == athdf.parent / "Blast.athdf.xdmf"
+    assert "Blast.athdf.xdmf missing" in bench_peers.vtk_skip_reason("athena", athdf)
+
+
+def test_parse_amr_resampler_log():
+    # vtkAMRResampleFilter's own report (vtkAMRResampleFilter.cxx), as the worker captures it.
+    text = ("Running Resampler\nRequest Grid Dim : 128, 128, 128\n"
+            "Computed Grid Dim: 48, 58, 46\nAdjusted Grid Dim: 48, 58, 46\n"
+            "Requested Max Level = 1\n********* Resample Stats *************\n"
+            "Average Level: 0.803879\nNumber Of Failed Points: 0\n")
+    assert bench_peers.parse_amr_resampler_log(text) == {
+        "requested_dims": [128, 128, 128], "computed_dims": [48, 58, 46],
+        "adjusted_dims": [48, 58, 46], "requested_max_level": 1,
+        "average_level": pytest.approx(0.803879), "failed_points": 0}
+    assert bench_peers.parse_amr_resampler_log("") == {}
+
+
+def test_vtk_image_to_ours_flips_rows():
+    pixels = np.arange(2 * 3 * 4, dtype=np.float64)  # VTK: bottom row first
+    image = bench_peers.vtk_image_to_ours(pixels, 3, 2)
+    assert image.shape == (2, 3, 4) and image.dtype == np.float32
+    assert image[1, 0].tolist() == [0, 1, 2, 3]      # VTK's first pixel: bottom left
+    assert image[0, 2].tolist() == [20, 21, 22, 23]  # its last: top right
+
+
+def test_vtk_volume_property_reproduces_ours_at_and_between_knots():
+    pytest.importorskip("vtk")
+    tf = default_transfer_function((0.5, 2.0))
+    alpha = tf.alpha_points.copy()
+    alpha[:, 1] *= bench_peers.ALPHA_SCALE
+    tf = TransferFunction(tf.rgb_points[::16], alpha, tf.name)  # every 16th colour knot
+    prop = bench_peers.vtk_volume_property(tf, 0.125)
+    colour, opacity = prop.GetRGBTransferFunction(), prop.GetScalarOpacity()
+    knots = np.union1d(tf.rgb_points[:, 0], tf.alpha_points[:, 0])
+    xs = np.concatenate([knots, 0.5 * (knots[1:] + knots[:-1]), [0.0, 3.0]])  # and outside
+    want = tf.evaluate(xs)
+    got = np.array([[*colour.GetColor(x), opacity.GetValue(x)] for x in xs])
+    np.testing.assert_allclose(got, want, atol=1e-12)
+    assert prop.GetScalarOpacityUnitDistance() == 0.125
+    assert not prop.GetShade() and prop.GetInterpolationType() == 1  # linear
+
+
+def test_vtk_camera_sees_our_pixel_centres():
+    pytest.importorskip("vtk")
+    from vtkmodules.vtkRenderingCore import vtkCamera
+
+    # Up not orthogonal to the view, a non-square frame.
+    camera = Camera(position=(3.0, -1.0, 2.0), look_at=(0.2, 0.4, -0.1), up=(0.3, 0.2, 1.0),
+                    fovy=40.0)
+    width, height = 8, 6
+    bounds = [[-1.0, -0.5, -1.0], [1.0, 1.5, 0.5]]
+    params = bench_peers.vtk_camera_parameters(camera, bounds)
+    cam = vtkCamera()
+    bench_peers.apply_vtk_camera(cam, params)
+    _, forward, _, _ = camera.frame(width, height)
+    np.testing.assert_allclose(cam.GetDirectionOfProjection(), forward, atol=1e-12)
+    # Every pixel's ray, projected by VTK's camera, lands on that pixel's centre in VTK's
+    # normalised device coordinates (x right, y up).
+    origins, directions = camera.rays(width, height)
+    matrix = cam.GetCompositeProjectionTransformMatrix(width / height, -1, 1)
+    m = np.array([[matrix.GetElement(i, j) for j in range(4)] for i in range(4)])
+    points = origins + 2.5 * directions
+    clip = np.concatenate([points, np.ones(points.shape[:2] + (1,))], axis=-1) @ m.T
+    ndc = clip[..., :2] / clip[..., 3:]
+    cols, rows = np.meshgrid(np.arange(width), np.arange(height))
+    np.testing.assert_allclose(ndc[..., 0], 2 * (cols + 0.5) / width - 1, atol=1e-9)
+    np.testing.assert_allclose(ndc[..., 1], 1 - 2 * (rows + 0.5) / height, atol=1e-9)
+    # The clipping range holds the whole box.
+    near, far = cam.GetClippingRange()
+    lo, hi = (np.asarray(b) for b in bounds)
+    corners = np.array([[(lo, hi)[(k >> a) & 1][a] for a in range(3)] for k in range(8)])
+    depth = (corners - np.asarray(camera.position)) @ forward
+    assert 0 < near < depth.min() and depth.max() < far
+
+
+def test_vtk_renders_a_cube_where_our_projection_does(tmp_path):
+    """The fixed-point ray caster of the worker, through our camera, transfer function and
+    image layout, on an opaque off-centre cube: the same pixels as our projection."""
+    pytest.importorskip("vtk")
+    import json
+    import subprocess
+    import sys
+    import textwrap
+
+    script = textwrap.dedent("""
+        import json, os, sys
+        import numpy as np
+        sys.path.insert(0, sys.argv[1])
+        import bench_peers
+        os.environ["VTK_DEFAULT_OPENGL_WINDOW"] = bench_peers.VTK_WINDOW
+        os.environ["LP_NUM_THREADS"] = "1"
+        import vtkmodules.vtkRenderingOpenGL2, vtkmodules.vtkRenderingVolumeOpenGL2
+        from vtkmodules.vtkCommonCore import vtkFloatArray
+        from vtkmodules.vtkCommonDataModel import vtkImageData
+        from vtkmodules.util.numpy_support import numpy_to_vtk, vtk_to_numpy
+        from vtkmodules.vtkRenderingCore import vtkCamera, vtkRenderer, vtkRenderWindow, vtkVolume
+        from vtkmodules.vtkRenderingVolume import vtkFixedPointVolumeRayCastMapper
+        from exabricks.camera import default_camera
+        from exabricks.transfer_function import TransferFunction
+        n, size = 32, 48
+        volume = np.zeros((n, n, n))
+        volume[4:12, 20:28, 18:26] = 1.0  # z, y, x: low z, high y, high x
+        image = vtkImageData()
+        image.SetDimensions(n, n, n)
+        image.SetSpacing(1.0 / n, 1.0 / n, 1.0 / n)
+        image.SetOrigin(0.5 / n, 0.5 / n, 0.5 / n)
+        image.GetPointData().SetScalars(numpy_to_vtk(volume.ravel()))
+        camera = default_camera([0, 0, 0], [1, 1, 1])
+        tf = TransferFunction(np.array([[0, 1, 1, 1], [1, 1, 1, 1]], float),
+                              np.array([[0, 0], [0.49, 0], [0.5, 1], [1, 1]], float))
+        mapper = vtkFixedPointVolumeRayCastMapper()
+        mapper.SetInputData(image)
+        mapper.SetNumberOfThreads(1)
+        mapper.SetAutoAdjustSampleDistances(False)
+        mapper.SetSampleDistance(0.25 / n)
+        actor = vtkVolume()
+        actor.SetMapper(mapper)
+        actor.SetProperty(bench_peers.vtk_volume_property(tf, 1.0 / n))
+        window = vtkRenderWindow()
+        window.SetOffScreenRendering(True)
+        window.SetAlphaBitPlanes(True)
+        window.SetMultiSamples(0)
+        window.SetSize(size, size)
+        ren = vtkRenderer()
+        ren.SetBackgroundAlpha(0.0)
+        cam = vtkCamera()
+        bench_peers.apply_vtk_camera(cam, bench_peers.vtk_camera_parameters(
+            camera, [[0, 0, 0], [1, 1, 1]]))
+        ren.SetActiveCamera(cam)
+        ren.AddVolume(actor)
+        window.AddRenderer(ren)
+        window.Render()
+        pixels = vtkFloatArray()
+        window.GetRGBAPixelData(0, 0, size - 1, size - 1, 0, pixels, 0)
+        rgba = bench_peers.vtk_image_to_ours(vtk_to_numpy(pixels), size, size)
+        np.save(sys.argv[2], rgba)
+        json.dump(camera.to_dict(), open(sys.argv[3], "w"))
+        """)
+    # In its own process: VTK reads VTK_DEFAULT_OPENGL_WINDOW and Mesa LP_NUM_THREADS once.
+    out, cam_path = tmp_path / "vtk.npy", tmp_path / "camera.json"
+    proc = subprocess.run([sys.executable, "-c", script, str(bench_peers.ROOT / "workflows"),
+                           str(out), str(cam_path)], capture_output=True, text=True, timeout=120)
+    if proc.returncode != 0 and "EGL" in proc.stderr:
+        pytest.skip(f"no offscreen EGL rendering here: {proc.stderr.strip()[-300:]}")
+    assert proc.returncode == 0, proc.stderr
+    rgba = np.load(out)
+    camera = Camera.from_dict(json.loads(cam_path.read_text()))
+    size = rgba.shape[0]
+    # Our projection of the cube [18, 26) x [20, 28) x [4, 12) / 32: where our pixel rays
+    # hit the box (slab test), against where VTK's frame is opaque.
+    lo, hi = np.array([18, 20, 4]) / 32, np.array([26, 28, 12]) / 32
+    origins, directions = camera.rays(size, size)
+    with np.errstate(divide="ignore"):
+        t0, t1 = (lo - origins) / directions, (hi - origins) / directions
+    hit = np.minimum(t0, t1).max(axis=-1) < np.maximum(t0, t1).min(axis=-1)
+    covered = rgba[..., 3] > 0.5
+    assert hit.sum() > 20
+    # Only pixels along the cube's outline (trilinear edges, half-voxel margins) may differ.
+    assert (hit != covered).sum() <= 0.35 * hit.sum(), ((hit != covered).sum(), hit.sum())
+    assert (hit & covered).sum() >= 0.8 * hit.sum()
+    assert np.abs(rgba[..., :3] - rgba[..., 3:]).max() < 0.02  # white, premultiplied
+
+
+# ---------------------------------------------------------------------------
 # the exabricks worker on real data, and the figures of the report
 
 
@@ -424,7 +614,8 @@ def gerris_row(tmp_path_factory):
         "camera", "transfer_function", "value_range", "unit_distance")}})
     return {"name": "gerris", "field": field, "prep": prep, "ours": ours,
             "uniform": ours.pop("uniform"), "cell_location": ours.pop("cell_location"),
-            "yt": {"error": bench_peers.yt_skip_reason(prep["cells"], 1000)}}
+            "yt": {"error": bench_peers.yt_skip_reason(prep["cells"], 1000)},
+            "vtk": {"error": bench_peers.vtk_skip_reason("gerris", path)}}
 
 
 def test_worker_interleaves_regions_cell_location_and_uniform(gerris_row):
@@ -476,6 +667,16 @@ def toy_row(name: str = "toy") -> dict:
                     "rates": rates(None, [([0.05, 0.1, 0.2], 800), ([0.2, 0.4, 0.5], 4000)])},
         "yt": {"import_s": 1.0, "convert_s": None, "load_index_s": 1.0, "setup_s": 1.0,
                "first_frame_s": 7.0, "frame_s": [5.0, 6.0, 7.0], "peak_rss_mib": 200.0},
+        "vtk": {"version": "9.9.9", "import_s": 0.1, "reader": "vtkToyReader", "threads": 2,
+                "gl_renderer": "toy pipe", "finest_dims": [8, 8, 8],
+                "finest_spacing": [0.125] * 3, "levels": 2, "amr": True, "peak_rss_mib": 300.0,
+                "resample": {"read_s": 0.5, "dims": [8, 8, 8], "resample_s": 2.0,
+                             "first_frame_s": 1.5, "first_image_s": 4.0,
+                             "frame_s": [1.0, 4.0, 5.0]},
+                "amr_mapper": {"first_image_s": 1.0, "frame_s": [0.5, 1.0, 3.0],
+                               "resampler": {"requested_max_level": 0, "average_level": 0.25},
+                               "grid_dims": [4, 4, 4], "grid_spacing": [0.25, 0.25, 0.5],
+                               "render_mode": "GPU"}},
         "agreement": {},
     }
 
@@ -499,6 +700,22 @@ def test_report_figures_by_hand():
                                   f"toy rate {rh}": pytest.approx(5 / 6)}
     # The default camera (fovy 30) on a square frame: the corner pixel centres lie at
     # u = v = (N - 1) / N of the half-extent tan 15 deg, 1 / cos = |(1, u t, v t)|.
+    # VTK / ours: frame medians 4 / 2 and (AMR mapper) 1 / 2; first images 4 and 1 against
+    # ours read 0.5 + build 0.25 + program 0.2 + upload 0.3 + first frame 1.0 = 2.25.
+    assert bench_peers.ours_first_image_s(rows[0]) == pytest.approx(2.25)
+    assert bench_peers.vtk_ratios(rows) == {
+        "toy": {"frame": pytest.approx(2.0), "first_image": pytest.approx(4 / 2.25),
+                "amr_frame": pytest.approx(0.5), "amr_first_image": pytest.approx(1 / 2.25)},
+        "no-yt": {"frame": pytest.approx(2.0), "first_image": pytest.approx(4 / 2.25),
+                  "amr_frame": pytest.approx(0.5), "amr_first_image": pytest.approx(1 / 2.25)}}
+    # The finest grid resampled, VTK's one failed and a dataset VTK cannot read: no ratio.
+    enzo_like = toy_row("enzo-like")
+    enzo_like["vtk"]["resample"] = {"read_s": 0.1, "error": "finest grid too big"}
+    assert bench_peers.vtk_ratios([enzo_like, {**toy_row("gerris"), "vtk": {
+        "error": "no VTK reader"}}]) == {"enzo-like": {
+            "amr_frame": pytest.approx(0.5), "amr_first_image": pytest.approx(1 / 2.25)}}
+    assert bench_peers._amr_grid(rows[0]["vtk"]["amr_mapper"], [0.125] * 3) == \
+        "4x4x4 points, 2.0-4.0 finest cells apart"
     n = 16
     t = math.tan(math.radians(15.0)) * (n - 1) / n
     assert bench_peers._off_axis_stretch(rows[0]["prep"]["camera"], n) == pytest.approx(
@@ -517,17 +734,34 @@ def _tables(lines):
     return tables
 
 
+def _vtk_variants():
+    """Rows whose VTK parts failed or were skipped in each way the report handles."""
+    enzo_like = toy_row("enzo-like")
+    enzo_like["vtk"]["resample"] = {"read_s": 0.1, "error": "finest grid too big"}
+    athena_like = toy_row("athena-like")
+    athena_like["vtk"]["amr_mapper"] = {"error": "not an AMR data set"}
+    return [enzo_like, athena_like, {**toy_row("no-reader"), "vtk": {"error": "no VTK reader"}},
+            {key: value for key, value in toy_row("no-vtk").items() if key != "vtk"}]
+
+
 @pytest.mark.parametrize("which", ["toy", "gerris"])
-def test_report_tables_are_whole(which, request, tmp_path):
+@pytest.mark.parametrize("no_vtk", [False, True])
+def test_report_tables_are_whole(which, no_vtk, request, tmp_path):
     """Every row of every table of the report has its header's number of cells, for
-    measured rows, a failed one and one without yt."""
-    rows = [toy_row(), {"name": "broken", "error": "missing"}] if which == "toy" \
-        else [request.getfixturevalue("gerris_row")]
+    measured rows, a failed one, one without yt and each way VTK is missing."""
+    rows = [toy_row(), {"name": "broken", "error": "missing"}, *_vtk_variants()] \
+        if which == "toy" else [request.getfixturevalue("gerris_row")]
     args = argparse.Namespace(
-        datasets="x", size=16, runs=2, no_yt=False, yt_max_cells=1000,
-        alpha_scale=bench_peers.ALPHA_SCALE, max_voxels=bench_peers.MAX_VOXELS,
+        datasets="x", size=16, runs=2, no_yt=False, yt_max_cells=1000, no_vtk=no_vtk,
+        vtk_threads=2, alpha_scale=bench_peers.ALPHA_SCALE, max_voxels=bench_peers.MAX_VOXELS,
         images=str(tmp_path / "images"), docs=str(tmp_path / "benchmarks.md"))
-    tables = _tables(bench_peers.report(rows, "test machine", args))
-    assert len(tables) == 3
+    lines = bench_peers.report(rows, "test machine", args)
+    tables = _tables(lines)
+    # exabricks vs yt, [VTK resample + fixed point, vtkAMRVolumeMapper,] cell location, ceiling
+    assert len(tables) == (3 if no_vtk else 5)
     for counts in tables:
         assert len(counts) > 2 and set(counts) == {counts[0]}, counts
+    text = "\n".join(lines)
+    assert ("--no-vtk" in lines[0]) == no_vtk and ("How VTK was matched" in text) == (not no_vtk)
+    if which == "gerris" and not no_vtk:
+        assert "| gerris (T) | no VTK reader |" in text

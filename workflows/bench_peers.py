@@ -1,10 +1,11 @@
-"""exabricks against yt, against per-sample cell location and against the uniform-grid ceiling.
+"""exabricks against yt, VTK, per-sample cell location and the uniform-grid ceiling.
 
     .venv/bin/python workflows/bench_peers.py [--datasets amrex,athena,gerris,enzo,big]
         [--size 1024] [--runs 5] [--no-yt] [--yt-max-cells 10000000]
+        [--no-vtk] [--vtk-threads CORES]
         [--docs docs/benchmarks.md] [--images docs/images]
 
-For every dataset three workers run one after the other, each in its own
+For every dataset the workers run one after the other, each in its own
 subprocess (so that each one's peak resident memory is its own), with the same
 field, camera, transfer function and image size:
 
@@ -38,6 +39,22 @@ field, camera, transfer function and image size:
    yt's default sampling: `num_samples = 10` samples per cell crossing. Skipped
    on datasets with more than --yt-max-cells leaf cells (default 10 M: yt never
    finished loading the 23.6 M-cell "big" dataset); the table says so.
+3. VTK (the `vtk` wheel from PyPI, 9.7), ParaView's CPU way, offscreen: the worker sets
+   VTK_DEFAULT_OPENGL_WINDOW=vtkEGLRenderWindow (EGL on Mesa's llvmpipe: Debian's libegl1,
+   libegl-mesa0, libgl1-mesa-dri; no X server) and LP_NUM_THREADS=--vtk-threads before
+   VTK loads. The reader ParaView would use (VTK_READERS: vtkAMReXGridReader,
+   vtkAMREnzoReader in code units, vtkXdmfReader on Athena++'s .athdf.xdmf; Gerris and
+   the ExaJet files have none: "no VTK reader"), every level, the field as cell data.
+   (a) vtkResampleToImage to the finest level's cell centres over the domain (the finest
+   cell size read from VTK's data; skipped above --max-voxels, e.g. Enzo's 2048^3), then
+   vtkFixedPointVolumeRayCastMapper with --vtk-threads threads and a fixed sample
+   distance of half a finest cell: resample seconds, first image (reader + resample +
+   render window + first frame) and the median of --runs frames (render + read-back)
+   after it. (b) vtkAMRVolumeMapper on the reader's vtkOverlappingAMR (Athena's XDMF
+   gives disjoint blocks, not an AMR: not run): first image and frames likewise, and the
+   grid it resampled to (its own vtkAMRResampleFilter's report on stderr, and the same
+   filter run again outside it for the spacing) and the render mode its smart mapper
+   chose. Images are compared with ours at rate 2 (the same sample spacing).
 
 Regions vs cell location (paper §6.4.2, Table 3): both reconstructions take
 the same samples (the regions decide where), and sum every sample's bricks in
@@ -106,6 +123,18 @@ yt.load_amr_grids. yt then has exactly our leaves and values (checked on the
 Gerris plume); the conversion is timed on its own and not counted as yt's
 load, but it is part of the yt process's peak memory.
 
+How VTK is matched (vtk_camera_parameters, vtk_volume_property, vtk_image_to_ours;
+tests/test_bench_peers.py checks each): the vtkCamera gets our position, look_at as focal
+point, our up' as view up and fovy as (vertical) view angle, with a clipping range around
+the data; VTK's perspective projection puts pixel centres where ours are, so the ray of
+every pixel is ours; VTK's frame starts at the bottom row and is flipped. The colour and
+opacity knots go into a vtkColorTransferFunction (RGB space) and a vtkPiecewiseFunction,
+clamped as ours, with SetScalarOpacityUnitDistance(unit): VTK's opacity correction
+1 - (1 - alpha)^(dt / unit) is ours. Differences that remain: the resampled grid holds
+cell values at cell centres (coarse cells repeated) and is trilinear between them, and
+stops half a finest cell inside each face; the fixed-point caster composites in 15 bits
+and stops at full opacity; the 8-bit framebuffer; vtkAMRVolumeMapper's coarse grid.
+
 Shared view: the default three-quarter camera of the world bounds; the
 built-in default preset (viridis) over the field's (min, max) with its
 opacity ramp 0 -> 1 scaled by --alpha-scale (0.1: semi-transparent, as volume
@@ -118,7 +147,8 @@ which a transfer function linear in the value shows as almost nothing.
 Results: the tables on stdout and as the section "## exabricks vs yt, cell
 location and the uniform-grid ceiling" of --docs (workflows/benchdoc.py
 replace_section; the other sections stay), and docs/images/peers-NAME.png
-(ours | yt | uniform grid, un-premultiplied over black). All timings are
+(ours | yt | VTK resample + fixed point | vtkAMRVolumeMapper | uniform grid,
+un-premultiplied over black). All timings are
 provisional on a shared machine; the command is written into the section.
 """
 
@@ -173,7 +203,11 @@ YT_MAX_CELLS = 10_000_000
 SECTION = "exabricks vs yt, cell location and the uniform-grid ceiling"
 # The issue's targets: yt / ours frame time at each tool's default sampling and with ours
 # at RATES[-1]; cell location / regions kernel time; ours / uniform-grid samples per second.
-TARGETS = {"yt_default": 5.0, "yt_equal": 1.5, "cell_location": 2.0, "ceiling": 0.5}
+# Issue 15's targets (issue 10's for cell location): yt's on the block-structured
+# datasets, VTK's as VTK time / ours (its frame at half a finest cell, ours at rate 2).
+TARGETS = {"yt_default": 6.0, "yt_equal": 2.5, "cell_location": 2.0, "ceiling": 0.8,
+           "vtk_frame": 2.0, "vtk_first_image": 3.0}
+BLOCK_STRUCTURED = ("amrex", "athena")
 
 
 # ----------------------------------------------------------------------------- helpers
@@ -504,7 +538,429 @@ def worker_yt(spec: dict) -> dict:
             "unit_vectors": np.asarray(cam.unit_vectors).tolist()}
 
 
-WORKERS = {"prepare": worker_prepare, "exabricks": worker_exabricks, "yt": worker_yt}
+# ----------------------------------------------------------------------------- VTK side
+
+# The VTK reader ParaView opens each dataset with (None: VTK has none) and the file it
+# opens: the plotfile directory, Enzo's .hierarchy, Athena++'s .athdf.xdmf sidecar.
+VTK_READERS = {"amrex": ("vtkAMReXGridReader", ""), "enzo": ("vtkAMREnzoReader", ".hierarchy"),
+               "athena": ("vtkXdmfReader", ".xdmf"), "gerris": None, "big": None}
+VTK_WINDOW = "vtkEGLRenderWindow"   # offscreen OpenGL through EGL (Mesa's llvmpipe here)
+VTK_SAMPLES_PER_CELL = RATES[0]     # fixed-point sample distance: finest cell / this (ours' rate 2)
+
+
+def vtk_source(name: str, path) -> Path | None:
+    """The file VTK's reader opens for dataset `name` at `path` (None: VTK has no reader).
+    A sidecar missing beside `path` (tests/data holds no .xdmf) is looked for in the
+    shared data folder's copy of the dataset."""
+    reader = VTK_READERS.get(name)
+    if reader is None:
+        return None
+    source = Path(str(path) + reader[1])
+    shared = ROOT.parent / "shared" / "data" / source.parent.name / source.name
+    return shared if not source.exists() and shared.exists() else source
+
+
+def vtk_skip_reason(name: str, path) -> str | None:
+    """Why VTK is not run on a dataset (None: it is run)."""
+    source = vtk_source(name, path)
+    if source is None:
+        return "no VTK reader"
+    if not source.exists():
+        return f"no VTK input: {source.name} missing"
+    return None
+
+
+def vtk_finest_grid(bounds, spacing) -> tuple[list[int], list[float]]:
+    """The finest level's cell-centred lattice over `bounds` (VTK's (xmin, xmax, ymin, ymax,
+    zmin, zmax)) with cell size `spacing` (3,): (dims = extent / spacing, rounded;
+    vtkResampleToImage's sampling bounds, the first and last cell centres on each axis)."""
+    b = np.asarray(bounds, np.float64).reshape(3, 2)
+    h = np.asarray(spacing, np.float64)
+    if (h <= 0).any() or not np.isfinite(h).all():
+        raise ValueError(f"finest cell size must be positive, got {h.tolist()}")
+    dims = np.rint((b[:, 1] - b[:, 0]) / h).astype(np.int64)
+    if (dims < 1).any():
+        raise ValueError(f"bounds {b.tolist()} hold no cell of size {h.tolist()}")
+    sampling = np.column_stack([b[:, 0] + 0.5 * h, b[:, 0] + (dims - 0.5) * h]).ravel()
+    return [int(d) for d in dims], [float(x) for x in sampling]
+
+
+def vtk_camera_parameters(camera, world_bounds) -> dict:
+    """vtkCamera settings that see exactly what `camera` sees (module docstring): position,
+    focal point = look_at, view up = our up' (orthogonal to the view), view angle = fovy
+    (VTK's angle is vertical unless UseHorizontalViewAngle), and a clipping range
+    (depths along the view direction) that holds the whole box `world_bounds` ([lo, hi])."""
+    position = np.asarray(camera.position, np.float64)
+    forward = np.asarray(camera.look_at, np.float64) - position
+    forward /= np.linalg.norm(forward)
+    right = np.cross(forward, np.asarray(camera.up, np.float64))
+    right /= np.linalg.norm(right)
+    up = np.cross(right, forward)
+    lo, hi = (np.asarray(b, np.float64) for b in world_bounds)
+    corners = np.array([[(lo, hi)[(k >> a) & 1][a] for a in range(3)] for k in range(8)])
+    depth = (corners - position) @ forward
+    far = float(depth.max()) * 1.01
+    if far <= 0.0:
+        raise ValueError("the data lies behind the camera")
+    near = max(float(depth.min()) * 0.99, far * 1e-4)
+    return {"position": position.tolist(), "focal_point": list(camera.look_at),
+            "view_up": up.tolist(), "view_angle": float(camera.fovy),
+            "clipping_range": [near, far]}
+
+
+def apply_vtk_camera(vtk_camera, params: dict) -> None:
+    """Set a vtkCamera from `vtk_camera_parameters`."""
+    vtk_camera.SetParallelProjection(False)
+    vtk_camera.SetUseHorizontalViewAngle(False)
+    vtk_camera.SetPosition(*params["position"])
+    vtk_camera.SetFocalPoint(*params["focal_point"])
+    vtk_camera.SetViewUp(*params["view_up"])
+    vtk_camera.SetViewAngle(params["view_angle"])
+    vtk_camera.SetClippingRange(*params["clipping_range"])
+
+
+def vtk_volume_property(tf, unit_distance: float):
+    """A vtkVolumeProperty equal to `tf`: a vtkColorTransferFunction (RGB space) through its
+    colour knots and a vtkPiecewiseFunction through its opacity knots, both clamped outside
+    (as ours), opacity per `unit_distance` (VTK corrects a step dt to
+    1 - (1 - alpha)^(dt / unit), as we do), no shading, trilinear interpolation."""
+    from vtkmodules.vtkCommonDataModel import vtkPiecewiseFunction
+    from vtkmodules.vtkRenderingCore import vtkColorTransferFunction, vtkVolumeProperty
+
+    colour = vtkColorTransferFunction()
+    colour.SetColorSpaceToRGB()
+    colour.SetClamping(True)
+    for x, r, g, b in tf.rgb_points:
+        colour.AddRGBPoint(float(x), float(r), float(g), float(b))
+    opacity = vtkPiecewiseFunction()
+    opacity.SetClamping(True)
+    for x, a in tf.alpha_points:
+        opacity.AddPoint(float(x), float(a))
+    prop = vtkVolumeProperty()
+    prop.SetColor(colour)
+    prop.SetScalarOpacity(opacity)
+    prop.SetScalarOpacityUnitDistance(float(unit_distance))
+    prop.ShadeOff()
+    prop.SetInterpolationTypeToLinear()
+    return prop
+
+
+def vtk_image_to_ours(pixels, width: int, height: int) -> np.ndarray:
+    """VTK's RGBA floats (rows from the bottom, premultiplied over the transparent black
+    background) as our float32 (row from the top, col, rgba) layout."""
+    image = np.asarray(pixels, np.float32).reshape(height, width, 4)
+    return np.ascontiguousarray(image[::-1])
+
+
+# vtkAMRResampleFilter reports on stderr how it resampled (vtkAMRResampleFilter.cxx):
+# the level it resolves to, the grid it made and the levels it took values from.
+_AMR_LOG = {
+    "requested_max_level": (r"Requested Max Level = (\d+)", int),
+    "requested_dims": (r"Request Grid Dim : (\d+), (\d+), (\d+)", int),
+    "computed_dims": (r"Computed Grid Dim: (\d+), (\d+), (\d+)", int),
+    "adjusted_dims": (r"Adjusted Grid Dim: (\d+), (\d+), (\d+)", int),
+    "levels_loaded": (r"Number Levels Loaded = (\d+)", int),
+    "blocks_loaded": (r"Number of Blocks = (\d+)", int),
+    "average_level": (r"Average Level: ([-+0-9.eE]+|nan)", float),
+    "failed_points": (r"Number Of Failed Points: (\d+)", int),
+}
+
+
+def parse_amr_resampler_log(text: str) -> dict:
+    """The figures vtkAMRResampleFilter printed (the last of each), as {key: value or list}."""
+    import re
+
+    out = {}
+    for key, (pattern, kind) in _AMR_LOG.items():
+        found = re.findall(pattern, text)
+        if found:
+            last = found[-1]
+            out[key] = [kind(x) for x in last] if isinstance(last, tuple) else kind(last)
+    return out
+
+
+class _StderrCapture:
+    """Collect what C++ code writes to file descriptor 2 inside a `with` block (.text)."""
+
+    def __enter__(self):
+        sys.stderr.flush()
+        self._file = tempfile.TemporaryFile()
+        self._saved = os.dup(2)
+        os.dup2(self._file.fileno(), 2)
+        return self
+
+    def __exit__(self, *exc):
+        sys.stderr.flush()
+        os.dup2(self._saved, 2)
+        os.close(self._saved)
+        self._file.seek(0)
+        self.text = self._file.read().decode(errors="replace")
+        self._file.close()
+        return False
+
+
+def _vtk_reader(kind: str, source: str, field: str):
+    """A VTK reader of `source` with `field` (cell data) selected and every level loaded."""
+    if kind == "vtkXdmfReader":
+        from vtkmodules.vtkIOXdmf2 import vtkXdmfReader
+
+        reader = vtkXdmfReader()
+        reader.SetFileName(source)
+        reader.UpdateInformation()
+        for i in range(reader.GetNumberOfCellArrays()):
+            name = reader.GetCellArrayName(i)
+            reader.SetCellArrayStatus(name, int(name == field))
+        return reader
+    from vtkmodules import vtkIOAMR
+
+    reader = getattr(vtkIOAMR, kind)()
+    reader.SetFileName(source)
+    if kind == "vtkAMREnzoReader":
+        reader.SetConvertToCGS(False)  # code units, as our reader and the transfer function
+    reader.UpdateInformation()
+    reader.SetMaxLevel(max(reader.GetNumberOfLevels(), 1) + 1)  # default: level 0 only
+    for i in range(reader.GetNumberOfCellArrays()):
+        name = reader.GetCellArrayName(i)
+        reader.SetCellArrayStatus(name, int(name == field))
+    return reader
+
+
+def _vtk_finest_spacing(data) -> list[float]:
+    """The smallest cell size (per axis) of a vtkOverlappingAMR (its finest level) or of the
+    leaf blocks of any other composite data set (image or rectilinear grids)."""
+    from vtkmodules.vtkCommonDataModel import vtkOverlappingAMR
+    from vtkmodules.util.numpy_support import vtk_to_numpy
+
+    if isinstance(data, vtkOverlappingAMR):
+        h = [0.0, 0.0, 0.0]
+        data.GetSpacing(data.GetNumberOfLevels() - 1, h)
+        return h
+    h = np.full(3, np.inf)
+    it = data.NewIterator()
+    it.InitTraversal()
+    while not it.IsDoneWithTraversal():
+        block = it.GetCurrentDataObject()
+        if hasattr(block, "GetXCoordinates"):
+            for a, coords in enumerate((block.GetXCoordinates(), block.GetYCoordinates(),
+                                        block.GetZCoordinates())):
+                c = vtk_to_numpy(coords)
+                if c.size > 1:
+                    h[a] = min(h[a], float(np.diff(c).min()))
+        elif hasattr(block, "GetSpacing"):
+            h = np.minimum(h, block.GetSpacing())
+        it.GoToNextItem()
+    return h.tolist()
+
+
+def worker_vtk(spec: dict) -> dict:
+    """VTK the way ParaView renders AMR on a CPU (module docstring): (a) the reader,
+    vtkResampleToImage to the finest level's cell centres, vtkFixedPointVolumeRayCastMapper;
+    (b) vtkAMRVolumeMapper on the reader's vtkOverlappingAMR. Offscreen through EGL."""
+    threads = int(spec.get("vtk_threads") or os.cpu_count() or 1)
+    # Read when the first render window is made (VTK) and when Mesa starts (llvmpipe).
+    os.environ["VTK_DEFAULT_OPENGL_WINDOW"] = VTK_WINDOW
+    os.environ["LP_NUM_THREADS"] = str(threads)
+    from exabricks.camera import Camera
+    from exabricks.transfer_function import TransferFunction
+
+    camera = Camera.from_dict(spec["camera"])
+    tf = TransferFunction.from_paraview_dict(spec["transfer_function"])
+    size, runs, field, unit = spec["size"], spec["runs"], spec["field"], spec["unit_distance"]
+    kind = VTK_READERS[spec["name"]][0]
+    source = str(vtk_source(spec["name"], spec["path"]))
+    view = vtk_camera_parameters(camera, spec["world_bounds"])
+
+    t = time.perf_counter()
+    import importlib
+
+    # The OpenGL render window and the OpenGL volume mappers, registered on import.
+    for module in ("vtkmodules.vtkRenderingOpenGL2", "vtkmodules.vtkRenderingVolumeOpenGL2"):
+        importlib.import_module(module)
+    from vtkmodules.util.numpy_support import vtk_to_numpy
+    from vtkmodules.vtkCommonCore import vtkFloatArray, vtkVersion
+    from vtkmodules.vtkCommonDataModel import vtkOverlappingAMR
+    from vtkmodules.vtkRenderingCore import vtkCamera, vtkRenderer, vtkRenderWindow, vtkVolume
+    t_import = time.perf_counter() - t
+
+    def window(volume):
+        rw = vtkRenderWindow()
+        rw.SetOffScreenRendering(True)
+        rw.SetMultiSamples(0)
+        rw.SetAlphaBitPlanes(True)
+        rw.SetSize(size, size)
+        ren = vtkRenderer()
+        ren.SetBackground(0.0, 0.0, 0.0)
+        ren.SetBackgroundAlpha(0.0)
+        cam = vtkCamera()
+        apply_vtk_camera(cam, view)
+        ren.SetActiveCamera(cam)
+        ren.AddVolume(volume)
+        rw.AddRenderer(ren)
+        out["window"] = rw.GetClassName()  # vtkEGLRenderWindow unless VTK fell back
+        return rw, ren
+
+    def frame(rw):
+        """Render, and read the frame back (as ours does): our image layout."""
+        rw.Render()
+        pixels = vtkFloatArray()
+        rw.GetRGBAPixelData(0, 0, size - 1, size - 1, 0, pixels, 0)
+        return vtk_image_to_ours(vtk_to_numpy(pixels), size, size)
+
+    def steady(rw):
+        times = []
+        for _ in range(runs):
+            t = time.perf_counter()
+            image = frame(rw)
+            times.append(time.perf_counter() - t)
+        return times, image
+
+    out = {"version": vtkVersion.GetVTKVersion(), "import_s": t_import, "reader": kind,
+           "threads": threads, "camera": view}
+
+    # (a) ParaView's CPU way: resample to the finest grid, fixed-point ray caster.
+    t0 = time.perf_counter()
+    reader = _vtk_reader(kind, source, field)
+    reader.Update()
+    t_read = time.perf_counter() - t0
+    data = reader.GetOutputDataObject(0)
+    if data is None:
+        raise SystemExit(f"VTK {kind}: nothing read from {source}")
+    is_amr = isinstance(data, vtkOverlappingAMR)
+    bounds = [0.0] * 6
+    data.GetBounds(bounds)
+    spacing = _vtk_finest_spacing(data)
+    dims, sampling = vtk_finest_grid(bounds, spacing)
+    out.update(bounds=bounds, finest_spacing=spacing, finest_dims=dims, amr=is_amr,
+               levels=data.GetNumberOfLevels() if is_amr else None)
+    a = out["resample"] = {"read_s": t_read, "dims": dims}
+    if int(np.prod(dims)) > spec["max_voxels"]:
+        a["error"] = f"finest grid {'x'.join(map(str, dims))} > --max-voxels {spec['max_voxels']:,}"
+    else:
+        from vtkmodules.vtkFiltersCore import vtkResampleToImage
+        from vtkmodules.vtkRenderingVolume import vtkFixedPointVolumeRayCastMapper
+
+        t = time.perf_counter()
+        resample = vtkResampleToImage()
+        resample.SetInputConnection(reader.GetOutputPort())
+        resample.SetUseInputBounds(False)
+        resample.SetSamplingBounds(*sampling)
+        resample.SetSamplingDimensions(*dims)
+        resample.Update()
+        a["resample_s"] = time.perf_counter() - t
+        image = resample.GetOutput()
+        valid = image.GetPointData().GetArray("vtkValidPointMask")
+        a["invalid_points"] = 0 if valid is None else int((vtk_to_numpy(valid) == 0).sum())
+        step = min(spacing) / VTK_SAMPLES_PER_CELL
+        mapper = vtkFixedPointVolumeRayCastMapper()
+        mapper.SetInputData(image)
+        mapper.SetScalarModeToUsePointFieldData()
+        mapper.SelectScalarArray(field)
+        mapper.SetNumberOfThreads(threads)
+        mapper.SetAutoAdjustSampleDistances(False)
+        mapper.SetLockSampleDistanceToInputSpacing(False)
+        mapper.SetSampleDistance(step)
+        mapper.SetInteractiveSampleDistance(step)
+        mapper.SetImageSampleDistance(1.0)
+        volume = vtkVolume()
+        volume.SetMapper(mapper)
+        volume.SetProperty(vtk_volume_property(tf, unit))
+        t = time.perf_counter()
+        rw, _ = window(volume)
+        frame(rw)
+        a["first_frame_s"] = time.perf_counter() - t
+        a["first_image_s"] = time.perf_counter() - t0
+        a["frame_s"], rgba = steady(rw)
+        a["sample_distance"] = mapper.GetSampleDistance()
+        a["mapper_threads"] = mapper.GetNumberOfThreads()
+        out["gl_renderer"] = _gl_renderer(rw)
+        np.save(spec["image_prefix"] + "-vtk.npy", rgba)
+        del rw, mapper, volume, image, resample
+    del reader, data
+
+    # (b) vtkAMRVolumeMapper: the reader's AMR, resampled by the mapper itself.
+    if not is_amr:
+        out["amr_mapper"] = {"error": "not an AMR data set (vtkAMRVolumeMapper needs a "
+                                      "vtkOverlappingAMR)"}
+        return out
+    from vtkmodules.vtkRenderingVolumeAMR import vtkAMRVolumeMapper
+
+    b = out["amr_mapper"] = {}
+    t0 = time.perf_counter()
+    reader = _vtk_reader(kind, source, field)
+    mapper = vtkAMRVolumeMapper()
+    mapper.SetInputConnection(reader.GetOutputPort())
+    mapper.SetScalarModeToUseCellFieldData()
+    mapper.SelectScalarArray(field)
+    volume = vtkVolume()
+    volume.SetMapper(mapper)
+    volume.SetProperty(vtk_volume_property(tf, unit))
+    rw, ren = window(volume)
+    with _StderrCapture() as log:
+        frame(rw)
+    b["first_image_s"] = time.perf_counter() - t0
+    b["frame_s"], rgba = steady(rw)
+    out.setdefault("gl_renderer", _gl_renderer(rw))
+    b["samples_requested"] = list(mapper.GetNumberOfSamples())
+    b["render_mode_requested"] = mapper.GetRequestedRenderMode()
+    b["resampler"] = parse_amr_resampler_log(log.text)
+    b.update(_amr_mapper_grid(reader, ren, mapper, field))
+    np.save(spec["image_prefix"] + "-vtk-amr.npy", rgba)
+    return out
+
+
+def _gl_renderer(render_window) -> str:
+    """The OpenGL renderer string of a render window that has rendered (e.g. llvmpipe)."""
+    caps = render_window.ReportCapabilities() or ""
+    return next((line.split(":", 1)[1].strip() for line in caps.splitlines()
+                 if line.startswith("OpenGL renderer string")), "?")
+
+
+def _amr_mapper_grid(reader, ren, mapper, field: str) -> dict:
+    """The grid vtkAMRVolumeMapper resampled to, made again outside it the same way
+    (vtkAMRVolumeMapper.cxx UpdateResamplerFrustrumMethod: a vtkAMRResampleFilter in
+    demand-driven mode over the data's part of the view frustum, NumberOfSamples points,
+    biased along the view direction), and which mode its smart mapper renders in."""
+    from vtkmodules.vtkFiltersAMR import vtkAMRResampleFilter
+    from vtkmodules.vtkRenderingVolumeAMR import vtkAMRVolumeMapper
+    from vtkmodules.vtkRenderingVolumeOpenGL2 import vtkSmartVolumeMapper
+
+    cam = ren.GetActiveCamera()
+    region = [0.0] * 6
+    bounds = [0.0] * 6
+    reader.GetOutputDataObject(0).GetBounds(bounds)
+    vtkAMRVolumeMapper.ComputeResamplerBoundsFrustumMethod(cam, ren, bounds, region)
+    resampler = vtkAMRResampleFilter()
+    resampler.SetInputConnection(reader.GetOutputPort())
+    resampler.SetDemandDrivenMode(0)  # as in the mapper: its input carries no AMR meta-data
+    resampler.SetNumberOfSamples(*mapper.GetNumberOfSamples())
+    resampler.SetMin(region[0], region[2], region[4])
+    resampler.SetMax(region[1], region[3], region[5])
+    resampler.SetBiasVector(*cam.GetDirectionOfProjection())
+    resampler.SetUseBiasVector(True)
+    with _StderrCapture() as log:
+        resampler.Update()
+    grid = resampler.GetOutput().GetBlock(0)
+    out = {"frustum_region": region, "replica_log": parse_amr_resampler_log(log.text)}
+    if grid is None:
+        return out
+    out.update(grid_dims=list(grid.GetDimensions()), grid_spacing=list(grid.GetSpacing()),
+               grid_origin=list(grid.GetOrigin()))
+    smart = vtkSmartVolumeMapper()
+    smart.SetInputData(grid)
+    smart.SetScalarModeToUsePointFieldData()
+    smart.SelectScalarArray(field)
+    probe = ren.GetVolumes().GetLastProp()
+    probe.SetMapper(smart)
+    ren.GetRenderWindow().Render()
+    used = smart.GetLastUsedRenderMode()
+    out["render_mode"] = {smart.RayCastRenderMode: "ray cast (CPU)", smart.GPURenderMode: "GPU",
+                          smart.OSPRayRenderMode: "OSPRay"}.get(used, str(used))
+    probe.SetMapper(mapper)
+    return out
+
+
+WORKERS = {"prepare": worker_prepare, "exabricks": worker_exabricks, "yt": worker_yt,
+           "vtk": worker_vtk}
 
 
 # ----------------------------------------------------------------------------- driver
@@ -530,8 +986,9 @@ def run_worker(kind: str, spec: dict, workdir: Path) -> dict:
 
 
 def side_by_side(paths, out: Path, size: int) -> None:
-    """ours | yt | uniform grid as one PNG, each composited over black; a missing image
-    is a grey tile, so the columns line up across datasets."""
+    """ours | yt | VTK (resample + fixed point) | VTK (vtkAMRVolumeMapper) | uniform grid
+    (the images at `paths`, in that order) as one PNG, each composited over black; a
+    missing image is a grey tile, so the columns line up across datasets."""
     from PIL import Image
 
     from exabricks.image_io import to_png_pixels
@@ -595,7 +1052,8 @@ def bench_dataset(name: str, args, workdir: Path) -> dict:
     if "error" in prep:
         return row
     shared = {**base, "camera": prep["camera"], "transfer_function": prep["transfer_function"],
-              "value_range": prep["value_range"], "unit_distance": prep["unit_distance"]}
+              "value_range": prep["value_range"], "unit_distance": prep["unit_distance"],
+              "world_bounds": prep["world_bounds"]}
     row["ours"] = run_worker("exabricks", shared, workdir)
     row["uniform"] = row["ours"].pop("uniform", None)
     row["cell_location"] = row["ours"].pop("cell_location", None)
@@ -603,12 +1061,23 @@ def bench_dataset(name: str, args, workdir: Path) -> dict:
         skip = yt_skip_reason(prep["cells"], args.yt_max_cells)
         row["yt"] = {"error": skip} if skip else \
             run_worker("yt", {**shared, "yt_mode": yt_mode}, workdir)
+    if not args.no_vtk:
+        import importlib.util
+
+        skip = vtk_skip_reason(name, path) or (
+            None if importlib.util.find_spec("vtk") else "vtk not installed (pip install vtk)")
+        row["vtk"] = {"error": skip} if skip else \
+            run_worker("vtk", {**shared, "vtk_threads": args.vtk_threads}, workdir)
     prefix = workdir / name
     low, high = (f"{r:g}" for r in RATES)
-    side_by_side([f"{prefix}-ours-{low}.npy", f"{prefix}-yt.npy", f"{prefix}-uniform-{low}.npy"],
+    side_by_side([f"{prefix}-ours-{low}.npy", f"{prefix}-yt.npy", f"{prefix}-vtk.npy",
+                  f"{prefix}-vtk-amr.npy", f"{prefix}-uniform-{low}.npy"],
                  Path(args.images) / f"peers-{name}.png", args.size)
     row["agreement"] = {
         "yt": image_agreement(f"{prefix}-ours-{high}.npy", f"{prefix}-yt.npy"),
+        # VTK samples every half finest cell: ours at the same density (rate 2).
+        "vtk": image_agreement(f"{prefix}-ours-{low}.npy", f"{prefix}-vtk.npy"),
+        "vtk-amr": image_agreement(f"{prefix}-ours-{low}.npy", f"{prefix}-vtk-amr.npy"),
         **{f"uniform-{r}": image_agreement(f"{prefix}-ours-{r}.npy", f"{prefix}-uniform-{r}.npy")
            for r in (low, high)}}
     return row
@@ -652,8 +1121,6 @@ def yt_ratios(rows, rate: str) -> dict:
 
 def gaps(rows, machine_line: str) -> list[str]:
     """Where the time goes and what would close the gaps, with this run's figures."""
-    from exabricks.stages.render import TILE
-
     measured = [r for r in rows if _measured(r)]
     if not measured:
         return []
@@ -665,9 +1132,10 @@ def gaps(rows, machine_line: str) -> list[str]:
             "compositing code as the uniform-grid marcher, which does one trilinear lookup "
             "per sample and no region walk.")
     if "pocl" in machine_line.lower():
-        text += (" On PoCL ours runs as scalar code, one work-item (ray) after another: the "
-                 "divergent loops of the region walk defeat PoCL's work-group vectorizer, "
-                 "while yt's C ray caster runs one OpenMP thread per core.")
+        text += (" On PoCL ours reconstructs and shades the next eight samples of a region at "
+                 "once in vector registers (sample packets, kernels/packet.cl), while the "
+                 "marcher stays scalar (one sample at a time, as our GPU path), and yt's C ray "
+                 "caster runs one OpenMP thread per core.")
     ceiling = ceiling_ratios(measured)
     if ceiling:
         (name, rate), worst = min(ceiling.items(), key=lambda kv: kv[1])
@@ -686,14 +1154,15 @@ def gaps(rows, machine_line: str) -> list[str]:
     return [
         text,
         "",
-        f"What would close the gaps: (1) packet tracing: the {TILE * TILE} rays of each "
-        f"{TILE} x {TILE} tile walked together with explicit vectors (one region list shared by the "
-        "packet, lanes masked as rays leave), which is how the ExaBricks authors' CPU "
-        "ancestors (OSPRay/ISPC) reach the vector units; (2) on octree-like data, larger "
-        "regions: merge runs of regions along a ray's dominant axis that share a brick list, "
-        "or build regions over 2x2x2 groups of small same-level bricks, so that a region "
-        "visit buys more samples. On a GPU the same kernels run one ray per lane without "
-        "these changes.",
+        "What would close the gaps (profile: docs/benchmarks.md, \"Where a frame's time goes "
+        "(perf)\"): with packets the reconstruction's gathers (one per corner, lane and listed "
+        "brick) and the transfer function's are the largest parts, then the polynomials of the "
+        "opacity correction; a packet of samples is on average 4-7 of 8 lanes full, since it "
+        "stays within one region visit. On octree-like data the region walk, which packets do "
+        "not touch, bounds the frame: fewer, larger regions (issue 10's merging) or a cheaper "
+        "step from one region to the next would help there; packets of rays that share a walk "
+        "would fill the lanes better on block-structured data. On a GPU the kernels run one "
+        "ray per lane, one sample at a time.",
     ]
 
 
@@ -723,7 +1192,11 @@ def target_figures(rows) -> dict:
         for rate in RATE_KEYS:
             cell[f"{r['name']} rate {float(rate):g}"] = (
                 _median(c["rates"][rate]["kernel_s"]) / _median(r["ours"]["rates"][rate]["kernel_s"]))
-    return {"yt_default": yt_ratios(rows, low), "yt_equal": yt_ratios(rows, high),
+    block = lambda ratios: {k: v for k, v in ratios.items() if k in BLOCK_STRUCTURED}
+    vtk = vtk_ratios(rows)
+    return {"yt_default": block(yt_ratios(rows, low)), "yt_equal": block(yt_ratios(rows, high)),
+            "vtk_frame": {k: v["frame"] for k, v in vtk.items() if "frame" in v},
+            "vtk_first_image": {k: v["first_image"] for k, v in vtk.items() if "first_image" in v},
             "cell_location": cell,
             "ceiling": {f"{name} rate {float(rate):g}": v
                         for (name, rate), v in ceiling_ratios(rows).items()}}
@@ -735,10 +1208,14 @@ def targets(rows) -> list[str]:
     return [
         "Targets (from this run):",
         "",
-        _verdict("yt / ours, each at its default sampling", TARGETS["yt_default"],
-                 figures["yt_default"], "x"),
-        _verdict(f"yt / ours, ours at {RATES[-1]:g} samples per finest cell",
+        _verdict("yt / ours, each at its default sampling (block-structured datasets)",
+                 TARGETS["yt_default"], figures["yt_default"], "x"),
+        _verdict(f"yt / ours, ours at {RATES[-1]:g} samples per finest cell (block-structured)",
                  TARGETS["yt_equal"], figures["yt_equal"], "x"),
+        _verdict("VTK fixed-point frame / ours at rate 2", TARGETS["vtk_frame"],
+                 figures["vtk_frame"], "x"),
+        _verdict("VTK to the first image from the files / ours", TARGETS["vtk_first_image"],
+                 figures["vtk_first_image"], "x"),
         _verdict("cell location / regions", TARGETS["cell_location"], figures["cell_location"], "x"),
         _verdict("ours / uniform-grid samples per second", TARGETS["ceiling"], figures["ceiling"], ""),
     ]
@@ -768,6 +1245,134 @@ def unit_note(rows) -> str:
                      for n, names in cells.items())
 
 
+def ours_first_image_s(r) -> float:
+    """Our time from the raw dataset to the first image: read + brick/regions/BVH build (the
+    prepare worker, without saving) + OpenCL program + upload + the first frame at rate 2."""
+    prep, o = r["prep"], r["ours"]
+    return (prep["read_s"] + prep["build_s"] + o["kernel_build_s"] + o["upload_s"]
+            + o["rates"][RATE_KEYS[0]]["first_frame_s"])
+
+
+def vtk_ratios(rows) -> dict:
+    """{dataset: {figure: VTK / ours}} where VTK ran: "frame" (median fixed-point frame /
+    median ours frame at rate 2), "first_image" (VTK's reader + resample + first frame /
+    ours_first_image_s), and "amr_frame", "amr_first_image" for vtkAMRVolumeMapper."""
+    out = {}
+    for r in rows:
+        v = r.get("vtk")
+        if not _measured(r) or not v or "error" in v:
+            continue
+        ours_frame, ours_first = _median(r["ours"]["rates"][RATE_KEYS[0]]["frame_s"]), \
+            ours_first_image_s(r)
+        figures = {}
+        for prefix, part in (("", v.get("resample", {})), ("amr_", v.get("amr_mapper", {}))):
+            if part.get("frame_s") and "error" not in part:
+                figures[prefix + "frame"] = _median(part["frame_s"]) / ours_frame
+                figures[prefix + "first_image"] = part["first_image_s"] / ours_first
+        out[r["name"]] = figures
+    return out
+
+
+def _amr_grid(b: dict, finest) -> str:
+    """'48x58x46 points, 2.2-2.8 finest cells apart' of vtkAMRVolumeMapper's grid."""
+    if "grid_dims" not in b:
+        return "-"
+    cells = np.asarray(b["grid_spacing"], np.float64) / np.asarray(finest, np.float64)
+    points = "x".join(map(str, b["grid_dims"]))
+    return f"{points} points, {_span(cells.tolist())} finest cells apart"
+
+
+def vtk_tables(rows, args) -> list[str]:
+    """The two VTK tables of the report (module docstring, "How VTK is matched")."""
+    low = RATE_KEYS[0]
+    ratios = vtk_ratios(rows)
+    lines = [
+        "| dataset (field) | VTK reader | finest grid (resampled) | VTK read / resample s "
+        "| VTK frame s (fixed point) | VTK first image s | ours frame s, rate "
+        f"{float(low):g} | VTK / ours frame | ours first image s | VTK / ours first image "
+        f"| peak RSS VTK MiB | image VTK vs ours (rate {float(low):g}): PSNR dB / SSIM |",
+        "|---|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|",
+    ]
+    amr = [
+        "| dataset | vtkAMRVolumeMapper grid (default 128^3 samples over the view frustum) "
+        "| its level of resolution / finest level / mean level sampled | render mode "
+        "| frame s | first image s "
+        "| frame / ours | first image / ours "
+        f"| image vs ours (rate {float(low):g}): PSNR dB / SSIM |",
+        "|---|---|---:|---|---:|---:|---:|---:|---:|",
+    ]
+    for r in rows:
+        name = f"{r['name']} ({r.get('field', '-')})"
+        v = r.get("vtk")
+        failed = r.get("error") or r.get("prep", {}).get("error") or r.get("ours", {}).get("error")
+        if failed or not v or "error" in v:
+            why = failed or (v["error"] if v else "not run (--no-vtk)")
+            lines.append(f"| {name} | {why} |" + " |" * 10)
+            amr.append(f"| {r['name']} | {why} |" + " |" * 7)
+            continue
+        o, a, b = r["ours"], v.get("resample", {}), v.get("amr_mapper", {})
+        f_low = o["rates"][low]["frame_s"]
+        ours_first = ours_first_image_s(r)
+        agreement = r.get("agreement", {})
+        grid = "x".join(map(str, v["finest_dims"]))
+        if "error" in a or not a.get("frame_s"):
+            lines.append(f"| {name} | {v['reader']} | {a.get('error', 'no frames')} "
+                         f"| {a.get('read_s', 0.0):.2f} / - | - | - | {fmt_s(f_low)} | - "
+                         f"| {ours_first:.2f} | - | {v.get('peak_rss_mib', 0.0):.0f} | - |")
+        else:
+            lines.append(
+                f"| {name} | {v['reader']} | {grid} | {a['read_s']:.2f} / {a['resample_s']:.2f} "
+                f"| {fmt_s(a['frame_s'])} | {a['first_image_s']:.2f} | {fmt_s(f_low)} "
+                f"| {ratios[r['name']]['frame']:.1f}x | {ours_first:.2f} "
+                f"| {ratios[r['name']]['first_image']:.1f}x | {v.get('peak_rss_mib', 0.0):.0f} "
+                f"| {fmt_agreement(agreement.get('vtk'))} |")
+        if "error" in b or not b.get("frame_s"):
+            amr.append(f"| {r['name']} | {b.get('error', 'no frames')} |" + " |" * 7)
+        else:
+            log = b.get("resampler", {})
+            level, mean = log.get("requested_max_level"), log.get("average_level")
+            levels = (f"{'-' if level is None else level} / {(v.get('levels') or 0) - 1} / "
+                      f"{'-' if mean is None else f'{mean:.2f}'}")
+            amr.append(
+                f"| {r['name']} | {_amr_grid(b, v['finest_spacing'])} "
+                f"| {levels} | {b.get('render_mode', '-')} "
+                f"| {fmt_s(b['frame_s'])} | {b['first_image_s']:.2f} "
+                f"| {ratios[r['name']]['amr_frame']:.1f}x "
+                f"| {ratios[r['name']]['amr_first_image']:.1f}x "
+                f"| {fmt_agreement(agreement.get('vtk-amr'))} |")
+    ran = [r["vtk"] for r in rows if r.get("vtk") and "threads" in r["vtk"]]
+    threads = ", ".join(map(str, sorted({v["threads"] for v in ran}))) or \
+        str(getattr(args, "vtk_threads", "-"))
+    renderer = ", ".join(sorted({v.get("gl_renderer", "?") for v in ran})) or "Mesa's llvmpipe"
+    version = " " + "/".join(sorted({v["version"] for v in ran})) if ran else ""
+    return [
+        f"### exabricks vs VTK{version} (ParaView's CPU way; same field, camera, transfer "
+        "function, image size)",
+        "",
+        "VTK renders offscreen through EGL (`VTK_DEFAULT_OPENGL_WINDOW=vtkEGLRenderWindow`) on "
+        f"{renderer}, `LP_NUM_THREADS={threads}`. *Resample + fixed point*: the dataset's VTK "
+        "reader (every level, the field as cell data), `vtkResampleToImage` to the finest "
+        "level's cell centres over the domain (once), `vtkFixedPointVolumeRayCastMapper` "
+        f"({threads} threads, sample distance half a finest cell, i.e. ours at rate "
+        f"{float(low):g}, no automatic adjustment, trilinear, no shading); first image = "
+        "reader + resample + render window + first frame; frame = render + read-back, the "
+        f"median of {args.runs} after that. *vtkAMRVolumeMapper*: on the reader's "
+        "vtkOverlappingAMR, which it resamples itself to NumberOfSamples (default 128^3) "
+        "points spread over the bounding box of the view frustum between the data's nearest "
+        "and farthest depth, clipped to the domain (so fewer points land in the data), and "
+        "renders with a vtkSmartVolumeMapper (render mode: what it chose here). Its grid is "
+        "rebuilt outside it the same way to read the spacing; the level of resolution is what "
+        "its vtkAMRResampleFilter printed (it still takes values from every level the reader "
+        "loaded). Ours: first image = read + build (no .npz round trip) + OpenCL program + "
+        f"upload + first frame; frames at rate {float(low):g}, shading none. Ratios above 1: "
+        "VTK slower. Datasets without a VTK reader say so.",
+        "",
+        *lines,
+        "",
+        *amr,
+    ]
+
+
 def report(rows, machine_line: str, args) -> list[str]:
     """The markdown body of the docs section (module docstring)."""
     low, high = RATE_KEYS
@@ -776,6 +1381,9 @@ def report(rows, machine_line: str, args) -> list[str]:
                f"--size {args.size} --runs {args.runs}")
     if args.no_yt:
         command += " --no-yt"
+    no_vtk = getattr(args, "no_vtk", False)
+    if no_vtk:
+        command += " --no-vtk"
     lines = [
         f"Command: `{command}`",
         "",
@@ -826,6 +1434,8 @@ def report(rows, machine_line: str, args) -> list[str]:
             f"| {fmt_s(f_low)} | {fmt_s(f_high)} "
             f"| {yt_load} | {yt_frame} | {ratio_low} | {ratio_high} | {rss} "
             f"| {fmt_agreement(r.get('agreement', {}).get('yt'))} |")
+    if not no_vtk:
+        lines += ["", *vtk_tables(rows, args)]
     lines += [
         "",
         "### regions vs cell location (paper Table 3)",
@@ -839,7 +1449,10 @@ def report(rows, machine_line: str, args) -> list[str]:
         "(min-max of the per-round ratios). Tree build: in a warm process (in brackets: the "
         "first build in the process, with numba loading its compiled code). Shading none, "
         "as in the rest of this section (the paper's Table 3 shades both with analytic "
-        "gradients).",
+        "gradients). On a CPU *regions* runs with sample packets (kernels/packet.cl) and "
+        "cell location one sample at a time (a per-sample descent has no shared brick list "
+        "to vectorise), so the speed-up there includes the packets' (docs/benchmarks.md, "
+        "\"render (PoCL)\": 1.5-1.9x); on a GPU both run one sample at a time.",
         "",
         "| dataset | bricks | tree nodes / depth / build ms (first) | rate | samples | regions ms "
         "| cell location ms | speed-up | same frame (max abs diff) |",
@@ -946,10 +1559,35 @@ def report(rows, machine_line: str, args) -> list[str]:
         "not to the last bit (PSNR/SSIM column).",
         "",
     ]
+    if not no_vtk:
+        lines += [
+            "How VTK was matched (workflows/bench_peers.py, `worker_vtk`):",
+            "",
+            "- Camera: a vtkCamera with our position, focal point = look_at, view up = our up' "
+            "(orthogonal to the view), view angle = fovy (vertical) and a clipping range "
+            "around the data; VTK's perspective rays and ours both go through pixel centres, "
+            "so the frames coincide; VTK's image rows start at the bottom and are flipped.",
+            "- Transfer function: a vtkColorTransferFunction (RGB space) through our colour "
+            "knots and a vtkPiecewiseFunction through our opacity knots, both clamped, "
+            "`SetScalarOpacityUnitDistance(unit_distance)`: VTK corrects a step's opacity "
+            "to `1 - (1 - alpha)^(dt / unit)` as we do.",
+            f"- Sampling: a constant step of half a finest cell (ours at rate {rl:g}), "
+            "no jitter; images compared with ours at that rate. The frame is VTK's 8-bit "
+            "framebuffer (premultiplied over transparent black), read back as floats.",
+            "- Still different: the resampled grid holds each finest cell's value at its "
+            "centre (coarse cells repeated), trilinear between centres, so half a finest "
+            "cell at each face of the domain is not rendered; we reconstruct with the basis "
+            "method. The fixed-point caster composites in 15-bit fixed point with its own "
+            "tables and stops rays at full opacity (ours at "
+            f"{MAX_OPACITY:g}). vtkAMRVolumeMapper samples a much coarser grid (its table "
+            "row) and renders it with its own sample distance.",
+            "",
+        ]
     for r in rows:
         png = Path(args.images) / f"peers-{r['name']}.png"
         if png.is_file():
-            lines.append(f"![{r['name']}: ours | yt | uniform grid (grey: not run)]"
+            lines.append(f"![{r['name']}: ours | yt | VTK resample + fixed point | "
+                         "vtkAMRVolumeMapper | uniform grid (grey: not run)]"
                          f"({os.path.relpath(png, Path(args.docs).parent)})")
     return lines
 
@@ -962,6 +1600,12 @@ def machine() -> str:
             versions.append(f"{module} {getattr(__import__(module), attribute)}")
         except ImportError:
             versions.append(f"{module} not installed")
+    try:
+        from importlib.metadata import version
+
+        versions.append(f"vtk {version('vtk')}")
+    except ImportError:
+        versions.append("vtk not installed")
     return f"{benchdoc.machine(opencl=True)}, {', '.join(versions)} (yt: OpenMP, all cores)"
 
 
@@ -979,6 +1623,11 @@ def main(argv=None) -> int:
     p.add_argument("--no-yt", action="store_true", help="skip yt (exabricks and the ceiling only)")
     p.add_argument("--yt-max-cells", type=int, default=YT_MAX_CELLS,
                    help="skip yt on datasets with more leaf cells than this")
+    p.add_argument("--no-vtk", action="store_true",
+                   help="skip VTK (resample + fixed-point ray caster, vtkAMRVolumeMapper)")
+    p.add_argument("--vtk-threads", type=int, default=os.cpu_count() or 1,
+                   help="threads of VTK's fixed-point ray caster and of Mesa's llvmpipe "
+                        "(LP_NUM_THREADS); default: all cores")
     p.add_argument("--json", help="also write the raw results here")
     p.add_argument("--worker", nargs=3, metavar=("KIND", "SPEC", "RESULT"), help=argparse.SUPPRESS)
     args = p.parse_args(argv)
@@ -995,6 +1644,8 @@ def main(argv=None) -> int:
         p.error("--size must be at least 2")
     if args.runs < 1:
         p.error("--runs must be at least 1")
+    if args.vtk_threads < 1:
+        p.error("--vtk-threads must be at least 1")
     machine_line = machine()
     rows = []
     with tempfile.TemporaryDirectory(prefix="bench-peers-") as tmp:

@@ -1,4 +1,4 @@
-"""Benchmark the OpenCL renderer (paper §4) on the four shared datasets, both region walks.
+"""Benchmark the OpenCL renderer (paper §4) on the shared datasets: region walks, sample paths.
 
     .venv/bin/python workflows/bench_render.py [--runs 5] [--size 512] [--only gerris,...]
                                                [--work bench-data/render] [--write-docs]
@@ -6,16 +6,18 @@
 Each dataset is run through ingest, brick, regions and bvh (the `exabricks`
 stage commands, once, into --work/<name>/; not timed). A `Renderer` uploads it,
 then for each traversal ("ordered": the private min-heap walk, "retrace": the
-paper's re-trace from the root per region) the script renders one warm-up
-frame and --runs timed frames of size x size (the walks alternating) with the
+paper's re-trace from the root per region) on the device's default path, and
+for the ordered walk on the other path (sample packets or one sample at a
+time: on a CPU the packets are the default), the script renders one warm-up
+frame and --runs timed frames of size x size (the variants alternating) with the
 default camera on the data bounds (exabricks.camera.default_camera), the default transfer function
 over the field's range (exabricks.transfer_function.default_transfer_function)
 and the render defaults (sampling rate 2, headlight shading, jitter, seed 0,
 max opacity 0.98). Reported per frame: kernel wall time (median and min-max),
 reconstructed samples, samples per second (samples / median time), and the
 process CPU time per frame (median; all PoCL threads, less sensitive to other
-jobs on a shared machine than wall time). The two
-walks must give the same image (checked: max abs difference printed).
+jobs on a shared machine than wall time). All variants must give the same
+image up to float rounding (checked: the largest difference is printed).
 The datasets are the four shared real ones (workflows/benchdoc.py; `--only big`
 renders the generated 23.6 M-cell one instead).
 --write-docs replaces the "## render (PoCL)" section of docs/benchmarks.md.
@@ -50,7 +52,9 @@ ms/frame is the kernel's wall time per frame (`Renderer.render` stats "ms": enqu
 to finish, no upload or read-back); samples are the reconstructions the kernel
 counts (one per sub-interval of the adaptive sampling, §4.2-4.3); CPU ms/frame is
 the process CPU time of a `render` call (all of the OpenCL runtime's threads). Both
-walks give the same image (max abs difference printed by the script).
+walks and both paths (sample packets, the CPU default, kernels/packet.cl; one sample
+at a time, the GPU path) give the same image up to float rounding (the largest
+difference is printed by the script).
 """
 
 
@@ -62,14 +66,19 @@ def time_notes(region_stats: dict) -> str:
     count = [s["avg_bricks_per_region_by_count"] for s in region_stats.values()]
     volume = [s["avg_bricks_per_region_by_volume"] for s in region_stats.values()]
     return (
-        "Where the time goes: a frame costs the latency of each sample's dependent chain: "
-        "the reconstruction (the hat sums of every brick of the region's list, "
+        "Where the time goes: per sample the reconstruction (the hat sums of every brick of "
+        "the region's list, "
         f"{min(count):.1f}-{max(count):.1f} bricks per region by count and "
         f"{min(volume):.1f}-{max(volume):.1f} by volume on these datasets), the transfer "
-        "function, the opacity and the compositing. On PoCL the kernel runs as scalar code, "
-        "one work-item after another (the divergent loops defeat its work-group vectorizer). "
-        "The uniform-grid marcher (same transfer function, opacity and compositing code, one "
-        "trilinear lookup per sample) is measured in the same run as ours in the section "
+        "function, the opacity and the compositing; per region visit a step of the walk. "
+        "One sample at a time, PoCL runs the kernel as scalar code (the divergent loops "
+        "defeat its work-group vectorizer) and each sample pays the latency of its "
+        "dependent chain; with sample packets (kernels/packet.cl) a ray reconstructs and "
+        "shades the next eight samples of a region in vector registers. The profile of both "
+        "paths is in the section \"Where a frame's time goes (perf)\" "
+        "(workflows/profile_render.py). The uniform-grid marcher (same transfer function, "
+        "opacity and compositing code, one trilinear lookup per sample, one sample at a "
+        "time) is measured in the same run as ours in the section "
         "\"exabricks vs yt, cell location and the uniform-grid ceiling\".")
 
 
@@ -94,9 +103,18 @@ def ensure_scene(work: Path, dataset: benchdoc.Dataset) -> Path:
     return d
 
 
+def variants(renderer) -> dict:
+    """{label: renderer}: both walks on the device's default path, and the ordered walk
+    on the other path (sample packets on a CPU, one sample at a time elsewhere)."""
+    path = lambda packets: "packets" if packets else "one sample"
+    out = {(t, path(renderer.packets)): renderer for t in TRAVERSALS}
+    out["ordered", path(not renderer.packets)] = renderer.with_packets(not renderer.packets)
+    return out
+
+
 def bench_one(d: Path, field: str, frames: int, size: int):
-    """{traversal: (times ms, samples, rgba, CPU ms)}, the device description and the
-    regions' statistics (their meta["statistics"])."""
+    """{(traversal, path): (times ms, samples, rgba, CPU ms)}, the device description and
+    the regions' statistics (their meta["statistics"])."""
     b = schema.load(d / "bricks.npz", "bricks")
     r = schema.load(d / "regions.npz", "regions")
     v = schema.load(d / "bvh.npz", "bvh")
@@ -105,21 +123,22 @@ def bench_one(d: Path, field: str, frames: int, size: int):
     tf = default_transfer_function((float(values.min()), float(values.max())))
     lo, hi = schema.world_bounds(b)
     cam = default_camera(np.asarray(lo), np.asarray(hi))
-    times = {t: [] for t in TRAVERSALS}
-    cpu = {t: [] for t in TRAVERSALS}
+    runs = variants(renderer)
+    times = {k: [] for k in runs}
+    cpu = {k: [] for k in runs}
     last = {}
-    # The walks alternate frame by frame, so a change in machine load hits both alike.
+    # The variants alternate frame by frame, so a change in machine load hits all alike.
     for i in range(frames + 1):
-        for traversal in TRAVERSALS:
+        for (traversal, path), x in runs.items():
             c0 = time.process_time()
-            result = renderer.render(camera=cam, transfer_function=tf, width=size, height=size,
-                                     traversal=traversal)
+            result = x.render(camera=cam, transfer_function=tf, width=size, height=size,
+                              traversal=traversal)
             if i:  # round 0 is the warm-up
-                times[traversal].append(result.stats["ms"])
-                cpu[traversal].append(1e3 * (time.process_time() - c0))
-            last[traversal] = result
-    out = {t: (np.array(times[t]), last[t].stats["samples"], last[t].rgba, np.array(cpu[t]))
-           for t in TRAVERSALS}
+                times[traversal, path].append(result.stats["ms"])
+                cpu[traversal, path].append(1e3 * (time.process_time() - c0))
+            last[traversal, path] = result
+    out = {k: (np.array(times[k]), last[k].stats["samples"], last[k].rgba, np.array(cpu[k]))
+           for k in runs}
     scene = renderer.scene
     device = (f"{scene.device.name.strip()} ({scene.device.platform.version.strip()}, "
               f"{scene.device.max_compute_units} compute units)")
@@ -139,23 +158,26 @@ def main(argv=None) -> int:
     if args.runs < 1:
         parser.error("--runs must be at least 1")
 
-    rows, device, region_stats = [], "?", {}
+    rows, device, region_stats, speedups = [], "?", {}, []
     sets = benchdoc.datasets()
     keys = benchdoc.chosen(args.only, list(sets)) if args.only else DEFAULT
     for key in keys:
         name, field = sets[key].name, sets[key].field
         d = ensure_scene(args.work, sets[key])
         results, device, region_stats[name] = bench_one(d, field, args.runs, args.size)
-        images = [results[t][2] for t in TRAVERSALS]
-        diff = float(np.max(np.abs(images[0] - images[1])))
-        for traversal in TRAVERSALS:
-            times, samples, _, cpu = results[traversal]
-            med = float(np.median(times))
-            row = (f"| {name} | {field} | {traversal} | {benchdoc.fmt_spread(times, '', 0)} "
-                   f"| {samples:,} | {samples / med / 1e3:.1f} | {np.median(cpu):.0f} |")
+        first = next(iter(results))
+        diff = max(float(np.max(np.abs(results[k][2] - results[first][2]))) for k in results)
+        med = {k: float(np.median(results[k][0])) for k in results}
+        for (traversal, path), (times, samples, _, cpu) in results.items():
+            row = (f"| {name} | {field} | {traversal} | {path} "
+                   f"| {benchdoc.fmt_spread(times, '', 0)} | {samples:,} "
+                   f"| {samples / med[traversal, path] / 1e3:.1f} | {np.median(cpu):.0f} |")
             rows.append(row)
             print(row, flush=True)
-        print(f"  {name}: max |ordered - retrace| = {diff:.2e}", flush=True)
+        speedup = med["ordered", "one sample"] / med["ordered", "packets"]
+        speedups.append(f"{name} {speedup:.2f}x")
+        print(f"  {name}: packets / one sample {speedup:.2f}x; largest difference between "
+              f"the images of the variants {diff:.2e}", flush=True)
 
     command = "`.venv/bin/python workflows/bench_render.py" + (
         f" --only {','.join(keys)}" if args.only else "") + f" --runs {args.runs}" + (
@@ -164,10 +186,13 @@ def main(argv=None) -> int:
                f"- machine: {benchdoc.machine()}, load average {benchdoc.load_average()} "
                f"at the end\n- OpenCL device: {device}\n"
                f"- frames: {args.size}x{args.size}, default camera and transfer function, "
-               f"median of {args.runs} frames after one warm-up, the two walks alternating "
-               f"frame by frame (min-max in brackets)\n\n"
-               "| dataset | field | traversal | ms/frame | samples/frame | M samples/s | CPU ms/frame |\n"
-               "|---|---|---|---:|---:|---:|---:|\n"
+               f"median of {args.runs} frames after one warm-up, the variants alternating "
+               f"frame by frame (min-max in brackets)\n"
+               f"- sample packets against one sample at a time (ordered walk, frame time): "
+               f"{', '.join(speedups)}\n\n"
+               "| dataset | field | traversal | path | ms/frame | samples/frame | M samples/s "
+               "| CPU ms/frame |\n"
+               "|---|---|---|---|---:|---:|---:|---:|\n"
                + "\n".join(rows) + "\n" + NOTES + "\n" + time_notes(region_stats) + "\n")
     benchdoc.publish(SECTION, section, args.write_docs)
     return 0
