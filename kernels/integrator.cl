@@ -56,8 +56,9 @@ EB_INLINE int eb_sample_step(eb_frame *fr, eb_ray *ray, eb_basis_sums *s, float3
  * basis reconstruction from the region's list applies: reconstruction and,
  * for one volume layer with analytic gradients, the medium vectorised; the
  * surfaces and the compositing lane by lane. */
-__attribute__((noinline)) int eb_sample_packets(eb_frame *fr, eb_ray *ray, int r, int level, eb_intervals *it,
-                                const int shade, eb_ray_state *st)
+__attribute__((noinline)) int eb_sample_packets(eb_frame *fr, eb_ray *ray, int r, int level,
+                                                eb_intervals *it, const int shade,
+                                                eb_ray_state *st)
 {
     const int grad = shade && !fr->central;
     const int medium = fr->look.n_layers == 1 && !fr->central;
@@ -133,7 +134,7 @@ __attribute__((noinline)) int eb_sample_packets(eb_frame *fr, eb_ray *ray, int r
 
 /* The samples of region r over [t_in, t_out] at step dt (its level `level`). */
 EB_PROFILED int eb_sample_interval(eb_frame *fr, eb_ray *ray, int r, int level, float t_in,
-                                 float t_out, float dt, const int shade, eb_ray_state *st)
+                                   float t_out, float dt, const int shade, eb_ray_state *st)
 {
     eb_intervals it = eb_intervals_start(t_in, t_out, dt, ray->rho);
 #ifdef EB_PACKET
