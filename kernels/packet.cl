@@ -45,10 +45,10 @@ typedef int16 eb_vi;
 #else
 #error "EB_PACKET must be 8 or 16"
 #endif
-/* A region's samples go by packets while at least this many are left; the
- * last one or two take the one-sample path, which is cheaper for them
- * (docs/benchmarks.md, "Sample packets"). */
-#define EB_PACKET_MIN_LANES 3
+/* A region's samples go by packets while at least this many are left; a last
+ * single one takes the one-sample path, which is cheaper for it (measured with
+ * 1 to 5: docs/design.md, "Sample packets on CPU devices"). */
+#define EB_PACKET_MIN_LANES 2
 
 /* v[i] lane by lane (LLVM makes a gather instruction of it on AVX2/AVX-512). */
 #define EB_GATHER(v, i) EB_GATHER_AS(eb_vf, v, i)
