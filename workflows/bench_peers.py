@@ -1452,7 +1452,7 @@ def report(rows, machine_line: str, args) -> list[str]:
         "gradients). On a CPU *regions* runs with sample packets (kernels/packet.cl) and "
         "cell location one sample at a time (a per-sample descent has no shared brick list "
         "to vectorise), so the speed-up there includes the packets' (docs/benchmarks.md, "
-        "\"render (PoCL)\": 1.5-1.9x); on a GPU both run one sample at a time.",
+        "\"render (PoCL)\": 1.5-2.0x); on a GPU both run one sample at a time.",
         "",
         "| dataset | bricks | tree nodes / depth / build ms (first) | rate | samples | regions ms "
         "| cell location ms | speed-up | same frame (max abs diff) |",
