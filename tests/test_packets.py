@@ -22,7 +22,7 @@ from exabricks.camera import default_camera
 from exabricks.readers import read
 from exabricks.scene import Clip, IsoSurface, Lighting, Scene, Settings, Slice, VolumeLayer
 from exabricks.stages.render import PACKET_WIDTH, Renderer
-from exabricks.transfer_function import TransferFunction, default_transfer_function
+from exabricks.transfer_function import TransferFunction, default_transfer_function, knot_buckets
 
 from conftest import AMREX, ATHENA, ENZO, GERRIS, build, device_param
 
@@ -147,3 +147,41 @@ def test_cpu_devices_take_packets_by_default(device):
     built = loaded("gerris")[0]
     r = Renderer(built.bricks, built.regions, built.bvh, field="T", device=device)
     assert r.packets == opencl.is_cpu(opencl.choose_device(device))
+
+
+def device_knot_below(index: np.ndarray, xs: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """The knot below each value as eb_packet_lookup finds it from the knot index, in
+    float32 like the device (values inside (xs[0], xs[-1]))."""
+    k, m, first = int(index[0]), int(index[1]), index[2:]
+    scale = np.float32(k) / (xs[-1] - xs[0])
+    x = np.minimum(np.maximum((v - xs[0]) * scale, np.float32(0)), np.float32(k - 1))
+    base = first[x.astype(np.int32)]
+    lo = base.copy()
+    for s in range(1, m + 1):
+        cand = np.minimum(base + s, len(xs) - 1)
+        lo += ((base + s < len(xs)) & (xs[cand] <= v)).astype(lo.dtype)
+    return lo
+
+
+@pytest.mark.parametrize("kind", ["colormap", "clustered", "random", "two"])
+def test_knot_index_finds_the_knot_below_every_value(kind, rng):
+    """The knot index gives the binary search's answer for every float32 value, knots
+    and their float neighbours included, however unevenly the knots are spaced."""
+    if kind == "colormap":
+        xs = default_transfer_function((-3.0, 7.5)).merged_knots()[0]
+    elif kind == "clustered":
+        xs = np.concatenate([np.linspace(0, 1, 50), 1 + np.cumsum(rng.random(30) * 1e-5),
+                             np.linspace(2, 1e3, 7)])
+    elif kind == "random":
+        xs = np.cumsum(rng.random(300) ** 4 + 1e-6) - 50.0
+    else:
+        xs = np.array([0.25, 0.5])
+    xs = np.unique(np.asarray(xs, np.float32))
+    index = knot_buckets(xs)
+    assert index[0] <= 4 * len(xs) and index[1] >= 0
+    near = np.concatenate([xs, np.nextafter(xs, np.float32(np.inf)),
+                           np.nextafter(xs, np.float32(-np.inf))])
+    v = np.concatenate([near, rng.uniform(xs[0], xs[-1], 20000).astype(np.float32)])
+    v = v[(v > xs[0]) & (v < xs[-1])]
+    want = np.searchsorted(xs, v, side="right") - 1
+    np.testing.assert_array_equal(device_knot_below(index, xs, v), want)

@@ -389,7 +389,8 @@ ISO_TOLERANCE_CELLS = 1e-3
 def frame_args(scene: Scene, device_scene: DeviceScene, queue) -> list:
     """Kernel arguments EB_FRAME_ARGS (kernels/render.cl) of `scene`: every transfer
     function and colour map as merged knots one after the other (and each volume
-    layer's knot index, transfer_function.knot_buckets), the volume layers, iso-surfaces and slices by field index on the device, and clipping."""
+    layer's knot index, transfer_function.knot_buckets), the volume layers,
+    iso-surfaces and slices by field index on the device, and clipping."""
     up = opencl.to_device
     index = {name: i for i, name in enumerate(device_scene.fields)}
     xs, rgba = [], []
