@@ -1,5 +1,5 @@
 /* Sample packets for CPU devices (docs/design.md, "Sample packets"): built
- * with -DEB_PACKET=W (8 or 16), a ray reconstructs the next W samples of a
+ * with -DEB_PACKET=8, a ray reconstructs the next eight samples of a
  * region at once with OpenCL vector types, one lane per sample. The lanes
  * share what a packet of rays would have to gather: the region, its brick
  * list and each brick's box, dims and values pointer; only the cell indices
@@ -18,7 +18,11 @@
 #include "common.h"
 #include "scene.cl"
 
-#if EB_PACKET == 8
+/* Eight lanes: sixteen ran no faster on PoCL (its LLVM prefers 256-bit vectors
+ * here) and waste more lanes at region ends (docs/design.md). */
+#if EB_PACKET != 8
+#error "build with -DEB_PACKET=8"
+#endif
 typedef float8 eb_vf;
 typedef int8 eb_vi;
 #define eb_convert_vi convert_int8
@@ -29,22 +33,7 @@ typedef int8 eb_vi;
 #define eb_vstore vstore8
 #define EB_GATHER_AS(T, v, i) ((T)((v)[(i).s0], (v)[(i).s1], (v)[(i).s2], (v)[(i).s3], \
                                     (v)[(i).s4], (v)[(i).s5], (v)[(i).s6], (v)[(i).s7]))
-#elif EB_PACKET == 16
-typedef float16 eb_vf;
-typedef int16 eb_vi;
-#define eb_convert_vi convert_int16
-#define eb_convert_vf convert_float16
-#define eb_as_vi as_int16
-#define eb_as_vf as_float16
-#define eb_vload vload16
-#define eb_vstore vstore16
-#define EB_GATHER_AS(T, v, i) ((T)((v)[(i).s0], (v)[(i).s1], (v)[(i).s2], (v)[(i).s3], \
-                                    (v)[(i).s4], (v)[(i).s5], (v)[(i).s6], (v)[(i).s7], \
-                                    (v)[(i).s8], (v)[(i).s9], (v)[(i).sa], (v)[(i).sb], \
-                                    (v)[(i).sc], (v)[(i).sd], (v)[(i).se], (v)[(i).sf]))
-#else
-#error "EB_PACKET must be 8 or 16"
-#endif
+
 /* A region's samples go by packets while at least this many are left; a last
  * single one takes the one-sample path, which is cheaper for it (measured with
  * 1 to 5: docs/design.md, "Sample packets on CPU devices"). */

@@ -404,13 +404,13 @@ def frame_args(scene: Scene, device_scene: DeviceScene, queue) -> list:
 
     buckets = []  # each volume layer's knot index (knot_buckets), its offset in layer.w
 
-    def bucket_index(tf) -> int:
-        first = sum(len(b) for b in buckets)
-        buckets.append(knot_buckets(tf.merged_knots()[0]))
-        return first
+    def layer(volume) -> tuple[int, int, int, int]:
+        first, n = knots(volume.transfer_function)
+        offset = sum(len(b) for b in buckets)
+        buckets.append(knot_buckets(xs[-1]))
+        return index[volume.field], first, n, offset
 
-    layers = [(index[v.field], *knots(v.transfer_function), bucket_index(v.transfer_function))
-              for v in scene.volumes]
+    layers = [layer(v) for v in scene.volumes]
     iso, iso_value, iso_color = [], [], []
     for surface in scene.isosurfaces:
         first, n = knots(surface.colormap) if surface.colormap is not None else (0, 0)
