@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import math
+
 import click
 
 output_option = click.option(
@@ -25,3 +27,30 @@ device_option = click.option(
 def input_path(name: str, **kw):
     """A positional input file that must exist (click reports a missing one)."""
     return click.argument(name, type=click.Path(exists=True, dir_okay=False), **kw)
+
+
+def finite(ctx, param, value):
+    """Refuse NaN and infinities in float options (single, nargs or repeatable)."""
+    flat = value if isinstance(value, tuple) else (value,)
+    flat = [x for v in flat for x in (v if isinstance(v, tuple) else (v,))]
+    if any(isinstance(x, float) and not math.isfinite(x) for x in flat):
+        raise click.BadParameter("values must be finite numbers")
+    return value
+
+
+def numbers(counts=None, low=0.0, high=1.0):
+    """Callback: comma-separated numbers in [low, high], as many as one of `counts`
+    (None: any number)."""
+    def parse(ctx, param, text):
+        if text is None:
+            return None
+        try:
+            values = tuple(float(a) for a in text.split(","))
+        except ValueError:
+            raise click.BadParameter(f"{text!r} is not a comma-separated list of numbers") from None
+        if counts is not None and len(values) not in counts:
+            raise click.BadParameter(f"expected {' or '.join(map(str, counts))} numbers, got {text!r}")
+        if not all(low <= a <= high for a in values):
+            raise click.BadParameter(f"values must lie in [{low:g}, {high:g}], got {text}")
+        return values
+    return parse

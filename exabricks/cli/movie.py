@@ -1,0 +1,99 @@
+"""`exabricks movie 'frames/*.png' -o movie.mp4`: rendered frames into a video."""
+
+from __future__ import annotations
+
+import glob
+import os
+
+import click
+import numpy as np
+
+from .. import progress
+from ..errors import ExabricksError
+from ..output import check_output, write_output
+from .options import finite, numbers, output_option
+
+
+def expand_frames(arguments) -> list[str]:
+    """Every FRAMES argument as file names: an existing file as it is, a glob pattern
+    (`*`, `?`, `[...]`, `**`) as the files it matches; then in natural order."""
+    from ..stages.movie import natural_sorted
+
+    names = []
+    for arg in arguments:
+        if os.path.lexists(arg):
+            if os.path.isdir(arg):
+                raise ExabricksError(f"{arg}: is a directory, not a frame (quote a pattern "
+                                     "such as 'frames/*.png')")
+            names.append(arg)
+        elif glob.has_magic(arg):
+            matched = [m for m in glob.glob(arg, recursive=True) if not os.path.isdir(m)]
+            if not matched:
+                raise ExabricksError(f"{arg}: no frames match")
+            names += matched
+        else:
+            raise ExabricksError(f"{arg}: no such file")
+    return natural_sorted(names)
+
+
+@click.command()
+@click.argument("frames", nargs=-1, required=True, metavar="FRAMES...")
+@output_option
+@click.option("--fps", type=click.FloatRange(0, 1000, min_open=True), default=30.0,
+              show_default=True, callback=finite, help="Frames per second.")
+@click.option("--crf", type=click.IntRange(0, 51), default=None, metavar="N",
+              help="MP4 quality as the encoder's constant rate factor: 0 (best, largest) "
+              "to 51 (worst); default 18, hard to tell from the frames.")
+@click.option("--codec", type=click.Choice(["h264", "h265"]), default=None,
+              help="MP4 video codec (default h264: plays everywhere; h265: about half "
+              "the size, fewer players).")
+@click.option("--background", callback=numbers((3,)), default="0,0,0", show_default=True,
+              metavar="R,G,B", help="Colour in [0, 1] behind transparent pixels.")
+def movie(frames, output, fps, crf, codec, background):
+    """Assemble images (.png or .exr, all of one size) into a movie: .mp4 (H.264,
+    yuv420p) or .gif, chosen by the suffix of OUTPUT.
+
+    FRAMES are files or quoted glob patterns ('frames/*.png'), taken in natural
+    order of their names (frame_2 before frame_10). Transparent pixels are
+    composited over --background, then colours are rounded to 8 bits as the PNG
+    writer does. yuv420p needs an even width and height: an odd one is padded by
+    one column or row of the background colour, not rescaled.
+    """
+    from ..image_io import read_image
+    from ..stages.movie import DEFAULT_CRF, movie_format, video_frame, write_gif, write_mp4
+
+    kind = movie_format(output)
+    if kind == ".gif" and (crf is not None or codec is not None):
+        raise click.UsageError("--crf and --codec apply to .mp4 output")
+    paths = expand_frames(frames)
+    check_output(output, paths)
+
+    def frames_of(bar):
+        first = None
+        for path in paths:
+            rgba, _ = read_image(path)
+            if first is None:
+                first = (path, rgba.shape)
+            elif rgba.shape != first[1]:
+                raise ExabricksError(
+                    f"{path}: {rgba.shape[1]}x{rgba.shape[0]} pixels, but {first[0]} is "
+                    f"{first[1][1]}x{first[1][0]} (all frames must have one size)")
+            bad = int(np.count_nonzero(~np.isfinite(rgba)))
+            if bad:
+                raise ExabricksError(f"{path}: {bad} non-finite values")
+            yield video_frame(rgba, background, even=kind == ".mp4")
+            bar.update()
+
+    def write(tmp):
+        with progress.bar(total=len(paths), desc="movie", unit="frame") as bar:
+            if kind == ".mp4":
+                write_mp4(tmp, frames_of(bar), fps=fps, crf=DEFAULT_CRF if crf is None else crf,
+                          codec=codec or "h264", name=output)
+                return
+            try:
+                write_gif(tmp, frames_of(bar), fps=fps)
+            except (OSError, ValueError) as e:  # Pillow's
+                raise ExabricksError(f"{output}: cannot write the GIF: "
+                                     f"{getattr(e, 'strerror', None) or e}") from None
+
+    write_output(output, write, inputs=paths)

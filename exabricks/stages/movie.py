@@ -1,0 +1,171 @@
+"""Frames into a movie: frame order, video pixels, and the .mp4 / .gif encoders.
+
+A frame is an image as exabricks.image_io holds it: ``rgba`` (H, W, 4) float32,
+premultiplied, row 0 at the top. A movie has no alpha, so each frame is
+composited over an opaque background colour and then rounded to 8 bits exactly as
+the PNG writer rounds (`image_io.to_png_pixels`): a movie of PNG frames shows the
+PNGs' own 8-bit colours.
+
+- ``.mp4``: H.264 (libx264) or H.265 (libx265) in yuv420p, the pixel format every
+  player decodes, at a constant rate factor (CRF). yuv420p needs an even width
+  and height: an odd one is padded by one column (right) or row (bottom) of the
+  background colour, never rescaled.
+- ``.gif``: Pillow, an adaptive 256-colour palette per frame, looping forever;
+  GIF delays are whole hundredths of a second.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+import subprocess
+import tempfile
+from collections.abc import Iterable, Iterator
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import ExabricksError
+from ..image_io import to_png_pixels
+
+FORMATS = (".mp4", ".gif")
+CODECS = {"h264": "libx264", "h265": "libx265"}
+DEFAULT_CRF = 18
+
+
+def movie_format(path) -> str:
+    """The container of an output `path` from its suffix (".mp4" or ".gif"), else an error."""
+    suffix = Path(path).suffix.lower()
+    if suffix not in FORMATS:
+        raise ExabricksError(f"{path}: unknown movie format {Path(path).suffix or '(no extension)'!r} "
+                             "(use .mp4 or .gif)")
+    return suffix
+
+
+def natural_key(name: str):
+    """Sort key that orders the digit runs of `name` by value: frame_2 before frame_10."""
+    parts = re.split(r"([0-9]+)", str(name))
+    # Digit runs sit at the odd positions, so like positions always compare like types.
+    return [int(p) if i % 2 else p.casefold() for i, p in enumerate(parts)], str(name)
+
+
+def natural_sorted(names: Iterable) -> list:
+    return sorted(names, key=natural_key)
+
+
+def video_frame(rgba, background=(0.0, 0.0, 0.0), *, even: bool = False) -> np.ndarray:
+    """Premultiplied float ``rgba`` (H, W, 4) over the opaque RGB `background` (each in
+    [0, 1]) -> (H', W', 3) uint8, rounded as the PNG writer rounds.
+
+    `even`: pad an odd width (height) with one column (row) of the background on the
+    right (bottom), as yuv420p needs; H' = H and W' = W otherwise.
+    """
+    rgba = np.asarray(rgba, dtype=np.float32)
+    h, w = rgba.shape[:2]
+    height, width = (h + h % 2, w + w % 2) if even else (h, w)
+    opaque = np.empty((height, width, 4), np.float32)
+    opaque[..., :3] = np.asarray(background, np.float32)
+    opaque[..., 3] = 1.0
+    behind = 1.0 - np.clip(rgba[..., 3:4], 0.0, 1.0)
+    opaque[:h, :w, :3] = rgba[..., :3] + behind * opaque[:h, :w, :3]
+    return to_png_pixels(opaque)[..., :3]
+
+
+def write_mp4(path, frames: Iterator[np.ndarray], *, fps: float, crf: int = DEFAULT_CRF,
+              codec: str = "h264", name=None) -> int:
+    """Encode uint8 RGB `frames` (H, W, 3), all of the first one's size (even), into an
+    MP4 file `path` (any name: the container is given to ffmpeg, not guessed from it).
+    Returns the number of frames written; errors name `name` (default `path`).
+
+    ffmpeg is the binary that the imageio-ffmpeg wheel ships. It is driven here rather
+    than through imageio's writer, which picks the format from the file name (ours is
+    a temporary one), lets ffmpeg's messages through to stderr and does not check
+    ffmpeg's exit status: a movie that failed at the last step would look written.
+    """
+    process = log = size = None
+    count = 0
+
+    def failure(what: str) -> ExabricksError:
+        log.seek(0)
+        lines = [line.strip() for line in log.read().decode(errors="replace").splitlines()
+                 if line.strip()]
+        return ExabricksError(f"{name or path}: ffmpeg {what}: "
+                              f"{lines[-1] if lines else 'no message'}")
+
+    try:
+        for frame in frames:
+            frame = np.ascontiguousarray(frame, dtype=np.uint8)
+            if process is None:
+                size = frame.shape
+                process, log = _start_ffmpeg(path, size, fps=fps, crf=crf, codec=codec, name=name)
+            if frame.shape != size:
+                raise ExabricksError(f"{name or path}: frame {count} is {frame.shape}, not {size}")
+            try:
+                process.stdin.write(frame.data)
+            except BrokenPipeError:
+                process.wait()
+                raise failure(f"stopped at frame {count} (exit status {process.returncode})") from None
+            count += 1
+        if process is None:
+            raise ExabricksError(f"{name or path}: no frames to encode")
+        try:
+            process.stdin.close()
+        except BrokenPipeError:
+            pass  # ffmpeg has gone: its exit status tells why
+        if process.wait() != 0:
+            raise failure(f"failed (exit status {process.returncode})")
+        return count
+    finally:
+        if process is not None and process.poll() is None:  # an error or a signal: stop it
+            process.kill()
+            process.wait()
+        if log is not None:
+            log.close()
+
+
+def _start_ffmpeg(path, shape, *, fps: float, crf: int, codec: str, name=None):
+    """ffmpeg reading raw RGB frames of `shape` (H, W, 3) on stdin, writing MP4 `path`;
+    its messages go to an anonymous file (a pipe could fill up and stall it)."""
+    import imageio_ffmpeg
+
+    try:
+        exe = imageio_ffmpeg.get_ffmpeg_exe()
+    except RuntimeError as e:
+        raise ExabricksError(f"{name or path}: no ffmpeg binary: {e}") from None
+    height, width = shape[:2]
+    if height % 2 or width % 2:
+        raise ExabricksError(f"{name or path}: yuv420p needs an even width and height, "
+                             f"got {width}x{height}")
+    command = [
+        exe, "-hide_banner", "-loglevel", "error", "-y",
+        "-f", "rawvideo", "-pix_fmt", "rgb24", "-s", f"{width}x{height}", "-framerate", repr(float(fps)),
+        "-i", "pipe:0", "-an",
+        "-c:v", CODECS[codec], "-pix_fmt", "yuv420p", "-crf", str(int(crf)),
+        *(["-tag:v", "hvc1"] if codec == "h265" else []),  # what QuickTime needs for H.265 in MP4
+        "-movflags", "+faststart", "-f", "mp4",
+        "file:" + os.fspath(path),  # never read as another protocol ("name:...")
+    ]
+    log = tempfile.TemporaryFile()
+    try:
+        process = subprocess.Popen(command, stdin=subprocess.PIPE, stdout=subprocess.DEVNULL,
+                                   stderr=log)
+    except OSError as e:
+        log.close()
+        raise ExabricksError(f"{name or path}: cannot run ffmpeg ({exe}): {e.strerror or e}") from None
+    return process, log
+
+
+def write_gif(path, frames: Iterator[np.ndarray], *, fps: float) -> int:
+    """Encode uint8 RGB `frames` into a looping GIF file `path`; returns the frame count.
+
+    Each frame is reduced to its own 256-colour palette as it arrives (one byte per
+    pixel kept in memory); the delay is 1/fps rounded to hundredths of a second."""
+    from PIL import Image
+
+    images = [Image.fromarray(frame).quantize(256) for frame in frames]
+    if not images:
+        return 0
+    delay_ms = 10 * max(1, round(100.0 / fps))
+    images[0].save(path, format="GIF", save_all=True, append_images=images[1:],
+                   duration=delay_ms, loop=0, disposal=1)
+    return len(images)
