@@ -1,0 +1,74 @@
+"""`exabricks camera orbit|path … -o path.json`: camera paths for movies
+(exabricks/camera_path.py; docs/workflows.md, "Camera paths")."""
+
+from __future__ import annotations
+
+import json
+
+import click
+
+from .. import camera_path, schema
+from ..output import check_output, write_output
+from ..scene import DEFAULT_FOVY
+from .options import input_path, output_option
+
+FRAMES = click.IntRange(1, camera_path.MAX_FRAMES)
+FOVY = click.FloatRange(0, 180, min_open=True, max_open=True)
+
+
+def _write(output, doc, inputs) -> None:
+    def write(tmp):
+        with open(tmp, "w", encoding="utf-8") as f:
+            json.dump(doc, f, indent=1)
+            f.write("\n")
+    write_output(output, write, inputs=inputs)
+
+
+@click.group()
+def camera():
+    """Write camera paths (JSON) that `render --camera-path` draws frame by frame."""
+
+
+@camera.command()
+@input_path("dataset", metavar="DATASET.npz")
+@output_option
+@click.option("--frames", "n_frames", type=FRAMES, required=True, help="Number of frames.")
+@click.option("--look-at", type=float, nargs=3, default=None, metavar="X Y Z",
+              help="The point turned about and looked at (default: the centre of the data).")
+@click.option("--axis", type=float, nargs=3, default=None, metavar="X Y Z",
+              help="Axis of the turn, also the cameras' up (default 0 1 0, render's default up).")
+@click.option("--elevation", type=float, default=None, metavar="DEG",
+              help="Angle above the plane perpendicular to the axis (default: that of render's "
+                   "default three-quarter view, about 20.8).")
+@click.option("--fovy", type=FOVY, default=DEFAULT_FOVY, show_default=True,
+              help="Full vertical field of view, degrees (the distance shows the whole data).")
+@click.option("--degrees", type=float, default=360.0, show_default=True,
+              help="Angle turned over the path (a full turn leaves out its end, which is its start).")
+def orbit(dataset, output, n_frames, look_at, axis, elevation, fovy, degrees):
+    """N frames turning round DATASET (any exabricks .npz) from render's default view."""
+    check_output(output, [dataset])
+    lower, upper = schema.world_bounds(schema.load(dataset))
+    if not lower:
+        raise click.UsageError(f"{dataset}: the dataset is empty: no bounds to orbit")
+    frames = camera_path.orbit(lower, upper, n_frames, look_at=look_at, axis=axis,
+                               elevation=elevation, fovy=fovy, degrees=degrees)
+    source = {"orbit": {"dataset": dataset, "axis": list(axis or (0.0, 1.0, 0.0)),
+                        "elevation": elevation, "degrees": degrees}}
+    _write(output, camera_path.to_dict(frames, source=source), [dataset])
+
+
+@camera.command()
+@input_path("keyframes_path", metavar="KEYFRAMES.json")
+@output_option
+@click.option("--frames", "n_frames", type=FRAMES, required=True, help="Number of frames.")
+@click.option("--loop/--no-loop", default=None,
+              help="Close the path (back to the first keyframe; default: the file's 'loop', else no).")
+def path(keyframes_path, output, n_frames, loop):
+    """N frames along KEYFRAMES.json: cameras (position, look_at, up, fovy, optional time)
+    interpolated by Catmull-Rom splines, up vectors by slerp."""
+    check_output(output, [keyframes_path])
+    keys, times, file_loop = camera_path.read_keyframes(keyframes_path)
+    loop = file_loop if loop is None else loop
+    frames = camera_path.interpolate(keys, times, n_frames, loop=loop)
+    _write(output, camera_path.to_dict(frames, keyframes=keys, times=times, loop=loop,
+                                       source={"keyframes": keyframes_path}), [keyframes_path])
