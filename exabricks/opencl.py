@@ -231,6 +231,12 @@ def empty_buffer(queue, nbytes: int):
     return cl.Buffer(queue.context, cl.mem_flags.READ_WRITE, size=max(int(nbytes), 1))
 
 
+def fill_zero(queue, buffer, nbytes: int) -> None:
+    """Set the first `nbytes` (a multiple of 4) of `buffer` to zero."""
+    if nbytes:
+        _cl().enqueue_fill_buffer(queue, buffer, np.uint32(0), 0, int(nbytes))
+
+
 def read_back(queue, buffer, out: np.ndarray) -> np.ndarray:
     """Copy `buffer` into the host array `out` (blocking) and return it."""
     cl = _cl()

@@ -12,7 +12,7 @@ def enabled() -> bool:
     return sys.stderr.isatty() and os.environ.get("EXABRICKS_QUIET", "") in ("", "0")
 
 
-def bar(total=None, desc: str = "", unit: str = "it", **kw) -> tqdm:
-    """A tqdm bar on stderr, disabled off a terminal or under -q."""
-    return tqdm(total=total, desc=desc, unit=unit, disable=not enabled(),
+def bar(total=None, desc: str = "", unit: str = "it", disable: bool = False, **kw) -> tqdm:
+    """A tqdm bar on stderr, disabled off a terminal, under -q, or by `disable`."""
+    return tqdm(total=total, desc=desc, unit=unit, disable=disable or not enabled(),
                 file=sys.stderr, leave=False, dynamic_ncols=True, **kw)

@@ -27,6 +27,20 @@
 #include "surfaces.cl"
 #endif
 
+/* The next sub-interval of `it` (eb_intervals_next) whose sample this frame
+ * takes: every one, or in a piece's frame those at points inside the piece. */
+EB_INLINE int eb_next_sample(eb_frame *fr, eb_ray *ray, eb_intervals *it, float *tm, float *len)
+{
+#ifdef EB_PIECE
+    while (eb_intervals_next(it, tm, len))
+        if (eb_in_piece(fr, ray->org + *tm * ray->dir))
+            return 1;
+    return 0;
+#else
+    return eb_intervals_next(it, tm, len);
+#endif
+}
+
 /* One sample at tm (sub-interval length len) of region r, from its
  * reconstruction sums s at lattice point p: surfaces crossed since the
  * previous sample, then the medium; returns 1 once the ray is opaque enough
@@ -68,7 +82,7 @@ __attribute__((noinline)) int eb_sample_packets(eb_frame *fr, eb_ray *ray, int r
     long begin = fr->regions.brick_start[r], end = fr->regions.brick_start[r + 1];
     for (;;) {
         int m = 0;
-        while (m < EB_PACKET && eb_intervals_next(it, &tm[m], &len[m]))
+        while (m < EB_PACKET && eb_next_sample(fr, ray, it, &tm[m], &len[m]))
             ++m;
         if (m == 0)
             return 0;
@@ -142,7 +156,7 @@ EB_PROFILED int eb_sample_interval(eb_frame *fr, eb_ray *ray, int r, int level, 
         return eb_sample_packets(fr, ray, r, level, &it, shade, st);
 #endif
     float tm, len;
-    while (eb_intervals_next(&it, &tm, &len)) {
+    while (eb_next_sample(fr, ray, &it, &tm, &len)) {
         float3 p = ray->org + tm * ray->dir;
         eb_basis_sums s = shade && !fr->central ? eb_sample_region_at(fr, r, p, level, 1)
                                                 : eb_sample_region_at(fr, r, p, level, 0);

@@ -41,6 +41,14 @@
     int clip_box, float4 clip_lower, float4 clip_upper,                         \
     __global const float4 *clip_planes, int n_clip_planes
 
+/* eb_render's extra arguments for a piece of a data-parallel frame (scene.cl
+ * eb_in_piece): its box in lattice space. */
+#ifdef EB_PIECE
+#define EB_PIECE_ARGS , float4 piece_lower, float4 piece_upper
+#else
+#define EB_PIECE_ARGS
+#endif
+
 /* eb_render's extra arguments for the cell-location variant (integrator.cl):
  * the tree over the brick supports, exabricks.stages.cell_location.BrickTree. */
 #ifdef EB_CELL_LOCATION
@@ -73,7 +81,7 @@ __kernel void eb_render(int width, int height, int row0, int rows,
                         int ordered, int central, int ao_samples, float ao_distance,
                         float lod_scale,
                         EB_BVH_ARGS, EB_REGION_ARGS, EB_BRICK_ARGS EB_LOCATION_ARGS,
-                        EB_FRAME_ARGS,
+                        EB_FRAME_ARGS EB_PIECE_ARGS,
                         __global float4 *rgba, __global float *depth, __global uint *samples,
                         __global uint *level_samples)
 {
@@ -91,6 +99,9 @@ __kernel void eb_render(int width, int height, int row0, int rows,
         {clip_box, clip_lower, clip_upper, clip_planes, n_clip_planes},
         step_base, inv_unit_distance, max_opacity, shading, central, ao_samples, ao_distance,
         origin_world, inv_spacing, lod_scale,
+#ifdef EB_PIECE
+        piece_lower, piece_upper,
+#endif
     };
 
     for (int f = 0; f < EB_N_FIELDS; ++f)

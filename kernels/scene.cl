@@ -56,7 +56,21 @@ typedef struct {
     float ao_distance;        /* their length, world units                             */
     float4 origin_world, inv_spacing;
     float lod_scale;          /* --lod: pixels * pixel angle / min(spacing), 0 when off */
+#ifdef EB_PIECE
+    float4 piece_lower, piece_upper;  /* this piece's half-open box, lattice space */
+#endif
 } eb_frame;
+
+#ifdef EB_PIECE
+/* Data-parallel rendering (exabricks/partition.py): a frame of one piece of a
+ * k-d partition of space takes exactly the samples (and slice hits) at lattice
+ * points inside the piece's half-open box, so that the pieces' images,
+ * composited in visibility order, hold every sample of the whole frame once. */
+EB_INLINE int eb_in_piece(eb_frame *fr, float3 p)
+{
+    return all(p >= fr->piece_lower.xyz) && all(p < fr->piece_upper.xyz);
+}
+#endif
 
 /* The reconstruction sums at lattice point p in region r. */
 EB_INLINE eb_basis_sums eb_sample_region(eb_frame *fr, int r, float3 p, const int grad)

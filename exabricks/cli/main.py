@@ -21,8 +21,10 @@ COMMANDS = (
     "render",
     "probe",
     "compare",
+    "movie",
     "info",
     "devices",
+    "camera",
 )
 
 
@@ -74,8 +76,21 @@ def one_line(message: str) -> str:
     return "".join(c if c.isprintable() or c == " " else repr(c)[1:-1] for c in message)
 
 
-def _fail(message: str, status: int = 1) -> None:
-    click.echo(f"error: {one_line(message)}", err=True)
+def _fail(message: str, status: int = 1, shared: bool = False) -> None:
+    """Print `error: message` and exit with `status`. Under MPI only rank 0 speaks
+    for an error every rank shares (`shared`: exabricks.parallel.AgreedError, a
+    signal from the launcher, or any before MPI started); a rank's own error
+    afterwards is printed and ends the whole job."""
+    from .. import parallel
+
+    agreed = shared or not parallel.initialized()
+    rank = parallel.launched_rank()
+    if rank == 0 or not agreed:
+        prefix = f"rank {rank}: " if not agreed else ""
+        click.echo(f"error: {prefix}{one_line(message)}", err=True)
+    if not agreed:
+        sys.stderr.flush()
+        parallel.abort_world(status)
     sys.exit(status)
 
 
@@ -95,18 +110,23 @@ def main(argv=None) -> None:
         status = cli.main(args=argv, prog_name="exabricks", standalone_mode=False)
         interrupt.raise_pending()
     except interrupt.Interrupted as e:
-        _fail(f"interrupted ({signal_name(e.signum)})", e.exit_status)
+        _fail(f"interrupted ({signal_name(e.signum)})", e.exit_status, shared=True)
     except (KeyboardInterrupt, click.exceptions.Abort):
-        _fail("interrupted (SIGINT)", 128 + 2)
+        _fail("interrupted (SIGINT)", 128 + 2, shared=True)
     except click.exceptions.Exit as e:
         sys.exit(e.exit_code)
     except click.ClickException as e:
-        e.show()
+        from .. import parallel
+
+        if parallel.launched_rank() == 0:  # every rank parses the same command line
+            e.show()
         sys.exit(e.exit_code)
     except ExabricksError as e:
         if debug:
             raise
-        _fail(str(e))
+        from .. import parallel
+
+        _fail(str(e), shared=isinstance(e, parallel.AgreedError))
     except MemoryError:
         if debug:
             raise

@@ -4,7 +4,6 @@ and slices (paper §4-5; docs/scene.md for the scene file and the flags)."""
 from __future__ import annotations
 
 import logging
-import math
 from pathlib import Path
 
 import click
@@ -13,41 +12,14 @@ from .. import __version__, schema
 from ..errors import ExabricksError
 from ..output import check_output
 from ..scene import GRADIENTS, MAX_AO_SAMPLES, RECONSTRUCTIONS, SHADING_MODES
-from .options import device_option, field_option, input_path, output_option
+from .options import device_option, field_option, finite, input_path, numbers, output_option
 
 log = logging.getLogger(__name__)
 
 
-def _vector(name, nargs=3, metavar="X Y Z", finite=True, **kw):
+def _vector(name, nargs=3, metavar="X Y Z", check_finite=True, **kw):
     return click.option(name, type=float, nargs=nargs, default=None, metavar=metavar,
-                        callback=_finite if finite else None, **kw)
-
-
-def _finite(ctx, param, value):
-    """Refuse NaN and infinities in float options (single, nargs or repeatable)."""
-    flat = value if isinstance(value, tuple) else (value,)
-    flat = [x for v in flat for x in (v if isinstance(v, tuple) else (v,))]
-    if any(isinstance(x, float) and not math.isfinite(x) for x in flat):
-        raise click.BadParameter("values must be finite numbers")
-    return value
-
-
-def _numbers(counts=None, low=0.0, high=1.0):
-    """Callback: comma-separated numbers in [low, high], as many as one of `counts`
-    (None: any number)."""
-    def parse(ctx, param, text):
-        if text is None:
-            return None
-        try:
-            values = tuple(float(a) for a in text.split(","))
-        except ValueError:
-            raise click.BadParameter(f"{text!r} is not a comma-separated list of numbers") from None
-        if counts is not None and len(values) not in counts:
-            raise click.BadParameter(f"expected {' or '.join(map(str, counts))} numbers, got {text!r}")
-        if not all(low <= a <= high for a in values):
-            raise click.BadParameter(f"values must lie in [{low:g}, {high:g}], got {text}")
-        return values
-    return parse
+                        callback=finite if check_finite else None, **kw)
 
 
 def load_scene(bricks_path, regions_path, bvh_path):
@@ -71,9 +43,9 @@ POSITIVE = click.FloatRange(min=0, min_open=True)
               help='Camera JSON {"position", "look_at", "up", "fovy"} (world units; default: the '
                    "scene's, else a three-quarter view of the whole dataset).")
 # (the camera itself names a non-finite position, look-at or up vector)
-@_vector("--position", finite=False)
-@_vector("--look-at", finite=False)
-@_vector("--up", finite=False)
+@_vector("--position", check_finite=False)
+@_vector("--look-at", check_finite=False)
+@_vector("--up", check_finite=False)
 @click.option("--fovy", type=float, default=None, help="Full vertical field of view, degrees.")
 @field_option
 @click.option("--transfer-function", metavar="PRESET",
@@ -82,15 +54,15 @@ POSITIVE = click.FloatRange(min=0, min_open=True)
 @click.option("--colormap", metavar="NAME", help="A matplotlib colormap over --range (default: the field's range).")
 @click.option("--range", type=float, nargs=2, default=None, metavar="LO HI",
               help="Data range of the colormap (and rescales a preset file to it).")
-@click.option("--opacity", callback=_numbers(), metavar="A0,A1,...",
+@click.option("--opacity", callback=numbers(), metavar="A0,A1,...",
               help="With --colormap: alpha knots spread evenly over the range (default 0,1: a ramp).")
 @click.option("--volume/--no-volume", default=None,
               help="Draw the volume layers (default) or none. --field, --transfer-function, --colormap, "
                    "--range, --opacity replace the scene's layers by the one they describe.")
-@click.option("--iso", type=float, multiple=True, callback=_finite, metavar="VALUE",
+@click.option("--iso", type=float, multiple=True, callback=finite, metavar="VALUE",
               help="Iso-surface of --field (default: the first volume field) at VALUE; repeatable; "
                    "replaces the scene's iso-surfaces.")
-@click.option("--iso-color", callback=_numbers((3,)), metavar="R,G,B",
+@click.option("--iso-color", callback=numbers((3,)), metavar="R,G,B",
               help="Colour of the iso-surfaces, in [0, 1] (default 0.9,0.9,0.9).")
 @click.option("--iso-opacity", type=click.FloatRange(0, 1), default=None, metavar="A",
               help="Opacity of the iso-surfaces (default 1).")
@@ -113,21 +85,21 @@ POSITIVE = click.FloatRange(min=0, min_open=True)
 @click.option("--reconstruction", type=click.Choice(RECONSTRUCTIONS), default=None,
               help="basis (default): the paper's continuous blend of cells; nearest: the value "
                    "of the containing leaf cell; vertex: trilinear in stitched vertex values.")
-@click.option("--lod", type=click.FloatRange(min=0), default=None, callback=_finite,
+@click.option("--lod", type=click.FloatRange(min=0), default=None, callback=finite,
               metavar="PIXELS",
               help="Level of detail: sample each region at the coarsest level whose cells "
                    "project to at most PIXELS pixels (default 0: full resolution).")
 @click.option("--gradient", type=click.Choice(GRADIENTS), default=None,
               help="Normals from the analytic gradient (default) or central differences.")
-@click.option("--specular", type=click.FloatRange(min=0), default=None, callback=_finite,
+@click.option("--specular", type=click.FloatRange(min=0), default=None, callback=finite,
               help="Blinn-Phong specular weight on surfaces (default 0).")
-@click.option("--shininess", type=POSITIVE, default=None, callback=_finite,
+@click.option("--shininess", type=POSITIVE, default=None, callback=finite,
               help="Blinn-Phong exponent (default 32).")
 @click.option("--ao-samples", type=click.IntRange(0, MAX_AO_SAMPLES), default=None,
               help="Ambient-occlusion rays per surface hit (default 0: off).")
-@click.option("--ao-distance", type=POSITIVE, default=None, callback=_finite,
+@click.option("--ao-distance", type=POSITIVE, default=None, callback=finite,
               help="Length of the ambient-occlusion rays, world units (default: 10 finest cell widths).")
-@click.option("--background", callback=_numbers((3, 4)), metavar="R,G,B[,A]",
+@click.option("--background", callback=numbers((3, 4)), metavar="R,G,B[,A]",
               help="Background colour in [0, 1] (RGB is opaque; default transparent).")
 @click.option("--unit-distance", type=float, default=None,
               help="World thickness over which alpha is the opacity (default: the finest cell width).")
@@ -145,11 +117,23 @@ POSITIVE = click.FloatRange(min=0, min_open=True)
 @click.option("--depth/--no-depth", default=None,
               help="Add a depth channel Z (.exr only): distance to the first opaque surface, else "
                    "where the opacity reaches 0.5.")
+@click.option("--camera-path", "path_file", type=click.Path(exists=True, dir_okay=False),
+              help="Camera-path JSON (`exabricks camera orbit|path`): draw its frame(s) given by "
+                   "--frame or --frames; -o then names frame I by a printf field, e.g. frame_%05d.png.")
+@click.option("--frame", "frame", metavar="I", default=None,
+              help="With --camera-path: frame I (from 0; negative counts from the end).")
+@click.option("--frames", "frames", metavar="A:B", default=None,
+              help="With --camera-path: frames A to B-1 (Python slice; 'A:' to the end), one "
+                   "upload, one image each.")
+@click.option("--mpi-mode", type=click.Choice(("data", "image")), default="data", show_default=True,
+              help="Under mpiexec/srun with several ranks: data splits the dataset by space (each "
+                   "rank holds a piece; sort-last compositing), image replicates it and splits "
+                   "the frame (faster for data that fits every rank).")
 @device_option
-def render(bricks_path, regions_path, bvh_path, output, scene_path, camera_path, device, **flags):
+def render(bricks_path, regions_path, bvh_path, output, scene_path, camera_path, path_file, frame,
+           frames, mpi_mode, device, **flags):
     """Render BRICKS/REGIONS/BVH into an .exr (float RGBA) or .png image."""
-    from ..image_io import write_image
-    from ..scene import check_flags, scene_file_references, scene_from_options, scene_to_dict
+    from ..scene import check_flags
 
     suffix = Path(output).suffix.lower()
     if suffix not in (".exr", ".png"):
@@ -158,29 +142,126 @@ def render(bricks_path, regions_path, bvh_path, output, scene_path, camera_path,
         check_flags(flags)
     except ExabricksError as e:
         raise click.UsageError(str(e)) from None
-    inputs = [bricks_path, regions_path, bvh_path, camera_path, flags["transfer_function"], scene_path]
+    _check_path_flags(path_file, frame, frames, camera_path, flags)
+    from .. import parallel
+
+    comm = parallel.world()
+    job = parallel.agree(comm, _prepare, bricks_path, regions_path, bvh_path, output, scene_path,
+                         camera_path, path_file, frame, frames, flags, device, mpi_mode, comm)
+    renderer, scene, jobs, inputs, dataset = job
+    from .. import progress
+
+    root = comm is None or comm.Get_rank() == 0
+    with progress.bar(total=len(jobs), desc="render", unit="frame", disable=not root) as bar:
+        for index, cam, image in jobs:
+            frame_scene = scene if cam is None else scene.replace(camera=cam)
+            result = renderer.render_scene(frame_scene)  # None on ranks other than 0
+            parallel.agree(comm, _write, image, result, frame_scene, dataset, path_file, index,
+                           inputs)
+            bar.update()
+
+
+def _prepare(bricks_path, regions_path, bvh_path, output, scene_path, camera_path, path_file,
+             frame, frames, flags, device, mpi_mode, comm):
+    """Check the outputs, load the dataset and make the renderer (this rank's share
+    under MPI): (renderer, scene, frame jobs, input files, dataset metadata)."""
+    from ..scene import scene_file_references, scene_from_options
+
+    inputs = [bricks_path, regions_path, bvh_path, camera_path, flags["transfer_function"], scene_path,
+              path_file]
     if scene_path:
         inputs += scene_file_references(scene_path)
-    check_output(output, inputs)
+    jobs = _frame_jobs(output, path_file, frame, frames)
+    for _, _, image in jobs:
+        check_output(image, inputs)
     bricks, regions, bvh = load_scene(bricks_path, regions_path, bvh_path)
     scene = scene_from_options(bricks, scene_path=scene_path, camera_path=camera_path, flags=flags)
-    if scene.settings.depth and suffix == ".png":
+    if scene.settings.depth and Path(output).suffix.lower() == ".png":
         raise ExabricksError(f"{output}: a depth image needs .exr output (PNG has no depth channel)")
+    dataset = {"bricks": str(bricks_path), "regions": str(regions_path), "bvh": str(bvh_path),
+               "source": bricks.meta.get("inputs", [])}
+    if comm is None:
+        from ..stages.render import Renderer
 
-    from ..stages.render import render_scene
+        renderer = Renderer(bricks, regions, bvh, fields=scene.fields(), device=device)
+    else:
+        from ..parallel import ParallelRenderer
 
-    result = render_scene(bricks, regions, bvh, scene, device=device)
+        renderer = ParallelRenderer(comm, bricks, regions, bvh, scene, device=device,
+                                    mode=mpi_mode)
+        if renderer.reason and comm.Get_rank() == 0:
+            log.info("%s: %s need the whole dataset on every rank: image-parallel (--mpi-mode "
+                     "image)", output, renderer.reason)
+    return renderer, scene, jobs, inputs, dataset
+
+
+def _write(image, result, scene, dataset, path_file, index, inputs) -> None:
+    """Write one frame with its metadata (rank 0: the others have no result)."""
+    from ..image_io import write_image
+    from ..scene import scene_to_dict
+
+    if result is None:
+        return
     metadata = {
         "software": f"exabricks {__version__}",
         "camera": scene.camera.to_dict(),
-        "dataset": {"bricks": str(bricks_path), "regions": str(regions_path), "bvh": str(bvh_path),
-                    "source": bricks.meta.get("inputs", [])},
+        "dataset": dataset,
         "settings": result.stats,
         "scene": scene_to_dict(scene),
     }
+    if index is not None:
+        metadata["camera_path"] = {"file": str(path_file), "frame": index}
     if scene.volumes:
         metadata["transfer_function"] = scene.volumes[0].transfer_function.to_paraview_dict()
-    write_image(output, result.rgba, metadata=metadata, depth=result.depth, inputs=inputs)
+    write_image(image, result.rgba, metadata=metadata, depth=result.depth, inputs=inputs)
     s = result.stats
-    log.info("%s: %dx%d, %s samples, %.1f ms, %.1f M samples/s on %s", output, s["width"],
+    log.info("%s: %dx%d, %s samples, %.1f ms, %.1f M samples/s on %s", image, s["width"],
              s["height"], f"{s['samples']:,}", s["ms"], s["samples_per_second"] / 1e6, s["device"])
+
+
+CAMERA_FLAGS = ("position", "look_at", "up", "fovy")
+
+
+def _check_path_flags(path_file, frame, frames, camera_path, flags) -> None:
+    """--camera-path takes exactly one of --frame/--frames and no other camera."""
+    if path_file is None:
+        if frame is not None or frames is not None:
+            raise click.UsageError("--frame and --frames need --camera-path")
+        return
+    if (frame is None) == (frames is None):
+        raise click.UsageError("--camera-path needs one of --frame I or --frames A:B")
+    given = [f"--{k.replace('_', '-')}" for k in CAMERA_FLAGS if flags.get(k) is not None]
+    if camera_path is not None:
+        given.insert(0, "--camera")
+    if given:
+        raise click.UsageError(f"--camera-path sets the camera: drop {', '.join(given)}")
+
+
+def _frame_jobs(output, path_file, frame, frames):
+    """(frame index, camera, image path) of every image to write: one (None, None,
+    output) without a camera path."""
+    if path_file is None:
+        return [(None, None, output)]
+    from ..camera_path import parse_frame_range, read_frames
+
+    cameras = read_frames(path_file)
+    chosen = parse_frame_range(frame if frame is not None else frames, len(cameras),
+                               "--frame" if frame is not None else "--frames")
+    named = _numbered(output)
+    if named is None and len(chosen) > 1:
+        raise click.UsageError(f"{output}: --frames writes {len(chosen)} images: name them by a "
+                               "printf field in -o, e.g. frames/frame_%05d.png")
+    return [(i, cameras[i], named(i) if named else output) for i in chosen]
+
+
+def _numbered(output: str):
+    """A function frame index -> file name when `output` holds one printf integer field
+    (%d, %05d, ...), else None."""
+    if "%" not in output:
+        return None
+    try:
+        a, b = output % 0, output % 1
+    except (TypeError, ValueError):
+        raise click.BadParameter(f"{output!r}: the only printf field allowed is one integer "
+                                 "(%d, %05d); write %% for a percent sign", param_hint="-o") from None
+    return (lambda i: output % i) if a != b else None

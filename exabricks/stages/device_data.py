@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import time
 import weakref
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -100,15 +101,34 @@ def finest_cell_width_world(bricks: schema.Bricks) -> float:
     return float(2.0 ** level * bricks.spacing_world.min())
 
 
-def gradient_scale(spacing_world, values) -> np.ndarray:
+def field_magnitude(values: np.ndarray) -> float:
+    """The largest finite |value| of one field (1 when there is none)."""
+    finite = np.abs(values[np.isfinite(values)]) if values.size else np.zeros(0)
+    return float(finite.max()) if finite.size and finite.max() > 0 else 1.0
+
+
+@dataclass(frozen=True)
+class DatasetScale:
+    """What a dataset's frames are scaled by: its finest cell width (the default
+    unit distance) and each field's magnitude (the gradient scales). A piece of
+    a dataset (exabricks.stages.partition) renders with the whole's."""
+
+    finest_width_world: float
+    magnitudes: dict  # field name -> magnitude
+
+    @classmethod
+    def of(cls, bricks: schema.Bricks, fields) -> "DatasetScale":
+        return cls(finest_cell_width_world(bricks),
+                   {f: field_magnitude(bricks.values[bricks.field_index(f)]) for f in fields})
+
+
+def gradient_scale(spacing_world, magnitude: float) -> np.ndarray:
     """Per-axis factor turning a lattice-unit gradient into one parallel to the
     world-unit gradient, for shading (only its direction matters): 1 / spacing
     divided by its largest component and by the field's largest magnitude, so
     the kernel's dot(g, g) stays far from float overflow and underflow whatever
     the units of the field and of the world."""
     inv = 1.0 / np.asarray(spacing_world, np.float64)
-    finite = np.abs(values[np.isfinite(values)]) if values.size else np.zeros(0)
-    magnitude = float(finite.max()) if finite.size and finite.max() > 0 else 1.0
     return inv / inv.max() / magnitude
 
 
@@ -129,10 +149,13 @@ class DeviceScene:
     """One dataset resident on one OpenCL device: the structures and the values
     of `fields` (default: `field`, else the first field) only, one after the
     other (the kernels' field f is fields[f]; the program is built with
-    -DEB_N_FIELDS)."""
+    -DEB_N_FIELDS). `scale`: the DatasetScale of the whole dataset when
+    `bricks` are a piece of it (exabricks.stages.partition; default: theirs),
+    so that a piece renders as the whole does."""
 
     def __init__(self, bricks: schema.Bricks, regions: schema.Regions, bvh: schema.Bvh,
-                 *, field: str | None = None, fields=None, device=None):
+                 *, field: str | None = None, fields=None, device=None,
+                 scale: DatasetScale | None = None):
         check_inputs(bricks, regions, bvh)
         self.bricks, self.regions, self.bvh = bricks, regions, bvh
         if fields is None or not len(fields):
@@ -141,6 +164,7 @@ class DeviceScene:
         self.field_indices = [bricks.field_index(f) for f in self.fields]
         self.field = self.fields[0] if self.fields else field
         self.field_index = self.field_indices[0] if self.fields else 0
+        scale = DatasetScale.of(bricks, self.fields) if scale is None else scale
         self.device = device if device is not None and not isinstance(device, str) \
             else opencl.choose_device(device)
         check_device_memory(self.device, {
@@ -193,9 +217,9 @@ class DeviceScene:
         self.origin_world4 = _float4(b.origin_world)
         self.inv_spacing4 = _float4(1.0 / b.spacing_world)
         self.gradient_scales = np.array(
-            [[*gradient_scale(b.spacing_world, b.values[i]), 0.0] for i in self.field_indices]
-            or [[1.0, 1.0, 1.0, 0.0]], np.float32)
-        self.finest_width_world = finest_cell_width_world(b)
+            [[*gradient_scale(b.spacing_world, scale.magnitudes[f]), 0.0]
+             for f in self.fields] or [[1.0, 1.0, 1.0, 0.0]], np.float32)
+        self.finest_width_world = scale.finest_width_world
         self.min_spacing_world = float(b.spacing_world.min())
         self._location_args = None
         self.brick_tree = self.brick_tree_seconds = None

@@ -59,7 +59,7 @@ from ..constants import MAX_SAMPLES_PER_RAY
 from ..errors import ExabricksError
 from ..scene import Lighting, Scene, Settings, VolumeLayer
 from ..transfer_function import knot_buckets
-from .device_data import DeviceScene, _float4
+from .device_data import DatasetScale, DeviceScene, _float4
 
 # Region walks (kernels/traversal.cl): "ordered" keeps a private min-heap of
 # BVH nodes and regions per ray (one traversal per ray); "retrace" is the
@@ -125,9 +125,17 @@ class Renderer:
 
     def __init__(self, bricks: schema.Bricks, regions: schema.Regions, bvh: schema.Bvh,
                  *, field: str | None = None, fields=None, device=None,
-                 lookup: str = "regions", packets: bool | None = None):
+                 lookup: str = "regions", packets: bool | None = None,
+                 piece=None, scale: DatasetScale | None = None):
+        """`piece`: (lower, upper) lattice bounds of the half-open box of a piece of
+        a k-d partition (exabricks.stages.partition) that these structures are
+        the share of, `scale` the whole dataset's; frames then hold exactly the
+        samples inside the box (docs/design.md, "Data-parallel rendering")."""
         _check_lookup(lookup)
-        self.scene = DeviceScene(bricks, regions, bvh, field=field, fields=fields, device=device)
+        self.scene = DeviceScene(bricks, regions, bvh, field=field, fields=fields, device=device,
+                                 scale=scale)
+        self.piece = None if piece is None else \
+            tuple(_float4(np.asarray(b, np.float64)) for b in piece)
         self._use(lookup)
         # Sample packets: on CPU devices unless asked otherwise (both give the same image).
         self.packets = opencl.is_cpu(self.scene.device) if packets is None else bool(packets)
@@ -150,7 +158,7 @@ class Renderer:
         defines = (("EB_CELL_LOCATION",) if self.lookup == "cell-location" else ()) \
             + (("EB_SURFACES",) if surfaces else ()) + (("EB_LOD",) if lod else ()) \
             + ((f"EB_PACKET={PACKET_WIDTH}",) if self._packet_width(reconstruction) > 1 else ()) \
-            + tuple(extra)
+            + (("EB_PIECE",) if self.piece is not None else ()) + tuple(extra)
         return opencl.kernel(self.scene.program_for(defines, reconstruction), "eb_render")
 
     def _packet_width(self, reconstruction: str) -> int:
@@ -197,11 +205,15 @@ class Renderer:
                               depth=bool(depth), reconstruction=reconstruction))
         return self.render_scene(scene, traversal=traversal)
 
-    def render_scene(self, scene: Scene, *, traversal: str = "ordered") -> RenderResult:
+    def render_scene(self, scene: Scene, *, traversal: str = "ordered", rows=None,
+                     sample: int | None = None) -> RenderResult:
         """Render `scene` (exabricks.scene.Scene; its fields must be uploaded).
 
         `traversal` picks the region walk (TRAVERSALS); both give the same
-        image up to float rounding, only the speed differs."""
+        image up to float rounding, only the speed differs. `rows`: the spans
+        (first row, count) to render (default: all rows; the others stay 0).
+        `sample`: only sample `sample` of the frame's spp rays per pixel,
+        unaveraged (data-parallel frames composite each sample on its own)."""
         scene.check()
         cfg = scene.settings
         _check_settings(cfg, traversal)
@@ -235,8 +247,12 @@ class Renderer:
             stats["field"] = scene.volumes[0].field
         rgba = _host_image(width, height, 4, "the image")
         d = _host_image(width, height, 1, "the depth image")[..., 0] if cfg.depth else None
-        if s.empty or not (node_vis[0] or scene.slices):
+        spans = [(0, height)] if rows is None else [(int(a), int(n)) for a, n in rows]
+        if rows is not None or s.empty or not (node_vis[0] or scene.slices):
             rgba[:] = 0.0
+            if d is not None:
+                d[:] = np.inf
+        if s.empty or not (node_vis[0] or scene.slices):
             if d is not None:
                 d[:] = np.inf
             stats.update(samples=0, ms=0.0, samples_per_second=0.0)
@@ -272,35 +288,43 @@ class Renderer:
             np.int32(lighting.ao_samples), np.float32(ao_distance), np.float32(lod_scale),
             *s.scene_args(up(q, node_vis), up(q, region_vis), cfg.reconstruction, lod),
             *self.location_args,
-            *frame_args(scene, s, q), rgba_buf, depth_buf, samples_buf, level_buf,
+            *frame_args(scene, s, q), *(self.piece or ()),
+            rgba_buf, depth_buf, samples_buf, level_buf,
         ]
         q.finish()
         start = time.perf_counter()
         total = 0
-        row0, rows = 0, FIRST_BAND
-        while row0 < height:
-            rows = min(rows, band_rows, height - row0)
-            band_start = time.perf_counter()
-            global_size = (-(-width // TILE) * TILE, -(-rows // TILE) * TILE)
-            for sample in range(spp):
-                kernel(q, global_size, (TILE, TILE),
-                       np.int32(width), np.int32(height), np.int32(row0), np.int32(rows),
-                       np.int32(sample), np.int32(spp), *fixed)
-            n = width * rows
-            opencl.read_back(q, rgba_buf, rgba[row0:row0 + rows].reshape(n, 4))
-            opencl.read_back(q, samples_buf, samples[:n])
-            if d is not None:
-                opencl.read_back(q, depth_buf, d[row0:row0 + rows].reshape(n))
-            total += int(samples[:n].sum(dtype=np.int64))
-            row0 += rows
-            rows = _next_band(rows, time.perf_counter() - band_start)
-            interrupt.raise_pending()
+        rows = FIRST_BAND
+        for span0, span_rows in spans:
+            row0, end = span0, min(span0 + span_rows, height)
+            while row0 < end:
+                rows = min(rows, band_rows, end - row0)
+                band_start = time.perf_counter()
+                global_size = (-(-width // TILE) * TILE, -(-rows // TILE) * TILE)
+                n = width * rows
+                if sample:  # the kernel adds samples after the first: start from 0
+                    for buf, size in ((rgba_buf, 16), (samples_buf, 4)):
+                        opencl.fill_zero(q, buf, n * size)
+                for index in (range(spp) if sample is None else (sample,)):
+                    kernel(q, global_size, (TILE, TILE),
+                           np.int32(width), np.int32(height), np.int32(row0), np.int32(rows),
+                           np.int32(index), np.int32(spp), *fixed)
+                opencl.read_back(q, rgba_buf, rgba[row0:row0 + rows].reshape(n, 4))
+                opencl.read_back(q, samples_buf, samples[:n])
+                if d is not None:
+                    opencl.read_back(q, depth_buf, d[row0:row0 + rows].reshape(n))
+                total += int(samples[:n].sum(dtype=np.int64))
+                row0 += rows
+                rows = _next_band(rows, time.perf_counter() - band_start)
+                interrupt.raise_pending()
+        if sample is not None and spp > 1:
+            rgba *= np.float32(spp)  # the kernel averages: this sample alone
         seconds = time.perf_counter() - start
         if lod:
             opencl.read_back(q, level_buf, level_samples)
             stats["samples_per_level"] = {str(l): int(c) for l, c in enumerate(level_samples) if c}
         stats["lod"] = float(cfg.lod)
-        stats.update(samples=total, ms=1e3 * seconds / spp,
+        stats.update(samples=total, ms=1e3 * seconds / (spp if sample is None else 1),
                      samples_per_second=total / seconds if seconds > 0 else 0.0)
         return RenderResult(_over_background(rgba, scene.background), d, stats)
 

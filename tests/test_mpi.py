@@ -1,0 +1,141 @@
+"""`mpiexec -n N exabricks render` (exabricks/parallel.py, issue 12) with pip's
+MPICH: the image of N ranks equals the one-process image (data-parallel: RMSE
+at most 1e-5 of the maximum with early termination off; image-parallel: the
+same pixels, since every pixel is the same kernel's), and a failing run ends
+every rank with one `error:` line and no output."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from exabricks.image_io import read_image
+
+from conftest import AMREX, GERRIS, assert_one_error_line
+
+MPIEXEC = Path(sys.executable).parent / "mpiexec"
+EB = [sys.executable, "-m", "exabricks.cli.main"]
+
+
+def mpirun(n, *args, env=None):
+    cmd = [str(MPIEXEC), "-n", str(n), *EB, *map(str, args)]
+    return subprocess.run(cmd, capture_output=True, text=True, timeout=600,
+                          env={**os.environ, **(env or {})})
+
+
+def files_of(tmp_path_factory, source, field):
+    from exabricks import schema
+    from exabricks.readers import read
+    from exabricks.stages.brick import build_bricks
+    from exabricks.stages.bvh import build_bvh
+    from exabricks.stages.regions import build_regions
+
+    d = tmp_path_factory.mktemp(Path(source).stem)
+    bricks = build_bricks(read(source, fields=[field]))
+    regions = build_regions(bricks)
+    for name, obj in (("bricks", bricks), ("regions", regions), ("bvh", build_bvh(regions))):
+        schema.save(d / f"{name}.npz", obj)
+    return [d / f"{n}.npz" for n in ("bricks", "regions", "bvh")]
+
+
+@pytest.fixture(scope="module")
+def gerris(tmp_path_factory):
+    return files_of(tmp_path_factory, GERRIS, "T")
+
+
+@pytest.fixture(scope="module")
+def amrex(tmp_path_factory):
+    return files_of(tmp_path_factory, AMREX, "phi")
+
+
+def test_mpi_is_installed():
+    """CI has pip's MPICH and mpi4py (the dev and mpi extras): no MPI test is skipped."""
+    assert MPIEXEC.exists(), MPIEXEC
+    import mpi4py  # noqa: F401
+
+
+def same_image(a_path, b_path, exact=False):
+    a, _ = read_image(a_path)
+    b, _ = read_image(b_path)
+    assert b[..., 3].max() > 1e-3
+    if exact:
+        np.testing.assert_array_equal(a, b)
+    rmse = float(np.sqrt(np.mean((a - b) ** 2)))
+    assert rmse <= 1e-5 * float(np.abs(b).max()), rmse
+
+
+FLAGS = ["--size", 72, 48, "--max-opacity", 1]
+
+
+@pytest.mark.parametrize("dataset", ["gerris", "amrex"])
+@pytest.mark.parametrize("n", [2, 3])
+def test_data_parallel_equals_one_process(request, dataset, n, cli, tmp_path):
+    files = request.getfixturevalue(dataset)
+    extra = ["--spp", 2, "--gradient", "central", "--slice", 0.5, 0.5, 0.5, 0, 0, 1] \
+        if dataset == "amrex" else ["--shading", "none"]
+    cli("render", *files, "-o", tmp_path / "one.exr", *FLAGS, *extra, check=0)
+    proc = mpirun(n, "render", *files, "-o", tmp_path / "many.exr", *FLAGS, *extra)
+    assert proc.returncode == 0, proc.stderr
+    assert proc.stderr == ""
+    same_image(tmp_path / "many.exr", tmp_path / "one.exr")
+    meta = read_image(tmp_path / "many.exr")[1]
+    assert meta["settings"]["mpi"] == {"ranks": n, "mode": "data"}
+
+
+def test_image_parallel_and_fallback(amrex, cli, tmp_path):
+    iso = ["--iso", 0.5, "--depth", "--ao-samples", 2]
+    cli("render", *amrex, "-o", tmp_path / "one.exr", *FLAGS, *iso, check=0)
+    for mode in ("image", "data"):  # data mode takes image mode for iso-surfaces and AO
+        out = tmp_path / f"{mode}.exr"
+        proc = mpirun(3, "render", *amrex, "-o", out, *FLAGS, *iso, "--mpi-mode", mode)
+        assert proc.returncode == 0, proc.stderr
+        same_image(out, tmp_path / "one.exr", exact=True)
+        mpi = read_image(out)[1]["settings"]["mpi"]
+        assert mpi["mode"] == "image" and mpi["ranks"] == 3
+    assert mpi["image_mode_for"] == "iso-surfaces"
+
+
+def test_camera_path_frames_under_mpi(gerris, cli, tmp_path):
+    path = tmp_path / "orbit.json"
+    cli("camera", "orbit", gerris[0], "--frames", 4, "-o", path, check=0)
+    proc = mpirun(2, "render", *gerris, "--camera-path", path, "--frames", "1:3",
+                  "-o", tmp_path / "f%d.png", "--size", 40, 30)
+    assert proc.returncode == 0, proc.stderr
+    assert sorted(p.name for p in tmp_path.glob("f*.png")) == ["f1.png", "f2.png"]
+
+
+def test_an_error_on_every_rank_is_one_line(gerris, tmp_path):
+    out = tmp_path / "x.png"
+    proc = mpirun(3, "render", *gerris, "-o", out, "--field", "nope")
+    assert_one_error_line(proc, "nope")
+    proc = mpirun(3, "render", gerris[0], gerris[1], gerris[0], "-o", out)
+    assert_one_error_line(proc, "expected a bvh file")
+    proc = mpirun(2, "render", *gerris, "-o", out, "--no-such-flag")
+    assert proc.returncode == 2 and proc.stderr.count("No such option") == 1
+    assert not out.exists()
+
+
+def test_an_error_on_one_rank_ends_every_rank(gerris, tmp_path):
+    """Rank 1 alone cannot find its device (MPMD: its own environment): every rank
+    stops, rank 0 reports rank 1's error, no image is written."""
+    out = tmp_path / "x.png"
+    args = [*EB, "render", *map(str, gerris), "-o", str(out)]
+    cmd = [str(MPIEXEC), "-n", "1", *args, ":", "-n", "1", "-env", "EXABRICKS_DEVICE", "9:9",
+           *args]
+    proc = subprocess.run(cmd, capture_output=True, text=True, timeout=600)
+    assert_one_error_line(proc, "rank 1:", "9:9")
+    assert not out.exists()
+
+
+def test_srun_without_mpi_is_refused(gerris, tmp_path):
+    """Several tasks of `srun` without `--mpi=pmi2` would each write the whole frame."""
+    from conftest import run_cli
+
+    proc = run_cli("render", *gerris, "-o", tmp_path / "x.png",
+                   env={"SLURM_STEP_NUM_TASKS": "3"})
+    assert_one_error_line(proc, "srun", "--mpi=pmi2")
