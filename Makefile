@@ -10,7 +10,7 @@ OUT    ?= out
 DATA    = exabricks/data/gerris-plume
 SUDO   := $(shell [ "$$(id -u)" = 0 ] || echo sudo)
 
-.PHONY: setup system-deps demo test test-slow fuzz test-all bench gallery clean
+.PHONY: setup system-deps demo test test-slow fuzz test-slurm test-all bench gallery clean
 
 system-deps:
 	@if ! ls /etc/OpenCL/vendors/*.icd >/dev/null 2>&1; then \
@@ -55,7 +55,7 @@ demo: setup $(OUT)/plume.png
 # The fast suite (minutes): everything but the `slow` tests; each fuzzer runs a
 # few examples (EXABRICKS_FUZZ_EXAMPLES, default in tests/conftest.py).
 test: setup
-	$(PY) -m pytest -q -m "not slow"
+	$(PY) -m pytest -q -m "not slow and not slurm"
 
 # The slow tests (real datasets end to end, random layouts, no-JIT runs).
 test-slow: setup
@@ -65,8 +65,14 @@ test-slow: setup
 fuzz: setup
 	EXABRICKS_FUZZ_EXAMPLES=150 $(PY) -m pytest -q -m "fuzz"
 
-# What CI runs: all three.
-test-all: test test-slow fuzz
+# The SLURM workflows on a one-node cluster on this machine (workflows/slurm/up.sh:
+# Debian's slurm-wlm and munge, started by hand; root, or sudo).
+test-slurm: setup
+	$(SUDO) workflows/slurm/up.sh
+	EXABRICKS_SLURM=1 $(PY) -m pytest -q -m "slurm"
+
+# What CI runs: all four.
+test-all: test test-slow fuzz test-slurm
 
 # Every benchmark, in order, each replacing its own "## section" of docs/benchmarks.md
 # (median of 5 runs after a warm-up; figures are only meaningful on a quiet machine).

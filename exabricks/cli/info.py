@@ -10,10 +10,39 @@ from .. import schema
 
 
 @click.command()
-@click.argument("path", type=click.Path(dir_okay=False))
+@click.argument("paths", metavar="FILE...", nargs=-1, required=True, type=click.Path(dir_okay=False))
 @click.option("--json", "as_json", is_flag=True, help="Machine-readable output (keys: docs/file-formats.md).")
-def info(path, as_json):
-    """Summarise an exabricks .npz file (cells, bricks, regions or bvh)."""
+@click.option("--field-range", metavar="FIELD",
+              help="Print only 'LO HI', the range of FIELD over all the FILEs (a time series' "
+                   "fixed transfer-function range: render --range $(exabricks info --field-range ...)).")
+def info(paths, as_json, field_range):
+    """Summarise exabricks .npz files (cells, bricks, regions or bvh)."""
+    if field_range is not None:
+        click.echo(" ".join(f"{v!r}" for v in series_range(paths, field_range)))
+        return
+    for path in paths:
+        _show(path, as_json)
+
+
+def series_range(paths, field: str) -> tuple[float, float]:
+    """(min, max) of `field` over every file of `paths` (their finite values)."""
+    from ..errors import ExabricksError
+
+    lo, hi = float("inf"), float("-inf")
+    for path in paths:
+        s = schema.summary(schema.load(path))
+        entry = next((f for f in s["fields"] if f["name"] == field), None)
+        if entry is None:
+            names = ", ".join(f["name"] for f in s["fields"]) or "none"
+            raise ExabricksError(f"{path}: no field {field!r} (fields: {names})")
+        if entry["min"] is not None:
+            lo, hi = min(lo, entry["min"]), max(hi, entry["max"])
+    if lo > hi:
+        raise ExabricksError(f"{paths[0]}: field {field!r} has no finite value in any file")
+    return lo, hi
+
+
+def _show(path, as_json) -> None:
     s = schema.summary(schema.load(path))
     s["path"] = path
     if as_json:

@@ -1,0 +1,192 @@
+"""The scripts of workflows/ run for real (issue 12): the Make pipelines with
+`make -j`, and the SLURM job scripts on a one-node cluster (tests marked `slurm`:
+`make test-slurm` brings the cluster up with workflows/slurm/up.sh first, and CI
+runs them). Every movie and frame is checked against one-process renders."""
+
+from __future__ import annotations
+
+import os
+import re
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from exabricks.image_io import read_image
+
+from conftest import GERRIS, ROOT
+
+WORKFLOWS = ROOT / "workflows"
+BIN = Path(sys.executable).parent
+ENV = {**os.environ, "PATH": f"{BIN}{os.pathsep}{os.environ.get('PATH', '')}"}
+
+
+def run(*cmd, cwd=None, timeout=900):
+    proc = subprocess.run([str(c) for c in cmd], capture_output=True, text=True, env=ENV,
+                          cwd=cwd, timeout=timeout)
+    assert proc.returncode == 0, f"{cmd}\n{proc.stdout[-3000:]}\n{proc.stderr[-3000:]}"
+    return proc
+
+
+def eb(*args):
+    return run(BIN / "exabricks", *args)
+
+
+def movie_frames(path) -> int:
+    import imageio.v3 as iio
+
+    return sum(1 for _ in iio.imiter(path))
+
+
+def assert_same_png(a, b):
+    np.testing.assert_array_equal(read_image(a)[0], read_image(b)[0])
+
+
+@pytest.fixture(scope="module")
+def series(tmp_path_factory):
+    d = tmp_path_factory.mktemp("series")
+    run(sys.executable, WORKFLOWS / "make_series.py", d, "--steps", 3)
+    return sorted(d.glob("plt*"))
+
+
+def test_make_series_pipeline(series, tmp_path):
+    out = tmp_path / "out"
+    make = ["make", "-f", WORKFLOWS / "Makefile", "-j2", "series", f"SERIES={series[0].parent}/plt*",
+            "FIELD=phi", f"OUT={out}", "RENDER=--size 64 48", "FPS=5"]
+    run(*make)
+    assert movie_frames(out / "movie.mp4") == 3
+    lo, hi = (float(x) for x in (out / "range.txt").read_text().split())
+    assert 0.0 <= lo < hi <= 1.0
+    step = out / "steps" / series[1].name
+    eb("render", step / "bricks.npz", step / "regions.npz", step / "bvh.npz", "-o",
+       tmp_path / "direct.png", "--field", "phi", "--range", lo, hi, "--size", 64, 48)
+    assert_same_png(out / "frames" / f"{series[1].name}.png", tmp_path / "direct.png")
+    # everything is up to date: a second make has nothing to do
+    assert subprocess.run([str(c) for c in make] + ["-q"], env=ENV).returncode == 0
+
+
+def test_make_orbit_pipeline(tmp_path):
+    out = tmp_path / "out"
+    run("make", "-f", WORKFLOWS / "Makefile", "-j2", "orbit", f"DATASET={GERRIS}", "FIELD=T",
+        f"OUT={out}", "FRAMES=4", "RANGE=0 0.6", "RENDER=--size 48 32")
+    assert movie_frames(out / "movie.mp4") == 4
+    eb("render", out / "bricks.npz", out / "regions.npz", out / "bvh.npz", "--camera-path",
+       out / "orbit.json", "--frame", 3, "-o", tmp_path / "f3.png", "--field", "T",
+       "--range", 0, 0.6, "--size", 48, 32)
+    assert_same_png(out / "frames" / "frame_00003.png", tmp_path / "f3.png")
+
+
+# ---- SLURM ---------------------------------------------------------------------------
+
+def _cluster_up() -> bool:
+    if shutil.which("sinfo") is None:
+        return False
+    proc = subprocess.run(["sinfo", "-h", "-o", "%t"], capture_output=True, text=True)
+    return proc.returncode == 0 and proc.stdout.split() and proc.stdout.split()[0] in (
+        "idle", "mix", "alloc")
+
+
+# CI sets EXABRICKS_SLURM=1 after bringing the cluster up: there these tests never skip.
+needs_cluster = pytest.mark.skipif(
+    not _cluster_up() and not os.environ.get("EXABRICKS_SLURM"),
+    reason="no SLURM cluster here (make test-slurm brings one up)")
+
+
+def sbatch(*args, cwd) -> str:
+    """Submit, wait, and check that the job and all its array tasks COMPLETED
+    (`sbatch --wait` can return 0 for a cancelled job)."""
+    proc = run("sbatch", "--parsable", "--wait", *args, cwd=cwd)
+    job = proc.stdout.strip().split(";")[0]
+    assert_completed(job)
+    return job
+
+
+def assert_completed(job: str) -> None:
+    proc = subprocess.run(["scontrol", "-o", "show", "job", job], capture_output=True, text=True)
+    states = re.findall(r"JobState=(\S+)", proc.stdout)
+    assert states and all(s == "COMPLETED" for s in states), proc.stdout
+
+
+@pytest.fixture(scope="module")
+def gerris_files(tmp_path_factory):
+    d = tmp_path_factory.mktemp("gerris")
+    eb("ingest", GERRIS, "-o", d / "cells.npz")
+    eb("brick", d / "cells.npz", "-o", d / "bricks.npz")
+    eb("regions", d / "bricks.npz", "-o", d / "regions.npz")
+    eb("bvh", d / "regions.npz", "-o", d / "bvh.npz")
+    return [d / f"{n}.npz" for n in ("bricks", "regions", "bvh")]
+
+
+@pytest.mark.parametrize("per_task", [1, 2])
+@pytest.mark.slurm
+@needs_cluster
+def test_slurm_frames_array_and_movie(gerris_files, tmp_path, per_task):
+    path = tmp_path / "orbit.json"
+    eb("camera", "orbit", gerris_files[0], "--frames", 5, "-o", path)
+    opts = ["--field", "T", "--size", 40, 32]
+    tasks = -(-5 // per_task)
+    env_prefix = f"--export=ALL,FRAMES_PER_TASK={per_task}"
+    job = sbatch(env_prefix, f"--array=0-{tasks - 1}", "-o", tmp_path / "task-%a.log",
+                 WORKFLOWS / "slurm" / "render_frames.sbatch", path, tmp_path / "frames",
+                 *gerris_files, *opts, cwd=tmp_path)
+    sbatch(f"--dependency=afterok:{job}", "--kill-on-invalid-dep=yes", "-o", tmp_path / "movie.log", "--wrap",
+           f"{BIN / 'exabricks'} movie '{tmp_path}/frames/*.png' -o {tmp_path / 'orbit.mp4'}",
+           cwd=tmp_path)
+    assert movie_frames(tmp_path / "orbit.mp4") == 5
+    frames = sorted((tmp_path / "frames").glob("*.png"))
+    assert [f.name for f in frames] == [f"frame_{i:05d}.png" for i in range(5)]
+    eb("render", *gerris_files, "--camera-path", path, "--frame", 4, "-o", tmp_path / "f4.png", *opts)
+    assert_same_png(frames[4], tmp_path / "f4.png")
+
+
+@pytest.mark.parametrize("launch", ["srun --mpi=pmi2", "mpiexec"])
+@pytest.mark.slurm
+@needs_cluster
+def test_slurm_mpi_frame(gerris_files, tmp_path, launch):
+    opts = ["--field", "T", "--size", 64, 48, "--max-opacity", 1]
+    sbatch("-n", 3, f"--export=ALL,MPI_LAUNCH={launch}", "-o", tmp_path / "mpi.log",
+           WORKFLOWS / "slurm" / "render_mpi.sbatch", tmp_path / "mpi.exr", *gerris_files, *opts,
+           cwd=tmp_path)
+    eb("render", *gerris_files, "-o", tmp_path / "one.exr", *opts)
+    a, meta = read_image(tmp_path / "mpi.exr")
+    b, _ = read_image(tmp_path / "one.exr")
+    assert meta["settings"]["mpi"]["ranks"] == 3
+    assert float(np.sqrt(np.mean((a - b) ** 2))) <= 1e-5 * float(np.abs(b).max())
+
+
+@pytest.mark.slurm
+@needs_cluster
+def test_slurm_series_with_dependencies(series, tmp_path):
+    out = tmp_path / "out"
+    env = {**ENV, "FIELD": "phi", "RENDER_OPTIONS": "--size 64 48", "WAIT": "1", "FPS": "5"}
+    proc = subprocess.run([str(WORKFLOWS / "slurm" / "series.sh"), str(out), *map(str, series)],
+                          capture_output=True, text=True, env=env, cwd=tmp_path, timeout=900)
+    assert proc.returncode == 0, proc.stderr + proc.stdout
+    jobs = dict(part.split("=") for part in proc.stdout.split())
+    assert set(jobs) == {"preprocess", "range", "render", "movie"}
+    for job in jobs.values():
+        assert_completed(job)
+    assert movie_frames(out / "movie.mp4") == 3
+    lo, hi = (out / "range.txt").read_text().split()
+    step = out / "step_00002"
+    eb("render", step / "bricks.npz", step / "regions.npz", step / "bvh.npz", "-o",
+       tmp_path / "direct.png", "--field", "phi", "--range", lo, hi, "--size", 64, 48)
+    assert_same_png(out / "frames" / "frame_00002.png", tmp_path / "direct.png")
+
+
+@pytest.mark.slurm
+@needs_cluster
+def test_slurm_failed_task_stops_what_depends_on_it(tmp_path):
+    """A preprocessing task that fails (an input that is not a dataset) leaves the
+    render and movie jobs never run, and series.sh with WAIT=1 fails."""
+    bogus = tmp_path / "plt_bogus"
+    bogus.write_text("not a plotfile")
+    env = {**ENV, "FIELD": "phi", "WAIT": "1"}
+    proc = subprocess.run([str(WORKFLOWS / "slurm" / "series.sh"), str(tmp_path / "out"), str(bogus)],
+                          capture_output=True, text=True, env=env, cwd=tmp_path, timeout=600)
+    assert proc.returncode != 0
+    assert not (tmp_path / "out" / "movie.mp4").exists()
+    assert not list((tmp_path / "out").glob("step_*/cells.npz"))
