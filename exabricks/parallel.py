@@ -140,6 +140,25 @@ def _interleaved_spans(height: int, n: int, rank: int, rows: int = 16) -> list[t
     return [(a, min(rows, height - a)) for a in range(rank * rows, height, n * rows)]
 
 
+def load_for(mode: str, bricks_path, regions_path, bvh_path):
+    """The three structure files for a run in `mode`: in data mode the bricks and
+    regions mapped (a rank reads the pages of its piece only; exabricks.stages.
+    partition.piece_data checks what it takes) and the bvh only checked to be
+    one of the same regions; else loaded and validated as for one process."""
+    from . import schema
+
+    if mode != "data":
+        return (schema.load(bricks_path, "bricks"), schema.load(regions_path, "regions"),
+                schema.load(bvh_path, "bvh"))
+    bricks = schema.load(bricks_path, "bricks", mapped=True)
+    regions = schema.load(regions_path, "regions", mapped=True)
+    bvh = schema.load(bvh_path, "bvh", mapped=True)
+    if bvh.region_index.shape[0] != regions.n_regions:
+        raise ExabricksError(f"{bvh_path}: the bvh indexes {bvh.region_index.shape[0]} regions but "
+                             f"{regions_path} has {regions.n_regions}: it was built from other regions")
+    return bricks, regions, bvh
+
+
 def needs_image_mode(scene) -> str | None:
     """Why a frame cannot be split by space (None if it can)."""
     if scene.isosurfaces:
@@ -157,9 +176,12 @@ class ParallelRenderer:
     """One frame at a time with every rank of `comm` (module docstring);
     `render_scene` returns the RenderResult on rank 0 and None elsewhere. Build
     it inside `agree`; each rank's own rendering runs inside `agree`, so that
-    the collective steps are only reached when every rank got there."""
+    the collective steps are only reached when every rank got there. In data
+    mode `bricks` and `regions` may be mapped (`load_for`) and `bvh` is not used:
+    each piece gets its own."""
 
-    def __init__(self, comm, bricks, regions, bvh, scene, *, device=None, mode: str = "data"):
+    def __init__(self, comm, bricks, regions, bvh, scene, *, device=None, mode: str = "data",
+                 where=("the bricks", "the regions")):
         from .stages.device_data import DatasetScale
         from .stages.render import Renderer
 
@@ -179,7 +201,7 @@ class ParallelRenderer:
 
         self.partition = kd_partition(bricks, regions, self.size)
         box = (self.partition.lower[self.rank], self.partition.upper[self.rank])
-        piece = piece_data(bricks, regions, *box, **piece_options(bricks, scene))
+        piece = piece_data(bricks, regions, *box, **piece_options(bricks, scene), where=where)
         self.renderer = Renderer(*piece, fields=fields, device=device, piece=box,
                                  scale=DatasetScale.of(bricks, fields))
 

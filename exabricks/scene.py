@@ -223,11 +223,17 @@ def _flag(name: str) -> str:
 def field_range(bricks, field: str | None) -> tuple[float, float]:
     """(min, max) of the finite values of `field` (None: the first field);
     ExabricksError if it has none."""
-    values = bricks.values[bricks.field_index(field)]
-    finite = values[np.isfinite(values)]
-    if finite.size == 0:
+    from .schema import reduce_chunks
+
+    def extent(chunk):
+        finite = chunk[np.isfinite(chunk)]
+        return (float(finite.min()), float(finite.max())) if finite.size else (np.inf, -np.inf)
+
+    lo, hi = reduce_chunks(bricks.values[bricks.field_index(field)], extent,
+                           lambda a, b: (min(a[0], b[0]), max(a[1], b[1])))
+    if lo > hi:
         raise ExabricksError(f"field {field or bricks.fields[0]!r} has no finite values")
-    return float(finite.min()), float(finite.max())
+    return lo, hi
 
 
 def _data_range(bricks, field: str) -> tuple[float, float]:

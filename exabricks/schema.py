@@ -525,13 +525,19 @@ def peek(path: str | os.PathLike) -> tuple[str, int, dict]:
         return _header(z, str(path))
 
 
-def load(path: str | os.PathLike, kind: str | None = None) -> _Kind:
+def load(path: str | os.PathLike, kind: str | None = None, *, mapped: bool = False) -> _Kind:
     """Read and validate an exabricks file; with `kind`, refuse any other kind.
 
     The arrays' dtypes and shapes are read from their .npy headers and checked
     against the schema (and against the sizes the zip directory records)
     before any array is decompressed, so a crafted file cannot make the
-    loader allocate more than the file claims consistently."""
+    loader allocate more than the file claims consistently.
+
+    `mapped`: the large stored arrays are mapped read-only from the file instead
+    of read (pages come in as they are used), and only their dtypes and shapes
+    are checked: for a caller that uses a part of the data and validates that
+    part itself (exabricks.stages.partition.piece_data, whose output goes through
+    `validate` like any file)."""
     where = str(path)
     with NpzArchive(path) as z:
         found, version, meta = _header(z, where)
@@ -560,10 +566,34 @@ def load(path: str | os.PathLike, kind: str | None = None) -> _Kind:
         arrays = {}
         for name in sorted(cls.SPECS, key=sizes.get):
             _check_implied_sizes(cls, arrays, headers, where)
-            arrays[name] = z.array(name)
+            arrays[name] = z.array(name, mapped=mapped)
     obj = cls(fields=tuple(fields), meta=meta, **arrays)
-    validate(obj, where)
+    if not mapped:
+        validate(obj, where)
     return obj
+
+
+# Elements per step of `reduce_chunks` (16 MiB of float32).
+CHUNK = 1 << 22
+
+
+def reduce_chunks(array: np.ndarray, fn, combine):
+    """combine() over fn(chunk) of consecutive chunks of a 1-D array; the pages of a
+    mapped array (load(mapped=True)) are handed back after each chunk, so that a
+    pass over a large mapped array does not keep it all resident."""
+    import mmap
+
+    result = None
+    base = getattr(array, "_mmap", None) if isinstance(array, np.memmap) else None
+    for start in range(0, max(array.shape[0], 1), CHUNK):
+        part = array[start:start + CHUNK]
+        value = fn(part)
+        result = value if result is None else combine(result, value)
+        if base is not None and part.size and hasattr(mmap, "MADV_DONTNEED"):
+            first = part.ctypes.data - np.frombuffer(base, np.uint8).ctypes.data
+            lo = first // mmap.PAGESIZE * mmap.PAGESIZE
+            base.madvise(mmap.MADV_DONTNEED, lo, first + part.nbytes - lo)
+    return result
 
 
 def _check_declared(cls, headers: dict, n_fields: int, where: str) -> None:
@@ -711,9 +741,13 @@ class NpzArchive:
                                    f"archive holds {info.file_size - header_bytes} bytes for it")
         return tuple(int(x) for x in shape), dtype, header_bytes
 
-    def array(self, name) -> np.ndarray:
+    def array(self, name, mapped: bool = False) -> np.ndarray:
+        """The member's array: read (stored members checked against the CRC), or
+        with `mapped` a large stored member mapped read-only from the file."""
         info = self.members[name]
         if info.compress_type == zipfile.ZIP_STORED and info.file_size >= self.DIRECT_BYTES:
+            if mapped:
+                return self._map_stored(name, info)
             return self._read_stored(name, info)
         try:
             with self._open_member(name) as f:
@@ -723,6 +757,31 @@ class NpzArchive:
         except MemoryError:
             raise
         except Exception as e:  # truncated member, CRC error, ...
+            raise self._fail(name, f"cannot be read ({e})") from None
+
+    def _data_offset(self, f, info) -> int:
+        """Where a stored member's bytes (its .npy header first) start in the file."""
+        f.seek(info.header_offset)
+        local = f.read(30)
+        if len(local) != 30 or local[:4] != b"PK\x03\x04":
+            raise ValueError("bad local file header")
+        name_len = int.from_bytes(local[26:28], "little")
+        extra_len = int.from_bytes(local[28:30], "little")
+        return info.header_offset + 30 + name_len + extra_len
+
+    def _map_stored(self, name, info) -> np.ndarray:
+        """A stored member's array mapped read-only (no CRC: its pages are not read)."""
+        shape, dtype = self.header(name)
+        skip = self._headers[name][2]
+        try:
+            with open(self.path, "rb") as f:
+                offset = self._data_offset(f, info) + skip
+                if offset + info.file_size - skip > os.fstat(f.fileno()).st_size:
+                    raise ValueError("truncated")
+            return np.memmap(self.path, dtype=dtype, mode="r", offset=offset, shape=shape)
+        except OSError as e:
+            raise self._fail(name, f"cannot be read ({e.strerror or e})") from None
+        except ValueError as e:
             raise self._fail(name, f"cannot be read ({e})") from None
 
     def _read_stored(self, name, info) -> np.ndarray:
@@ -736,13 +795,7 @@ class NpzArchive:
         view = memoryview(out.reshape(-1).view(np.uint8))
         try:
             with open(self.path, "rb") as f:
-                f.seek(info.header_offset)
-                local = f.read(30)
-                if len(local) != 30 or local[:4] != b"PK\x03\x04":
-                    raise ValueError("bad local file header")
-                name_len = int.from_bytes(local[26:28], "little")
-                extra_len = int.from_bytes(local[28:30], "little")
-                f.seek(info.header_offset + 30 + name_len + extra_len)
+                f.seek(self._data_offset(f, info))
                 head = f.read(skip)
                 if f.readinto(view) != len(view) or len(head) != skip:
                     raise ValueError("truncated")
@@ -810,11 +863,16 @@ def world_bounds(obj: _Kind) -> tuple[list[float], list[float]]:
     return to_world(lo), to_world(hi)
 
 
-def _cell_box(lower, level, dims):
+def _cell_box(lower, level, dims, step: int = 1 << 18):
+    """Lattice bounds of boxes (in steps of `step`: a few MB at a time)."""
     if lower.size == 0:
         return lower[:0], lower[:0]
-    width = (1 << level.astype(np.int64))[:, None]
-    return lower.min(axis=0), (lower.astype(np.int64) + dims * width).max(axis=0)
+    lo, hi = [], []
+    for s in range(0, lower.shape[0], step):
+        width = (1 << level[s:s + step].astype(np.int64))[:, None]
+        lo.append(lower[s:s + step].min(axis=0))
+        hi.append((lower[s:s + step].astype(np.int64) + dims[s:s + step] * width).max(axis=0))
+    return np.min(lo, axis=0), np.max(hi, axis=0)
 
 
 def summary(obj: _Kind) -> dict[str, Any]:

@@ -139,3 +139,21 @@ def test_srun_without_mpi_is_refused(gerris, tmp_path):
     proc = run_cli("render", *gerris, "-o", tmp_path / "x.png",
                    env={"SLURM_STEP_NUM_TASKS": "3"})
     assert_one_error_line(proc, "srun", "--mpi=pmi2")
+
+
+@pytest.mark.parametrize("array, value, needle", [
+    ("brick_ids", 10**6, "lists brick 1000000"),
+    ("brick_start", -5, "out of order"),
+])
+def test_crafted_regions_under_data_parallel_mpi(gerris, tmp_path, array, value, needle):
+    """A rank maps the files and checks only what its piece takes: a corrupt list
+    is still caught before any kernel reads it, with one error line."""
+    with np.load(gerris[1]) as z:
+        arrays = {k: z[k].copy() for k in z.files}
+    arrays[array][len(arrays[array]) // 2] = value
+    bad = tmp_path / "regions.npz"
+    np.savez(bad, **arrays)
+    out = tmp_path / "x.png"
+    proc = mpirun(2, "render", gerris[0], bad, gerris[2], "-o", out)
+    assert_one_error_line(proc, str(bad), needle)
+    assert not out.exists()

@@ -174,8 +174,15 @@ def _prepare(bricks_path, regions_path, bvh_path, output, scene_path, camera_pat
     jobs = _frame_jobs(output, path_file, frame, frames)
     for _, _, image in jobs:
         check_output(image, inputs)
-    bricks, regions, bvh = load_scene(bricks_path, regions_path, bvh_path)
+    if comm is None:
+        bricks, regions, bvh = load_scene(bricks_path, regions_path, bvh_path)
+    else:
+        from ..parallel import load_for, needs_image_mode
+
+        bricks, regions, bvh = load_for(mpi_mode, bricks_path, regions_path, bvh_path)
     scene = scene_from_options(bricks, scene_path=scene_path, camera_path=camera_path, flags=flags)
+    if comm is not None and mpi_mode == "data" and needs_image_mode(scene):
+        bricks, regions, bvh = load_for("image", bricks_path, regions_path, bvh_path)
     if scene.settings.depth and Path(output).suffix.lower() == ".png":
         raise ExabricksError(f"{output}: a depth image needs .exr output (PNG has no depth channel)")
     dataset = {"bricks": str(bricks_path), "regions": str(regions_path), "bvh": str(bvh_path),
@@ -188,7 +195,7 @@ def _prepare(bricks_path, regions_path, bvh_path, output, scene_path, camera_pat
         from ..parallel import ParallelRenderer
 
         renderer = ParallelRenderer(comm, bricks, regions, bvh, scene, device=device,
-                                    mode=mpi_mode)
+                                    mode=mpi_mode, where=(bricks_path, regions_path))
         if renderer.reason and comm.Get_rank() == 0:
             log.info("%s: %s need the whole dataset on every rank: image-parallel (--mpi-mode "
                      "image)", output, renderer.reason)

@@ -103,8 +103,12 @@ def finest_cell_width_world(bricks: schema.Bricks) -> float:
 
 def field_magnitude(values: np.ndarray) -> float:
     """The largest finite |value| of one field (1 when there is none)."""
-    finite = np.abs(values[np.isfinite(values)]) if values.size else np.zeros(0)
-    return float(finite.max()) if finite.size and finite.max() > 0 else 1.0
+    def largest(chunk):
+        finite = np.abs(chunk[np.isfinite(chunk)])
+        return float(finite.max()) if finite.size else 0.0
+
+    magnitude = schema.reduce_chunks(values, largest, max)
+    return magnitude if magnitude > 0 else 1.0
 
 
 @dataclass(frozen=True)

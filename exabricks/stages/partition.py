@@ -24,6 +24,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import numba
 import numpy as np
 
 from .. import schema
@@ -65,71 +66,106 @@ class KdPartition:
         return order
 
 
-def _weights(bricks: schema.Bricks, regions: schema.Regions):
-    """Points (centres, lattice units) and their bytes: every brick's values and
-    box, every region's box and list."""
-    width = np.ldexp(1.0, bricks.level.astype(np.int32))[:, None]
-    brick_centre = bricks.lower_lattice + 0.5 * bricks.dims * width
-    cells = bricks.dims.astype(np.float64).prod(axis=1)
-    brick_bytes = cells * 4.0 * bricks.n_fields + 40.0
-    region_centre = 0.5 * (regions.lower_lattice.astype(np.float64) + regions.upper_lattice)
-    region_bytes = 34.0 + 4.0 * np.diff(regions.brick_start) + 8.0 * regions.n_fields
-    return (np.concatenate([brick_centre, region_centre]),
-            np.concatenate([brick_bytes, region_bytes]))
+# Cells per axis, at most, of the grid of bytes that the cuts are chosen on.
+GRID = 128
+# Bricks or regions per step when their bytes are gathered into the grid.
+STEP = 1 << 18
+
+
+def byte_grid(bricks: schema.Bricks, regions: schema.Regions):
+    """(grid, origin, cell): the bytes of every brick (values and box) and every
+    region (box and list) spread evenly over the cells of a grid of `cell`-wide
+    cells (a power of two lattice units, at most GRID per axis, from `origin`)
+    that its box covers; gathered in steps, so that its memory is the grid's."""
+    if regions.n_regions:
+        origin = np.floor(regions.lower_lattice.min(axis=0)).astype(np.float64)
+        top = np.ceil(regions.upper_lattice.max(axis=0)).astype(np.float64)
+    else:
+        origin, top = np.zeros(3), np.ones(3)
+    cell = float(2.0 ** max(0, int(np.ceil(np.log2(max(float((top - origin).max()), 1.0) / GRID)))))
+    shape = np.maximum(np.ceil((top - origin) / cell).astype(np.int64), 1)
+    edges = shape + 1
+    corners = np.zeros(int(np.prod(edges)), np.float64)  # the grid's differences
+
+    def add(lo, hi, nbytes):
+        i0 = np.clip(np.floor((lo - origin) / cell).astype(np.int64), 0, shape - 1)
+        i1 = np.clip(np.ceil((hi - origin) / cell).astype(np.int64), i0 + 1, shape)
+        density = nbytes / (i1 - i0).prod(axis=1)
+        for corner in range(8):  # inclusion-exclusion at the box's 8 corners
+            pick = [(corner >> a) & 1 for a in range(3)]
+            ix, iy, iz = ((i1 if p else i0)[:, a] for a, p in enumerate(pick))
+            sign = -1.0 if sum(pick) % 2 else 1.0
+            corners[:] += np.bincount((iz * edges[1] + iy) * edges[0] + ix,
+                                      weights=sign * density, minlength=corners.size)
+
+    per_cell = 4.0 * bricks.n_fields
+    for s in range(0, bricks.n_bricks, STEP):
+        dims = bricks.dims[s:s + STEP].astype(np.float64)
+        lo = bricks.lower_lattice[s:s + STEP].astype(np.float64)
+        hi = lo + dims * np.ldexp(1.0, bricks.level[s:s + STEP].astype(np.int32))[:, None]
+        add(lo, hi, dims.prod(axis=1) * per_cell + 40.0)
+    for s in range(0, regions.n_regions, STEP):
+        lists = np.diff(regions.brick_start[s:s + STEP + 1]).astype(np.float64)
+        add(regions.lower_lattice[s:s + STEP].astype(np.float64),
+            regions.upper_lattice[s:s + STEP].astype(np.float64),
+            34.0 + 8.0 * regions.n_fields + 4.0 * lists)
+    grid = corners.reshape(edges[::-1]).transpose(2, 1, 0)
+    for a in range(3):
+        grid = np.cumsum(grid, axis=a)
+    return grid[:-1, :-1, :-1], origin, cell
 
 
 def kd_partition(bricks: schema.Bricks, regions: schema.Regions, n: int) -> KdPartition:
-    """`n` pieces of about equal bytes (module docstring)."""
+    """`n` pieces of about equal bytes (module docstring): each cut halves (for an
+    odd count, splits in proportion) the bytes of its box along the box's
+    longest axis, at a cell boundary of `byte_grid`."""
     if int(n) < 1:
         raise ExabricksError(f"a partition needs at least one piece, got {n}")
-    centres, weights = _weights(bricks, regions)
-    if regions.n_regions:
-        box_lo = np.floor(regions.lower_lattice.min(axis=0)).astype(np.float64)
-        box_hi = np.ceil(regions.upper_lattice.max(axis=0)).astype(np.float64)
-    else:
-        box_lo, box_hi = np.zeros(3), np.ones(3)
+    grid, origin, cell = byte_grid(bricks, regions)
     axis, plane, left, right, lower, upper = [], [], [], [], [], []
-
-    def build(lo, hi, open_lo, open_hi, idx, count) -> int:
+    stack = [(np.zeros(3, np.int64), np.array(grid.shape), np.full(3, -np.inf), np.full(3, np.inf),
+              int(n), None)]
+    while stack:  # (grid box [g0, g1), open bounds, pieces, (parent, side))
+        g0, g1, open_lo, open_hi, count, link = stack.pop()
         if count == 1:
             lower.append(open_lo)
             upper.append(open_hi)
-            return -len(lower)  # -1 - k for piece k
-        node = len(axis)
-        axis.append(0), plane.append(0.0), left.append(0), right.append(0)
-        a = int(np.argmax(hi - lo))
-        share = (count // 2) / count
-        cut = _cut(centres[idx, a], weights[idx], share, lo[a], hi[a])
-        axis[node], plane[node] = a, cut
-        below = centres[idx, a] < cut
-        lo_l, hi_l, lo_r, hi_r = lo.copy(), hi.copy(), lo.copy(), hi.copy()
-        hi_l[a] = lo_r[a] = cut
-        ohi_l, olo_r = open_hi.copy(), open_lo.copy()
-        ohi_l[a] = olo_r[a] = cut
-        left[node] = build(lo_l, hi_l, open_lo, ohi_l, idx[below], count // 2)
-        right[node] = build(lo_r, hi_r, olo_r, open_hi, idx[~below], count - count // 2)
-        return node
-
-    inf = np.full(3, np.inf)
-    build(box_lo, box_hi, -inf, inf, np.arange(len(weights)), int(n))
+            node = -len(lower)  # -1 - k for piece k
+        else:
+            node = len(axis)
+            a, k = _cut(grid[g0[0]:g1[0], g0[1]:g1[1], g0[2]:g1[2]], g1 - g0, (count // 2) / count)
+            at = origin[a] + cell * (g0[a] + k)
+            axis.append(a), plane.append(at), left.append(0), right.append(0)
+            mid0, mid1 = g1.copy(), g0.copy()
+            mid0[a] = mid1[a] = g0[a] + k
+            hi_l, lo_r = open_hi.copy(), open_lo.copy()
+            hi_l[a] = lo_r[a] = at
+            stack.append((mid1, g1, lo_r, open_hi, count - count // 2, (node, 1)))
+            stack.append((g0, mid0, open_lo, hi_l, count // 2, (node, 0)))
+        if link is not None:
+            (left if link[1] == 0 else right)[link[0]] = node
     return KdPartition(np.asarray(axis, np.int32), np.asarray(plane, np.float64),
                        np.asarray(left, np.int64), np.asarray(right, np.int64),
                        np.asarray(lower, np.float64), np.asarray(upper, np.float64))
 
 
-def _cut(x: np.ndarray, w: np.ndarray, share: float, lo: float, hi: float) -> float:
-    """A lattice-integer plane strictly inside (lo, hi) when the box is wider than
-    one unit (else its middle) with about `share` of the weight below."""
-    if hi - lo < 2.0:
-        return 0.5 * (lo + hi)
-    if len(x) and w.sum() > 0:
-        order = np.argsort(x, kind="stable")
-        cumulative = np.cumsum(w[order])
-        k = int(np.searchsorted(cumulative, share * cumulative[-1]))
-        value = float(np.round(x[order][min(k, len(x) - 1)]))
+def _cut(block: np.ndarray, size: np.ndarray, share: float) -> tuple[int, int]:
+    """(axis, k): the longest axis of `block` (grid cells) that is at least two cells
+    long and the cut after k of its cells (0 < k < its length) with about `share`
+    of the block's bytes before it; a block of one cell is cut in its middle in
+    no axis (axis 0, k 0 would make an empty piece: refused)."""
+    axes = [a for a in np.argsort(-size, kind="stable") if size[a] >= 2]
+    if not axes:
+        raise ExabricksError(f"the data is too small to cut into that many pieces "
+                             f"(a piece would be less than one cell of {GRID}^3)")
+    a = int(axes[0])
+    marginal = block.sum(axis=tuple(x for x in range(3) if x != a))
+    cumulative = np.cumsum(marginal)
+    if cumulative[-1] > 0:  # the cell boundary nearest to the share
+        k = int(np.argmin(np.abs(cumulative - share * cumulative[-1]))) + 1
     else:
-        value = float(np.round(lo + share * (hi - lo)))
-    return float(min(max(value, lo + 1.0), hi - 1.0))
+        k = int(round(share * size[a]))
+    return a, min(max(k, 1), int(size[a]) - 1)
 
 
 def piece_options(bricks: schema.Bricks, scene) -> dict:
@@ -145,7 +181,7 @@ def piece_options(bricks: schema.Bricks, scene) -> dict:
 
 
 def piece_data(bricks: schema.Bricks, regions: schema.Regions, lower, upper, *,
-               halo: float = 0.0, crop: bool = True):
+               halo: float = 0.0, crop: bool = True, where=("the bricks", "the regions")):
     """(bricks, regions, bvh) of the piece [lower, upper) (module docstring).
 
     `halo` (lattice units) grows the piece for lookups outside it (central
@@ -154,7 +190,11 @@ def piece_data(bricks: schema.Bricks, regions: schema.Regions, lower, upper, *,
     to its cells within one cell width of the grown piece (a cell's basis
     support reaches half its width beyond it, so no sample of the piece loses a
     term), and dropped from the lists where nothing of it is left (its terms
-    there are exactly zero). `crop` False keeps the bricks whole."""
+    there are exactly zero). `crop` False keeps the bricks whole.
+
+    The inputs may be mapped and unvalidated (schema.load(mapped=True)): the
+    indices used are checked on the way (errors name `where`, the two files),
+    and the piece is validated as a file would be."""
     from .bvh import build_bvh
 
     lo = np.asarray(lower, np.float64) - halo
@@ -162,68 +202,114 @@ def piece_data(bricks: schema.Bricks, regions: schema.Regions, lower, upper, *,
     keep = np.flatnonzero(np.all(regions.lower_lattice < hi, axis=1)
                           & np.all(regions.upper_lattice > lo, axis=1))
     start, ids = regions.brick_start, regions.brick_ids
-    gather = _ranges(start[keep], (start[keep + 1] - start[keep]).astype(np.int64))
-    listed = ids[gather]
-    owner = np.repeat(np.arange(len(keep)), (start[keep + 1] - start[keep]).astype(np.int64))
-    used = np.unique(listed)
+    if len(keep):
+        lengths = start[keep + 1] - start[keep]
+        if lengths.min() < 0 or start[keep].min() < 0 or int(start[keep + 1].max()) > ids.shape[0]:
+            raise ExabricksError(f"{where[1]}: brick lists out of order or beyond the list array "
+                                 "(the regions file is corrupt)")
+    used_mask = np.zeros(bricks.n_bricks, np.bool_)
+    bad = _mark_listed(start, ids, keep, used_mask)
+    if bad >= 0:
+        raise ExabricksError(f"{where[1]}: a region lists brick {int(ids[bad])} of "
+                             f"{bricks.n_bricks}: the regions were built from other bricks")
+    used = np.flatnonzero(used_mask)
+    del used_mask
     # crop the used bricks to [lo - w, hi + w] (w: their cell width), in cells
     width = np.ldexp(1.0, bricks.level[used].astype(np.int32))[:, None]
     corner = bricks.lower_lattice[used].astype(np.float64)
     dims = bricks.dims[used].astype(np.int64)
-    first = np.clip(np.floor((np.where(np.isfinite(lo), lo, -np.inf) - width - corner) / width),
-                    0, dims).astype(np.int64)
-    last = np.clip(np.ceil((np.where(np.isfinite(hi), hi, np.inf) + width - corner) / width),
-                   0, dims).astype(np.int64)
-    if not crop:
+    if len(used) and (dims.min() < 1 or bricks.offset[used].min() < 0 or int(
+            (bricks.offset[used] + dims.prod(axis=1)).max()) > bricks.values.shape[1]):
+        raise ExabricksError(f"{where[0]}: brick dims or value offsets beyond the values "
+                             "(the bricks file is corrupt)")
+    if crop:
+        first = np.clip(np.floor((lo - width - corner) / width), 0, dims).astype(np.int64)
+        last = np.clip(np.ceil((hi + width - corner) / width), 0, dims).astype(np.int64)
+    else:
         first, last = np.zeros_like(dims), dims
     new_dims = np.maximum(last - first, 0)
     alive = new_dims.prod(axis=1) > 0
-    # lists without the bricks cropped away, renumbered
-    number = np.cumsum(alive) - 1
-    slot = np.searchsorted(used, listed)
-    kept = alive[slot]
-    counts = np.bincount(owner[kept], minlength=len(keep))
-    new_start = np.zeros(len(keep) + 1, start.dtype)
-    np.cumsum(counts, out=new_start[1:])
+    # the lists without the bricks cropped away, renumbered to the piece's bricks
+    number = np.full(bricks.n_bricks, -1, np.int64)
+    number[used[alive]] = np.arange(int(alive.sum()))
+    new_start, new_ids = _renumbered_lists(start, ids, keep, number)
     sub_regions = regions.replace(
-        lower_lattice=regions.lower_lattice[keep], upper_lattice=regions.upper_lattice[keep],
-        brick_start=new_start, brick_ids=number[slot[kept]].astype(ids.dtype),
-        value_range=regions.value_range[keep], finest_level=regions.finest_level[keep], meta={})
+        lower_lattice=np.ascontiguousarray(regions.lower_lattice[keep]),
+        upper_lattice=np.ascontiguousarray(regions.upper_lattice[keep]),
+        brick_start=new_start.astype(start.dtype, copy=False),
+        brick_ids=new_ids.astype(ids.dtype, copy=False),
+        value_range=np.ascontiguousarray(regions.value_range[keep]),
+        finest_level=np.ascontiguousarray(regions.finest_level[keep]), meta={})
     src, first, new_dims, dims = used[alive], first[alive], new_dims[alive], dims[alive]
     cells = new_dims.prod(axis=1)
     offset = np.zeros(len(src), bricks.offset.dtype)
     np.cumsum(cells[:-1], out=offset[1:])
-    values = bricks.values[:, _crop_indices(bricks.offset[src], dims, first, new_dims, cells)]
+    values = _copy_crops(bricks.values, bricks.offset[src].astype(np.int64), dims, first, new_dims,
+                         offset.astype(np.int64), int(cells.sum()))
     sub_bricks = bricks.replace(
         lower_lattice=(bricks.lower_lattice[src] + first * np.ldexp(
             1, bricks.level[src].astype(np.int64))[:, None]).astype(bricks.lower_lattice.dtype),
-        level=bricks.level[src], dims=new_dims.astype(bricks.dims.dtype), offset=offset,
-        values=values, meta={})
+        level=np.ascontiguousarray(bricks.level[src]), dims=new_dims.astype(bricks.dims.dtype),
+        offset=offset, values=values, meta={})
+    schema.validate(sub_bricks, f"{where[0]} (a piece)")
+    schema.validate(sub_regions, f"{where[1]} (a piece)")
     return sub_bricks, sub_regions, build_bvh(sub_regions)
 
 
-def _crop_indices(offset, dims, first, new_dims, cells) -> np.ndarray:
-    """Value indices of the sub-boxes [first, first + new_dims) of bricks of `dims`
-    (x fastest) whose values start at `offset`, brick after brick."""
-    total = int(cells.sum())
-    brick = np.repeat(np.arange(len(cells)), cells)
-    j = np.arange(total, dtype=np.int64) - np.repeat(np.cumsum(cells) - cells, cells)
-    nx, ny = new_dims[brick, 0], new_dims[brick, 1]
-    x, y, z = j % nx, (j // nx) % ny, j // (nx * ny)
-    dx, dy = dims[brick, 0], dims[brick, 1]
-    f = first[brick]
-    return offset[brick] + ((z + f[:, 2]) * dy + (y + f[:, 1])) * dx + (x + f[:, 0])
+@numba.njit(cache=True)
+def _mark_listed(start, ids, keep, used):
+    """used[b] = True for every brick b the regions `keep` list; the position in
+    `ids` of the first id out of range, else -1."""
+    n = used.shape[0]
+    for r in keep:
+        for k in range(start[r], start[r + 1]):
+            b = ids[k]
+            if b < 0 or b >= n:
+                return k
+            used[b] = True
+    return -1
 
 
-def _ranges(starts: np.ndarray, counts: np.ndarray) -> np.ndarray:
-    """The concatenated index ranges [starts[i], starts[i] + counts[i])."""
-    counts = np.asarray(counts, np.int64)
-    total = int(counts.sum())
-    if total == 0:
-        return np.zeros(0, np.int64)
-    first = np.repeat(np.asarray(starts, np.int64) - np.concatenate([[0], np.cumsum(counts)[:-1]]),
-                      counts)
-    return first + np.arange(total, dtype=np.int64)
+@numba.njit(cache=True)
+def _renumbered_lists(start, ids, keep, number):
+    """CSR lists of the regions `keep`: their ids mapped by `number`, those mapped
+    to -1 left out."""
+    new_start = np.zeros(len(keep) + 1, np.int64)
+    total = 0
+    for i in range(len(keep)):
+        r = keep[i]
+        for k in range(start[r], start[r + 1]):
+            if number[ids[k]] >= 0:
+                total += 1
+        new_start[i + 1] = total
+    out = np.empty(total, np.int32)
+    j = 0
+    for r in keep:
+        for k in range(start[r], start[r + 1]):
+            m = number[ids[k]]
+            if m >= 0:
+                out[j] = m
+                j += 1
+    return new_start, out
+
+
+@numba.njit(cache=True)
+def _copy_crops(values, offset, dims, first, new_dims, new_offset, total):
+    """The values (F, total) of the sub-boxes [first, first + new_dims) of bricks of
+    `dims` (x fastest) at `offset` in `values`, each at its `new_offset`."""
+    out = np.empty((values.shape[0], total), np.float32)
+    for b in range(len(offset)):
+        nx, ny, nz = new_dims[b, 0], new_dims[b, 1], new_dims[b, 2]
+        dx, dy = dims[b, 0], dims[b, 1]
+        x0, y0, z0 = first[b, 0], first[b, 1], first[b, 2]
+        j = new_offset[b]
+        for z in range(nz):
+            for y in range(ny):
+                i = offset[b] + ((z + z0) * dy + (y + y0)) * dx + x0
+                for f in range(values.shape[0]):
+                    out[f, j:j + nx] = values[f, i:i + nx]
+                j += nx
+    return out
 
 
 def eye_lattice(bricks: schema._Kind, position) -> np.ndarray:
