@@ -159,6 +159,18 @@ def load_for(mode: str, bricks_path, regions_path, bvh_path):
     return bricks, regions, bvh
 
 
+def _trim_heap() -> None:
+    """Give the C heap's free memory back to the system (glibc keeps what the
+    piece's temporaries used, a few hundred MB on large data); a no-op elsewhere."""
+    import ctypes
+    import ctypes.util
+
+    try:
+        ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6").malloc_trim(0)
+    except (OSError, AttributeError):
+        pass
+
+
 def needs_image_mode(scene) -> str | None:
     """Why a frame cannot be split by space (None if it can)."""
     if scene.isosurfaces:
@@ -182,6 +194,7 @@ class ParallelRenderer:
 
     def __init__(self, comm, bricks, regions, bvh, scene, *, device=None, mode: str = "data",
                  where=("the bricks", "the regions")):
+        from . import schema
         from .stages.device_data import DatasetScale
         from .stages.render import Renderer
 
@@ -200,8 +213,13 @@ class ParallelRenderer:
         from .stages.partition import kd_partition, piece_data, piece_options
 
         self.partition = kd_partition(bricks, regions, self.size)
+        for whole in (bricks, regions):  # the partition read them all: only the piece now
+            schema.release(whole)
         box = (self.partition.lower[self.rank], self.partition.upper[self.rank])
         piece = piece_data(bricks, regions, *box, **piece_options(bricks, scene), where=where)
+        for whole in (bricks, regions):
+            schema.release(whole)
+        _trim_heap()
         self.renderer = Renderer(*piece, fields=fields, device=device, piece=box,
                                  scale=DatasetScale.of(bricks, fields))
 

@@ -577,6 +577,17 @@ def load(path: str | os.PathLike, kind: str | None = None, *, mapped: bool = Fal
 CHUNK = 1 << 22
 
 
+def release(obj: "_Kind") -> None:
+    """Hand back the resident pages of `obj`'s mapped arrays (load(mapped=True)):
+    they are clean copies of the file, read again if used again."""
+    import mmap
+
+    for array in obj.arrays().values():
+        base = getattr(array, "_mmap", None) if isinstance(array, np.memmap) else None
+        if base is not None and hasattr(mmap, "MADV_DONTNEED"):
+            base.madvise(mmap.MADV_DONTNEED)
+
+
 def reduce_chunks(array: np.ndarray, fn, combine):
     """combine() over fn(chunk) of consecutive chunks of a 1-D array; the pages of a
     mapped array (load(mapped=True)) are handed back after each chunk, so that a

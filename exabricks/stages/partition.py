@@ -215,22 +215,14 @@ def piece_data(bricks: schema.Bricks, regions: schema.Regions, lower, upper, *,
     used = np.flatnonzero(used_mask)
     del used_mask
     # crop the used bricks to [lo - w, hi + w] (w: their cell width), in cells
-    width = np.ldexp(1.0, bricks.level[used].astype(np.int32))[:, None]
-    corner = bricks.lower_lattice[used].astype(np.float64)
-    dims = bricks.dims[used].astype(np.int64)
-    if len(used) and (dims.min() < 1 or bricks.offset[used].min() < 0 or int(
-            (bricks.offset[used] + dims.prod(axis=1)).max()) > bricks.values.shape[1]):
-        raise ExabricksError(f"{where[0]}: brick dims or value offsets beyond the values "
-                             "(the bricks file is corrupt)")
-    if crop:
-        first = np.clip(np.floor((lo - width - corner) / width), 0, dims).astype(np.int64)
-        last = np.clip(np.ceil((hi + width - corner) / width), 0, dims).astype(np.int64)
-    else:
-        first, last = np.zeros_like(dims), dims
-    new_dims = np.maximum(last - first, 0)
-    alive = new_dims.prod(axis=1) > 0
+    first, new_dims, bad = _crop_boxes(bricks.lower_lattice, bricks.level, bricks.dims,
+                                       bricks.offset, bricks.values.shape[1], used, lo, hi, crop)
+    if bad >= 0:
+        raise ExabricksError(f"{where[0]}: brick {int(used[bad])}'s dims or value offset lie "
+                             "beyond the values (the bricks file is corrupt)")
+    alive = (new_dims > 0).all(axis=1)
     # the lists without the bricks cropped away, renumbered to the piece's bricks
-    number = np.full(bricks.n_bricks, -1, np.int64)
+    number = np.full(bricks.n_bricks, -1, np.int32)
     number[used[alive]] = np.arange(int(alive.sum()))
     new_start, new_ids = _renumbered_lists(start, ids, keep, number)
     sub_regions = regions.replace(
@@ -240,17 +232,20 @@ def piece_data(bricks: schema.Bricks, regions: schema.Regions, lower, upper, *,
         brick_ids=new_ids.astype(ids.dtype, copy=False),
         value_range=np.ascontiguousarray(regions.value_range[keep]),
         finest_level=np.ascontiguousarray(regions.finest_level[keep]), meta={})
-    src, first, new_dims, dims = used[alive], first[alive], new_dims[alive], dims[alive]
-    cells = new_dims.prod(axis=1)
-    offset = np.zeros(len(src), bricks.offset.dtype)
+    src, first, new_dims = used[alive], first[alive], new_dims[alive]
+    del used, alive
+    cells = new_dims.astype(np.int64).prod(axis=1)
+    offset = np.zeros(len(src), np.int64)
     np.cumsum(cells[:-1], out=offset[1:])
-    values = _copy_crops(bricks.values, bricks.offset[src].astype(np.int64), dims, first, new_dims,
-                         offset.astype(np.int64), int(cells.sum()))
-    sub_bricks = bricks.replace(
-        lower_lattice=(bricks.lower_lattice[src] + first * np.ldexp(
-            1, bricks.level[src].astype(np.int64))[:, None]).astype(bricks.lower_lattice.dtype),
-        level=np.ascontiguousarray(bricks.level[src]), dims=new_dims.astype(bricks.dims.dtype),
-        offset=offset, values=values, meta={})
+    level = np.ascontiguousarray(bricks.level[src])
+    values = _copy_crops(bricks.values, bricks.offset[src], bricks.dims[src], first, new_dims,
+                         offset, int(cells.sum()))
+    lower_lattice = bricks.lower_lattice[src]
+    lower_lattice += first << level[:, None].astype(first.dtype)
+    sub_bricks = bricks.replace(lower_lattice=lower_lattice, level=level,
+                                dims=new_dims.astype(bricks.dims.dtype, copy=False),
+                                offset=offset.astype(bricks.offset.dtype, copy=False),
+                                values=values, meta={})
     schema.validate(sub_bricks, f"{where[0]} (a piece)")
     schema.validate(sub_regions, f"{where[1]} (a piece)")
     return sub_bricks, sub_regions, build_bvh(sub_regions)
@@ -268,6 +263,34 @@ def _mark_listed(start, ids, keep, used):
                 return k
             used[b] = True
     return -1
+
+
+@numba.njit(cache=True)
+def _crop_boxes(lower, level, dims, offset, n_values, used, lo, hi, crop):
+    """(first, new_dims, bad): per brick of `used`, the cells [first, first +
+    new_dims) within one cell width of the box [lo, hi] (lattice units; all of
+    them without `crop`); `bad` the position in `used` of a brick whose dims or
+    value range are impossible, else -1."""
+    first = np.zeros((len(used), 3), np.int32)
+    new_dims = np.zeros((len(used), 3), np.int32)
+    for i in range(len(used)):
+        b = used[i]
+        cells = 1
+        for a in range(3):
+            if dims[b, a] < 1:
+                return first, new_dims, i
+            cells *= dims[b, a]
+        if offset[b] < 0 or offset[b] + cells > n_values or level[b] < 0 or level[b] > 30:
+            return first, new_dims, i
+        w = float(1 << level[b])
+        for a in range(3):
+            f, l = 0, dims[b, a]
+            if crop:
+                f = int(min(max(np.floor((lo[a] - w - lower[b, a]) / w), 0.0), dims[b, a]))
+                l = int(min(max(np.ceil((hi[a] + w - lower[b, a]) / w), 0.0), dims[b, a]))
+            first[i, a] = f
+            new_dims[i, a] = max(l - f, 0)
+    return first, new_dims, -1
 
 
 @numba.njit(cache=True)
