@@ -103,6 +103,7 @@ def bench_orbit(d: Path, field: str, frames: int, size: int, tmp: Path) -> list[
                     "-o", path], check=True)
     opts = ["--field", field, "--size", str(size), str(size)]
     rows = []
+    (tmp / "one").mkdir()
     start = time.perf_counter()
     subprocess.run([BIN / "exabricks", "-q", "render", *files, "--camera-path", path, "--frames",
                     f"0:{frames}", "-o", tmp / "one" / "frame_%05d.png", *opts], check=True)
