@@ -29,6 +29,7 @@ N frames, the last frame one step short of the first.
 
 from __future__ import annotations
 
+import json
 import math
 
 import numpy as np
@@ -38,8 +39,10 @@ from .errors import ExabricksError
 
 KIND = "exabricks camera path"
 VERSION = 1
-# More frames than any movie needs; a path file of this many is a few hundred MB.
-MAX_FRAMES = 1_000_000
+# An hour of movie at 30 frames per second is 108,000 frames; a path file of this many is about 20 MB.
+MAX_FRAMES = 100_000
+# The largest camera-path file read (MAX_FRAMES frames take about 13 MB).
+MAX_PATH_BYTES = 64 << 20
 
 
 def _check_frames(n: int) -> int:
@@ -190,6 +193,18 @@ def orbit(lower_world, upper_world, n_frames: int, *, look_at=None, axis=None,
     return cameras
 
 
+def dumps(doc: dict) -> str:
+    """The camera-path file's text: one camera (or keyframe) per line."""
+    lines = []
+    for key, value in doc.items():
+        if key in ("frames", "keyframes"):
+            items = ",\n  ".join(json.dumps(v, separators=(", ", ": ")) for v in value)
+            lines.append(f' "{key}": [\n  {items}\n ]')
+        else:
+            lines.append(f" {json.dumps(key)}: {json.dumps(value)}")
+    return "{\n" + ",\n".join(lines) + "\n}\n"
+
+
 def to_dict(frames: list[Camera], *, keyframes: list[Camera] | None = None, times=None,
             loop: bool = False, source: dict | None = None) -> dict:
     """The camera-path file's JSON object."""
@@ -209,7 +224,7 @@ def read_keyframes(path) -> tuple[list[Camera], np.ndarray, bool]:
     too). Times default to 0, 1, 2, ..."""
     from .jsonfile import read_json
 
-    doc = read_json(path, "keyframe file")
+    doc = read_json(path, "keyframe file", max_bytes=MAX_PATH_BYTES)
     loop = False
     if isinstance(doc, dict):
         unknown = sorted(set(doc) - {"kind", "version", "keyframes", "loop", "frames", "source"})
@@ -245,7 +260,7 @@ def read_frames(path) -> list[Camera]:
     """The frames of a camera-path file, each checked as a camera."""
     from .jsonfile import read_json
 
-    doc = read_json(path, "camera path")
+    doc = read_json(path, "camera path", max_bytes=MAX_PATH_BYTES)
     if not isinstance(doc, dict) or doc.get("kind") != KIND:
         raise ExabricksError(f"{path}: not a camera path (expected an object with \"kind\": "
                              f"\"{KIND}\"; `exabricks camera orbit|path` writes one)")

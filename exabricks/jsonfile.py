@@ -11,16 +11,16 @@ from .errors import ExabricksError
 MAX_JSON_BYTES = 16 << 20
 
 
-def read_json(path, what: str, **loads_options):
+def read_json(path, what: str, max_bytes: int = MAX_JSON_BYTES, **loads_options):
     """The parsed JSON of file `path`, or one ExabricksError naming the file and
     `what` it should be ("camera file", "transfer function") for a missing,
     oversized, undecodable, malformed or absurdly nested file."""
     p = Path(path)
     try:
         size = p.stat().st_size
-        if size > MAX_JSON_BYTES:
+        if size > max_bytes:
             raise ExabricksError(f"{path}: {what} of {size:,} bytes is too large "
-                                 f"(at most {MAX_JSON_BYTES:,})")
+                                 f"(at most {max_bytes:,})")
         text = p.read_text(encoding="utf-8")
     except (OSError, UnicodeDecodeError) as e:
         raise ExabricksError(f"{path}: cannot read {what}: {getattr(e, 'strerror', None) or e}") from None

@@ -3,8 +3,6 @@
 
 from __future__ import annotations
 
-import json
-
 import click
 
 from .. import camera_path, schema
@@ -17,10 +15,11 @@ FOVY = click.FloatRange(0, 180, min_open=True, max_open=True)
 
 
 def _write(output, doc, inputs) -> None:
+    text = camera_path.dumps(doc)
+
     def write(tmp):
         with open(tmp, "w", encoding="utf-8") as f:
-            json.dump(doc, f, indent=1)
-            f.write("\n")
+            f.write(text)
     write_output(output, write, inputs=inputs)
 
 
