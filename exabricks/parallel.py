@@ -30,6 +30,7 @@ from __future__ import annotations
 
 import os
 import time
+from types import SimpleNamespace
 
 import numpy as np
 
@@ -206,7 +207,8 @@ class ParallelRenderer:
         if self.reason:
             self.mode = "image"
         fields = scene.fields()
-        self.origin, self.spacing = bricks.origin_world, bricks.spacing_world
+        self.frame = SimpleNamespace(origin_world=bricks.origin_world,  # the world frame
+                                     spacing_world=bricks.spacing_world)
         if self.mode == "image":
             self.renderer = Renderer(bricks, regions, bvh, fields=fields, device=device)
             return
@@ -261,12 +263,11 @@ class ParallelRenderer:
         return rgba, depth, dict(result.stats)
 
     def _data(self, scene):
-        from .stages.partition import composite
+        from .stages.partition import composite, eye_lattice
 
         cfg = scene.settings
         width, height, spp = int(cfg.width), int(cfg.height), int(cfg.spp)
-        eye = (np.asarray(scene.camera.position, np.float64) - self.origin) / self.spacing
-        order = self.partition.visibility_order(eye)
+        order = self.partition.visibility_order(eye_lattice(self.frame, scene.camera.position))
         slabs = _row_slabs(height, self.size)
         mine = slabs[self.rank]
         own = np.zeros((mine[1] - mine[0], width, 4), np.float32)
@@ -288,6 +289,8 @@ class ParallelRenderer:
             own /= np.float32(spp)
         gathered = self.comm.gather(own, root=0)
         stats["samples"] = samples
+        for key in ("regions", "visible_regions"):  # rank 0's piece's: not the frame's
+            stats.pop(key, None)
         if self.rank != 0:
             return None, None, stats
         return np.concatenate(gathered, axis=0), None, stats

@@ -335,9 +335,10 @@ def _copy_crops(values, offset, dims, first, new_dims, new_offset, total):
     return out
 
 
-def eye_lattice(bricks: schema._Kind, position) -> np.ndarray:
-    """A world point (the camera's position) in lattice units."""
-    return (np.asarray(position, np.float64) - bricks.origin_world) / bricks.spacing_world
+def eye_lattice(frame: schema._Kind, position) -> np.ndarray:
+    """A world point (the camera's position) in the lattice units of any exabricks
+    object `frame` (its origin_world and spacing_world)."""
+    return (np.asarray(position, np.float64) - frame.origin_world) / frame.spacing_world
 
 
 def composite(front: np.ndarray, back: np.ndarray) -> np.ndarray:
