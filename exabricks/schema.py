@@ -577,33 +577,46 @@ def load(path: str | os.PathLike, kind: str | None = None, *, mapped: bool = Fal
 CHUNK = 1 << 22
 
 
-def release(obj: "_Kind") -> None:
-    """Hand back the resident pages of `obj`'s mapped arrays (load(mapped=True)):
-    they are clean copies of the file, read again if used again."""
+def _mapping(array: np.ndarray):
+    """The mmap behind a mapped array (load(mapped=True)), else None."""
+    return getattr(array, "_mmap", None) if isinstance(array, np.memmap) else None
+
+
+def _hand_back(base, start: int = 0, length: int = 0) -> None:
+    """Drop the resident pages of mmap `base` from byte `start` for `length` bytes
+    (0: to the end): clean copies of the file, read again if used again."""
     import mmap
 
+    if not hasattr(mmap, "MADV_DONTNEED"):
+        return
+    if not length:
+        base.madvise(mmap.MADV_DONTNEED)
+        return
+    lo = start // mmap.PAGESIZE * mmap.PAGESIZE
+    base.madvise(mmap.MADV_DONTNEED, lo, start + length - lo)
+
+
+def release(obj: "_Kind") -> None:
+    """Hand back the resident pages of `obj`'s mapped arrays."""
     for array in obj.arrays().values():
-        base = getattr(array, "_mmap", None) if isinstance(array, np.memmap) else None
-        if base is not None and hasattr(mmap, "MADV_DONTNEED"):
-            base.madvise(mmap.MADV_DONTNEED)
+        base = _mapping(array)
+        if base is not None:
+            _hand_back(base)
 
 
 def reduce_chunks(array: np.ndarray, fn, combine):
     """combine() over fn(chunk) of consecutive chunks of a 1-D array; the pages of a
-    mapped array (load(mapped=True)) are handed back after each chunk, so that a
-    pass over a large mapped array does not keep it all resident."""
-    import mmap
-
+    mapped array are handed back after each chunk, so that a pass over a large
+    mapped array does not keep it all resident."""
     result = None
-    base = getattr(array, "_mmap", None) if isinstance(array, np.memmap) else None
+    base = _mapping(array)
     for start in range(0, max(array.shape[0], 1), CHUNK):
         part = array[start:start + CHUNK]
         value = fn(part)
         result = value if result is None else combine(result, value)
-        if base is not None and part.size and hasattr(mmap, "MADV_DONTNEED"):
-            first = part.ctypes.data - np.frombuffer(base, np.uint8).ctypes.data
-            lo = first // mmap.PAGESIZE * mmap.PAGESIZE
-            base.madvise(mmap.MADV_DONTNEED, lo, first + part.nbytes - lo)
+        if base is not None and part.size:
+            _hand_back(base, part.ctypes.data - np.frombuffer(base, np.uint8).ctypes.data,
+                       part.nbytes)
     return result
 
 

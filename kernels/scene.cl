@@ -62,7 +62,7 @@ typedef struct {
 } eb_frame;
 
 #ifdef EB_PIECE
-/* Data-parallel rendering (exabricks/partition.py): a frame of one piece of a
+/* Data-parallel rendering (exabricks/stages/partition.py): a frame of one piece of a
  * k-d partition of space takes exactly the samples (and slice hits) at lattice
  * points inside the piece's half-open box, so that the pieces' images,
  * composited in visibility order, hold every sample of the whole frame once. */

@@ -151,9 +151,8 @@ def kd_partition(bricks: schema.Bricks, regions: schema.Regions, n: int) -> KdPa
 
 def _cut(block: np.ndarray, size: np.ndarray, share: float) -> tuple[int, int]:
     """(axis, k): the longest axis of `block` (grid cells) that is at least two cells
-    long and the cut after k of its cells (0 < k < its length) with about `share`
-    of the block's bytes before it; a block of one cell is cut in its middle in
-    no axis (axis 0, k 0 would make an empty piece: refused)."""
+    long, and the cut after k of its cells (0 < k < its length) nearest to `share`
+    of the block's bytes before it. A block of one cell cannot be cut: refused."""
     axes = [a for a in np.argsort(-size, kind="stable") if size[a] >= 2]
     if not axes:
         raise ExabricksError(f"the data is too small to cut into that many pieces "

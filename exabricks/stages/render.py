@@ -248,13 +248,12 @@ class Renderer:
         rgba = _host_image(width, height, 4, "the image")
         d = _host_image(width, height, 1, "the depth image")[..., 0] if cfg.depth else None
         spans = [(0, height)] if rows is None else [(int(a), int(n)) for a, n in rows]
-        if rows is not None or s.empty or not (node_vis[0] or scene.slices):
+        nothing = s.empty or not (node_vis[0] or scene.slices)
+        if rows is not None or nothing:  # rows not rendered stay empty
             rgba[:] = 0.0
             if d is not None:
                 d[:] = np.inf
-        if s.empty or not (node_vis[0] or scene.slices):
-            if d is not None:
-                d[:] = np.inf
+        if nothing:
             stats.update(samples=0, ms=0.0, samples_per_second=0.0)
             return RenderResult(_over_background(rgba, scene.background), d, stats)
         self._check_samples_per_ray(cfg.sampling_rate)
