@@ -190,3 +190,21 @@ def test_slurm_failed_task_stops_what_depends_on_it(tmp_path):
     assert proc.returncode != 0
     assert not (tmp_path / "out" / "movie.mp4").exists()
     assert not list((tmp_path / "out").glob("step_*/cells.npz"))
+
+
+def test_field_range_over_a_series(series, tmp_path, cli):
+    """`info --field-range` is the union of the files' ranges; a field one file lacks
+    is one error line naming that file."""
+    from conftest import assert_one_error_line
+
+    from exabricks import schema
+
+    cells = []
+    for k, plotfile in enumerate(series):
+        cells.append(tmp_path / f"c{k}.npz")
+        cli("ingest", plotfile, "-o", cells[-1], check=0)
+    lo, hi = (float(x) for x in cli("info", "--field-range", "phi", *cells, check=0).stdout.split())
+    each = [schema.load(c).values[0] for c in cells]
+    assert lo == min(float(v.min()) for v in each) and hi == max(float(v.max()) for v in each)
+    proc = cli("info", "--field-range", "rho", *cells)
+    assert_one_error_line(proc, str(cells[0]), "no field 'rho'")
