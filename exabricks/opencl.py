@@ -237,6 +237,12 @@ def fill_zero(queue, buffer, nbytes: int) -> None:
         _cl().enqueue_fill_buffer(queue, buffer, np.uint32(0), 0, int(nbytes))
 
 
+def write_to(queue, buffer, host: np.ndarray) -> None:
+    """Copy the contiguous host array `host` into the start of `buffer` (blocking)."""
+    if host.nbytes:
+        _cl().enqueue_copy(queue, buffer, np.ascontiguousarray(host))
+
+
 def read_back(queue, buffer, out: np.ndarray) -> np.ndarray:
     """Copy `buffer` into the host array `out` (blocking) and return it."""
     cl = _cl()

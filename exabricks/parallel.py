@@ -218,7 +218,8 @@ class ParallelRenderer:
         for whole in (bricks, regions):  # the partition read them all: only the piece now
             schema.release(whole)
         box = (self.partition.lower[self.rank], self.partition.upper[self.rank])
-        piece = piece_data(bricks, regions, *box, **piece_options(bricks, scene), where=where)
+        piece = piece_data(bricks, regions, *box, **piece_options(bricks, scene), fields=fields,
+                           where=where)
         for whole in (bricks, regions):
             schema.release(whole)
         _trim_heap()

@@ -573,8 +573,8 @@ def load(path: str | os.PathLike, kind: str | None = None, *, mapped: bool = Fal
     return obj
 
 
-# Elements per step of `reduce_chunks` (16 MiB of float32).
-CHUNK = 1 << 22
+# Elements per step of `reduce_chunks` (4 MiB of float32).
+CHUNK = 1 << 20
 
 
 def _mapping(array: np.ndarray):
@@ -605,13 +605,15 @@ def release(obj: "_Kind") -> None:
 
 
 def reduce_chunks(array: np.ndarray, fn, combine):
-    """combine() over fn(chunk) of consecutive chunks of a 1-D array; the pages of a
-    mapped array are handed back after each chunk, so that a pass over a large
-    mapped array does not keep it all resident."""
+    """combine() over fn(chunk) of consecutive chunks (of about CHUNK elements, whole
+    rows) of an array along its first axis; the pages of a mapped array are handed
+    back after each chunk, so that a pass over a large mapped array does not keep
+    it all resident."""
     result = None
     base = _mapping(array)
-    for start in range(0, max(array.shape[0], 1), CHUNK):
-        part = array[start:start + CHUNK]
+    rows = max(1, CHUNK // max(1, int(np.prod(array.shape[1:]))))
+    for start in range(0, max(array.shape[0], 1), rows):
+        part = array[start:start + rows]
         value = fn(part)
         result = value if result is None else combine(result, value)
         if base is not None and part.size:
@@ -635,7 +637,8 @@ def _check_implied_sizes(cls, arrays: dict, headers: dict, where: str) -> None:
     values from brick dims, region brick lists from brick_start)."""
     implied = {}
     if cls is Bricks and "dims" in arrays:
-        implied["values"] = (1, int(arrays["dims"].astype(np.int64).prod(axis=1).sum()))
+        implied["values"] = (1, reduce_chunks(
+            arrays["dims"], lambda d: int(d.astype(np.int64).prod(axis=1).sum()), int.__add__))
     if cls is Regions and "brick_start" in arrays and arrays["brick_start"].size:
         implied["brick_ids"] = (0, int(arrays["brick_start"][-1]))
     for name, (axis, size) in implied.items():

@@ -199,16 +199,18 @@ EB_INLINE int eb_integrate_region(eb_frame *fr, eb_ray *ray, int r, float t_in, 
     return done;
 }
 
-/* Premultiplied RGBA of one ray; ordered: 1 for the ordered walk, 0 for the
+/* Premultiplied RGBA of one ray, continuing from the premultiplied `front`
+ * composited before it (zero for a whole frame); ordered: 1 for the ordered walk, 0 for the
  * paper's re-trace walk (traversal.cl); *samples counts reconstructions;
  * *depth is the distance to the first opaque surface hit, else where the
  * accumulated opacity first reaches EB_DEPTH_OPACITY (infinity if never). */
 EB_INLINE float4 eb_integrate(eb_frame *fr, eb_ray *ray, const int shade, const int ordered,
-                              uint *samples, float *depth, __global uint *level_samples)
+                              float4 front, uint *samples, float *depth,
+                              __global uint *level_samples)
 {
     eb_ray_state st;
-    st.color = (float3)(0.0f);
-    st.transmittance = 1.0f;
+    st.color = front.xyz;
+    st.transmittance = 1.0f - front.w;
     st.t_depth = EB_INF;
     st.t_opaque = EB_INF;
     st.samples = 0u;
@@ -221,7 +223,7 @@ EB_INLINE float4 eb_integrate(eb_frame *fr, eb_ray *ray, const int shade, const 
         st.level_samples[l] = 0u;
 #endif
     float2 keep = eb_clip_interval(fr->clip, ray->org_world, ray->dir_world, 0.0f);
-    int done = !(keep.y > keep.x);
+    int done = !(keep.y > keep.x) || front.w >= fr->max_opacity;
 #ifdef EB_SURFACES
     if (!done)
         eb_slices_start(fr, ray, keep.x, keep.y, &st);

@@ -41,10 +41,14 @@
     int clip_box, float4 clip_lower, float4 clip_upper,                         \
     __global const float4 *clip_planes, int n_clip_planes
 
-/* eb_render's extra arguments for a piece of a data-parallel frame (scene.cl
- * eb_in_piece): its box in lattice space. */
+/* eb_render's extra arguments for a piece of a frame split by space (scene.cl
+ * eb_in_piece): its box in lattice space and, where use_front, the premultiplied
+ * RGBA of this sample composited so far in front of the piece (one per pixel
+ * of the band), which the piece's rays continue from (so that early ray
+ * termination carries across pieces; exabricks.stages.streaming). */
 #ifdef EB_PIECE
-#define EB_PIECE_ARGS , float4 piece_lower, float4 piece_upper
+#define EB_PIECE_ARGS , float4 piece_lower, float4 piece_upper,                 \
+    __global const float4 *front, int use_front
 #else
 #define EB_PIECE_ARGS
 #endif
@@ -126,13 +130,18 @@ __kernel void eb_render(int width, int height, int row0, int rows,
     uint n;
     float t_depth;
     float4 c;
+    float4 before = (float4)(0.0f);
+#ifdef EB_PIECE
+    if (use_front)
+        before = front[slot];
+#endif
     /* Constant shade/ordered arguments let the compiler drop the unused paths. */
     if (ordered)
-        c = shading ? eb_integrate(&fr, &ray, 1, 1, &n, &t_depth, level_samples)
-                    : eb_integrate(&fr, &ray, 0, 1, &n, &t_depth, level_samples);
+        c = shading ? eb_integrate(&fr, &ray, 1, 1, before, &n, &t_depth, level_samples)
+                    : eb_integrate(&fr, &ray, 0, 1, before, &n, &t_depth, level_samples);
     else
-        c = shading ? eb_integrate(&fr, &ray, 1, 0, &n, &t_depth, level_samples)
-                    : eb_integrate(&fr, &ray, 0, 0, &n, &t_depth, level_samples);
+        c = shading ? eb_integrate(&fr, &ray, 1, 0, before, &n, &t_depth, level_samples)
+                    : eb_integrate(&fr, &ray, 0, 0, before, &n, &t_depth, level_samples);
     c /= (float)spp;
     if (sample_index == 0) {
         rgba[slot] = c;

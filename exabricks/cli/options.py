@@ -6,6 +6,8 @@ import math
 
 import click
 
+from ..errors import ExabricksError
+
 output_option = click.option(
     "-o", "--output", "output", required=True, type=click.Path(dir_okay=False),
     help="Output file (written atomically: a failed run leaves nothing behind).",
@@ -36,6 +38,18 @@ def finite(ctx, param, value):
     if any(isinstance(x, float) and not math.isfinite(x) for x in flat):
         raise click.BadParameter("values must be finite numbers")
     return value
+
+
+def size(ctx, param, text):
+    """Callback: a size in bytes ("2G", "512MiB"; exabricks.stages.streaming.parse_size)."""
+    if text is None:
+        return None
+    from ..stages.streaming import parse_size
+
+    try:
+        return parse_size(text)
+    except ExabricksError as e:
+        raise click.BadParameter(str(e)) from None
 
 
 def numbers(counts=None, low=0.0, high=1.0):

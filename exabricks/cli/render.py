@@ -12,7 +12,7 @@ from .. import __version__, schema
 from ..errors import ExabricksError
 from ..output import check_output
 from ..scene import GRADIENTS, MAX_AO_SAMPLES, RECONSTRUCTIONS, SHADING_MODES
-from .options import device_option, field_option, finite, input_path, numbers, output_option
+from .options import device_option, field_option, finite, input_path, numbers, output_option, size
 
 log = logging.getLogger(__name__)
 
@@ -129,11 +129,28 @@ POSITIVE = click.FloatRange(min=0, min_open=True)
               help="Under mpiexec/srun with several ranks: data splits the dataset by space (each "
                    "rank holds a piece; sort-last compositing), image replicates it and splits "
                    "the frame (faster for data that fits every rank).")
+@click.option("--memory-budget", "budget", envvar="EXABRICKS_MEMORY_BUDGET", callback=size,
+              metavar="SIZE",
+              help="Render within SIZE bytes of memory, host and device (e.g. 2G, 512MiB, "
+                   "1500000000; K/M/G/T and KiB..TiB are powers of 1024, kB/MB/GB/TB of 1000; "
+                   "also $EXABRICKS_MEMORY_BUDGET): data that does not fit is cut into pieces by "
+                   "space and streamed from the files, one piece at a time, for the same image.")
+@click.option("--progressive", type=POSITIVE, default=None, callback=finite, metavar="SECONDS",
+              help="Rewrite the output every SECONDS with the image so far (pieces front to "
+                   "back, then more samples per pixel); each rewrite is a whole image.")
+@click.option("--time-limit", type=POSITIVE, default=None, callback=finite, metavar="SECONDS",
+              help="Stop refining a frame after SECONDS (the first frame counts from the "
+                   "start of the command) and write the best image so far; its metadata "
+                   "(settings.progress) says what it covers.")
 @device_option
 def render(bricks_path, regions_path, bvh_path, output, scene_path, camera_path, path_file, frame,
-           frames, mpi_mode, device, **flags):
+           frames, mpi_mode, budget, progressive, time_limit, device, **flags):
     """Render BRICKS/REGIONS/BVH into an .exr (float RGBA) or .png image."""
+    import time
+
     from ..scene import check_flags
+
+    started = time.perf_counter()
 
     suffix = Path(output).suffix.lower()
     if suffix not in (".exr", ".png"):
@@ -146,8 +163,10 @@ def render(bricks_path, regions_path, bvh_path, output, scene_path, camera_path,
     from .. import parallel
 
     comm = parallel.world()
+    steps = {"budget": budget, "progressive": progressive, "time_limit": time_limit}
     job = parallel.agree(comm, _prepare, bricks_path, regions_path, bvh_path, output, scene_path,
-                         camera_path, path_file, frame, frames, flags, device, mpi_mode, comm)
+                         camera_path, path_file, frame, frames, flags, device, mpi_mode, comm,
+                         steps)
     renderer, scene, jobs, inputs, dataset = job
     from .. import progress
 
@@ -155,16 +174,46 @@ def render(bricks_path, regions_path, bvh_path, output, scene_path, camera_path,
     with progress.bar(total=len(jobs), desc="render", unit="frame", disable=not root) as bar:
         for index, cam, image in jobs:
             frame_scene = scene if cam is None else scene.replace(camera=cam)
-            result = renderer.render_scene(frame_scene)  # None on ranks other than 0
-            parallel.agree(comm, _write, image, result, frame_scene, dataset, path_file, index,
-                           inputs)
+            write = lambda result: _write(image, result, frame_scene, dataset, path_file, index,
+                                          inputs)
+            if comm is None and any(v is not None for v in steps.values()):
+                result = _render_steps(renderer, frame_scene, started, write, **steps)
+                started = None  # later frames count their time from their own start
+            else:
+                result = renderer.render_scene(frame_scene)  # None on ranks other than 0
+            parallel.agree(comm, write, result)
             bar.update()
 
 
+def _render_steps(pieces, scene, started, write, budget, progressive, time_limit):
+    """One frame by steps (exabricks.stages.streaming.render_steps), rewriting the
+    output every `progressive` seconds and stopping after `time_limit`."""
+    import time
+
+    from ..stages.render import RenderResult
+    from ..stages.streaming import render_steps
+
+    now = time.perf_counter()
+    deadline = None if time_limit is None else (started or now) + time_limit
+    last = [now]
+
+    def on_image(rgba, progress):
+        if progressive is not None and time.perf_counter() - last[0] >= progressive:
+            s = scene.settings
+            write(RenderResult(rgba, None, {"width": s.width, "height": s.height, "samples": 0,
+                                            "ms": 0.0, "samples_per_second": 0.0,
+                                            "device": "", "progress": progress}))
+            last[0] = time.perf_counter()
+
+    return render_steps(pieces, scene, deadline=deadline,
+                        on_image=on_image if progressive is not None else None)
+
+
 def _prepare(bricks_path, regions_path, bvh_path, output, scene_path, camera_path, path_file,
-             frame, frames, flags, device, mpi_mode, comm):
+             frame, frames, flags, device, mpi_mode, comm, steps):
     """Check the outputs, load the dataset and make the renderer (this rank's share
-    under MPI): (renderer, scene, frame jobs, input files, dataset metadata)."""
+    under MPI; the pieces of exabricks.stages.streaming for frames by `steps`):
+    (renderer, scene, frame jobs, input files, dataset metadata)."""
     from ..scene import scene_file_references, scene_from_options
 
     inputs = [bricks_path, regions_path, bvh_path, camera_path, flags["transfer_function"], scene_path,
@@ -174,6 +223,24 @@ def _prepare(bricks_path, regions_path, bvh_path, output, scene_path, camera_pat
     jobs = _frame_jobs(output, path_file, frame, frames)
     for _, _, image in jobs:
         check_output(image, inputs)
+    given = [STEP_FLAGS[k] for k, v in steps.items() if v is not None]
+    if comm is not None and given:
+        raise ExabricksError(f"{', '.join(given)}: not under MPI (the ranks already share the "
+                             "data and the frame)")
+    if steps["budget"] is not None:
+        from ..parallel import load_for
+        from ..stages.streaming import Budgeted
+
+        bricks, regions, _ = load_for("data", bricks_path, regions_path, bvh_path)
+        scene = scene_from_options(bricks, scene_path=scene_path, camera_path=camera_path,
+                                   flags=flags)
+        schema.release(bricks)  # the default camera and range read every brick's pages
+        _check_depth(scene, output)
+        pieces = Budgeted(bricks, regions, scene, steps["budget"], device=device,
+                          where=(bricks_path, regions_path))
+        log.info("%s: a memory budget of %s bytes: %d piece(s)", output,
+                 f"{steps['budget']:,}", pieces.n_pieces)
+        return pieces, scene, jobs, inputs, _dataset(bricks, bricks_path, regions_path, bvh_path)
     if comm is None:
         bricks, regions, bvh = load_scene(bricks_path, regions_path, bvh_path)
     else:
@@ -183,14 +250,16 @@ def _prepare(bricks_path, regions_path, bvh_path, output, scene_path, camera_pat
     scene = scene_from_options(bricks, scene_path=scene_path, camera_path=camera_path, flags=flags)
     if comm is not None and mpi_mode == "data" and needs_image_mode(scene):
         bricks, regions, bvh = load_for("image", bricks_path, regions_path, bvh_path)
-    if scene.settings.depth and Path(output).suffix.lower() == ".png":
-        raise ExabricksError(f"{output}: a depth image needs .exr output (PNG has no depth channel)")
-    dataset = {"bricks": str(bricks_path), "regions": str(regions_path), "bvh": str(bvh_path),
-               "source": bricks.meta.get("inputs", [])}
+    _check_depth(scene, output)
+    dataset = _dataset(bricks, bricks_path, regions_path, bvh_path)
     if comm is None:
         from ..stages.render import Renderer
 
         renderer = Renderer(bricks, regions, bvh, fields=scene.fields(), device=device)
+        if given:
+            from ..stages.streaming import Resident
+
+            renderer = Resident(renderer)
     else:
         from ..parallel import ParallelRenderer
 
@@ -200,6 +269,17 @@ def _prepare(bricks_path, regions_path, bvh_path, output, scene_path, camera_pat
             log.info("%s: %s need the whole dataset on every rank: image-parallel (--mpi-mode "
                      "image)", output, renderer.reason)
     return renderer, scene, jobs, inputs, dataset
+
+
+def _check_depth(scene, output) -> None:
+    if scene.settings.depth and Path(output).suffix.lower() == ".png":
+        raise ExabricksError(f"{output}: a depth image needs .exr output (PNG has no depth channel)")
+
+
+def _dataset(bricks, bricks_path, regions_path, bvh_path) -> dict:
+    """The metadata's dataset: the three files and the sources of the bricks."""
+    return {"bricks": str(bricks_path), "regions": str(regions_path), "bvh": str(bvh_path),
+            "source": bricks.meta.get("inputs", [])}
 
 
 def _write(image, result, scene, dataset, path_file, index, inputs) -> None:
@@ -222,11 +302,17 @@ def _write(image, result, scene, dataset, path_file, index, inputs) -> None:
         metadata["transfer_function"] = scene.volumes[0].transfer_function.to_paraview_dict()
     write_image(image, result.rgba, metadata=metadata, depth=result.depth, inputs=inputs)
     s = result.stats
+    if not s.get("progress", {"complete": True})["complete"]:
+        log.info("%s: so far %s", image, s["progress"])
+        if not s["samples"]:
+            return
     log.info("%s: %dx%d, %s samples, %.1f ms, %.1f M samples/s on %s", image, s["width"],
              s["height"], f"{s['samples']:,}", s["ms"], s["samples_per_second"] / 1e6, s["device"])
 
 
 CAMERA_FLAGS = ("position", "look_at", "up", "fovy")
+STEP_FLAGS = {"budget": "--memory-budget", "progressive": "--progressive",
+              "time_limit": "--time-limit"}
 
 
 def _check_path_flags(path_file, frame, frames, camera_path, flags) -> None:

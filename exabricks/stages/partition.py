@@ -72,17 +72,24 @@ GRID = 128
 STEP = 1 << 18
 
 
-def byte_grid(bricks: schema.Bricks, regions: schema.Regions):
+def byte_grid(bricks: schema.Bricks, regions: schema.Regions, max_bytes: int | None = None,
+              n_fields: int | None = None):
     """(grid, origin, cell): the bytes of every brick (values and box) and every
     region (box and list) spread evenly over the cells of a grid of `cell`-wide
     cells (a power of two lattice units, at most GRID per axis, from `origin`)
-    that its box covers; gathered in steps, so that its memory is the grid's."""
+    that its box covers; gathered in steps, so that its memory is the grid's
+    (three float64 copies of it at most: under `max_bytes` when given, by
+    fewer cells per axis, but never fewer than 64). `n_fields`: the fields whose values count (default
+    all)."""
+    cells = GRID
+    if max_bytes is not None:
+        cells = int(min(GRID, max(64, (max_bytes / 24) ** (1 / 3) - 1)))
     if regions.n_regions:
         origin = np.floor(regions.lower_lattice.min(axis=0)).astype(np.float64)
         top = np.ceil(regions.upper_lattice.max(axis=0)).astype(np.float64)
     else:
         origin, top = np.zeros(3), np.ones(3)
-    cell = float(2.0 ** max(0, int(np.ceil(np.log2(max(float((top - origin).max()), 1.0) / GRID)))))
+    cell = float(2.0 ** max(0, int(np.ceil(np.log2(max(float((top - origin).max()), 1.0) / cells)))))
     shape = np.maximum(np.ceil((top - origin) / cell).astype(np.int64), 1)
     edges = shape + 1
     corners = np.zeros(int(np.prod(edges)), np.float64)  # the grid's differences
@@ -98,17 +105,20 @@ def byte_grid(bricks: schema.Bricks, regions: schema.Regions):
             corners[:] += np.bincount((iz * edges[1] + iy) * edges[0] + ix,
                                       weights=sign * density, minlength=corners.size)
 
-    per_cell = 4.0 * bricks.n_fields
-    for s in range(0, bricks.n_bricks, STEP):
-        dims = bricks.dims[s:s + STEP].astype(np.float64)
-        lo = bricks.lower_lattice[s:s + STEP].astype(np.float64)
-        hi = lo + dims * np.ldexp(1.0, bricks.level[s:s + STEP].astype(np.int32))[:, None]
+    per_cell = 4.0 * (bricks.n_fields if n_fields is None else n_fields)
+    step = STEP if max_bytes is None else int(min(STEP, max(4096, max_bytes // 256)))
+    for s in range(0, bricks.n_bricks, step):
+        dims = bricks.dims[s:s + step].astype(np.float64)
+        lo = bricks.lower_lattice[s:s + step].astype(np.float64)
+        hi = lo + dims * np.ldexp(1.0, bricks.level[s:s + step].astype(np.int32))[:, None]
         add(lo, hi, dims.prod(axis=1) * per_cell + 40.0)
-    for s in range(0, regions.n_regions, STEP):
-        lists = np.diff(regions.brick_start[s:s + STEP + 1]).astype(np.float64)
-        add(regions.lower_lattice[s:s + STEP].astype(np.float64),
-            regions.upper_lattice[s:s + STEP].astype(np.float64),
+        schema.release(bricks)  # mapped inputs: only a step's pages at a time
+    for s in range(0, regions.n_regions, step):
+        lists = np.diff(regions.brick_start[s:s + step + 1]).astype(np.float64)
+        add(regions.lower_lattice[s:s + step].astype(np.float64),
+            regions.upper_lattice[s:s + step].astype(np.float64),
             34.0 + 8.0 * regions.n_fields + 4.0 * lists)
+        schema.release(regions)
     grid = corners.reshape(edges[::-1]).transpose(2, 1, 0)
     for a in range(3):
         grid = np.cumsum(grid, axis=a)
@@ -121,32 +131,92 @@ def kd_partition(bricks: schema.Bricks, regions: schema.Regions, n: int) -> KdPa
     longest axis, at a cell boundary of `byte_grid`."""
     if int(n) < 1:
         raise ExabricksError(f"a partition needs at least one piece, got {n}")
-    grid, origin, cell = byte_grid(bricks, regions)
+
+    def split(lower, upper, count, block):
+        return None if count == 1 else ((count // 2) / count, count // 2, count - count // 2)
+
+    return _kd_tree(*byte_grid(bricks, regions), split, int(n))
+
+
+class _Uncuttable(ExabricksError):
+    """A box of one cell of the byte grid that would have to be cut."""
+
+
+def budget_partition(bricks: schema.Bricks, regions: schema.Regions, max_bytes: int, *,
+                     fields=None, halo: float = 0.0, crop: bool = True,
+                     where=("the bricks", "the regions"),
+                     grid_bytes: int | None = None) -> KdPartition:
+    """Pieces each of whose `piece_data` (of `fields`, with `halo` and `crop`)
+    holds at most `max_bytes` on the host and the device together
+    (`piece_bytes`): a box is cut in halves of its bytes, as `kd_partition`
+    cuts, until its exact piece fits. ExabricksError when a piece that fits
+    would be smaller than a cell of the byte grid (at most `grid_bytes`),
+    naming the bytes needed."""
+    def split(lower, upper, _, block):
+        if max(block.shape) > 1 and block.sum() > max_bytes:
+            # the grid's estimate undercounts a piece: cut at once
+            return 0.5, None, None
+        plan = _piece_plan(bricks, regions, lower, upper, halo, crop, where)
+        need = piece_bytes(bricks, regions, plan, fields)
+        for whole in (bricks, regions):  # mapped inputs: the plan's pages go back
+            schema.release(whole)
+        if need <= max_bytes:
+            return None
+        smallest[0] = min(smallest[0], need)
+        return 0.5, None, None
+
+    smallest = [np.inf]
+    try:
+        grid = byte_grid(bricks, regions, grid_bytes, len(_field_rows(bricks, fields)))
+        return _kd_tree(*grid, split, None)
+    except _Uncuttable:
+        raise ExabricksError(
+            f"pieces of {mib(max_bytes)} are too small for this dataset: the smallest piece it "
+            f"can be cut into holds {mib(smallest[0])}") from None
+
+
+def mib(nbytes) -> str:
+    """A byte count for messages, in MiB (KiB below one MiB)."""
+    if nbytes < 2**20:
+        return f"{nbytes / 2**10:,.1f} KiB"
+    return f"{nbytes / 2**20:,.{1 if nbytes < 10 * 2**20 else 0}f} MiB"
+
+
+def _kd_tree(grid, origin, cell, split, payload) -> KdPartition:
+    """The k-d tree whose boxes `split`(lower, upper, payload, the box's cells of
+    `grid`) cuts: it returns
+    None for a piece, else (share of the box's bytes before the cut, the two
+    halves' payloads); each cut lies across the box's longest axis at a cell
+    boundary of `grid` (`_cut`)."""
     axis, plane, left, right, lower, upper = [], [], [], [], [], []
     stack = [(np.zeros(3, np.int64), np.array(grid.shape), np.full(3, -np.inf), np.full(3, np.inf),
-              int(n), None)]
-    while stack:  # (grid box [g0, g1), open bounds, pieces, (parent, side))
-        g0, g1, open_lo, open_hi, count, link = stack.pop()
-        if count == 1:
+              payload, None)]
+    while stack:  # (grid box [g0, g1), open bounds, payload, (parent, side))
+        g0, g1, open_lo, open_hi, payload, link = stack.pop()
+        block = grid[g0[0]:g1[0], g0[1]:g1[1], g0[2]:g1[2]]
+        cut = split(open_lo, open_hi, payload, block)
+        if cut is None:
             lower.append(open_lo)
             upper.append(open_hi)
             node = -len(lower)  # -1 - k for piece k
         else:
+            share, first, second = cut
             node = len(axis)
-            a, k = _cut(grid[g0[0]:g1[0], g0[1]:g1[1], g0[2]:g1[2]], g1 - g0, (count // 2) / count)
+            a, k = _cut(block, g1 - g0, share)
             at = origin[a] + cell * (g0[a] + k)
             axis.append(a), plane.append(at), left.append(0), right.append(0)
             mid0, mid1 = g1.copy(), g0.copy()
             mid0[a] = mid1[a] = g0[a] + k
             hi_l, lo_r = open_hi.copy(), open_lo.copy()
             hi_l[a] = lo_r[a] = at
-            stack.append((mid1, g1, lo_r, open_hi, count - count // 2, (node, 1)))
-            stack.append((g0, mid0, open_lo, hi_l, count // 2, (node, 0)))
+            stack.append((mid1, g1, lo_r, open_hi, second, (node, 1)))
+            stack.append((g0, mid0, open_lo, hi_l, first, (node, 0)))
         if link is not None:
             (left if link[1] == 0 else right)[link[0]] = node
     return KdPartition(np.asarray(axis, np.int32), np.asarray(plane, np.float64),
                        np.asarray(left, np.int64), np.asarray(right, np.int64),
-                       np.asarray(lower, np.float64), np.asarray(upper, np.float64))
+                       np.asarray(lower, np.float64).reshape(-1, 3),
+                       np.asarray(upper, np.float64).reshape(-1, 3))
 
 
 def _cut(block: np.ndarray, size: np.ndarray, share: float) -> tuple[int, int]:
@@ -155,7 +225,7 @@ def _cut(block: np.ndarray, size: np.ndarray, share: float) -> tuple[int, int]:
     of the block's bytes before it. A block of one cell cannot be cut: refused."""
     axes = [a for a in np.argsort(-size, kind="stable") if size[a] >= 2]
     if not axes:
-        raise ExabricksError(f"the data is too small to cut into that many pieces "
+        raise _Uncuttable(f"the data is too small to cut into that many pieces "
                              f"(a piece would be less than one cell of {GRID}^3)")
     a = int(axes[0])
     marginal = block.sum(axis=tuple(x for x in range(3) if x != a))
@@ -180,7 +250,8 @@ def piece_options(bricks: schema.Bricks, scene) -> dict:
 
 
 def piece_data(bricks: schema.Bricks, regions: schema.Regions, lower, upper, *,
-               halo: float = 0.0, crop: bool = True, where=("the bricks", "the regions")):
+               halo: float = 0.0, crop: bool = True, fields=None,
+               where=("the bricks", "the regions")):
     """(bricks, regions, bvh) of the piece [lower, upper) (module docstring).
 
     `halo` (lattice units) grows the piece for lookups outside it (central
@@ -189,17 +260,65 @@ def piece_data(bricks: schema.Bricks, regions: schema.Regions, lower, upper, *,
     to its cells within one cell width of the grown piece (a cell's basis
     support reaches half its width beyond it, so no sample of the piece loses a
     term), and dropped from the lists where nothing of it is left (its terms
-    there are exactly zero). `crop` False keeps the bricks whole.
+    there are exactly zero). `crop` False keeps the bricks whole. `fields`:
+    the names of the fields to keep (default all).
 
     The inputs may be mapped and unvalidated (schema.load(mapped=True)): the
     indices used are checked on the way (errors name `where`, the two files),
     and the piece is validated as a file would be."""
     from .bvh import build_bvh
 
+    keep, used, first, new_dims = _piece_plan(bricks, regions, lower, upper, halo, crop, where)
+    picked = _field_rows(bricks, fields)
+    start, ids = regions.brick_start, regions.brick_ids
+    alive = (new_dims > 0).all(axis=1)
+    # the lists without the bricks cropped away, renumbered to the piece's bricks
+    number = np.full(bricks.n_bricks, -1, np.int32)
+    number[used[alive]] = np.arange(int(alive.sum()))
+    new_start, new_ids = _renumbered_lists(start, ids, keep, number)
+    del number
+    names = tuple(bricks.fields[f] for f in picked)
+    sub_regions = regions.replace(
+        fields=names,
+        lower_lattice=np.ascontiguousarray(regions.lower_lattice[keep]),
+        upper_lattice=np.ascontiguousarray(regions.upper_lattice[keep]),
+        brick_start=new_start.astype(start.dtype, copy=False),
+        brick_ids=new_ids.astype(ids.dtype, copy=False),
+        value_range=np.ascontiguousarray(regions.value_range[keep][:, picked]),
+        finest_level=np.ascontiguousarray(regions.finest_level[keep]), meta={})
+    src, first, new_dims = used[alive], first[alive], new_dims[alive]
+    del used, alive
+    cells = new_dims.astype(np.int64).prod(axis=1)
+    offset = np.zeros(len(src), np.int64)
+    np.cumsum(cells[:-1], out=offset[1:])
+    level = np.ascontiguousarray(bricks.level[src])
+    values = _copy_crops(bricks.values, np.asarray(picked, np.int64), bricks.offset[src],
+                         bricks.dims[src], first, new_dims, offset, int(cells.sum()))
+    lower_lattice = bricks.lower_lattice[src]
+    lower_lattice += first << level[:, None].astype(first.dtype)
+    sub_bricks = bricks.replace(fields=names, lower_lattice=lower_lattice, level=level,
+                                dims=new_dims.astype(bricks.dims.dtype, copy=False),
+                                offset=offset.astype(bricks.offset.dtype, copy=False),
+                                values=values, meta={})
+    schema.validate(sub_bricks, f"{where[0]} (a piece)")
+    schema.validate(sub_regions, f"{where[1]} (a piece)")
+    return sub_bricks, sub_regions, build_bvh(sub_regions)
+
+
+def _field_rows(bricks: schema.Bricks, fields) -> list[int]:
+    """The rows of `bricks.values` of the names `fields` (all of them for None)."""
+    if fields is None:
+        return list(range(bricks.n_fields))
+    return [bricks.field_index(f) for f in dict.fromkeys(fields)]
+
+
+def _piece_plan(bricks, regions, lower, upper, halo, crop, where):
+    """(keep, used, first, new_dims): the regions meeting the piece grown by
+    `halo`, the bricks they list, and each one's cells kept (`_crop_boxes`);
+    every index followed is checked (piece_data)."""
     lo = np.asarray(lower, np.float64) - halo
     hi = np.asarray(upper, np.float64) + halo
-    keep = np.flatnonzero(np.all(regions.lower_lattice < hi, axis=1)
-                          & np.all(regions.upper_lattice > lo, axis=1))
+    keep = _meeting(regions, lo, hi)
     start, ids = regions.brick_start, regions.brick_ids
     if len(keep):
         lengths = start[keep + 1] - start[keep]
@@ -219,35 +338,34 @@ def piece_data(bricks: schema.Bricks, regions: schema.Regions, lower, upper, *,
     if bad >= 0:
         raise ExabricksError(f"{where[0]}: brick {int(used[bad])}'s dims or value offset lie "
                              "beyond the values (the bricks file is corrupt)")
-    alive = (new_dims > 0).all(axis=1)
-    # the lists without the bricks cropped away, renumbered to the piece's bricks
-    number = np.full(bricks.n_bricks, -1, np.int32)
-    number[used[alive]] = np.arange(int(alive.sum()))
-    new_start, new_ids = _renumbered_lists(start, ids, keep, number)
-    sub_regions = regions.replace(
-        lower_lattice=np.ascontiguousarray(regions.lower_lattice[keep]),
-        upper_lattice=np.ascontiguousarray(regions.upper_lattice[keep]),
-        brick_start=new_start.astype(start.dtype, copy=False),
-        brick_ids=new_ids.astype(ids.dtype, copy=False),
-        value_range=np.ascontiguousarray(regions.value_range[keep]),
-        finest_level=np.ascontiguousarray(regions.finest_level[keep]), meta={})
-    src, first, new_dims = used[alive], first[alive], new_dims[alive]
-    del used, alive
-    cells = new_dims.astype(np.int64).prod(axis=1)
-    offset = np.zeros(len(src), np.int64)
-    np.cumsum(cells[:-1], out=offset[1:])
-    level = np.ascontiguousarray(bricks.level[src])
-    values = _copy_crops(bricks.values, bricks.offset[src], bricks.dims[src], first, new_dims,
-                         offset, int(cells.sum()))
-    lower_lattice = bricks.lower_lattice[src]
-    lower_lattice += first << level[:, None].astype(first.dtype)
-    sub_bricks = bricks.replace(lower_lattice=lower_lattice, level=level,
-                                dims=new_dims.astype(bricks.dims.dtype, copy=False),
-                                offset=offset.astype(bricks.offset.dtype, copy=False),
-                                values=values, meta={})
-    schema.validate(sub_bricks, f"{where[0]} (a piece)")
-    schema.validate(sub_regions, f"{where[1]} (a piece)")
-    return sub_bricks, sub_regions, build_bvh(sub_regions)
+    return keep, used, first, new_dims
+
+
+def _meeting(regions: schema.Regions, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+    """Ids of the regions whose boxes overlap the open box (lo, hi), found in steps
+    (the pages of mapped boxes handed back after each)."""
+    found = []
+    for s in range(0, regions.n_regions, STEP):
+        low, up = regions.lower_lattice[s:s + STEP], regions.upper_lattice[s:s + STEP]
+        found.append(s + np.flatnonzero(np.all(low < hi, axis=1) & np.all(up > lo, axis=1)))
+        schema.release(regions)
+    return np.concatenate(found) if found else np.zeros(0, np.int64)
+
+
+def piece_bytes(bricks: schema.Bricks, regions: schema.Regions, plan, fields=None) -> int:
+    """Bytes a Renderer of the piece of `plan` (`_piece_plan`) holds on the host
+    and the device together: its structures (brick values of `fields` cropped,
+    boxes; regions and their lists; a BVH of at most two nodes per region) and
+    the float4 copies the device takes of the boxes (device_data.DeviceScene),
+    over-counting lists by the bricks cropped away."""
+    keep, used, _, new_dims = plan
+    cells = int(new_dims.astype(np.int64).prod(axis=1).sum())
+    lists = int((regions.brick_start[keep + 1] - regions.brick_start[keep]).sum()) if len(keep) else 0
+    n_fields = len(_field_rows(bricks, fields))
+    brick = 3 * 4 + 1 + 3 * 4 + 8 + 16 + 16  # lower, level, dims, offset; device box, dims
+    region = 2 * 3 * 4 + 8 * n_fields + 1 + 8 + 32 + 8  # boxes, ranges, level, start; device
+    node = 2 * (2 * 3 * 4 + 8 * n_fields + 8 + 32 + 8 + 1) + 4 + 4  # two nodes, links, index
+    return cells * 4 * n_fields + len(used) * brick + len(keep) * (region + node) + lists * 4
 
 
 @numba.njit(cache=True)
@@ -316,10 +434,11 @@ def _renumbered_lists(start, ids, keep, number):
 
 
 @numba.njit(cache=True)
-def _copy_crops(values, offset, dims, first, new_dims, new_offset, total):
-    """The values (F, total) of the sub-boxes [first, first + new_dims) of bricks of
-    `dims` (x fastest) at `offset` in `values`, each at its `new_offset`."""
-    out = np.empty((values.shape[0], total), np.float32)
+def _copy_crops(values, rows, offset, dims, first, new_dims, new_offset, total):
+    """The values (len(rows), total) of the fields `rows` of the sub-boxes [first,
+    first + new_dims) of bricks of `dims` (x fastest) at `offset` in `values`,
+    each at its `new_offset`."""
+    out = np.empty((len(rows), total), np.float32)
     for b in range(len(offset)):
         nx, ny, nz = new_dims[b, 0], new_dims[b, 1], new_dims[b, 2]
         dx, dy = dims[b, 0], dims[b, 1]
@@ -328,8 +447,8 @@ def _copy_crops(values, offset, dims, first, new_dims, new_offset, total):
         for z in range(nz):
             for y in range(ny):
                 i = offset[b] + ((z + z0) * dy + (y + y0)) * dx + x0
-                for f in range(values.shape[0]):
-                    out[f, j:j + nx] = values[f, i:i + nx]
+                for f in range(len(rows)):
+                    out[f, j:j + nx] = values[rows[f], i:i + nx]
                 j += nx
     return out
 

@@ -206,17 +206,26 @@ class Renderer:
         return self.render_scene(scene, traversal=traversal)
 
     def render_scene(self, scene: Scene, *, traversal: str = "ordered", rows=None,
-                     sample: int | None = None) -> RenderResult:
+                     sample: int | None = None, front: np.ndarray | None = None,
+                     deadline: float | None = None) -> RenderResult:
         """Render `scene` (exabricks.scene.Scene; its fields must be uploaded).
 
         `traversal` picks the region walk (TRAVERSALS); both give the same
         image up to float rounding, only the speed differs. `rows`: the spans
         (first row, count) to render (default: all rows; the others stay 0).
         `sample`: only sample `sample` of the frame's spp rays per pixel,
-        unaveraged (data-parallel frames composite each sample on its own)."""
+        unaveraged (data-parallel frames composite each sample on its own).
+        `front` (a piece's renderer only): float32 (H, W, 4), the premultiplied
+        image of this sample in front of the piece; the rays continue from it
+        (early ray termination included) and the result is the composite.
+        `deadline` (time.perf_counter() seconds): stop after the band that
+        passes it; stats["rows"] then says how many rows from the top were
+        drawn (the rest are `front`, else empty)."""
         scene.check()
         cfg = scene.settings
         _check_settings(cfg, traversal)
+        if front is not None and (self.piece is None or front.shape != (cfg.height, cfg.width, 4)):
+            raise ExabricksError("an image in front is for a piece's frame of the same size")
         missing = [f for f in scene.fields() if f not in self.scene.fields]
         if missing:
             raise ExabricksError(f"field(s) {', '.join(missing)} are not on the device "
@@ -249,11 +258,12 @@ class Renderer:
         d = _host_image(width, height, 1, "the depth image")[..., 0] if cfg.depth else None
         spans = [(0, height)] if rows is None else [(int(a), int(n)) for a, n in rows]
         nothing = s.empty or not (node_vis[0] or scene.slices)
-        if rows is not None or nothing:  # rows not rendered stay empty
-            rgba[:] = 0.0
+        if rows is not None or nothing or deadline is not None:  # rows not rendered
+            rgba[:] = 0.0 if front is None else front
             if d is not None:
                 d[:] = np.inf
         if nothing:
+            stats["rows"] = height
             stats.update(samples=0, ms=0.0, samples_per_second=0.0)
             return RenderResult(_over_background(rgba, scene.background), d, stats)
         self._check_samples_per_ray(cfg.sampling_rate)
@@ -263,6 +273,7 @@ class Renderer:
         band_rows = _band_rows(s.device, width, height)
         band_pixels = width * band_rows
         rgba_buf = opencl.empty_buffer(q, band_pixels * 16)
+        front_buf = opencl.empty_buffer(q, band_pixels * 16 if front is not None else 16)
         depth_buf = opencl.empty_buffer(q, band_pixels * 4)
         samples_buf = opencl.empty_buffer(q, band_pixels * 4)
         samples = np.empty(band_pixels, np.uint32)
@@ -287,20 +298,27 @@ class Renderer:
             np.int32(lighting.ao_samples), np.float32(ao_distance), np.float32(lod_scale),
             *s.scene_args(up(q, node_vis), up(q, region_vis), cfg.reconstruction, lod),
             *self.location_args,
-            *frame_args(scene, s, q), *(self.piece or ()),
+            *frame_args(scene, s, q),
+            *((*self.piece, front_buf, np.int32(front is not None)) if self.piece else ()),
             rgba_buf, depth_buf, samples_buf, level_buf,
         ]
         q.finish()
         start = time.perf_counter()
         total = 0
         rows = FIRST_BAND
+        drawn = height
         for span0, span_rows in spans:
             row0, end = span0, min(span0 + span_rows, height)
             while row0 < end:
+                if deadline is not None and time.perf_counter() > deadline:
+                    drawn = row0
+                    break
                 rows = min(rows, band_rows, end - row0)
                 band_start = time.perf_counter()
                 global_size = (-(-width // TILE) * TILE, -(-rows // TILE) * TILE)
                 n = width * rows
+                if front is not None:
+                    opencl.write_to(q, front_buf, front[row0:row0 + rows].reshape(n, 4))
                 if sample:  # the kernel adds samples after the first: start from 0
                     for buf, size in ((rgba_buf, 16), (samples_buf, 4)):
                         opencl.fill_zero(q, buf, n * size)
@@ -316,14 +334,16 @@ class Renderer:
                 row0 += rows
                 rows = _next_band(rows, time.perf_counter() - band_start)
                 interrupt.raise_pending()
+            if drawn < height:
+                break
         if sample is not None and spp > 1:
-            rgba *= np.float32(spp)  # the kernel averages: this sample alone
+            rgba[:drawn] *= np.float32(spp)  # the kernel averages: this sample alone
         seconds = time.perf_counter() - start
         if lod:
             opencl.read_back(q, level_buf, level_samples)
             stats["samples_per_level"] = {str(l): int(c) for l, c in enumerate(level_samples) if c}
         stats["lod"] = float(cfg.lod)
-        stats.update(samples=total, ms=1e3 * seconds / (spp if sample is None else 1),
+        stats.update(rows=drawn, samples=total, ms=1e3 * seconds / (spp if sample is None else 1),
                      samples_per_second=total / seconds if seconds > 0 else 0.0)
         return RenderResult(_over_background(rgba, scene.background), d, stats)
 

@@ -1,0 +1,221 @@
+"""Frames of data larger than memory, and frames that improve as they go
+(docs/design.md, "Rendering under a memory budget"; Wu, Doyle & Ma's streaming
+and progressive rendering, seed paper 004).
+
+A frame is drawn as steps: for each of its spp samples, each piece of the
+dataset front to back. Under a memory budget the pieces are those of a k-d
+partition of space (exabricks.stages.partition.budget_partition) whose every
+piece, structures and device copies together, fits the budget; one piece is
+resident at a time, read from the mapped files (only its pages), rendered and
+dropped before the next is read. Each piece's rays continue from the image
+composited in front of it (kernels/render.cl EB_PIECE_ARGS `front`), so early
+ray termination carries from piece to piece and the frame equals the
+in-memory one up to float rounding. Without a budget the whole dataset is the
+one piece (`Resident`).
+
+After every step the image so far is offered to `on_image`: the average of the
+samples completed, or, while the first is under way, that sample composited
+over the pieces drawn so far. A deadline stops the frame after the step (or
+the band of rows, kernels being enqueued by bands) that passes it; the result
+then says what it covers (`progress` in its stats).
+"""
+
+from __future__ import annotations
+
+import gc
+import time
+
+import numpy as np
+
+from .. import schema
+from ..errors import ExabricksError
+from .device_data import DatasetScale
+from .partition import budget_partition, eye_lattice, mib, piece_data, piece_options
+from .render import Renderer, RenderResult, _over_background
+
+# Units of a --memory-budget: binary for K, M, G, T and KiB..TiB (as SLURM's --mem,
+# Java's -Xmx and numfmt --from=iec read them), decimal for kB, MB, GB, TB.
+_UNITS = {"": 1, "b": 1}
+for _i, _p in enumerate("kmgt", start=1):
+    _UNITS.update({_p: 1024 ** _i, _p + "ib": 1024 ** _i, _p + "b": 1000 ** _i})
+
+# A piece's bytes (partition.piece_bytes) times this must fit the budget left
+# after the images: while a piece is made, its copies from the files, its
+# validation, the BVH builder and the upload take about as much again
+# (measured on the thin shells: a peak 2.1x the piece's bytes above the
+# baseline).
+SLACK = 2.5
+
+
+def parse_size(text) -> int:
+    """Bytes of a size written as an integer, or a number with a unit ("512MiB",
+    "8GiB", "2G", "1.5GB"; _UNITS); ExabricksError for anything else."""
+    raw = str(text).strip()
+    number = raw.rstrip("kKmMgGtTiIbB ")
+    unit = raw[len(number):].strip().lower()
+    try:
+        value = float(number)
+    except ValueError:
+        value = float("nan")
+    if unit not in _UNITS or not np.isfinite(value) or value <= 0:
+        raise ExabricksError(f"memory budget {raw!r}: expected a positive size such as "
+                             "1073741824, 512MiB, 8GiB or 2G")
+    nbytes = int(value * _UNITS[unit])
+    if nbytes < 1:
+        raise ExabricksError(f"memory budget {raw!r}: less than one byte")
+    return nbytes
+
+
+def image_bytes(scene) -> int:
+    """Host bytes of the images a streamed frame keeps (the composite, the sum of
+    the samples, the piece's result and a copy offered to on_image)."""
+    return 4 * int(scene.settings.width) * int(scene.settings.height) * 16
+
+
+class Resident:
+    """The whole dataset as one resident piece (an exabricks.stages.render.Renderer)."""
+
+    def __init__(self, renderer: Renderer):
+        self.renderer = renderer
+        self.n_pieces = 1
+
+    def order(self, scene) -> list[int]:
+        return [0]
+
+    def piece(self, index: int, scene) -> Renderer:
+        return self.renderer
+
+
+class Budgeted:
+    """The pieces of a dataset (mapped, schema.load(mapped=True)) that each fit
+    `budget` bytes with the images of `scene` and RESERVE; one is resident at a
+    time. `where`: the two files' names for errors."""
+
+    def __init__(self, bricks: schema.Bricks, regions: schema.Regions, scene, budget: int, *,
+                 device=None, where=("the bricks", "the regions")):
+        self.bricks, self.regions, self.device, self.where = bricks, regions, device, where
+        self.budget = int(budget)
+        self.fields = scene.fields()
+        self.scale = DatasetScale.of(bricks, self.fields)
+        self._current = (None, None)
+        self._plan(scene)
+
+    def _plan(self, scene) -> None:
+        options = piece_options(self.bricks, scene)
+        room = int((self.budget - image_bytes(scene)) / SLACK)
+        if room <= 0:
+            raise ExabricksError(
+                f"a memory budget of {mib(self.budget)} leaves nothing for the data besides "
+                f"{mib(image_bytes(scene))} of images")
+        self.options = options
+        self.partition = budget_partition(self.bricks, self.regions, room, fields=self.fields,
+                                          where=self.where, grid_bytes=self.budget // 4,
+                                          **options)
+        self.n_pieces = self.partition.n_pieces
+        self._current = (None, None)
+        if self.n_pieces > 1:
+            from ..parallel import needs_image_mode
+
+            reason = needs_image_mode(scene)
+            if reason:
+                raise ExabricksError(
+                    f"{reason} need the whole dataset at once, but a memory budget of "
+                    f"{mib(self.budget)} holds it in {self.n_pieces} pieces only: "
+                    "raise the budget or leave them out")
+
+    def order(self, scene) -> list[int]:
+        if piece_options(self.bricks, scene) != self.options or set(scene.fields()) - set(self.fields):
+            self.fields = scene.fields()
+            self.scale = DatasetScale.of(self.bricks, self.fields)
+            self._plan(scene)
+        return self.partition.visibility_order(eye_lattice(self.bricks, scene.camera.position))
+
+    def piece(self, index: int, scene) -> Renderer:
+        if self._current[0] == index:
+            return self._current[1]
+        self._current = (None, None)  # the previous piece goes before the next comes
+        gc.collect()
+        from ..parallel import _trim_heap
+
+        _trim_heap()
+        box = (self.partition.lower[index], self.partition.upper[index])
+        data = piece_data(self.bricks, self.regions, *box, fields=self.fields, where=self.where,
+                          **self.options)
+        for whole in (self.bricks, self.regions):
+            schema.release(whole)
+        renderer = Renderer(*data, fields=self.fields, device=self.device,
+                            piece=box if self.n_pieces > 1 else None, scale=self.scale)
+        self._current = (index, renderer)
+        return renderer
+
+
+def render_steps(pieces, scene, *, deadline: float | None = None, on_image=None) -> RenderResult:
+    """One frame of `scene` from `pieces` (Resident or Budgeted) step by step
+    (module docstring). `on_image(rgba, progress)` is called after every step
+    but the last with the premultiplied image so far (over the background) and
+    what it covers; `deadline` (time.perf_counter() seconds) ends the frame
+    early. stats["progress"]: samples and pieces done, complete or not."""
+    cfg = scene.settings
+    spp, width, height = int(cfg.spp), int(cfg.width), int(cfg.height)
+    plain = scene.replace(background=(0.0, 0.0, 0.0, 0.0))
+    total = np.zeros((height, width, 4), np.float32)
+    order = pieces.order(scene)
+    start = time.perf_counter()
+    samples, stats, done_samples, done_pieces, rows = 0, {}, 0, 0, height
+    depth = over = None
+    for sample in range(spp):
+        if sample and deadline is not None and time.perf_counter() > deadline:
+            break
+        over = None
+        for k, index in enumerate(order):
+            if k and deadline is not None and time.perf_counter() > deadline:
+                break
+            result = pieces.piece(index, scene).render_scene(
+                plain, sample=sample if spp > 1 else None,
+                front=over if pieces.n_pieces > 1 else None, deadline=deadline)
+            over, stats = result.rgba, dict(result.stats)
+            if result.depth is not None:  # one piece only (Budgeted refuses more)
+                depth = result.depth if depth is None else np.minimum(depth, result.depth)
+            samples += stats["samples"]
+            rows = stats["rows"]
+            if rows < height:
+                break
+            done_pieces = k + 1
+            if on_image is not None and (sample, k) != (spp - 1, len(order) - 1):
+                on_image(*_so_far(total, over, sample, done_pieces, len(order), spp, scene))
+        if done_pieces == len(order) and rows == height:
+            total += over
+            done_samples = sample + 1
+            done_pieces = 0 if done_samples < spp else len(order)
+        if done_samples < sample + 1:
+            break
+    rgba, progress = _so_far(total, over, done_samples, done_pieces, len(order), spp, scene,
+                             rows=rows)
+    seconds = time.perf_counter() - start
+    if pieces.n_pieces > 1:
+        for key in ("regions", "visible_regions"):  # the last piece's only
+            stats.pop(key, None)
+    stats.pop("rows", None)
+    stats.update(samples=samples, ms=1e3 * seconds / max(done_samples, 1),
+                 samples_per_second=samples / seconds if seconds > 0 else 0.0,
+                 pieces=pieces.n_pieces, progress=progress)
+    if isinstance(pieces, Budgeted):
+        stats["memory_budget"] = pieces.budget
+    return RenderResult(rgba, depth, stats)
+
+
+def _so_far(total, over, samples_done, pieces_done, n_pieces, spp, scene, rows=None):
+    """(image over the background, progress): the average of the samples done, or
+    while none is, the first sample's composite of the pieces done."""
+    if samples_done:
+        rgba = total / np.float32(samples_done)
+    elif over is not None:
+        rgba = over.copy()
+    else:
+        rgba = np.zeros_like(total)
+    complete = samples_done == spp
+    progress = {"complete": complete, "samples": [samples_done, spp],
+                "pieces": [n_pieces if complete else pieces_done, n_pieces]}
+    if not complete and rows is not None and 0 < rows < total.shape[0] and not samples_done:
+        progress["rows"] = rows
+    return _over_background(rgba, scene.background), progress
