@@ -128,7 +128,8 @@ def test_a_budget_too_small_says_what_it_needs():
     with pytest.raises(ExabricksError, match="leaves nothing for the data"):
         Budgeted(built.bricks, built.regions, scene, image_bytes(scene))
     with pytest.raises(ExabricksError, match="too small for this dataset: the smallest piece"):
-        Budgeted(built.bricks, built.regions, scene, image_bytes(scene) + 200)
+        Budgeted(built.bricks, built.regions, scene,
+                 image_bytes(scene) + 5 * built.bricks.n_bricks + 200)
 
 
 def test_steps_offer_every_image_so_far_and_stop_at_the_deadline():
@@ -173,7 +174,7 @@ def test_cli_budget_from_the_environment_gives_the_same_image(gerris_files, cli,
     bad = cli("render", *gerris_files, "-o", tmp_path / "c.exr", "--memory-budget", "12 parsecs")
     assert bad.returncode == 2 and "memory budget" in bad.stderr
     assert not (tmp_path / "c.exr").exists()
-    proc = cli("render", *gerris_files, "-o", tmp_path / "d.exr", *FLAGS, "--memory-budget", "265k")
+    proc = cli("render", *gerris_files, "-o", tmp_path / "d.exr", *FLAGS, "--memory-budget", "280k")
     assert_one_error_line(proc, "too small for this dataset")
     proc = cli("render", *gerris_files, "-o", tmp_path / "d.exr", *FLAGS, "--memory-budget",
                "600k", "--iso", 0.4)

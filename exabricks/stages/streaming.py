@@ -45,6 +45,9 @@ for _i, _p in enumerate("kmgt", start=1):
 # (measured on the thin shells: a peak 2.1x the piece's bytes above the
 # baseline).
 SLACK = 2.5
+# Bytes per brick of the whole dataset that making a piece holds whatever its
+# size (partition.piece_data: a mask of the bricks listed and their renumbering).
+PER_BRICK = 5
 
 
 def parse_size(text) -> int:
@@ -102,11 +105,13 @@ class Budgeted:
 
     def _plan(self, scene) -> None:
         options = piece_options(self.bricks, scene)
-        room = int((self.budget - image_bytes(scene)) / SLACK)
+        fixed = image_bytes(scene) + PER_BRICK * self.bricks.n_bricks
+        room = int((self.budget - fixed) / SLACK)
         if room <= 0:
             raise ExabricksError(
                 f"a memory budget of {mib(self.budget)} leaves nothing for the data besides "
-                f"{mib(image_bytes(scene))} of images")
+                f"{mib(fixed)} of images and indices over the dataset's "
+                f"{self.bricks.n_bricks:,} bricks")
         self.options = options
         self.partition = budget_partition(self.bricks, self.regions, room, fields=self.fields,
                                           where=self.where, grid_bytes=self.budget // 4,

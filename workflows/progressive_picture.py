@@ -1,0 +1,78 @@
+"""Pictures of a frame under a memory budget (docs/design.md, "Rendering under a
+memory budget"): the image so far after a quarter, half and all of the pieces of
+the first sample, and the final average of every sample, as `render
+--progressive` rewrites it.
+
+    .venv/bin/python workflows/progressive_picture.py [--pieces 8] [--size 320]
+
+Runs exabricks.stages.streaming in one process on the Athena++ blast (rho, the
+camera and transfer function of workflows/pieces_picture.py, default early ray
+termination) with a budget that holds at most 1/--pieces of the data per piece.
+Writes docs/images/budget-progress.png (the four images side by side, over the
+dark background) and prints the pieces, what each image covers, and the RMSE of
+the final image against the in-memory frame.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT / "workflows"))
+
+import benchdoc  # noqa: E402
+from bench_render import ensure_scene  # noqa: E402
+from pieces_picture import BACKGROUND, CAMERA  # noqa: E402
+
+FLAGS = dict(field="rho", colormap="viridis", range=(1.0, 2.7), opacity=(0.0, 0.02, 0.2, 0.5))
+
+
+def main(argv=None) -> int:
+    from exabricks import schema
+    from exabricks.image_io import write_image
+    from exabricks.scene import scene_from_options
+    from exabricks.stages.partition import _piece_plan, piece_bytes
+    from exabricks.stages.render import Renderer, _over_background
+    from exabricks.stages.streaming import SLACK, Budgeted, image_bytes, render_steps
+
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--pieces", type=int, default=8)
+    parser.add_argument("--size", type=int, default=320)
+    parser.add_argument("--spp", type=int, default=4)
+    args = parser.parse_args(argv)
+    d = ensure_scene(ROOT / "bench-data" / "render", benchdoc.datasets()["athena"])
+    bricks, regions, bvh = (schema.load(d / f"{n}.npz") for n in ("bricks", "regions", "bvh"))
+    scene = scene_from_options(bricks, flags={**FLAGS, **CAMERA, "size": (args.size, args.size),
+                                              "spp": args.spp})
+    whole = Renderer(bricks, regions, bvh, fields=scene.fields()).render_scene(scene).rgba
+    plan = _piece_plan(bricks, regions, [-np.inf] * 3, [np.inf] * 3, 0.0, True, ("b", "r"))
+    budget = int(image_bytes(scene) + 5 * bricks.n_bricks
+                 + SLACK * piece_bytes(bricks, regions, plan, scene.fields()) / args.pieces)
+    pieces = Budgeted(bricks, regions, scene, budget)
+    n = pieces.n_pieces
+    wanted = {(0, max(1, n // 4)), (0, max(1, n // 2)), (0, n)}
+    shots = []
+
+    def on_image(rgba, progress):
+        key = (progress["samples"][0], progress["pieces"][0])
+        if key in wanted:
+            shots.append((rgba.copy(), progress))
+
+    final = render_steps(pieces, scene, on_image=on_image)
+    shots.append((final.rgba, final.stats["progress"]))
+    for _, progress in shots:
+        print(progress)
+    strip = np.concatenate([_over_background(img.copy(), BACKGROUND) for img, _ in shots], axis=1)
+    out = ROOT / "docs" / "images" / "budget-progress.png"
+    write_image(out, strip, metadata={})
+    rmse = float(np.sqrt(np.mean((final.rgba - whole) ** 2))) / float(np.abs(whole).max())
+    print(f"{n} pieces in a budget of {budget:,} bytes -> {out}; RMSE against in memory {rmse:.1e}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
