@@ -23,8 +23,8 @@ from exabricks.errors import ExabricksError
 from exabricks.image_io import read_image
 from exabricks.stages.partition import _piece_plan, piece_bytes
 from exabricks.stages.render import Renderer
-from exabricks.stages.streaming import (SLACK, Budgeted, Resident, image_bytes, parse_size,
-                                        render_steps)
+from exabricks.stages.streaming import (PER_BRICK, SLACK, Budgeted, Resident, image_bytes,
+                                        parse_size, render_steps)
 
 from conftest import GERRIS, assert_one_error_line
 from test_mpi import files_of
@@ -54,7 +54,8 @@ def whole_bytes(name, scene) -> int:
 def budget_for(name, scene, pieces: int) -> int:
     """A budget whose pieces each hold at most 1/`pieces` of the whole: at least
     that many pieces."""
-    return int(image_bytes(scene) + SLACK * whole_bytes(name, scene) / pieces) + 1
+    n_bricks = loaded(name)[0].bricks.n_bricks
+    return int(image_bytes(scene) + PER_BRICK * n_bricks + SLACK * whole_bytes(name, scene) / pieces) + 1
 
 
 def same(a, b):
@@ -129,7 +130,7 @@ def test_a_budget_too_small_says_what_it_needs():
         Budgeted(built.bricks, built.regions, scene, image_bytes(scene))
     with pytest.raises(ExabricksError, match="too small for this dataset: the smallest piece"):
         Budgeted(built.bricks, built.regions, scene,
-                 image_bytes(scene) + 5 * built.bricks.n_bricks + 200)
+                 image_bytes(scene) + PER_BRICK * built.bricks.n_bricks + 200)
 
 
 def test_steps_offer_every_image_so_far_and_stop_at_the_deadline():

@@ -37,7 +37,7 @@ def main(argv=None) -> int:
     from exabricks.scene import scene_from_options
     from exabricks.stages.partition import _piece_plan, piece_bytes
     from exabricks.stages.render import Renderer, _over_background
-    from exabricks.stages.streaming import SLACK, Budgeted, image_bytes, render_steps
+    from exabricks.stages.streaming import PER_BRICK, SLACK, Budgeted, image_bytes, render_steps
 
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--pieces", type=int, default=8)
@@ -50,7 +50,7 @@ def main(argv=None) -> int:
                                               "spp": args.spp})
     whole = Renderer(bricks, regions, bvh, fields=scene.fields()).render_scene(scene).rgba
     plan = _piece_plan(bricks, regions, [-np.inf] * 3, [np.inf] * 3, 0.0, True, ("b", "r"))
-    budget = int(image_bytes(scene) + 5 * bricks.n_bricks
+    budget = int(image_bytes(scene) + PER_BRICK * bricks.n_bricks
                  + SLACK * piece_bytes(bricks, regions, plan, scene.fields()) / args.pieces)
     pieces = Budgeted(bricks, regions, scene, budget)
     n = pieces.n_pieces
