@@ -15,6 +15,7 @@ import signal
 import subprocess
 import sys
 import time
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -208,20 +209,10 @@ def peak_rss(args, env=None) -> int:
 def test_peak_memory_stays_under_budget_plus_baseline(gerris_files, tmp_path):
     """The baseline: the same budgeted command on a dataset of 64 cells; the
     Gerris structures are several times the budget's share for data."""
-    from exabricks import schema
-    from exabricks.stages.brick import build_bricks
-    from exabricks.stages.bvh import build_bvh
-    from exabricks.stages.regions import build_regions
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "workflows"))
+    from bench_budget import tiny_scene
 
-    g = np.stack(np.meshgrid(*[np.arange(4)] * 3, indexing="ij"), -1).reshape(-1, 3)
-    cells = schema.Cells(fields=("T",), origin_world=np.zeros(3), spacing_world=np.ones(3),
-                         lower_lattice=g.astype(np.int32), level=np.zeros(len(g), np.int8),
-                         values=np.linspace(0, 1, len(g), dtype=np.float32)[None])
-    bricks = build_bricks(cells)
-    regions = build_regions(bricks)
-    tiny = [tmp_path / f"{n}.npz" for n in ("bricks", "regions", "bvh")]
-    for path, obj in zip(tiny, (bricks, regions, build_bvh(regions))):
-        schema.save(path, obj)
+    tiny = tiny_scene(tmp_path, "T")
     flags = ["--size", 128, 128, "--field", "T", "--range", 0, 1, "--max-opacity", 1]
     budget = 2 << 20
     baseline = peak_rss(["render", *tiny, "-o", tmp_path / "tiny.exr", *flags,
