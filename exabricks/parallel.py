@@ -154,6 +154,11 @@ def load_for(mode: str, bricks_path, regions_path, bvh_path):
     bricks = schema.load(bricks_path, "bricks", mapped=True)
     regions = schema.load(regions_path, "regions", mapped=True)
     bvh = schema.load(bvh_path, "bvh", mapped=True)
+    if tuple(regions.fields) != tuple(bricks.fields) or not (
+            np.array_equal(regions.origin_world, bricks.origin_world)
+            and np.array_equal(regions.spacing_world, bricks.spacing_world)):
+        raise ExabricksError(f"{regions_path}: its fields or world frame differ from those of "
+                             f"{bricks_path}: they were not built from the same dataset")
     if bvh.region_index.shape[0] != regions.n_regions:
         raise ExabricksError(f"{bvh_path}: the bvh indexes {bvh.region_index.shape[0]} regions but "
                              f"{regions_path} has {regions.n_regions}: it was built from other regions")

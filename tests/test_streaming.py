@@ -178,6 +178,14 @@ def test_cli_budget_from_the_environment_gives_the_same_image(gerris_files, cli,
     assert not (tmp_path / "c.exr").exists()
     proc = cli("render", *gerris_files, "-o", tmp_path / "d.exr", *FLAGS, "--memory-budget", "280k")
     assert_one_error_line(proc, "too small for this dataset")
+    from exabricks import schema
+
+    other = tmp_path / "renamed.npz"  # bricks of another field name: not these regions'
+    bricks = schema.load(gerris_files[0])
+    schema.save(other, bricks.replace(fields=("X",)))
+    proc = cli("render", other, *gerris_files[1:], "-o", tmp_path / "d.exr", *FLAGS,
+               "--memory-budget", "600k")
+    assert_one_error_line(proc, str(gerris_files[1]), "not built from the same dataset")
     proc = cli("render", *gerris_files, "-o", tmp_path / "d.exr", *FLAGS, "--memory-budget",
                "600k", "--iso", 0.4)
     assert_one_error_line(proc, "iso-surfaces need the whole dataset")
