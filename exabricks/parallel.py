@@ -165,18 +165,6 @@ def load_for(mode: str, bricks_path, regions_path, bvh_path):
     return bricks, regions, bvh
 
 
-def _trim_heap() -> None:
-    """Give the C heap's free memory back to the system (glibc keeps what the
-    piece's temporaries used, a few hundred MB on large data); a no-op elsewhere."""
-    import ctypes
-    import ctypes.util
-
-    try:
-        ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6").malloc_trim(0)
-    except (OSError, AttributeError):
-        pass
-
-
 def needs_image_mode(scene) -> str | None:
     """Why a frame cannot be split by space (None if it can)."""
     if scene.isosurfaces:
@@ -227,7 +215,7 @@ class ParallelRenderer:
                            where=where)
         for whole in (bricks, regions):
             schema.release(whole)
-        _trim_heap()
+        schema.trim_heap()
         self.renderer = Renderer(*piece, fields=fields, device=device, piece=box,
                                  scale=DatasetScale.of(bricks, fields))
 

@@ -302,9 +302,10 @@ def _write(image, result, scene, dataset, path_file, index, inputs) -> None:
         metadata["transfer_function"] = scene.volumes[0].transfer_function.to_paraview_dict()
     write_image(image, result.rgba, metadata=metadata, depth=result.depth, inputs=inputs)
     s = result.stats
-    if not s.get("progress", {"complete": True})["complete"]:
-        log.info("%s: so far %s", image, s["progress"])
-        if not s["samples"]:
+    progress = s.get("progress")
+    if progress and not progress["complete"]:
+        log.info("%s: so far %s", image, progress)
+        if not s["samples"]:  # a progressive rewrite
             return
     log.info("%s: %dx%d, %s samples, %.1f ms, %.1f M samples/s on %s", image, s["width"],
              s["height"], f"{s['samples']:,}", s["ms"], s["samples_per_second"] / 1e6, s["device"])

@@ -78,9 +78,9 @@ def byte_grid(bricks: schema.Bricks, regions: schema.Regions, max_bytes: int | N
     region (box and list) spread evenly over the cells of a grid of `cell`-wide
     cells (a power of two lattice units, at most GRID per axis, from `origin`)
     that its box covers; gathered in steps, so that its memory is the grid's
-    (three float64 copies of it at most: under `max_bytes` when given, by
-    fewer cells per axis, but never fewer than 64). `n_fields`: the fields whose values count (default
-    all)."""
+    (three float64 copies of it at most: under `max_bytes` when given, by fewer
+    cells per axis, but never fewer than 64). `n_fields`: the fields whose
+    values count (default all)."""
     cells = GRID
     if max_bytes is not None:
         cells = int(min(GRID, max(64, (max_bytes / 24) ** (1 / 3) - 1)))
@@ -184,10 +184,9 @@ def mib(nbytes) -> str:
 
 def _kd_tree(grid, origin, cell, split, payload) -> KdPartition:
     """The k-d tree whose boxes `split`(lower, upper, payload, the box's cells of
-    `grid`) cuts: it returns
-    None for a piece, else (share of the box's bytes before the cut, the two
-    halves' payloads); each cut lies across the box's longest axis at a cell
-    boundary of `grid` (`_cut`)."""
+    `grid`) cuts: it returns None for a piece, else (share of the box's bytes
+    before the cut, the two halves' payloads); each cut lies across the box's
+    longest axis at a cell boundary of `grid` (`_cut`)."""
     axis, plane, left, right, lower, upper = [], [], [], [], [], []
     stack = [(np.zeros(3, np.int64), np.array(grid.shape), np.full(3, -np.inf), np.full(3, np.inf),
               payload, None)]

@@ -91,8 +91,8 @@ class Resident:
 
 class Budgeted:
     """The pieces of a dataset (mapped, schema.load(mapped=True)) that each fit
-    `budget` bytes with the images of `scene` and RESERVE; one is resident at a
-    time. `where`: the two files' names for errors."""
+    `budget` bytes with the images of `scene` (SLACK, PER_BRICK); one is
+    resident at a time. `where`: the two files' names for errors."""
 
     def __init__(self, bricks: schema.Bricks, regions: schema.Regions, scene, budget: int, *,
                  device=None, where=("the bricks", "the regions")):
@@ -140,9 +140,7 @@ class Budgeted:
             return self._current[1]
         self._current = (None, None)  # the previous piece goes before the next comes
         gc.collect()
-        from ..parallel import _trim_heap
-
-        _trim_heap()
+        schema.trim_heap()
         box = (self.partition.lower[index], self.partition.upper[index])
         data = piece_data(self.bricks, self.regions, *box, fields=self.fields, where=self.where,
                           **self.options)
