@@ -170,6 +170,30 @@ class Camera:
         aspect = int(width) / int(height)
         return origin, forward, half_height * aspect * right, half_height * up
 
+    def footprint(self, lower, upper, width: int, height: int):
+        """Pixels (col0, row0, col1, row1), half-open, whose rays of a ``width x
+        height`` image can meet the world box [lower, upper] (any sub-pixel
+        position): the box's eight corners projected, one pixel of margin. The
+        whole image when a corner is not in front of the eye; None when the
+        box is outside the image or wholly behind the eye."""
+        origin, forward, du, dv = self.frame(width, height)
+        lower, upper = np.asarray(lower, np.float64), np.asarray(upper, np.float64)
+        corners = np.array([[(lower, upper)[(k >> a) & 1][a] for a in range(3)]
+                            for k in range(8)]) - origin
+        depth = corners @ forward
+        size = float(np.abs(corners).max()) or 1.0
+        if (depth <= 0.0).all():  # wholly behind the eye
+            return None
+        if not (depth > 1e-9 * size).all():
+            return 0, 0, int(width), int(height)
+        u = (corners @ du) / (du @ du) / depth
+        v = (corners @ dv) / (dv @ dv) / depth
+        x = (u + 1.0) * 0.5 * width  # pixel col looks at x in [col, col + 1)
+        y = (1.0 - v) * 0.5 * height
+        c0, c1 = max(0, math.floor(x.min()) - 1), min(int(width), math.floor(x.max()) + 2)
+        r0, r1 = max(0, math.floor(y.min()) - 1), min(int(height), math.floor(y.max()) + 2)
+        return (c0, r0, c1, r1) if c0 < c1 and r0 < r1 else None
+
     def rays(self, width: int, height: int, jitter=None):
         """Float64 primary rays of every pixel, for the NumPy reference integrator.
 

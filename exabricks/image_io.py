@@ -24,6 +24,8 @@ from __future__ import annotations
 
 import json
 import os
+import struct
+import zlib
 from pathlib import Path
 
 import numpy as np
@@ -86,7 +88,7 @@ def to_png_pixels(rgba) -> np.ndarray:
     Converted in bands of rows, so a large frame needs no float64 copy."""
     rgba = np.asarray(rgba)
     out = np.empty(rgba.shape, np.uint8)
-    rows = max(1, (1 << 22) // max(1, rgba.shape[1] * 4))
+    rows = max(1, (1 << 16) // max(1, rgba.shape[1] * 4))
     for r in range(0, rgba.shape[0], rows):
         band = np.asarray(rgba[r:r + rows], dtype=np.float64)
         alpha = np.clip(band[..., 3:4], 0.0, 1.0)
@@ -126,18 +128,40 @@ def write_image(path, rgba, *, metadata: dict | None = None, depth=None, inputs=
     replace (exabricks.output).
     """
     path = Path(path)
-    suffix = _suffix(path)
     rgba, depth = _checked(rgba, depth, path)
-    if depth is not None and suffix == ".png":
+    height, width = rgba.shape[:2]
+
+    def bands():
+        rows = _band_rows(width)
+        for r in range(0, height, rows):
+            yield rgba[r:r + rows], None if depth is None else depth[r:r + rows]
+
+    _write_bands(path, width, height, bands, depth is not None, metadata, inputs)
+
+
+def _band_rows(width: int) -> int:
+    """Rows of the bands an image is written in: about 1 MiB of float RGBA, a
+    multiple of the 16 scanlines of an EXR ZIP block."""
+    return max(EXR_BLOCK, (1 << 20) // (16 * width) // EXR_BLOCK * EXR_BLOCK)
+
+
+
+def _write_bands(path: Path, width: int, height: int, bands, has_depth: bool, metadata,
+                 inputs) -> None:
+    """Write the image that `bands()` yields as (rgba, depth or None) bands of
+    _band_rows rows, top to bottom, to `path`, atomically (write_image)."""
+    suffix = _suffix(path)
+    if has_depth and suffix == ".png":
         raise ExabricksError(f"{path}: a depth image needs .exr output (PNG has no depth channel)")
     attributes = _encoded_metadata(metadata, path)
 
     def write(tmp: str) -> None:
         try:
-            if suffix == ".exr":
-                _write_exr(tmp, rgba, depth, attributes)
-            else:
-                _write_png(tmp, rgba, attributes)
+            with open(tmp, "wb") as f:
+                if suffix == ".exr":
+                    _write_exr(f, width, height, bands(), has_depth, attributes)
+                else:
+                    _write_png(f, width, height, bands(), attributes)
         except (OSError, RuntimeError) as e:
             raise ExabricksError(f"{path}: cannot write image: "
                                  f"{getattr(e, 'strerror', None) or e}") from None
@@ -145,31 +169,192 @@ def write_image(path, rgba, *, metadata: dict | None = None, depth=None, inputs=
     write_output(path, write, inputs=inputs)
 
 
-def _write_exr(tmp: str, rgba: np.ndarray, depth, attributes: dict) -> None:
-    import OpenEXR
+class FrameFile:
+    """A frame put together band by band in a scratch file beside its output
+    (exabricks.output.scratch), so that a frame far larger than memory (a
+    poster drawn tile by tile) is never whole in memory; `write` then writes it
+    as .exr or .png with its metadata, bands of rows not yet put being
+    `background`. Use as a context manager: the scratch file goes on leaving."""
 
-    header = {
-        "compression": OpenEXR.ZIP_COMPRESSION,
-        "type": OpenEXR.scanlineimage,
-        "software": f"exabricks {__version__}",
-        **attributes,
-    }
-    channels = {name: np.ascontiguousarray(rgba[..., c]) for c, name in enumerate("RGBA")}
-    if depth is not None:
-        channels["Z"] = depth
-    with OpenEXR.File(header, channels) as f:
-        f.write(tmp)
+    def __init__(self, path, width: int, height: int, *, depth: bool = False,
+                 background=(0.0, 0.0, 0.0, 0.0)):
+        self.path, self.width, self.height = Path(path), int(width), int(height)
+        self.depth = bool(depth)
+        _suffix(self.path)
+        if self.depth and self.path.suffix.lower() == ".png":
+            raise ExabricksError(f"{path}: a depth image needs .exr output (PNG has no depth "
+                                 "channel)")
+        r, g, b, a = (float(c) for c in background)
+        self.background = np.array([r * a, g * a, b * a, a], np.float32)
+        self.rows = 0  # rows put, from the top
+        self._scratch = None
+
+    def __enter__(self):
+        from .output import scratch
+
+        self._scratch = scratch(self.path)
+        name = self._scratch.__enter__()
+        try:
+            self._fd = os.open(name, os.O_RDWR)
+        except OSError as e:
+            self._scratch.__exit__(None, None, None)
+            raise ExabricksError(f"{self.path}: cannot open a scratch file: {e.strerror}") from None
+        return self
+
+    def __exit__(self, *exc):
+        os.close(self._fd)
+        self._scratch.__exit__(*exc)
+
+    def _pixel_bytes(self) -> int:
+        return 20 if self.depth else 16
+
+    def put(self, row0: int, rgba: np.ndarray, depth=None) -> None:
+        """Rows row0.. of the frame (float32 premultiplied (n, width, 4), and (n,
+        width) depth when the frame has it); bands go top to bottom."""
+        rgba = np.ascontiguousarray(rgba, np.float32)
+        if rgba.ndim != 3 or rgba.shape[1:] != (self.width, 4) or row0 != self.rows:
+            raise ExabricksError(f"{self.path}: band of shape {rgba.shape} at row {row0} does "
+                                 f"not continue the {self.width}-wide frame at row {self.rows}")
+        if not np.isfinite(rgba).all():
+            raise ExabricksError(f"{self.path}: image has non-finite values")
+        parts = [rgba.reshape(len(rgba), -1)]
+        if self.depth:
+            parts.append(np.ascontiguousarray(depth, np.float32).reshape(len(rgba), -1))
+        data = np.concatenate(parts, axis=1) if len(parts) > 1 else parts[0]
+        offset = row0 * self.width * self._pixel_bytes()
+        try:
+            view = memoryview(data).cast("B")
+            while view:
+                done = os.pwrite(self._fd, view, offset)
+                view, offset = view[done:], offset + done
+        except OSError as e:
+            raise ExabricksError(f"{self.path}: cannot write the scratch file: "
+                                 f"{e.strerror}") from None
+        self.rows += len(rgba)
+        _drop_cache(self._fd)
+
+    def _bands(self):
+        rows = _band_rows(self.width)
+        for r in range(0, self.height, rows):
+            n = min(rows, self.height - r)
+            done = max(0, min(n, self.rows - r))
+            rgba = np.empty((n, self.width, 4), np.float32)
+            depth = np.full((n, self.width), np.inf, np.float32) if self.depth else None
+            rgba[done:] = self.background
+            if done:
+                raw = os.pread(self._fd, done * self.width * self._pixel_bytes(),
+                               r * self.width * self._pixel_bytes())
+                data = np.frombuffer(raw, np.float32).reshape(done, -1)
+                rgba[:done] = data[:, :4 * self.width].reshape(done, self.width, 4)
+                if self.depth:
+                    depth[:done] = data[:, 4 * self.width:]
+            _drop_cache(self._fd)
+            yield rgba, depth
+
+    def write(self, *, metadata: dict | None = None, inputs=()) -> None:
+        """Write the frame so far to the output, atomically."""
+        _write_bands(self.path, self.width, self.height, self._bands, self.depth, metadata,
+                     inputs)
 
 
-def _write_png(tmp: str, rgba: np.ndarray, attributes: dict) -> None:
-    from PIL import Image
-    from PIL.PngImagePlugin import PngInfo
+def _drop_cache(fd: int) -> None:
+    """Hand the scratch file's cached pages back to the system (they are not the
+    process's memory, but need not crowd the page cache either)."""
+    if hasattr(os, "posix_fadvise"):
+        try:
+            os.posix_fadvise(fd, 0, 0, os.POSIX_FADV_DONTNEED)
+        except OSError:
+            pass
 
-    info = PngInfo()
-    info.add_text("Software", f"exabricks {__version__}")
+
+# Scanlines of one ZIP_COMPRESSION block of an OpenEXR file.
+EXR_BLOCK = 16
+
+
+def _exr_attribute(name: str, kind: str, value: bytes) -> bytes:
+    return name.encode() + b"\0" + kind.encode() + b"\0" + struct.pack("<i", len(value)) + value
+
+
+def _write_exr(f, width: int, height: int, bands, has_depth: bool, attributes: dict) -> None:
+    """A single-part scanline OpenEXR file, float32 channels A, B, G, R (and Z),
+    ZIP compression, written block by block from `bands` (the file layout of
+    openexr.com, "OpenEXR File Layout"); read back with the OpenEXR library."""
+    channels = sorted("RGBA" + ("Z" if has_depth else ""))
+    chlist = b"".join(c.encode() + b"\0" + struct.pack("<iB3xii", 2, 0, 1, 1)
+                      for c in channels) + b"\0"
+    box = struct.pack("<4i", 0, 0, width - 1, height - 1)
+    header = [
+        _exr_attribute("channels", "chlist", chlist),
+        _exr_attribute("compression", "compression", bytes([3])),  # ZIP, 16 lines
+        _exr_attribute("dataWindow", "box2i", box),
+        _exr_attribute("displayWindow", "box2i", box),
+        _exr_attribute("lineOrder", "lineOrder", bytes([0])),  # increasing y
+        _exr_attribute("pixelAspectRatio", "float", struct.pack("<f", 1.0)),
+        _exr_attribute("screenWindowCenter", "v2f", struct.pack("<2f", 0.0, 0.0)),
+        _exr_attribute("screenWindowWidth", "float", struct.pack("<f", 1.0)),
+        _exr_attribute("software", "string", f"exabricks {__version__}".encode()),
+    ]
+    header += [_exr_attribute(name, "string", text.encode()) for name, text in attributes.items()]
+    f.write(struct.pack("<ii", 20000630, 2) + b"".join(header) + b"\0")
+    n_blocks = -(-height // EXR_BLOCK)
+    table = f.tell()
+    f.write(bytes(8 * n_blocks))
+    offsets = []
+    row = 0
+    for rgba, depth in bands:
+        planes = {c: rgba[..., i] for i, c in enumerate("RGBA")}
+        if has_depth:
+            planes["Z"] = depth
+        for r in range(0, len(rgba), EXR_BLOCK):
+            # each scanline holds its channels one after the other, in name order
+            block = np.stack([planes[c][r:r + EXR_BLOCK] for c in channels], axis=1)
+            raw = np.ascontiguousarray(block, "<f4").view(np.uint8).ravel()
+            data = _exr_zip(raw)
+            offsets.append(f.tell())
+            f.write(struct.pack("<ii", row + r, len(data)) + data)
+        row += len(rgba)
+    f.seek(table)
+    f.write(np.asarray(offsets, "<u8").tobytes())
+
+
+def _exr_zip(raw: np.ndarray) -> bytes:
+    """OpenEXR's ZIP block: bytes split into even and odd halves, then a delta
+    predictor, then zlib; the raw bytes where that is not smaller."""
+    order = np.concatenate([raw[0::2], raw[1::2]])
+    delta = np.empty_like(order)
+    delta[0] = order[0]
+    np.subtract(order[1:], order[:-1], out=delta[1:])  # uint8: modulo 256
+    delta[1:] += 128
+    del order
+    packed = zlib.compress(delta, 4)  # OpenEXR's default level
+    return packed if len(packed) < raw.size else raw.tobytes()
+
+
+def _png_chunk(kind: bytes, data: bytes) -> bytes:
+    return struct.pack(">I", len(data)) + kind + data + \
+        struct.pack(">I", zlib.crc32(data, zlib.crc32(kind)))
+
+
+def _write_png(f, width: int, height: int, bands, attributes: dict) -> None:
+    """An 8-bit RGBA PNG (un-premultiplied, to_png_pixels) written band by band:
+    the Software text, the metadata as iTXt chunks, then the rows (Sub filter)
+    deflated as they come."""
+    f.write(b"\x89PNG\r\n\x1a\n" + _png_chunk(b"IHDR", struct.pack(">IIBBBBB", width, height,
+                                                                      8, 6, 0, 0, 0)))
+    f.write(_png_chunk(b"tEXt", b"Software\0" + f"exabricks {__version__}".encode("latin-1")))
     for name, text in attributes.items():
-        info.add_itxt(name, text)
-    Image.fromarray(to_png_pixels(rgba)).save(tmp, format="PNG", pnginfo=info)
+        f.write(_png_chunk(b"iTXt", name.encode("latin-1") + b"\0\0\0\0\0" + text.encode()))
+    deflate = zlib.compressobj(6)
+    for rgba, _ in bands:
+        pixels = to_png_pixels(rgba).reshape(len(rgba), width * 4)
+        rows = np.empty((len(rgba), width * 4 + 1), np.uint8)
+        rows[:, 0] = 1  # Sub: each byte minus the same channel of the pixel to its left
+        rows[:, 1:5] = pixels[:, :4]
+        rows[:, 5:] = pixels[:, 4:] - pixels[:, :-4]
+        packed = deflate.compress(rows.tobytes())
+        if packed:
+            f.write(_png_chunk(b"IDAT", packed))
+    f.write(_png_chunk(b"IDAT", deflate.flush()) + _png_chunk(b"IEND", b""))
 
 
 def read_image(path):

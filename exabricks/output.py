@@ -22,6 +22,7 @@ arrived during a write aborts it before the rename (`interrupt.pending`).
 
 from __future__ import annotations
 
+import contextlib
 import errno
 import os
 import shutil
@@ -101,15 +102,7 @@ def write_output(path, write: Callable[[str], None], *, inputs: Iterable = ()) -
     except FileNotFoundError:
         mode = None
     direct = mode is not None and not stat.S_ISREG(mode)
-    directory = None if direct else target.parent
-    try:
-        fd, tmp = tempfile.mkstemp(prefix=TMP_PREFIX, suffix=TMP_SUFFIX, dir=directory)
-    except OSError as e:
-        where = directory or tempfile.gettempdir()
-        raise ExabricksError(f"{path}: cannot create a temporary file in {where}: "
-                             f"{_describe(e)}") from None
-    os.close(fd)
-    _TEMPORARIES.add(tmp)
+    tmp = _temporary(path, None if direct else target.parent)
     try:
         write(tmp)
         interrupt.raise_pending()
@@ -122,6 +115,36 @@ def write_output(path, write: Callable[[str], None], *, inputs: Iterable = ()) -
             _TEMPORARIES.discard(tmp)
     except OSError as e:
         raise ExabricksError(f"{path}: cannot write the output: {_describe(e)}") from None
+    finally:
+        _remove(tmp)
+
+
+def _temporary(path, directory) -> str:
+    """A fresh registered temporary file in `directory` (None: the system's)."""
+    try:
+        fd, tmp = tempfile.mkstemp(prefix=TMP_PREFIX, suffix=TMP_SUFFIX, dir=directory)
+    except OSError as e:
+        where = directory or tempfile.gettempdir()
+        raise ExabricksError(f"{path}: cannot create a temporary file in {where}: "
+                             f"{_describe(e)}") from None
+    os.close(fd)
+    _TEMPORARIES.add(tmp)
+    return tmp
+
+
+@contextlib.contextmanager
+def scratch(path):
+    """A temporary file to build the output `path` in pieces (a frame larger than
+    memory), beside it (in the system's temporary directory for a device or
+    FIFO); deleted on leaving, and by the signal handlers like every temporary."""
+    target = check_output(path)
+    try:
+        regular = stat.S_ISREG(os.stat(target).st_mode)
+    except FileNotFoundError:
+        regular = True
+    tmp = _temporary(path, target.parent if regular else None)
+    try:
+        yield tmp
     finally:
         _remove(tmp)
 

@@ -69,15 +69,16 @@
 #endif
 
 /* Sample `sample_index` of `spp` of every pixel in rows row0 .. row0 + rows - 1
- * of a width x height frame (the host renders a frame in bands of rows, so
- * that each enqueue ends well within a second and a signal can stop the run),
- * averaged into rgba, which holds that band (sample 0 overwrites, so the
+ * and columns col0 .. col0 + cols - 1 of a width x height frame (the host
+ * renders a frame, or a tile of it, in bands of rows, so that each enqueue
+ * ends well within a second and a signal can stop the run), averaged into
+ * rgba, which holds that band, cols pixels a row (sample 0 overwrites, so the
  * buffer needs no clearing).
  * Sub-pixel position: the pixel centre for spp == 1, else uniform from the
  * seeded hash. Interleaving offset rho: from the hash with jitter, else 0.5.
  * samples[pixel] and depth[pixel] collect the reconstruction count and the
  * smallest depth over the pixel's samples. */
-__kernel void eb_render(int width, int height, int row0, int rows,
+__kernel void eb_render(int width, int height, int row0, int rows, int col0, int cols,
                         int sample_index, int spp, uint seed, int jitter,
                         float4 cam_origin, float4 cam_forward, float4 cam_du, float4 cam_dv,
                         float4 origin_world, float4 inv_spacing,
@@ -89,12 +90,13 @@ __kernel void eb_render(int width, int height, int row0, int rows,
                         __global float4 *rgba, __global float *depth, __global uint *samples,
                         __global uint *level_samples)
 {
-    int col = get_global_id(0), band_row = get_global_id(1);
-    int row = row0 + band_row;
-    if (col >= width || band_row >= rows || row >= height)
+    int band_col = get_global_id(0), band_row = get_global_id(1);
+    int col = col0 + band_col, row = row0 + band_row;
+    if (band_col >= cols || band_row >= rows || col >= width || row >= height)
         return;
-    uint pixel = (uint)row * (uint)width + (uint)col;  /* seeds the hash: bands change nothing */
-    uint slot = (uint)band_row * (uint)width + (uint)col;
+    /* seeds the hash: bands and tiles change nothing */
+    uint pixel = (uint)row * (uint)width + (uint)col;
+    uint slot = (uint)band_row * (uint)cols + (uint)band_col;
     eb_frame fr = {
         EB_BVH_STRUCT, EB_REGION_STRUCT, EB_SAMPLE_BRICKS_STRUCT,
         {tf_xs, tf_rgba, tf_buckets, layers, n_layers, layers[0]},

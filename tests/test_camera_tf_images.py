@@ -405,10 +405,9 @@ def test_failed_write_keeps_the_old_file_and_removes_the_temporary(tmp_path, rng
     write_image(path, old, metadata={"n": 1})
     original = getattr(image_io, writer)
 
-    def fail_half_way(tmp, *args):
-        original(tmp, *args)
-        with open(tmp, "r+b") as f:  # a partial file, then the failure
-            f.truncate(10)
+    def fail_half_way(f, *args):
+        original(f, *args)
+        f.truncate(10)  # a partial file, then the failure
         raise OSError(28, "No space left on device")
 
     monkeypatch.setattr(image_io, writer, fail_half_way)

@@ -142,9 +142,14 @@ POSITIVE = click.FloatRange(min=0, min_open=True)
               help="Stop refining a frame after SECONDS (the first frame counts from the "
                    "start of the command) and write the best image so far; its metadata "
                    "(settings.progress) says what it covers.")
+@click.option("--tile", type=click.IntRange(1, 32768), nargs=2, default=None, metavar="W H",
+              help="Draw the frame in tiles of W x H pixels, a row of tiles at a time, each "
+                   "written to the output file as it is done: only a band of H rows is ever "
+                   "in memory (posters far larger than memory; with --memory-budget the "
+                   "budget counts the band, not the frame).")
 @device_option
 def render(bricks_path, regions_path, bvh_path, output, scene_path, camera_path, path_file, frame,
-           frames, mpi_mode, budget, progressive, time_limit, device, **flags):
+           frames, mpi_mode, budget, progressive, time_limit, tile, device, **flags):
     """Render BRICKS/REGIONS/BVH into an .exr (float RGBA) or .png image."""
     import time
 
@@ -163,7 +168,8 @@ def render(bricks_path, regions_path, bvh_path, output, scene_path, camera_path,
     from .. import parallel
 
     comm = parallel.world()
-    steps = {"budget": budget, "progressive": progressive, "time_limit": time_limit}
+    steps = {"budget": budget, "progressive": progressive, "time_limit": time_limit,
+             "tile": tile}
     job = parallel.agree(comm, _prepare, bricks_path, regions_path, bvh_path, output, scene_path,
                          camera_path, path_file, frame, frames, flags, device, mpi_mode, comm,
                          steps)
@@ -174,18 +180,51 @@ def render(bricks_path, regions_path, bvh_path, output, scene_path, camera_path,
     with progress.bar(total=len(jobs), desc="render", unit="frame", disable=not root) as bar:
         for index, cam, image in jobs:
             frame_scene = scene if cam is None else scene.replace(camera=cam)
-            write = lambda result: _write(image, result, frame_scene, dataset, path_file, index,
-                                          inputs)
-            if comm is None and any(v is not None for v in steps.values()):
-                result = _render_steps(renderer, frame_scene, started, write, **steps)
+            describe = lambda stats: _metadata(frame_scene, dataset, path_file, index, stats)
+            write = lambda result: _write(image, result, describe, inputs)
+            if comm is None and tile is not None:
+                _render_tiled(renderer, frame_scene, started, image, describe, inputs, **steps)
                 started = None  # later frames count their time from their own start
+                result = None
+            elif comm is None and any(v is not None for v in steps.values()):
+                result = _render_steps(renderer, frame_scene, started, write, **steps)
+                started = None
             else:
                 result = renderer.render_scene(frame_scene)  # None on ranks other than 0
             parallel.agree(comm, write, result)
             bar.update()
 
 
-def _render_steps(pieces, scene, started, write, budget, progressive, time_limit):
+def _render_tiled(pieces, scene, started, image, describe, inputs, budget, progressive,
+                  time_limit, tile):
+    """One frame tile by tile (exabricks.stages.streaming.render_tiled) into a
+    FrameFile beside `image`, rewriting the output every `progressive` seconds
+    (after the band that passes them) and stopping after `time_limit`."""
+    import time
+
+    from ..image_io import FrameFile
+    from ..stages.streaming import render_tiled
+
+    s = scene.settings
+    now = time.perf_counter()
+    deadline = None if time_limit is None else (started or now) + time_limit
+    last = [now]
+    with FrameFile(image, s.width, s.height, depth=s.depth, background=scene.background) as out:
+
+        def on_band(progress):
+            if time.perf_counter() - last[0] >= progressive:
+                out.write(metadata=describe({"width": s.width, "height": s.height,
+                                             "samples": 0, "progress": progress}),
+                          inputs=inputs)
+                last[0] = time.perf_counter()
+
+        stats = render_tiled(pieces, scene, tile, out.put, deadline=deadline,
+                             on_band=on_band if progressive is not None else None)
+        out.write(metadata=describe(stats), inputs=inputs)
+    _log_written(image, stats)
+
+
+def _render_steps(pieces, scene, started, write, budget, progressive, time_limit, tile):
     """One frame by steps (exabricks.stages.streaming.render_steps), rewriting the
     output every `progressive` seconds and stopping after `time_limit`."""
     import time
@@ -237,7 +276,7 @@ def _prepare(bricks_path, regions_path, bvh_path, output, scene_path, camera_pat
         schema.release(bricks)  # the default camera and range read every brick's pages
         _check_depth(scene, output)
         pieces = Budgeted(bricks, regions, scene, steps["budget"], device=device,
-                          where=(bricks_path, regions_path))
+                          where=(bricks_path, regions_path), tile=steps["tile"])
         log.info("%s: a memory budget of %s bytes: %d piece(s)", output,
                  f"{steps['budget']:,}", pieces.n_pieces)
         return pieces, scene, jobs, inputs, _dataset(bricks, bricks_path, regions_path, bvh_path)
@@ -282,26 +321,37 @@ def _dataset(bricks, bricks_path, regions_path, bvh_path) -> dict:
             "source": bricks.meta.get("inputs", [])}
 
 
-def _write(image, result, scene, dataset, path_file, index, inputs) -> None:
-    """Write one frame with its metadata (rank 0: the others have no result)."""
-    from ..image_io import write_image
+def _metadata(scene, dataset, path_file, index, stats) -> dict:
+    """The metadata of a frame: software, camera, dataset, settings (`stats`), scene."""
     from ..scene import scene_to_dict
 
-    if result is None:
-        return
     metadata = {
         "software": f"exabricks {__version__}",
         "camera": scene.camera.to_dict(),
         "dataset": dataset,
-        "settings": result.stats,
+        "settings": stats,
         "scene": scene_to_dict(scene),
     }
     if index is not None:
         metadata["camera_path"] = {"file": str(path_file), "frame": index}
     if scene.volumes:
         metadata["transfer_function"] = scene.volumes[0].transfer_function.to_paraview_dict()
-    write_image(image, result.rgba, metadata=metadata, depth=result.depth, inputs=inputs)
-    s = result.stats
+    return metadata
+
+
+def _write(image, result, describe, inputs) -> None:
+    """Write one frame with its metadata, describe(stats) (rank 0: the others have
+    no result)."""
+    from ..image_io import write_image
+
+    if result is None:
+        return
+    write_image(image, result.rgba, metadata=describe(result.stats), depth=result.depth,
+                inputs=inputs)
+    _log_written(image, result.stats)
+
+
+def _log_written(image, s) -> None:
     progress = s.get("progress")
     if progress and not progress["complete"]:
         log.info("%s: so far %s", image, progress)
@@ -313,7 +363,7 @@ def _write(image, result, scene, dataset, path_file, index, inputs) -> None:
 
 CAMERA_FLAGS = ("position", "look_at", "up", "fovy")
 STEP_FLAGS = {"budget": "--memory-budget", "progressive": "--progressive",
-              "time_limit": "--time-limit"}
+              "time_limit": "--time-limit", "tile": "--tile"}
 
 
 def _check_path_flags(path_file, frame, frames, camera_path, flags) -> None:

@@ -206,13 +206,16 @@ class Renderer:
         return self.render_scene(scene, traversal=traversal)
 
     def render_scene(self, scene: Scene, *, traversal: str = "ordered", rows=None,
-                     sample: int | None = None, front: np.ndarray | None = None,
+                     window=None, sample: int | None = None, front: np.ndarray | None = None,
                      deadline: float | None = None) -> RenderResult:
         """Render `scene` (exabricks.scene.Scene; its fields must be uploaded).
 
         `traversal` picks the region walk (TRAVERSALS); both give the same
         image up to float rounding, only the speed differs. `rows`: the spans
         (first row, count) to render (default: all rows; the others stay 0).
+        `window`: (first column, first row, columns, rows) of a tile of the
+        frame: the result (and `front`, `rows`) is that tile alone, the very
+        pixels the whole frame has there.
         `sample`: only sample `sample` of the frame's spp rays per pixel,
         unaveraged (data-parallel frames composite each sample on its own).
         `front` (a piece's renderer only): float32 (H, W, 4), the premultiplied
@@ -224,13 +227,16 @@ class Renderer:
         scene.check()
         cfg = scene.settings
         _check_settings(cfg, traversal)
-        if front is not None and (self.piece is None or front.shape != (cfg.height, cfg.width, 4)):
-            raise ExabricksError("an image in front is for a piece's frame of the same size")
+        width, height, spp = int(cfg.width), int(cfg.height), int(cfg.spp)
+        col0, tile_row0, cols, n_rows = _window(window, width, height)
+        if window is not None and rows is not None:
+            raise ExabricksError("a tile is rendered whole: no spans of rows in it")
+        if front is not None and (self.piece is None or front.shape != (n_rows, cols, 4)):
+            raise ExabricksError("an image in front is for a piece's frame or tile of the same size")
         missing = [f for f in scene.fields() if f not in self.scene.fields]
         if missing:
             raise ExabricksError(f"field(s) {', '.join(missing)} are not on the device "
                                  f"(uploaded: {', '.join(self.scene.fields)})")
-        width, height, spp = int(cfg.width), int(cfg.height), int(cfg.spp)
         s = self.scene
         unit = s.finest_width_world if cfg.unit_distance is None else float(cfg.unit_distance)
         origin, forward, du, dv = scene.camera.frame(width, height)
@@ -254,24 +260,24 @@ class Renderer:
         }
         if scene.volumes:
             stats["field"] = scene.volumes[0].field
-        rgba = _host_image(width, height, 4, "the image")
-        d = _host_image(width, height, 1, "the depth image")[..., 0] if cfg.depth else None
-        spans = [(0, height)] if rows is None else [(int(a), int(n)) for a, n in rows]
+        rgba = _host_image(cols, n_rows, 4, "the image")
+        d = _host_image(cols, n_rows, 1, "the depth image")[..., 0] if cfg.depth else None
+        spans = [(0, n_rows)] if rows is None else [(int(a), int(n)) for a, n in rows]
         nothing = s.empty or not (node_vis[0] or scene.slices)
         if rows is not None or nothing or deadline is not None:  # rows not rendered
             rgba[:] = 0.0 if front is None else front
             if d is not None:
                 d[:] = np.inf
         if nothing:
-            stats["rows"] = height
+            stats["rows"] = n_rows
             stats.update(samples=0, ms=0.0, samples_per_second=0.0)
             return RenderResult(_over_background(rgba, scene.background), d, stats)
         self._check_samples_per_ray(cfg.sampling_rate)
 
         q = s.queue
         up = opencl.to_device
-        band_rows = _band_rows(s.device, width, height)
-        band_pixels = width * band_rows
+        band_rows = _band_rows(s.device, cols, n_rows)
+        band_pixels = cols * band_rows
         rgba_buf = opencl.empty_buffer(q, band_pixels * 16)
         front_buf = opencl.empty_buffer(q, band_pixels * 16 if front is not None else 16)
         depth_buf = opencl.empty_buffer(q, band_pixels * 4)
@@ -306,17 +312,17 @@ class Renderer:
         start = time.perf_counter()
         total = 0
         rows = FIRST_BAND
-        drawn = height
+        drawn = n_rows
         for span0, span_rows in spans:
-            row0, end = span0, min(span0 + span_rows, height)
+            row0, end = span0, min(span0 + span_rows, n_rows)
             while row0 < end:
                 if deadline is not None and time.perf_counter() > deadline:
                     drawn = row0
                     break
                 rows = min(rows, band_rows, end - row0)
                 band_start = time.perf_counter()
-                global_size = (-(-width // TILE) * TILE, -(-rows // TILE) * TILE)
-                n = width * rows
+                global_size = (-(-cols // TILE) * TILE, -(-rows // TILE) * TILE)
+                n = cols * rows
                 if front is not None:
                     opencl.write_to(q, front_buf, front[row0:row0 + rows].reshape(n, 4))
                 if sample:  # the kernel adds samples after the first: start from 0
@@ -324,7 +330,8 @@ class Renderer:
                         opencl.fill_zero(q, buf, n * size)
                 for index in (range(spp) if sample is None else (sample,)):
                     kernel(q, global_size, (TILE, TILE),
-                           np.int32(width), np.int32(height), np.int32(row0), np.int32(rows),
+                           np.int32(width), np.int32(height), np.int32(tile_row0 + row0),
+                           np.int32(rows), np.int32(col0), np.int32(cols),
                            np.int32(index), np.int32(spp), *fixed)
                 opencl.read_back(q, rgba_buf, rgba[row0:row0 + rows].reshape(n, 4))
                 opencl.read_back(q, samples_buf, samples[:n])
@@ -334,7 +341,7 @@ class Renderer:
                 row0 += rows
                 rows = _next_band(rows, time.perf_counter() - band_start)
                 interrupt.raise_pending()
-            if drawn < height:
+            if drawn < n_rows:
                 break
         if sample is not None and spp > 1:
             rgba[:drawn] *= np.float32(spp)  # the kernel averages: this sample alone
@@ -384,6 +391,19 @@ def _next_band(rows: int, seconds: float) -> int:
     """Rows of the next band: scaled towards BAND_SECONDS, at most 4x larger."""
     scale = 4.0 if seconds <= 0 else min(4.0, BAND_SECONDS / seconds)
     return max(TILE, int(rows * scale) // TILE * TILE)
+
+
+def _window(window, width: int, height: int) -> tuple[int, int, int, int]:
+    """(first column, first row, columns, rows) of a tile of a width x height frame
+    (default: the whole frame)."""
+    if window is None:
+        return 0, 0, width, height
+    col0, row0, cols, rows = (int(v) for v in window)
+    if not (0 <= col0 and 0 <= row0 and cols >= 1 and rows >= 1 and col0 + cols <= width
+            and row0 + rows <= height):
+        raise ExabricksError(f"tile {cols}x{rows} at ({col0}, {row0}) is not inside the "
+                             f"{width}x{height} frame")
+    return col0, row0, cols, rows
 
 
 def _host_image(width: int, height: int, channels: int, what: str) -> np.ndarray:

@@ -69,10 +69,13 @@ def parse_size(text) -> int:
     return nbytes
 
 
-def image_bytes(scene) -> int:
+def image_bytes(scene, tile=None) -> int:
     """Host bytes of the images a streamed frame keeps (the composite, the sum of
-    the samples, the piece's result and a copy offered to on_image)."""
-    return 4 * int(scene.settings.width) * int(scene.settings.height) * 16
+    the samples, the piece's result and a copy offered to on_image): whole
+    frames, or bands of whole rows of a tile's height with `tile` (W, H)."""
+    width, height = int(scene.settings.width), int(scene.settings.height)
+    rows = height if tile is None else min(int(tile[1]), height)
+    return 4 * width * rows * 16
 
 
 class Resident:
@@ -88,6 +91,9 @@ class Resident:
     def piece(self, index: int, scene) -> Renderer:
         return self.renderer
 
+    def footprint(self, index: int, scene):
+        return 0, 0, int(scene.settings.width), int(scene.settings.height)
+
 
 class Budgeted:
     """The pieces of a dataset (mapped, schema.load(mapped=True)) that each fit
@@ -95,9 +101,15 @@ class Budgeted:
     resident at a time. `where`: the two files' names for errors."""
 
     def __init__(self, bricks: schema.Bricks, regions: schema.Regions, scene, budget: int, *,
-                 device=None, where=("the bricks", "the regions")):
+                 device=None, where=("the bricks", "the regions"), tile=None):
         self.bricks, self.regions, self.device, self.where = bricks, regions, device, where
-        self.budget = int(budget)
+        self.budget, self.tile = int(budget), tile
+        # where samples can be, in lattice units: the bricks' cells and half a
+        # coarsest cell around them (the support of the basis reconstruction)
+        lo, hi = (np.asarray(b, np.float64) for b in schema.world_bounds(bricks))
+        margin = float(2.0 ** int(bricks.level.max())) if bricks.n_bricks else 0.0
+        self.data_box = (eye_lattice(bricks, lo) - margin, eye_lattice(bricks, hi) + margin)
+        schema.release(bricks)
         self.fields = scene.fields()
         self.scale = DatasetScale.of(bricks, self.fields)
         self._current = (None, None)
@@ -105,7 +117,7 @@ class Budgeted:
 
     def _plan(self, scene) -> None:
         options = piece_options(self.bricks, scene)
-        fixed = image_bytes(scene) + PER_BRICK * self.bricks.n_bricks
+        fixed = image_bytes(scene, self.tile) + PER_BRICK * self.bricks.n_bricks
         room = int((self.budget - fixed) / SLACK)
         if room <= 0:
             raise ExabricksError(
@@ -135,6 +147,16 @@ class Budgeted:
             self._plan(scene)
         return self.partition.visibility_order(eye_lattice(self.bricks, scene.camera.position))
 
+    def footprint(self, index: int, scene):
+        """Pixels (col0, row0, col1, row1) that piece `index` can draw (Camera.footprint)."""
+        lo = np.maximum(self.partition.lower[index], self.data_box[0])
+        hi = np.minimum(self.partition.upper[index], self.data_box[1])
+        if (lo >= hi).any():
+            return None
+        world = lambda x: self.bricks.origin_world + self.bricks.spacing_world * x
+        s = scene.settings
+        return scene.camera.footprint(world(lo), world(hi), int(s.width), int(s.height))
+
     def piece(self, index: int, scene) -> Renderer:
         if self._current[0] == index:
             return self._current[1]
@@ -152,19 +174,33 @@ class Budgeted:
         return renderer
 
 
-def render_steps(pieces, scene, *, deadline: float | None = None, on_image=None) -> RenderResult:
+def render_steps(pieces, scene, *, band=None, tile_width=None, deadline: float | None = None,
+                 on_image=None) -> RenderResult:
     """One frame of `scene` from `pieces` (Resident or Budgeted) step by step
     (module docstring). `on_image(rgba, progress)` is called after every step
     but the last with the premultiplied image so far (over the background) and
     what it covers; `deadline` (time.perf_counter() seconds) ends the frame
-    early. stats["progress"]: samples and pieces done, complete or not."""
+    early. stats["progress"]: samples and pieces done, complete or not.
+
+    `band` (first row, rows): draw only those rows of the frame, in tiles of
+    `tile_width` columns (render_tiled; no deadline or on_image then); the
+    result is the band. A piece is read only when its footprint on the screen
+    meets a tile, and then draws only the tiles it meets."""
     cfg = scene.settings
     spp, width, height = int(cfg.spp), int(cfg.width), int(cfg.height)
+    row0, rows = (0, height) if band is None else (int(band[0]), int(band[1]))
+    step = width if tile_width is None else int(tile_width)
+    tiles = [(c, row0, min(step, width - c), rows) for c in range(0, width, step)]
+    whole = tiles == [(0, 0, width, height)]
+    if not whole and (deadline is not None or on_image is not None):
+        raise ExabricksError("a band of tiles is drawn whole: no deadline or image so far")
     plain = scene.replace(background=(0.0, 0.0, 0.0, 0.0))
-    total = np.zeros((height, width, 4), np.float32)
+    total = np.zeros((rows, width, 4), np.float32)
     order = pieces.order(scene)
+    several = pieces.n_pieces > 1
+    meets = {index: _meeting(tiles, pieces.footprint(index, scene)) for index in order}
     start = time.perf_counter()
-    samples, stats, done_samples, done_pieces, rows = 0, {}, 0, 0, height
+    samples, stats, done_samples, done_pieces, drawn = 0, {}, 0, 0, rows
     depth = over = None
     for sample in range(spp):
         if sample and deadline is not None and time.perf_counter() > deadline:
@@ -173,29 +209,49 @@ def render_steps(pieces, scene, *, deadline: float | None = None, on_image=None)
         for k, index in enumerate(order):
             if k and deadline is not None and time.perf_counter() > deadline:
                 break
-            result = pieces.piece(index, scene).render_scene(
-                plain, sample=sample if spp > 1 else None,
-                front=over if pieces.n_pieces > 1 else None, deadline=deadline)
-            over, stats = result.rgba, dict(result.stats)
-            if result.depth is not None:  # one piece only (Budgeted refuses more)
-                depth = result.depth if depth is None else np.minimum(depth, result.depth)
-            samples += stats["samples"]
-            rows = stats["rows"]
-            if rows < height:
+            for tile in meets[index]:
+                c, _, w, _ = tile
+                front = None
+                if several and over is not None:
+                    front = over if whole else np.ascontiguousarray(over[:, c:c + w])
+                result = pieces.piece(index, scene).render_scene(
+                    plain, window=None if whole else tile, sample=sample if spp > 1 else None,
+                    front=front, deadline=deadline)
+                stats = dict(result.stats)
+                if whole:
+                    over = result.rgba
+                else:
+                    if over is None:
+                        over = np.zeros((rows, width, 4), np.float32)
+                    over[:, c:c + w] = result.rgba
+                if result.depth is not None:  # one piece only (Budgeted refuses more)
+                    if depth is None:
+                        depth = np.full((rows, width), np.inf, np.float32)
+                    np.minimum(depth[:, c:c + w], result.depth, out=depth[:, c:c + w])
+                samples += stats["samples"]
+                drawn = stats["rows"]
+            if drawn < rows:
                 break
             done_pieces = k + 1
             if on_image is not None and (sample, k) != (spp - 1, len(order) - 1):
                 on_image(*_so_far(total, over, sample, done_pieces, len(order), spp, scene))
-        if done_pieces == len(order) and rows == height:
-            total += over
+        if done_pieces == len(order) and drawn == rows:
+            if over is not None:
+                total += over
             done_samples = sample + 1
             done_pieces = 0 if done_samples < spp else len(order)
         if done_samples < sample + 1:
             break
     rgba, progress = _so_far(total, over, done_samples, done_pieces, len(order), spp, scene,
-                             rows=rows)
+                             rows=drawn)
+    if depth is None and cfg.depth:
+        depth = np.full((rows, width), np.inf, np.float32)
     seconds = time.perf_counter() - start
-    if pieces.n_pieces > 1:
+    if not stats and band is not None:  # nothing here: render_tiled fills the settings in
+        return RenderResult(rgba, depth, {"samples": 0})
+    if not stats:
+        stats = _settings(pieces, order, plain)
+    if several:
         for key in ("regions", "visible_regions"):  # the last piece's only
             stats.pop(key, None)
     stats.pop("rows", None)
@@ -205,6 +261,60 @@ def render_steps(pieces, scene, *, deadline: float | None = None, on_image=None)
     if isinstance(pieces, Budgeted):
         stats["memory_budget"] = pieces.budget
     return RenderResult(rgba, depth, stats)
+
+
+def _meeting(tiles, rect) -> list:
+    """The tiles (col0, row0, cols, rows) that the pixel rectangle `rect` (col0,
+    row0, col1, row1; None: nothing) meets."""
+    if rect is None:
+        return []
+    c0, r0, c1, r1 = rect
+    return [t for t in tiles if t[0] < c1 and c0 < t[0] + t[2] and t[1] < r1 and r0 < t[1] + t[3]]
+
+
+def render_tiled(pieces, scene, tile, put, *, deadline: float | None = None,
+                 on_band=None) -> dict:
+    """One frame of `scene` from `pieces` in tiles of `tile` (W, H) pixels, a row
+    of tiles at a time: each band of H rows is drawn whole (every sample, every
+    piece that meets it front to back) and handed to `put(row0, rgba, depth)`
+    top to bottom, so that only a band is ever in memory. `on_band(progress)`
+    follows each band but the last; `deadline` stops after the band that passes
+    it. Returns the frame's stats (progress: rows [done, height])."""
+    width, height = int(scene.settings.width), int(scene.settings.height)
+    tile_w, tile_h = min(int(tile[0]), width), min(int(tile[1]), height)
+    start = time.perf_counter()
+    stats, samples, done = {}, 0, 0
+    for row0 in range(0, height, tile_h):
+        if row0 and deadline is not None and time.perf_counter() > deadline:
+            break
+        rows = min(tile_h, height - row0)
+        result = render_steps(pieces, scene, band=(row0, rows), tile_width=tile_w)
+        put(row0, result.rgba, result.depth)
+        samples += result.stats["samples"]
+        stats = result.stats if len(result.stats) > 1 else stats
+        done = row0 + rows
+        if on_band is not None and done < height:
+            on_band(_tiled_progress(scene, pieces, done))
+    seconds = time.perf_counter() - start
+    if not stats:  # nothing in view
+        stats = _settings(pieces, pieces.order(scene), scene)
+    stats.update(samples=samples, ms=1e3 * seconds,
+                 samples_per_second=samples / seconds if seconds > 0 else 0.0,
+                 tile=[tile_w, tile_h], progress=_tiled_progress(scene, pieces, done))
+    return stats
+
+
+def _tiled_progress(scene, pieces, done: int) -> dict:
+    spp, n, height = int(scene.settings.spp), pieces.n_pieces, int(scene.settings.height)
+    return {"complete": done == height, "samples": [spp, spp], "pieces": [n, n],
+            "rows": [done, height]}
+
+
+def _settings(pieces, order, scene) -> dict:
+    """The stats of a frame of `scene` that draws nothing (none of its pieces is
+    in view): those of the first piece drawing no row (its deadline passed)."""
+    return dict(pieces.piece(order[0], scene).render_scene(scene, window=(0, 0, 1, 1),
+                                                           deadline=0.0).stats)
 
 
 def _so_far(total, over, samples_done, pieces_done, n_pieces, spp, scene, rows=None):
