@@ -598,7 +598,12 @@ def _hand_back(base, start: int = 0, length: int = 0) -> None:
 
 def release(obj: "_Kind") -> None:
     """Hand back the resident pages of `obj`'s mapped arrays."""
-    for array in obj.arrays().values():
+    release_arrays(*obj.arrays().values())
+
+
+def release_arrays(*arrays: np.ndarray) -> None:
+    """Hand back the resident pages of those `arrays` that are mapped."""
+    for array in arrays:
         base = _mapping(array)
         if base is not None:
             _hand_back(base)

@@ -1,7 +1,8 @@
 """Rendering under a memory budget: time and peak memory against the in-memory
 render (issue 11).
 
-    .venv/bin/python workflows/bench_budget.py [--only shell,big] [--size 512] [--write-docs]
+    .venv/bin/python workflows/bench_budget.py [--only shell,big] [--size 512] [--poster 16384]
+        [--write-docs]
 
 For each dataset (default make_big.py's 20.6 M-cell thin shells, made on first
 use) one frame with early termination off (--max-opacity 1, so that the images
@@ -11,7 +12,12 @@ structure files. The baseline is the same budgeted command on a dataset of 64
 cells at the same image size (interpreter, numba, OpenCL runtime, images): the
 issue's bound is peak <= budget + baseline. Each command's peak resident memory
 comes from wait4 (benchdoc.run_child). The RMSE is against the in-memory image,
-over its maximum.
+over its maximum. Each budget is run again with `--tile SIZE TILE_ROWS` (bands
+of rows: the budget then counts bands, not frames).
+
+Posters (`--poster N`, Gerris plume): an N/2-square frame in memory and in
+tiles, and an N-square one in tiles under a budget, each against the same
+command on the 64-cell dataset.
 """
 
 from __future__ import annotations
@@ -30,6 +36,9 @@ from bench_render import ensure_scene  # noqa: E402
 ROOT = benchdoc.ROOT
 SECTION = "Rendering under a memory budget"
 FRACTIONS = (2, 4, 8, 16)
+# Rows of a tile of the tiled runs, and the poster's tiles.
+TILE_ROWS = 32
+POSTER_TILE = (4096, 64)
 
 
 def tiny_scene(d: Path, field: str) -> list[Path]:
@@ -70,21 +79,57 @@ def bench_dataset(name: str, d: Path, field: str, size: int, tmp: Path) -> list[
             f"{benchdoc.fmt_bytes(peak)} | | |"]
     for k in FRACTIONS:
         budget = nbytes // k
-        _, _, base = run(tiny, tmp / "tiny.exr", "--memory-budget", budget)
-        try:
-            wall, _, peak = run(files, tmp / f"b{k}.exr", "--memory-budget", budget)
-        except SystemExit as e:  # refused: its one error line
-            reason = str(e).split("error: ", 1)[-1].strip()
-            rows.append(f"| {name} | 1/{k} of the files | {benchdoc.fmt_bytes(budget)} | "
-                        f"{benchdoc.fmt_bytes(nbytes)} | refused: {reason} | | | | |")
-            continue
-        image, meta = read_image(tmp / f"b{k}.exr")
-        rmse = float(np.sqrt(np.mean((image.astype(np.float64) - whole) ** 2)) / np.abs(whole).max())
-        over = peak - base
-        rows.append(f"| {name} | 1/{k} of the files | {benchdoc.fmt_bytes(budget)} | "
-                    f"{benchdoc.fmt_bytes(nbytes)} | {meta['settings']['pieces']} | {wall:.1f} | "
-                    f"{benchdoc.fmt_bytes(peak)} | {benchdoc.fmt_bytes(over)} "
-                    f"({over / budget:.2f} of the budget) | {rmse:.1e} |")
+        for tiles in ((), ("--tile", size, TILE_ROWS)):
+            extra = ("--memory-budget", budget, *tiles)
+            label = f"1/{k} of the files" + (f", `--tile {size} {TILE_ROWS}`" if tiles else "")
+            _, _, base = run(tiny, tmp / "tiny.exr", *extra)
+            try:
+                wall, _, peak = run(files, tmp / f"b{k}.exr", *extra)
+            except SystemExit as e:  # refused: its one error line
+                reason = str(e).split("error: ", 1)[-1].strip()
+                rows.append(f"| {name} | {label} | {benchdoc.fmt_bytes(budget)} | "
+                            f"{benchdoc.fmt_bytes(nbytes)} | refused: {reason} | | | | |")
+                continue
+            image, meta = read_image(tmp / f"b{k}.exr")
+            rmse = float(np.sqrt(np.mean((image.astype(np.float64) - whole) ** 2))
+                         / np.abs(whole).max())
+            over = peak - base
+            rows.append(f"| {name} | {label} | {benchdoc.fmt_bytes(budget)} | "
+                        f"{benchdoc.fmt_bytes(nbytes)} | {meta['settings']['pieces']} | "
+                        f"{wall:.1f} | {benchdoc.fmt_bytes(peak)} | {benchdoc.fmt_bytes(over)} "
+                        f"({over / budget:.2f} of the budget) | {rmse:.1e} |")
+    return rows
+
+
+def bench_poster(size: int, tmp: Path) -> list[str]:
+    """Rows of the poster table: (frame, how, command s, peak, baseline, above it)."""
+    from exabricks.image_io import read_image
+
+    eb = benchdoc.exabricks_command()
+    gerris = benchdoc.datasets()["gerris"]
+    files = ensure_scene(ROOT / "bench-data" / "render", gerris)
+    files = [files / f"{n}.npz" for n in ("bricks", "regions", "bvh")]
+    tiny = tiny_scene(tmp, gerris.field)
+    tile = ("--tile", *POSTER_TILE)
+    budget = 256 << 20
+    runs = [(size // 2, "in memory", ()), (size // 2, "tiles", tile),
+            (size, f"tiles, `--memory-budget {budget >> 20}MiB`", (*tile, "--memory-budget", budget))]
+    rows, reference = [], None
+    for n, how, extra in runs:
+        flags = ["--field", gerris.field, "--size", n, n, "--max-opacity", 1, *extra]
+        _, _, base = benchdoc.run_child([*eb, "render", *tiny, "-o", tmp / "tiny.png", *flags])
+        wall, _, peak = benchdoc.run_child([*eb, "render", *files, "-o", tmp / "p.png", *flags])
+        image, meta = read_image(tmp / "p.png")
+        same = ""
+        if n == size // 2:
+            if reference is None:
+                reference = image
+            else:
+                same = "the same pixels" if np.array_equal(image, reference) else "DIFFERENT"
+        rows.append(f"| {n}² | {how} | {benchdoc.fmt_bytes(n * n * 16)} | {wall:.1f} | "
+                    f"{benchdoc.fmt_bytes(peak)} | {benchdoc.fmt_bytes(base)} | "
+                    f"{benchdoc.fmt_bytes(peak - base)} | {same} |")
+        del image
     return rows
 
 
@@ -93,6 +138,8 @@ def main(argv=None) -> int:
     parser.add_argument("--only", help="datasets (benchdoc keys; default shell)")
     parser.add_argument("--size", type=int, default=512)
     parser.add_argument("--work", type=Path, default=ROOT / "bench-data" / "render")
+    parser.add_argument("--poster", type=int, default=16384,
+                        help="poster side (0: no poster table)")
     parser.add_argument("--write-docs", action="store_true")
     args = parser.parse_args(argv)
     sets = benchdoc.datasets()
@@ -102,7 +149,9 @@ def main(argv=None) -> int:
         for key in keys:
             d = ensure_scene(args.work, sets[key])
             rows += bench_dataset(sets[key].name, d, sets[key].field, args.size, Path(tmp))
-    command = f"`.venv/bin/python workflows/bench_budget.py --only {','.join(keys)} --write-docs`"
+        posters = bench_poster(args.poster, Path(tmp)) if args.poster else []
+    command = (f"`.venv/bin/python workflows/bench_budget.py --only {','.join(keys)} "
+               f"--poster {args.poster} --write-docs`")
     section = (
         f"Command: {command}\n\n- machine: {benchdoc.machine(opencl=True)}\n"
         f"- one {args.size}² frame, default camera and transfer function, `--max-opacity 1`; "
@@ -113,6 +162,15 @@ def main(argv=None) -> int:
         "RMSE: against the in-memory image, over its maximum\n\n"
         "| dataset | budget | budget bytes | files | pieces | command s | peak | above baseline "
         "| RMSE |\n|---|---|---:|---:|---:|---:|---:|---:|---:|\n" + "\n".join(rows) + "\n")
+    if posters:
+        section += (
+            f"\nPosters: the Gerris plume (field T, `--max-opacity 1`), PNG; `--tile "
+            f"{POSTER_TILE[0]} {POSTER_TILE[1]}`; float frame: the bytes of the whole frame's "
+            "float RGBA; baseline: the same command on the 64-cell dataset (one run each, the "
+            "kernels already in PoCL's cache)\n\n"
+            "| frame | how | float frame | command s | peak | baseline | above baseline | "
+            "against in memory |\n|---|---|---:|---:|---:|---:|---:|---|\n"
+            + "\n".join(posters) + "\n")
     benchdoc.publish(SECTION, section, args.write_docs)
     return 0
 

@@ -267,33 +267,43 @@ def piece_data(bricks: schema.Bricks, regions: schema.Regions, lower, upper, *,
     and the piece is validated as a file would be."""
     from .bvh import build_bvh
 
-    keep, used, first, new_dims = _piece_plan(bricks, regions, lower, upper, halo, crop, where)
+    keep, used, first, new_dims, boxes = _piece_plan(bricks, regions, lower, upper, halo, crop,
+                                                     where)
     picked = _field_rows(bricks, fields)
     start, ids = regions.brick_start, regions.brick_ids
     alive = (new_dims > 0).all(axis=1)
     # the lists without the bricks cropped away, renumbered to the piece's bricks
     number = np.full(bricks.n_bricks, -1, np.int32)
     number[used[alive]] = np.arange(int(alive.sum()))
-    new_start, new_ids = _renumbered_lists(start, ids, keep, number)
+    lists = [_renumbered_lists(start, ids, part, number) for part in _steps(keep, start, ids)]
     del number
+    new_start = np.zeros(len(keep) + 1, np.int64)
+    if lists:
+        np.cumsum(np.concatenate([np.diff(s) for s, _ in lists]), out=new_start[1:])
+    new_ids = np.concatenate([i for _, i in lists]) if lists else np.zeros(0, np.int32)
+    del lists
     names = tuple(bricks.fields[f] for f in picked)
+    box_lo, box_hi, ranges, finest = _take(keep, regions.lower_lattice, regions.upper_lattice,
+                                           regions.value_range, regions.finest_level)
     sub_regions = regions.replace(
-        fields=names,
-        lower_lattice=np.ascontiguousarray(regions.lower_lattice[keep]),
-        upper_lattice=np.ascontiguousarray(regions.upper_lattice[keep]),
+        fields=names, lower_lattice=box_lo, upper_lattice=box_hi,
         brick_start=new_start.astype(start.dtype, copy=False),
         brick_ids=new_ids.astype(ids.dtype, copy=False),
-        value_range=np.ascontiguousarray(regions.value_range[keep][:, picked]),
-        finest_level=np.ascontiguousarray(regions.finest_level[keep]), meta={})
-    src, first, new_dims = used[alive], first[alive], new_dims[alive]
-    del used, alive
+        value_range=np.ascontiguousarray(ranges[:, picked]), finest_level=finest, meta={})
+    del ranges
+    first, new_dims = first[alive], new_dims[alive]
+    lower_lattice, level, dims, offsets = (b[alive] for b in boxes)
+    del used, alive, boxes
     cells = new_dims.astype(np.int64).prod(axis=1)
-    offset = np.zeros(len(src), np.int64)
+    offset = np.zeros(len(cells), np.int64)
     np.cumsum(cells[:-1], out=offset[1:])
-    level = np.ascontiguousarray(bricks.level[src])
-    values = _copy_crops(bricks.values, np.asarray(picked, np.int64), bricks.offset[src],
-                         bricks.dims[src], first, new_dims, offset, int(cells.sum()))
-    lower_lattice = bricks.lower_lattice[src]
+    values = np.empty((len(picked), int(cells.sum())), np.float32)
+    rows = np.asarray(picked, np.int64)
+    for s in range(0, len(cells), GATHER):
+        part = slice(s, s + GATHER)
+        _copy_crops(bricks.values, rows, offsets[part], dims[part], first[part],
+                    new_dims[part], offset[part], values)
+        schema.release_arrays(bricks.values)
     lower_lattice += first << level[:, None].astype(first.dtype)
     sub_bricks = bricks.replace(fields=names, lower_lattice=lower_lattice, level=level,
                                 dims=new_dims.astype(bricks.dims.dtype, copy=False),
@@ -319,25 +329,50 @@ def _piece_plan(bricks, regions, lower, upper, halo, crop, where):
     hi = np.asarray(upper, np.float64) + halo
     keep = _meeting(regions, lo, hi)
     start, ids = regions.brick_start, regions.brick_ids
-    if len(keep):
-        lengths = start[keep + 1] - start[keep]
-        if lengths.min() < 0 or start[keep].min() < 0 or int(start[keep + 1].max()) > ids.shape[0]:
+    used_mask = np.zeros(bricks.n_bricks, np.bool_)
+    for part in _steps(keep, start, ids):
+        begin, end = start[part], start[part + 1]
+        if (end < begin).any() or begin.min() < 0 or int(end.max()) > ids.shape[0]:
             raise ExabricksError(f"{where[1]}: brick lists out of order or beyond the list array "
                                  "(the regions file is corrupt)")
-    used_mask = np.zeros(bricks.n_bricks, np.bool_)
-    bad = _mark_listed(start, ids, keep, used_mask)
-    if bad >= 0:
-        raise ExabricksError(f"{where[1]}: a region lists brick {int(ids[bad])} of "
-                             f"{bricks.n_bricks}: the regions were built from other bricks")
+        bad = _mark_listed(start, ids, part, used_mask)
+        if bad >= 0:
+            raise ExabricksError(f"{where[1]}: a region lists brick {int(ids[bad])} of "
+                                 f"{bricks.n_bricks}: the regions were built from other bricks")
     used = np.flatnonzero(used_mask)
     del used_mask
     # crop the used bricks to [lo - w, hi + w] (w: their cell width), in cells
-    first, new_dims, bad = _crop_boxes(bricks.lower_lattice, bricks.level, bricks.dims,
-                                       bricks.offset, bricks.values.shape[1], used, lo, hi, crop)
+    boxes = _take(used, bricks.lower_lattice, bricks.level, bricks.dims, bricks.offset)
+    first, new_dims, bad = _crop_boxes(*boxes, bricks.values.shape[1], lo, hi, crop)
     if bad >= 0:
         raise ExabricksError(f"{where[0]}: brick {int(used[bad])}'s dims or value offset lie "
                              "beyond the values (the bricks file is corrupt)")
-    return keep, used, first, new_dims
+    return keep, used, first, new_dims, boxes
+
+
+# Rows per step of a scattered read of mapped files (a piece's regions and
+# bricks, which lie anywhere in them): each step touches at most this many
+# pages of each array, handed back after it.
+GATHER = 1 << 10
+
+
+def _steps(index: np.ndarray, *arrays):
+    """Consecutive parts of GATHER entries of `index`; the mapped pages of `arrays`
+    are handed back after each part is used."""
+    for s in range(0, len(index), GATHER):
+        yield index[s:s + GATHER]
+        schema.release_arrays(*arrays)
+
+
+def _take(index: np.ndarray, *arrays) -> list[np.ndarray]:
+    """[a[index] for a in arrays], read in _steps."""
+    out = [np.empty((len(index),) + a.shape[1:], a.dtype) for a in arrays]
+    done = 0
+    for part in _steps(index, *arrays):
+        for o, a in zip(out, arrays):
+            o[done:done + len(part)] = a[part]
+        done += len(part)
+    return out
 
 
 def _meeting(regions: schema.Regions, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
@@ -357,9 +392,10 @@ def piece_bytes(bricks: schema.Bricks, regions: schema.Regions, plan, fields=Non
     boxes; regions and their lists; a BVH of at most two nodes per region) and
     the float4 copies the device takes of the boxes (device_data.DeviceScene),
     over-counting lists by the bricks cropped away."""
-    keep, used, _, new_dims = plan
+    keep, used, _, new_dims = plan[:4]
     cells = int(new_dims.astype(np.int64).prod(axis=1).sum())
-    lists = int((regions.brick_start[keep + 1] - regions.brick_start[keep]).sum()) if len(keep) else 0
+    start = regions.brick_start
+    lists = sum(int((start[part + 1] - start[part]).sum()) for part in _steps(keep, start))
     n_fields = len(_field_rows(bricks, fields))
     brick = 3 * 4 + 1 + 3 * 4 + 8 + 16 + 16  # lower, level, dims, offset; device box, dims
     region = 2 * 3 * 4 + 8 * n_fields + 1 + 8 + 32 + 8  # boxes, ranges, level, start; device
@@ -382,15 +418,15 @@ def _mark_listed(start, ids, keep, used):
 
 
 @numba.njit(cache=True)
-def _crop_boxes(lower, level, dims, offset, n_values, used, lo, hi, crop):
-    """(first, new_dims, bad): per brick of `used`, the cells [first, first +
-    new_dims) within one cell width of the box [lo, hi] (lattice units; all of
-    them without `crop`); `bad` the position in `used` of a brick whose dims or
-    value range are impossible, else -1."""
-    first = np.zeros((len(used), 3), np.int32)
-    new_dims = np.zeros((len(used), 3), np.int32)
-    for i in range(len(used)):
-        b = used[i]
+def _crop_boxes(lower, level, dims, offset, n_values, lo, hi, crop):
+    """(first, new_dims, bad): per brick (lower, level, dims, offset), the cells
+    [first, first + new_dims) within one cell width of the box [lo, hi]
+    (lattice units; all of them without `crop`); `bad` the position of a brick
+    whose dims or value range are impossible, else -1."""
+    first = np.zeros((len(level), 3), np.int32)
+    new_dims = np.zeros((len(level), 3), np.int32)
+    for b in range(len(level)):
+        i = b
         cells = 1
         for a in range(3):
             if dims[b, a] < 1:
@@ -433,11 +469,10 @@ def _renumbered_lists(start, ids, keep, number):
 
 
 @numba.njit(cache=True)
-def _copy_crops(values, rows, offset, dims, first, new_dims, new_offset, total):
-    """The values (len(rows), total) of the fields `rows` of the sub-boxes [first,
-    first + new_dims) of bricks of `dims` (x fastest) at `offset` in `values`,
-    each at its `new_offset`."""
-    out = np.empty((len(rows), total), np.float32)
+def _copy_crops(values, rows, offset, dims, first, new_dims, new_offset, out):
+    """Into `out` (len(rows), total): the values of the fields `rows` of the
+    sub-boxes [first, first + new_dims) of bricks of `dims` (x fastest) at
+    `offset` in `values`, each at its `new_offset`."""
     for b in range(len(offset)):
         nx, ny, nz = new_dims[b, 0], new_dims[b, 1], new_dims[b, 2]
         dx, dy = dims[b, 0], dims[b, 1]
@@ -449,7 +484,6 @@ def _copy_crops(values, rows, offset, dims, first, new_dims, new_offset, total):
                 for f in range(len(rows)):
                     out[f, j:j + nx] = values[rows[f], i:i + nx]
                 j += nx
-    return out
 
 
 def eye_lattice(frame: schema._Kind, position) -> np.ndarray:
