@@ -212,7 +212,8 @@ class FrameFile:
         """Rows row0.. of the frame (float32 premultiplied (n, width, 4), and (n,
         width) depth when the frame has it); bands go top to bottom."""
         rgba = np.ascontiguousarray(rgba, np.float32)
-        if rgba.ndim != 3 or rgba.shape[1:] != (self.width, 4) or row0 != self.rows:
+        if rgba.ndim != 3 or rgba.shape[1:] != (self.width, 4) or row0 != self.rows \
+                or row0 + len(rgba) > self.height:
             raise ExabricksError(f"{self.path}: band of shape {rgba.shape} at row {row0} does "
                                  f"not continue the {self.width}-wide frame at row {self.rows}")
         if not np.isfinite(rgba).all():
@@ -408,6 +409,9 @@ def _read_exr(path: Path):
 def _read_png(path: Path):
     from PIL import Image
 
+    # our own frames go up to 32768^2 (render --size), beyond Pillow's guard
+    # against decompression bombs in untrusted files
+    limit, Image.MAX_IMAGE_PIXELS = Image.MAX_IMAGE_PIXELS, 32768 * 32768
     try:
         with Image.open(path) as image:
             image.load()
@@ -419,4 +423,6 @@ def _read_png(path: Path):
         raise
     except Exception as e:  # Pillow raises UnidentifiedImageError/OSError/SyntaxError/...
         raise ExabricksError(f"{path}: cannot read PNG image: {e}") from None
+    finally:
+        Image.MAX_IMAGE_PIXELS = limit
     return from_png_pixels(pixels), _decoded_metadata(text)

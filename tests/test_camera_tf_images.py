@@ -426,3 +426,45 @@ def test_reading_missing_or_corrupt_images_names_the_file(tmp_path, suffix):
     path.write_bytes(b"\x89PNG\r\n\x1a\n garbage" if suffix == ".png" else b"v/1\x01 garbage")
     with pytest.raises(ExabricksError, match=f"corrupt{suffix}: cannot read"):
         read_image(path)
+
+
+@pytest.mark.parametrize("height, width", [(1, 1), (37, 5), (300, 1100)])
+def test_streamed_writers_match_the_libraries_readers(tmp_path, rng, height, width):
+    """Our PNG and OpenEXR writers (bands of rows, EXR blocks of 16 lines, the
+    last ones short) read back exactly through Pillow and OpenEXR."""
+    rgba = _premultiplied(rng, height, width)
+    depth = rng.random((height, width), dtype=np.float32)
+    depth[0, 0] = np.inf
+    write_image(tmp_path / "a.exr", rgba, metadata={"k": [1, "é"]}, depth=depth)
+    back, meta = read_image(tmp_path / "a.exr")
+    np.testing.assert_array_equal(back, rgba)
+    np.testing.assert_array_equal(read_depth(tmp_path / "a.exr"), depth)
+    assert meta == {"k": [1, "é"]}
+    write_image(tmp_path / "a.png", rgba, metadata={"k": 2})
+    from PIL import Image
+
+    with Image.open(tmp_path / "a.png") as image:
+        np.testing.assert_array_equal(np.asarray(image), image_io.to_png_pixels(rgba))
+    assert read_image(tmp_path / "a.png")[1] == {"k": 2}
+
+
+def test_a_frame_file_writes_what_was_put_and_the_background_below(tmp_path, rng):
+    rgba = _premultiplied(rng, 50, 40)
+    depth = rng.random((50, 40), dtype=np.float32)
+    path = tmp_path / "f.exr"
+    with image_io.FrameFile(path, 40, 50, depth=True, background=(0, 0, 1, 0.5)) as frame:
+        for row in range(0, 30, 7):
+            frame.put(row, rgba[row:min(row + 7, 30)], depth[row:min(row + 7, 30)])
+        with pytest.raises(ExabricksError, match="does not continue"):
+            frame.put(0, rgba[:3], depth[:3])
+        frame.write(metadata={"rows": 30})
+        assert len(os.listdir(tmp_path)) == 2  # the output and the scratch file beside it
+    assert os.listdir(tmp_path) == ["f.exr"]
+    back, meta = read_image(path)
+    np.testing.assert_array_equal(back[:30], rgba[:30])
+    np.testing.assert_array_equal(back[30:], np.broadcast_to([0, 0, 0.5, 0.5], (20, 40, 4)))
+    z = read_depth(path)
+    np.testing.assert_array_equal(z[:30], depth[:30])
+    assert np.isinf(z[30:]).all() and meta == {"rows": 30}
+    with pytest.raises(ExabricksError, match="depth image needs .exr"):
+        image_io.FrameFile(tmp_path / "f.png", 4, 4, depth=True)

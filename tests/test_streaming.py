@@ -399,6 +399,7 @@ def test_cli_tiles_write_the_same_image_in_bands(gerris_files, cli, tmp_path):
     assert [p.name for p in tmp_path.iterdir() if p.name.startswith(".")] == []
 
 
+@pytest.mark.slow
 def test_a_poster_in_tiles_stays_under_budget_plus_baseline(gerris_files, tmp_path):
     """A frame whose float image alone is 20x the budget. The baseline is the
     issue's: the same command on a dataset of 64 cells at the same image size

@@ -213,9 +213,10 @@ def _render_tiled(pieces, scene, started, image, describe, inputs, budget, progr
 
         def on_band(progress):
             if time.perf_counter() - last[0] >= progressive:
-                out.write(metadata=describe({"width": s.width, "height": s.height,
-                                             "samples": 0, "progress": progress}),
-                          inputs=inputs)
+                so_far = {"width": s.width, "height": s.height, "samples": 0,
+                          "progress": progress}
+                out.write(metadata=describe(so_far), inputs=inputs)
+                _log_written(image, so_far)
                 last[0] = time.perf_counter()
 
         stats = render_tiled(pieces, scene, tile, out.put, deadline=deadline,

@@ -322,9 +322,10 @@ def _field_rows(bricks: schema.Bricks, fields) -> list[int]:
 
 
 def _piece_plan(bricks, regions, lower, upper, halo, crop, where):
-    """(keep, used, first, new_dims): the regions meeting the piece grown by
-    `halo`, the bricks they list, and each one's cells kept (`_crop_boxes`);
-    every index followed is checked (piece_data)."""
+    """(keep, used, first, new_dims, boxes): the regions meeting the piece grown
+    by `halo`, the bricks they list, each one's cells kept (`_crop_boxes`), and
+    their lower_lattice, level, dims and offset; every index followed is
+    checked (piece_data)."""
     lo = np.asarray(lower, np.float64) - halo
     hi = np.asarray(upper, np.float64) + halo
     keep = _meeting(regions, lo, hi)
@@ -426,22 +427,21 @@ def _crop_boxes(lower, level, dims, offset, n_values, lo, hi, crop):
     first = np.zeros((len(level), 3), np.int32)
     new_dims = np.zeros((len(level), 3), np.int32)
     for b in range(len(level)):
-        i = b
         cells = 1
         for a in range(3):
             if dims[b, a] < 1:
-                return first, new_dims, i
+                return first, new_dims, b
             cells *= dims[b, a]
         if offset[b] < 0 or offset[b] + cells > n_values or level[b] < 0 or level[b] > 30:
-            return first, new_dims, i
+            return first, new_dims, b
         w = float(1 << level[b])
         for a in range(3):
             f, l = 0, dims[b, a]
             if crop:
                 f = int(min(max(np.floor((lo[a] - w - lower[b, a]) / w), 0.0), dims[b, a]))
                 l = int(min(max(np.ceil((hi[a] + w - lower[b, a]) / w), 0.0), dims[b, a]))
-            first[i, a] = f
-            new_dims[i, a] = max(l - f, 0)
+            first[b, a] = f
+            new_dims[b, a] = max(l - f, 0)
     return first, new_dims, -1
 
 
