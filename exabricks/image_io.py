@@ -145,14 +145,19 @@ def _band_rows(width: int) -> int:
     return max(EXR_BLOCK, (1 << 20) // (16 * width) // EXR_BLOCK * EXR_BLOCK)
 
 
+def _check_depth(path: Path, has_depth: bool) -> str:
+    """The image format of `path` (_suffix), refusing depth with .png."""
+    suffix = _suffix(path)
+    if has_depth and suffix == ".png":
+        raise ExabricksError(f"{path}: a depth image needs .exr output (PNG has no depth channel)")
+    return suffix
+
 
 def _write_bands(path: Path, width: int, height: int, bands, has_depth: bool, metadata,
                  inputs) -> None:
     """Write the image that `bands()` yields as (rgba, depth or None) bands of
     _band_rows rows, top to bottom, to `path`, atomically (write_image)."""
-    suffix = _suffix(path)
-    if has_depth and suffix == ".png":
-        raise ExabricksError(f"{path}: a depth image needs .exr output (PNG has no depth channel)")
+    suffix = _check_depth(path, has_depth)
     attributes = _encoded_metadata(metadata, path)
 
     def write(tmp: str) -> None:
@@ -180,10 +185,7 @@ class FrameFile:
                  background=(0.0, 0.0, 0.0, 0.0)):
         self.path, self.width, self.height = Path(path), int(width), int(height)
         self.depth = bool(depth)
-        _suffix(self.path)
-        if self.depth and self.path.suffix.lower() == ".png":
-            raise ExabricksError(f"{path}: a depth image needs .exr output (PNG has no depth "
-                                 "channel)")
+        _check_depth(self.path, self.depth)
         r, g, b, a = (float(c) for c in background)
         self.background = np.array([r * a, g * a, b * a, a], np.float32)
         self.rows = 0  # rows put, from the top

@@ -198,7 +198,7 @@ def render_steps(pieces, scene, *, band=None, tile_width=None, deadline: float |
     total = np.zeros((rows, width, 4), np.float32)
     order = pieces.order(scene)
     several = pieces.n_pieces > 1
-    meets = {index: _meeting(tiles, pieces.footprint(index, scene)) for index in order}
+    meets = {index: _tiles_met(tiles, pieces.footprint(index, scene)) for index in order}
     start = time.perf_counter()
     samples, stats, done_samples, done_pieces, drawn = 0, {}, 0, 0, rows
     depth = over = None
@@ -263,7 +263,7 @@ def render_steps(pieces, scene, *, band=None, tile_width=None, deadline: float |
     return RenderResult(rgba, depth, stats)
 
 
-def _meeting(tiles, rect) -> list:
+def _tiles_met(tiles, rect) -> list:
     """The tiles (col0, row0, cols, rows) that the pixel rectangle `rect` (col0,
     row0, col1, row1; None: nothing) meets."""
     if rect is None:
