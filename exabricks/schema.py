@@ -269,7 +269,8 @@ def _check_shapes(obj: _Kind, where: str) -> None:
 def _check_semantics(obj: _Kind, where: str) -> None:
     """Cheap whole-array checks (O(N), vectorised) that catch inconsistent files,
     including everything a kernel follows: no file can make one read out of
-    bounds or loop."""
+    bounds or loop.  Per-item arrays are checked in steps of about CHUNK elements
+    (`rows`): temporaries stay small, and a mapped file's pages are handed back."""
     spacing = obj.spacing_world
     if not (np.all(np.isfinite(obj.origin_world)) and np.all(np.isfinite(spacing))
             and np.all(spacing >= np.finfo(np.float64).tiny)):
@@ -288,13 +289,7 @@ def _check_semantics(obj: _Kind, where: str) -> None:
     if isinstance(obj, Bricks):
         _check_bricks(obj, where)
     if isinstance(obj, Regions):
-        s = obj.brick_start
-        if s[0] != 0 or s[-1] != obj.brick_ids.shape[0] or np.any(np.diff(s) < 0):
-            raise ExabricksError(f"{where}: region brick lists (brick_start) are inconsistent")
-        if obj.brick_ids.size and int(obj.brick_ids.min()) < 0:
-            i = int(np.argmin(obj.brick_ids))
-            raise ExabricksError(f"{where}: region brick list entry {i} is a negative brick id "
-                                 f"({int(obj.brick_ids[i])})")
+        _check_lists(obj, where)
         _check_boxes(obj.lower_lattice, obj.upper_lattice, where, "region")
         _check_levels(obj.finest_level, where, "region")
     if isinstance(obj, Bvh):
@@ -307,43 +302,78 @@ def _first_misaligned(lower: np.ndarray, level: np.ndarray) -> int:
     runs on every read and write of tens of millions of cells."""
     from .stages._checks import first_misaligned
 
-    return int(first_misaligned(np.ascontiguousarray(lower), np.ascontiguousarray(level)))
+    for start, (lo, lv) in rows(lower, level):
+        i = int(first_misaligned(np.ascontiguousarray(lo), np.ascontiguousarray(lv)))
+        if i >= 0:
+            return start + i
+    return -1
 
 
 def _check_levels(level: np.ndarray, where: str, item: str) -> None:
-    if level.size and (int(level.min()) < 0 or int(level.max()) > MAX_LEVEL):
-        i = int(np.flatnonzero((level < 0) | (level > MAX_LEVEL))[0])
-        raise ExabricksError(f"{where}: {item} {i} has level {int(level[i])}, outside 0..{MAX_LEVEL}")
+    for start, (part,) in rows(level):
+        if part.size and (int(part.min()) < 0 or int(part.max()) > MAX_LEVEL):
+            i = start + int(np.flatnonzero((part < 0) | (part > MAX_LEVEL))[0])
+            raise ExabricksError(f"{where}: {item} {i} has level {int(level[i])}, "
+                                 f"outside 0..{MAX_LEVEL}")
 
 
 def _check_boxes(lower: np.ndarray, upper: np.ndarray, where: str, item: str) -> None:
     """Finite bounds with lower <= upper on every axis."""
-    bad = ~(np.isfinite(lower).all(axis=1) & np.isfinite(upper).all(axis=1)
-            & (lower <= upper).all(axis=1))
-    if bad.any():
-        i = int(np.flatnonzero(bad)[0])
-        raise ExabricksError(f"{where}: {item} {i} has bounds {lower[i].tolist()} .. "
-                             f"{upper[i].tolist()} (must be finite, lower <= upper)")
+    for start, (lo, hi) in rows(lower, upper):
+        bad = ~(np.isfinite(lo).all(axis=1) & np.isfinite(hi).all(axis=1) & (lo <= hi).all(axis=1))
+        if bad.any():
+            i = start + int(np.flatnonzero(bad)[0])
+            raise ExabricksError(f"{where}: {item} {i} has bounds {lower[i].tolist()} .. "
+                                 f"{upper[i].tolist()} (must be finite, lower <= upper)")
 
 
 def _check_bricks(obj: "Bricks", where: str) -> None:
-    dims = obj.dims.astype(np.int64)
-    if dims.size and dims.min() < 1:
-        i = int(np.flatnonzero(dims.min(axis=1) < 1)[0])
-        raise ExabricksError(f"{where}: brick {i} has dims {obj.dims[i].tolist()} (at least 1 each)")
-    n = dims.prod(axis=1) if dims.size else np.zeros(0, np.int64)
-    # The kernels index a brick's values with 32-bit integers.
-    if n.size and n.max() >= 2**31:
-        i = int(np.argmax(n))
-        raise ExabricksError(f"{where}: brick {i} has {int(n[i])} cells, more than 2**31 - 1")
-    expected = np.concatenate([[0], np.cumsum(n)[:-1]]) if n.size else n
-    if not np.array_equal(obj.offset, expected) or int(n.sum()) != obj.values.shape[1]:
+    """Dims of at least one cell (fewer than 2**31 per brick), offsets that are the
+    running sum of the brick sizes and end at the values, boxes in the int32 lattice
+    (levels checked before)."""
+    expected = 0
+    for start, (dims, offset, lower, level) in rows(obj.dims, obj.offset, obj.lower_lattice,
+                                                    obj.level):
+        d = dims.astype(np.int64)
+        if d.size and d.min() < 1:
+            i = start + int(np.flatnonzero(d.min(axis=1) < 1)[0])
+            raise ExabricksError(f"{where}: brick {i} has dims {obj.dims[i].tolist()} "
+                                 "(at least 1 each)")
+        n = d.prod(axis=1)
+        # The kernels index a brick's values with 32-bit integers.
+        if n.size and n.max() >= 2**31:
+            i = start + int(np.argmax(n))
+            raise ExabricksError(f"{where}: brick {i} has {int(n[i - start])} cells, more "
+                                 "than 2**31 - 1")
+        ends = np.cumsum(n) + expected
+        if n.size and not (offset[0] == expected and np.array_equal(offset[1:], ends[:-1])):
+            raise ExabricksError(f"{where}: brick offsets do not match brick dims and values")
+        expected = int(ends[-1]) if n.size else expected
+        upper = lower.astype(np.int64) + d * (np.int64(1) << level.astype(np.int64))[:, None]
+        if upper.size and upper.max() > np.iinfo(LATTICE_DTYPE).max:
+            i = int(np.argmax(upper.max(axis=1)))
+            raise ExabricksError(f"{where}: brick {start + i} reaches lattice "
+                                 f"{upper[i].tolist()}, beyond the int32 lattice")
+    if expected != obj.values.shape[1]:
         raise ExabricksError(f"{where}: brick offsets do not match brick dims and values")
-    upper = obj.lower_lattice.astype(np.int64) + dims * (np.int64(1) << obj.level.astype(np.int64))[:, None]
-    if upper.size and upper.max() > np.iinfo(LATTICE_DTYPE).max:
-        i = int(np.argmax(upper.max(axis=1)))
-        raise ExabricksError(f"{where}: brick {i} reaches lattice {upper[i].tolist()}, beyond "
-                             "the int32 lattice")
+
+
+def _check_lists(obj: "Regions", where: str) -> None:
+    """CSR row pointers from 0, ascending, to the end of the brick lists; no
+    negative brick id (those beyond the bricks are checked against them)."""
+    s = obj.brick_start
+    if s[0] != 0 or s[-1] != obj.brick_ids.shape[0]:
+        raise ExabricksError(f"{where}: region brick lists (brick_start) are inconsistent")
+    last = 0
+    for _, (part,) in rows(s):
+        if part.size and (part[0] < last or np.any(part[1:] < part[:-1])):
+            raise ExabricksError(f"{where}: region brick lists (brick_start) are inconsistent")
+        last = part[-1] if part.size else last
+    for start, (ids,) in rows(obj.brick_ids):
+        if ids.size and int(ids.min()) < 0:
+            i = start + int(np.argmin(ids))
+            raise ExabricksError(f"{where}: region brick list entry {i} is a negative brick "
+                                 f"id ({int(ids[i - start])})")
 
 
 def _check_bvh(obj: "Bvh", where: str) -> None:
@@ -525,7 +555,8 @@ def peek(path: str | os.PathLike) -> tuple[str, int, dict]:
         return _header(z, str(path))
 
 
-def load(path: str | os.PathLike, kind: str | None = None, *, mapped: bool = False) -> _Kind:
+def load(path: str | os.PathLike, kind: str | None = None, *, mapped: bool = False,
+         checked: bool | None = None) -> _Kind:
     """Read and validate an exabricks file; with `kind`, refuse any other kind.
 
     The arrays' dtypes and shapes are read from their .npy headers and checked
@@ -534,10 +565,13 @@ def load(path: str | os.PathLike, kind: str | None = None, *, mapped: bool = Fal
     loader allocate more than the file claims consistently.
 
     `mapped`: the large stored arrays are mapped read-only from the file instead
-    of read (pages come in as they are used), and only their dtypes and shapes
-    are checked: for a caller that uses a part of the data and validates that
-    part itself (exabricks.stages.partition.piece_data, whose output goes through
-    `validate` like any file)."""
+    of read (pages come in as they are used).  `checked` (default: not `mapped`)
+    validates the whole file; a mapped file is then checked in steps, its CRCs
+    too, handing its pages back as it goes, so that a builder holds only what it
+    uses.  Mapped and unchecked, only dtypes and shapes are checked: for a caller
+    that uses a part of the data and validates that part itself
+    (exabricks.stages.partition.piece_data, whose output goes through `validate`
+    like any file)."""
     where = str(path)
     with NpzArchive(path) as z:
         found, version, meta = _header(z, where)
@@ -567,8 +601,10 @@ def load(path: str | os.PathLike, kind: str | None = None, *, mapped: bool = Fal
         for name in sorted(cls.SPECS, key=sizes.get):
             _check_implied_sizes(cls, arrays, headers, where)
             arrays[name] = z.array(name, mapped=mapped)
+            if mapped and checked:
+                z.check_crc(name, arrays[name])
     obj = cls(fields=tuple(fields), meta=meta, **arrays)
-    if not mapped:
+    if checked or (checked is None and not mapped):
         validate(obj, where)
     return obj
 
@@ -621,22 +657,32 @@ def trim_heap() -> None:
         pass
 
 
+def rows(*arrays: np.ndarray):
+    """Steps of about CHUNK elements (whole rows) along the first axis, which
+    `arrays` share: yields (start, [views of rows start.. of each array]).  The pages
+    of mapped arrays are handed back after each step, so that a pass over large
+    mapped arrays does not keep them resident."""
+    n = arrays[0].shape[0]
+    width = max(max(1, int(np.prod(a.shape[1:]))) for a in arrays)
+    step = max(1, CHUNK // width)
+    for start in range(0, n, step):
+        parts = [a[start:start + step] for a in arrays]
+        yield start, parts
+        for a, part in zip(arrays, parts):
+            base = _mapping(a)
+            if base is not None and part.size:
+                _hand_back(base, part.ctypes.data - np.frombuffer(base, np.uint8).ctypes.data,
+                           part.nbytes)
+
+
 def reduce_chunks(array: np.ndarray, fn, combine):
-    """combine() over fn(chunk) of consecutive chunks (of about CHUNK elements, whole
-    rows) of an array along its first axis; the pages of a mapped array are handed
-    back after each chunk, so that a pass over a large mapped array does not keep
-    it all resident."""
+    """combine() over fn(chunk) of the `rows` steps of `array` (fn(array[:0]) if it
+    has no rows)."""
     result = None
-    base = _mapping(array)
-    rows = max(1, CHUNK // max(1, int(np.prod(array.shape[1:]))))
-    for start in range(0, max(array.shape[0], 1), rows):
-        part = array[start:start + rows]
+    for _, (part,) in rows(array):
         value = fn(part)
         result = value if result is None else combine(result, value)
-        if base is not None and part.size:
-            _hand_back(base, part.ctypes.data - np.frombuffer(base, np.uint8).ctypes.data,
-                       part.nbytes)
-    return result
+    return fn(array[:0]) if result is None else result
 
 
 def _check_declared(cls, headers: dict, n_fields: int, where: str) -> None:
@@ -827,6 +873,25 @@ class NpzArchive:
             raise self._fail(name, f"cannot be read ({e.strerror or e})") from None
         except ValueError as e:
             raise self._fail(name, f"cannot be read ({e})") from None
+
+    def check_crc(self, name, array: np.ndarray) -> None:
+        """Check a mapped member against the archive's CRC, in `rows` steps (a
+        member read whole is checked as it is read)."""
+        import zlib
+
+        info = self.members[name]
+        if _mapping(array) is None:
+            return
+        try:
+            with open(self.path, "rb") as f:
+                f.seek(self._data_offset(f, info))
+                crc = zlib.crc32(f.read(self._headers[name][2]))
+        except (OSError, ValueError) as e:
+            raise self._fail(name, f"cannot be read ({e})") from None
+        for _, (part,) in rows(array.reshape(-1)):
+            crc = zlib.crc32(part, crc)
+        if crc != info.CRC:
+            raise self._fail(name, "cannot be read (bad CRC: the file is damaged)")
 
     def _read_stored(self, name, info) -> np.ndarray:
         """A stored member's array, read with one readinto and checked against the

@@ -20,7 +20,8 @@ from exabricks.errors import ExabricksError
 from exabricks.stages.brick import build_bricks
 
 from amr_strategies import amr_cells, make_cells, refine_octree
-from conftest import AMREX, ATHENA, ENZO, GERRIS, LEAF_COUNTS, assert_one_error_line, run_cli
+from conftest import (AMREX, ATHENA, ENZO, GERRIS, LEAF_COUNTS, ROOT, assert_one_error_line, peak_rss,
+                      run_cli)
 
 HYPOTHESIS_EXAMPLES = int(os.environ.get("EXABRICKS_HYPOTHESIS_EXAMPLES", "200"))
 
@@ -328,3 +329,34 @@ def test_cli_empty_input_names_the_file(tmp_path):
     proc = run_cli("brick", tmp_path / "empty.npz", "-o", tmp_path / "out.npz")
     assert_one_error_line(proc, "empty.npz", "no cells")
     assert not (tmp_path / "out.npz").exists()
+
+
+@pytest.mark.slow
+def test_builders_hold_at_most_twice_their_files(tmp_path):
+    """Issue 11's bound for the builders, on the thin-shell layout (octree-like,
+    many one-cell bricks, 4.8 M cells): each command's peak resident memory, less
+    that of the same command on 64 cells, stays within twice the bytes of its
+    input and output files."""
+    import sys
+
+    sys.path.insert(0, str(ROOT / "workflows"))
+    from make_big import thin_shell_cells
+
+    g = np.stack(np.meshgrid(*[np.arange(4)] * 3, indexing="ij"), -1).reshape(-1, 3)
+    tiny = schema.Cells(fields=("rho",), origin_world=np.zeros(3), spacing_world=np.ones(3),
+                        lower_lattice=g.astype(np.int32), level=np.zeros(len(g), np.int8),
+                        values=np.linspace(0, 1, len(g), dtype=np.float32)[None])
+    sets = {"tiny": tiny, "shell": thin_shell_cells(512)}
+    assert sets["shell"].n_cells > 4_000_000
+    for name, cells in sets.items():
+        schema.save(tmp_path / f"{name}_cells.npz", cells)
+    del sets
+    stages = [("brick", "cells", "bricks"), ("regions", "bricks", "regions"),
+              ("bvh", "regions", "bvh")]
+    for stage, src, dst in stages:
+        peaks = {name: peak_rss([stage, tmp_path / f"{name}_{src}.npz",
+                                 "-o", tmp_path / f"{name}_{dst}.npz"])
+                 for name in ("tiny", "shell")}
+        files = sum((tmp_path / f"shell_{n}.npz").stat().st_size for n in (src, dst))
+        above = peaks["shell"] - peaks["tiny"]
+        assert above <= 2 * files, (stage, above / 2**20, files / 2**20)

@@ -27,7 +27,7 @@ from exabricks.stages.render import Renderer
 from exabricks.stages.streaming import (PER_BRICK, SLACK, Budgeted, Resident, image_bytes,
                                         parse_size, render_steps, render_tiled)
 
-from conftest import GERRIS, assert_one_error_line
+from conftest import GERRIS, assert_one_error_line, peak_rss
 from test_mpi import files_of
 from test_packets import DATASETS, loaded, renderer, scene_for
 
@@ -199,19 +199,6 @@ def test_cli_time_limit_writes_the_best_image_so_far(gerris_files, cli, tmp_path
     progress = meta["settings"]["progress"]
     assert progress["complete"] is False and progress["samples"][0] < 64
     assert np.isfinite(image).all()
-
-
-def peak_rss(args, env=None) -> int:
-    """Peak resident bytes of `exabricks ARGS` (run twice: the second, with the
-    kernels in PoCL's cache, is measured)."""
-    launcher = ("import os, subprocess, sys, resource; p = subprocess.run(sys.argv[1:]); "
-                "print(os.wait4 and resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss); "
-                "sys.exit(p.returncode)")
-    for _ in range(2):
-        proc = subprocess.run([sys.executable, "-c", launcher, *EB, *map(str, args)],
-                              capture_output=True, text=True, env={**os.environ, **(env or {})})
-        assert proc.returncode == 0, proc.stderr
-    return int(proc.stdout.split()[-1]) * 1024
 
 
 def test_peak_memory_stays_under_budget_plus_baseline(gerris_files, tmp_path):

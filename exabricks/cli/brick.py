@@ -25,7 +25,7 @@ def brick(cells_path, output, max_brick_width):
 
     check_output(output, [cells_path])
     schema.prefetch_sha256([cells_path])
-    cells = schema.load(cells_path, "cells")
+    cells = schema.load(cells_path, "cells", mapped=True, checked=True)
     try:
         bricks = build_bricks(cells, max_brick_width=max_brick_width)
     except ExabricksError as e:

@@ -23,7 +23,7 @@ def bvh(regions_path, output, leaf_size, bins):
 
     check_output(output, [regions_path])
     schema.prefetch_sha256([regions_path])
-    regions = schema.load(regions_path, "regions")
+    regions = schema.load(regions_path, "regions", mapped=True, checked=True)
     check_regions(regions, regions_path)
     try:
         result = build_bvh(regions, leaf_size=leaf_size, bins=bins)
@@ -59,8 +59,10 @@ def check_regions(regions: schema.Regions, path) -> None:
             f"{upstream.get('n_regions')}; the file is inconsistent"
         )
     ids = regions.brick_ids
-    if ids.size and (int(ids.min()) < 0 or int(ids.max()) >= n_bricks):
-        raise ExabricksError(
-            f"{path}: brick ids range over {int(ids.min())}..{int(ids.max())}, "
-            f"outside the {n_bricks} bricks its meta records"
-        )
+    if not ids.size:
+        return
+    lo, hi = schema.reduce_chunks(ids, lambda a: (int(a.min()), int(a.max())),
+                                  lambda x, y: (min(x[0], y[0]), max(x[1], y[1])))
+    if lo < 0 or hi >= n_bricks:
+        raise ExabricksError(f"{path}: brick ids range over {lo}..{hi}, outside the "
+                             f"{n_bricks} bricks its meta records")

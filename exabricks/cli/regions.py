@@ -52,7 +52,7 @@ def regions(bricks_path, output, exact, visit_cost, brick_cost, max_merged, max_
         )
     except ExabricksError as e:
         raise click.UsageError(str(e)) from None
-    bricks = schema.load(bricks_path, "bricks")
+    bricks = schema.load(bricks_path, "bricks", mapped=True, checked=True)
     try:
         result = build_regions(bricks, merge)
     except ExabricksError as e:

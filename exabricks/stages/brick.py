@@ -26,7 +26,7 @@ import numpy as np
 from .. import schema
 from ..constants import LATTICE_DTYPE, LEVEL_DTYPE, OFFSET_DTYPE, VALUE_DTYPE
 from ..errors import ExabricksError
-from .ingest import find_overlap
+from .ingest import _neighbour_overlap_keys, _spread3, find_overlap
 
 # Columns of a cell row in `rec` and fields of a node row.
 _LEVEL, _ID = 3, 4
@@ -357,6 +357,7 @@ def build_bricks(cells: schema.Cells, *, max_brick_width: int = 32) -> schema.Br
         raise ExabricksError(f"{n} cells: at most {np.iinfo(np.int32).max - 1} are supported")
     threads = numba.get_num_threads()
     rec, root = _pack(cells.lower_lattice, cells.level, 4 * threads)
+    schema.release_arrays(cells.lower_lattice, cells.level)  # when mapped: rec holds them now
     brick_end = np.full(n, -1, np.int32)
     width = np.int64(max_brick_width)
     if threads > 1 and n >= _PARALLEL_MIN_CELLS:
@@ -387,6 +388,7 @@ def build_bricks(cells: schema.Cells, *, max_brick_width: int = 32) -> schema.Br
     # Checked at ingest too, but a cells file can be edited after it.
     _place(rec, starts.astype(np.int64), ends, lower, level, dims, source, clash)
     del rec, brick_end
+    schema.trim_heap()
     bad = np.flatnonzero(clash[:, 0] >= 0)
     if bad.size:
         a, c = (int(i) for i in clash[bad[0]])
@@ -394,6 +396,7 @@ def build_bricks(cells: schema.Cells, *, max_brick_width: int = 32) -> schema.Br
         raise ExabricksError(f"cells overlap: cell {c} at {lo[c].tolist()} level {int(lv[c])} and "
                              f"cell {a} at {lo[a].tolist()} level {int(lv[a])}")
     values = _gather(np.ascontiguousarray(cells.values, dtype=VALUE_DTYPE), source)
+    schema.release_arrays(cells.values)
     return schema.Bricks(
         fields=cells.fields, origin_world=cells.origin_world, spacing_world=cells.spacing_world,
         meta={"statistics": statistics(level, dims)},
@@ -405,16 +408,70 @@ def build_bricks(cells: schema.Cells, *, max_brick_width: int = 32) -> schema.Br
 
 def require_disjoint(bricks: schema.Bricks) -> None:
     """ExabricksError naming two bricks that share a cell, if any (O(N log N) in the
-    cells, through the Morton-order check of exabricks.stages.ingest)."""
-    if bricks.n_bricks < 2:
+    cells, through the Morton-order check of exabricks.stages.ingest).
+
+    Each cell is one uint64 key, its Morton code above its brick's id, sorted in
+    place: 8 bytes a cell and no per-cell corner or level arrays (bricks may be
+    mapped, schema.load(mapped=True)).  Lattices too wide for one key take the
+    per-cell path."""
+    n = bricks.n_bricks
+    if n < 2:
         return
-    lower, level = brick_cells(bricks.lower_lattice, bricks.level, bricks.dims, bricks.offset,
-                               bricks.values.shape[1])
-    pair = find_overlap(lower, level)
+    level = bricks.level
+    lmin, lmax = int(level.min()), int(level.max())
+    cmin, cmax = _brick_corner_range(bricks.lower_lattice, level, bricks.dims)
+    cmin = (cmin >> lmax) << lmax  # as in find_overlap: every cell stays aligned
+    bits = max(int(((cmax - cmin) >> lmin).max()).bit_length(), 1)
+    id_bits = max(int(n - 1).bit_length(), 1)
+    if 3 * bits + id_bits <= 64:
+        keys = _brick_keys(bricks.lower_lattice, level, bricks.dims, bricks.offset,
+                           bricks.values.shape[1], cmin, lmin, np.uint64(id_bits))
+        keys.sort()
+        a, b = _neighbour_overlap_keys(keys, np.uint64(id_bits), level, lmin)
+        pair = None if a < 0 else (int(a), int(b))
+    else:
+        lower, lv = brick_cells(bricks.lower_lattice, level, bricks.dims, bricks.offset,
+                                bricks.values.shape[1])
+        pair = find_overlap(lower, lv)
+        if pair is not None:
+            pair = tuple(int(np.searchsorted(bricks.offset, i, side="right")) - 1 for i in pair)
     if pair is not None:
-        a, b = (int(np.searchsorted(bricks.offset, i, side="right")) - 1 for i in pair)
+        a, b = pair
         raise ExabricksError(f"bricks overlap: brick {b} at {bricks.lower_lattice[b].tolist()} "
                              f"and brick {a} at {bricks.lower_lattice[a].tolist()} share a cell")
+
+
+@numba.njit(cache=True)
+def _brick_corner_range(lower, level, dims):
+    """Per-axis min and max over the bricks' cell corners, int64 (3,) each."""
+    lo = np.full(3, np.int64(1) << 62)
+    hi = np.full(3, -(np.int64(1) << 62))
+    for b in range(level.shape[0]):
+        w = np.int64(1) << np.int64(level[b])
+        for a in range(3):
+            lo[a] = min(lo[a], np.int64(lower[b, a]))
+            hi[a] = max(hi[a], np.int64(lower[b, a]) + (np.int64(dims[b, a]) - 1) * w)
+    return lo, hi
+
+
+@numba.njit(cache=True, parallel=True)
+def _brick_keys(lower, level, dims, offset, n_cells, cmin, lmin, id_bits):
+    """(Morton code of each cell's corner relative to cmin, in units of 2**lmin)
+    << id_bits | its brick's id: uint64 (n_cells,), in value order."""
+    out = np.empty(n_cells, np.uint64)
+    for b in numba.prange(level.shape[0]):
+        w = np.int64(1) << np.int64(level[b])
+        i = offset[b]
+        for z in range(dims[b, 2]):
+            mz = _spread3(np.uint64((np.int64(lower[b, 2]) + z * w - cmin[2]) >> lmin))
+            for y in range(dims[b, 1]):
+                my = _spread3(np.uint64((np.int64(lower[b, 1]) + y * w - cmin[1]) >> lmin))
+                for x in range(dims[b, 0]):
+                    mx = _spread3(np.uint64((np.int64(lower[b, 0]) + x * w - cmin[0]) >> lmin))
+                    m = mx | (my << np.uint64(1)) | (mz << np.uint64(2))
+                    out[i] = (m << id_bits) | np.uint64(b)
+                    i += 1
+    return out
 
 
 @numba.njit(cache=True, parallel=True)

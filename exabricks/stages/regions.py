@@ -98,26 +98,25 @@ def build_regions(bricks: schema.Bricks, merge: Merge = Merge()) -> schema.Regio
     n = bricks.n_bricks
     if n == 0:
         raise ExabricksError("the bricks contain no cells; there is nothing to build regions for")
+    # Each step's temporaries are handed back to the system before the next
+    # (schema.trim_heap): glibc would keep them for the next allocations, and
+    # the builders' peaks are those of the steps, not of their sum.
     require_disjoint(bricks)
+    schema.trim_heap()
     sup_lo, sup_hi = support_boxes_doubled(bricks)
-    if max(-int(sup_lo.min()), int(sup_hi.max())) > _MAX_DOUBLED:
-        raise ExabricksError(
-            f"brick supports reach lattice coordinate {max(-int(sup_lo.min()), int(sup_hi.max())) / 2}, "
-            f"beyond {_MAX_DOUBLED // 2}, where float32 region bounds stop being exact"
-        )
     lo2, hi2, brick_start, brick_ids = partition(
         sup_lo, sup_hi, level=bricks.level, cells=bricks.dims.astype(np.int64).prod(axis=1),
         merge=merge)
+    del sup_lo, sup_hi
+    schema.trim_heap()
     n_partition = lo2.shape[0]
     lo2, hi2, brick_start, brick_ids = _coalesce(lo2, hi2, brick_start, brick_ids)
-    lower = np.ascontiguousarray(bricks.lower_lattice, dtype=np.int64)
-    dims = np.ascontiguousarray(bricks.dims, dtype=np.int64)
-    width = np.left_shift(np.int64(1), bricks.level.astype(np.int64))
-    values = np.ascontiguousarray(bricks.values)
+    schema.trim_heap()
     value_range, finest = _leaf_ranges(
-        lo2, hi2, brick_start, brick_ids, lower, dims, width,
-        bricks.offset, values, bricks.level,
+        lo2, hi2, brick_start, brick_ids, bricks.lower_lattice, bricks.dims,
+        bricks.offset, bricks.values, bricks.level,
     )
+    schema.release(bricks)
     regions = schema.Regions(
         fields=bricks.fields,
         origin_world=bricks.origin_world.copy(),
@@ -154,7 +153,8 @@ def partition(sup_lo, sup_hi, *, threads: int | None = None, level=None, cells=N
     small = np.ones(n, np.bool_) if cells is None else np.asarray(cells) <= merge.max_brick_cells
     # The task count depends only on the input size, never on the thread count.
     want = 1 if n < 20_000 else 64
-    queue = [(sup_lo.min(axis=0), sup_hi.max(axis=0), np.arange(n, dtype=np.int32))]
+    queue = [(sup_lo.min(axis=0).astype(np.int64), sup_hi.max(axis=0).astype(np.int64),
+              np.arange(n, dtype=np.int32))]
     tasks = []  # regions the top phase finds to be leaves stay tasks: _partition emits them
     visit = float(merge.visit_cost) if merge.enabled else 0.0
     while queue and len(queue) + len(tasks) < want:
@@ -180,8 +180,9 @@ def partition(sup_lo, sup_hi, *, threads: int | None = None, level=None, cells=N
     tasks += queue
 
     def run(task):
-        return _partition(sup_lo, sup_hi, *task, lv, small, visit, float(merge.brick_cost),
-                          int(merge.max_bricks))
+        # copies: the results are views of buffers grown by doubling
+        return [a.copy() for a in _partition(sup_lo, sup_hi, *task, lv, small, visit,
+                                             float(merge.brick_cost), int(merge.max_bricks))]
 
     if threads > 1 and len(tasks) > 1:
         from concurrent.futures import ThreadPoolExecutor
@@ -194,14 +195,32 @@ def partition(sup_lo, sup_hi, *, threads: int | None = None, level=None, cells=N
     else:
         parts = [run(t) for t in tasks]
     if len(parts) == 1:
-        return parts[0]
-    lo2 = np.concatenate([p[0] for p in parts])
-    hi2 = np.concatenate([p[1] for p in parts])
-    ids = np.concatenate([p[3] for p in parts])
-    counts = np.concatenate([np.diff(p[2]) for p in parts])
-    start = np.zeros(counts.size + 1, np.int64)
-    np.cumsum(counts, out=start[1:])
-    return lo2, hi2, start, ids
+        return tuple(parts[0])
+    for p in parts:  # each part's lists, shifted to follow the previous parts'
+        p[2] = p[2][1:]
+    shift = 0
+    for p in parts:
+        p[2] += shift
+        shift = int(p[2][-1]) if p[2].size else shift
+    start = _concatenate(parts, 2, head=np.zeros(1, np.int64))
+    return _concatenate(parts, 0), _concatenate(parts, 1), start, _concatenate(parts, 3)
+
+
+def _concatenate(parts, column, head=None):
+    """The arrays `parts[k][column]` one after the other (after `head`), each part's
+    dropped as soon as it is copied: the result is the only full copy held."""
+    head = parts[0][column][:0] if head is None else head
+    last = parts[-1][column]
+    out = np.empty((head.shape[0] + sum(p[column].shape[0] for p in parts),) + last.shape[1:],
+                   last.dtype)
+    out[:head.shape[0]] = head
+    at = head.shape[0]
+    for p in parts:
+        n = p[column].shape[0]
+        out[at:at + n] = p[column]
+        p[column] = None
+        at += n
+    return out
 
 
 def _coalesce(lo2, hi2, start, ids):
@@ -215,7 +234,7 @@ def _coalesce(lo2, hi2, start, ids):
     either), so they are merged.  Sweeps along x, y, z repeat while they still
     remove at least 5% of the regions (the first round does nearly all).
     Arguments and result: doubled bounds int32 (R, 3) and the CSR brick lists;
-    `hi2` is updated in place.
+    `hi2` and `ids` are updated in place (the result's ids are a view of `ids`).
     """
     alive = np.ones(lo2.shape[0], np.bool_)
     set_hash = _list_hashes(start, ids)
@@ -231,20 +250,32 @@ def _coalesce(lo2, hi2, start, ids):
     counts = np.diff(start)[keep]
     new_start = np.zeros(keep.shape[0] + 1, np.int64)
     np.cumsum(counts, out=new_start[1:])
-    new_ids = _gather_lists(keep, start, ids, new_start)
-    return lo2[keep], hi2[keep], new_start, new_ids
+    return lo2[keep], hi2[keep], new_start, _compact_lists(keep, start, ids, new_start)
 
 
 def support_boxes_doubled(bricks: schema.Bricks) -> tuple[np.ndarray, np.ndarray]:
     """Support box of every brick in doubled lattice units.
 
-    Returns (lo, hi), each int64 (B, 3): lo = 2*lower - w, hi = 2*(lower + dims*w) + w
-    with w = 2**level, i.e. the brick box grown by w/2 on every side.
+    Returns (lo, hi), each int32 (B, 3): lo = 2*lower - w, hi = 2*(lower + dims*w) + w
+    with w = 2**level, i.e. the brick box grown by w/2 on every side.  Computed in
+    steps (bricks may be mapped); ExabricksError where a support reaches beyond
+    2**24 doubled units, where float32 region bounds stop being exact.
     """
-    w = np.left_shift(np.int64(1), bricks.level.astype(np.int64))[:, None]
-    lower = bricks.lower_lattice.astype(np.int64)
-    upper = lower + bricks.dims.astype(np.int64) * w
-    return 2 * lower - w, 2 * upper + w
+    lo = np.empty((bricks.n_bricks, 3), np.int32)
+    hi = np.empty((bricks.n_bricks, 3), np.int32)
+    for start, (lower, level, dims) in schema.rows(bricks.lower_lattice, bricks.level,
+                                                    bricks.dims):
+        w = np.left_shift(np.int64(1), level.astype(np.int64))[:, None]
+        l2 = 2 * lower.astype(np.int64) - w
+        h2 = 2 * (lower + dims.astype(np.int64) * w) + w
+        reach = max(-int(l2.min()), int(h2.max()))
+        if reach > _MAX_DOUBLED:
+            raise ExabricksError(
+                f"brick supports reach lattice coordinate {reach / 2}, beyond "
+                f"{_MAX_DOUBLED // 2}, where float32 region bounds stop being exact")
+        lo[start:start + len(l2)] = l2
+        hi[start:start + len(h2)] = h2
+    return lo, hi
 
 
 def region_statistics(regions: schema.Regions, lo2=None, hi2=None) -> dict:
@@ -598,14 +629,14 @@ def _merge_axis(lo2, hi2, start, ids, set_hash, alive, axis):
 
 
 @numba.njit(cache=True)
-def _gather_lists(keep, start, ids, new_start):
-    """Brick lists of the regions `keep`, concatenated: int32 (new_start[-1],)."""
-    out = np.empty(new_start[-1], np.int32)
+def _compact_lists(keep, start, ids, new_start):
+    """Brick lists of the regions `keep` (ascending), moved to the front of `ids` one
+    after the other (in place: a list never moves up); a view of ids[:new_start[-1]]."""
     for r in range(keep.shape[0]):
         s = start[keep[r]]
         for k in range(new_start[r + 1] - new_start[r]):
-            out[new_start[r] + k] = ids[s + k]
-    return out
+            ids[new_start[r] + k] = ids[s + k]
+    return ids[:new_start[-1]]
 
 
 @numba.njit(cache=True)
@@ -618,12 +649,12 @@ def _floor_div(a, b):
 
 
 @numba.njit(cache=True, parallel=True)
-def _leaf_ranges(lo2, hi2, start, ids, lower, dims, width, offset, values, level):
+def _leaf_ranges(lo2, hi2, start, ids, lower, dims, offset, values, level):
     """Per-region value range and finest level.
 
     lo2, hi2: int32 (R, 3) doubled region bounds; start/ids: CSR brick lists;
-    lower, dims: int64 (B, 3); width: int64 (B,) cell width; offset: int64 (B,);
-    values: float32 (F, V); level: int8 (B,).
+    lower, dims: int32 (B, 3); offset: int64 (B,); values: float32 (F, V);
+    level: int8 (B,).
     Returns value_range float32 (R, F, 2) and finest_level int8 (R,).
 
     Only the cells of a brick whose support (cell box grown by w/2) overlaps the
@@ -645,14 +676,14 @@ def _leaf_ranges(lo2, hi2, start, ids, lower, dims, width, offset, values, level
             b = ids[k]
             if level[b] < fl:
                 fl = level[b]
-            w = width[b]
+            w = np.int64(1) << np.int64(level[b])
             for ax in range(3):
-                base = 2 * lower[b, ax]
+                base = 2 * np.int64(lower[b, ax])
                 # first i with 2L + (2i+3)w > lo  and  last i with 2L + (2i-1)w < hi
                 i0[ax] = max(0, _floor_div(lo2[r, ax] - base - 3 * w, 2 * w) + 1)
-                i1[ax] = min(dims[b, ax], -_floor_div(-(hi2[r, ax] - base + w), 2 * w))
-            dx = dims[b, 0]
-            dxy = dims[b, 0] * dims[b, 1]
+                i1[ax] = min(np.int64(dims[b, ax]), -_floor_div(-(hi2[r, ax] - base + w), 2 * w))
+            dx = np.int64(dims[b, 0])
+            dxy = dx * np.int64(dims[b, 1])
             o = offset[b]
             for f in range(n_fields):
                 lo_f = mn[f]
