@@ -10,7 +10,7 @@ OUT    ?= out
 DATA    = exabricks/data/gerris-plume
 SUDO   := $(shell [ "$$(id -u)" = 0 ] || echo sudo)
 
-.PHONY: setup system-deps demo test test-slow fuzz test-slurm test-all bench gallery clean
+.PHONY: setup system-deps demo test test-slow fuzz test-slurm test-all bench bench-large gallery clean
 
 system-deps:
 	@if ! ls /etc/OpenCL/vendors/*.icd >/dev/null 2>&1; then \
@@ -96,6 +96,13 @@ bench: setup
 	$(PY) workflows/bench_modes.py --write-docs
 	@# reconstructions (basis, nearest, vertex) and level of detail (speed vs error)
 	$(PY) workflows/bench_reconstructions.py --write-docs
+	@# rendering under a memory budget: thin shells (whole frames, bands), Gerris posters
+	$(PY) workflows/bench_budget.py --write-docs
+
+# The thin shells at 204 M cells: every stage and budgeted renders (about 25 min,
+# 15 GB of disk under bench-data/).
+bench-large: setup
+	$(PY) workflows/bench_large.py --write-docs
 
 # Every image of docs/gallery.md, with the commands that make them.
 gallery: setup

@@ -957,7 +957,7 @@ def _header(z: NpzArchive, where: str) -> tuple[str, int, dict]:
 def world_bounds(obj: _Kind) -> tuple[list[float], list[float]]:
     """World-space bounding box of the data (cells/bricks) or the structure (regions/bvh)."""
     if isinstance(obj, Cells):
-        lo, hi = _cell_box(obj.lower_lattice, obj.level, np.ones_like(obj.lower_lattice))
+        lo, hi = _cell_box(obj.lower_lattice, obj.level)
     elif isinstance(obj, Bricks):
         lo, hi = _cell_box(obj.lower_lattice, obj.level, obj.dims)
     elif isinstance(obj, Bvh):
@@ -972,15 +972,17 @@ def world_bounds(obj: _Kind) -> tuple[list[float], list[float]]:
     return to_world(lo), to_world(hi)
 
 
-def _cell_box(lower, level, dims, step: int = 1 << 18):
-    """Lattice bounds of boxes (in steps of `step`: a few MB at a time)."""
+def _cell_box(lower, level, dims=None):
+    """Lattice bounds of boxes of `dims` cells (one cell each without), in `rows` steps
+    (the pages of mapped arrays handed back as it goes)."""
     if lower.size == 0:
         return lower[:0], lower[:0]
     lo, hi = [], []
-    for s in range(0, lower.shape[0], step):
-        width = (1 << level[s:s + step].astype(np.int64))[:, None]
-        lo.append(lower[s:s + step].min(axis=0))
-        hi.append((lower[s:s + step].astype(np.int64) + dims[s:s + step] * width).max(axis=0))
+    ones = np.ones((1, 3), np.int64)
+    for _, (low, lv, *d) in rows(lower, level, *([] if dims is None else [dims])):
+        width = (1 << lv.astype(np.int64))[:, None]
+        lo.append(low.min(axis=0))
+        hi.append((low.astype(np.int64) + (d[0] if d else ones) * width).max(axis=0))
     return np.min(lo, axis=0), np.max(hi, axis=0)
 
 

@@ -17,8 +17,8 @@ import numpy as np
 import pytest
 
 from exabricks.stages.device_data import DatasetScale
-from exabricks.stages.partition import (composite, eye_lattice, kd_partition, piece_options,
-                                         piece_data)
+from exabricks.stages.partition import (_meeting, composite, eye_lattice, kd_partition,
+                                         piece_data, piece_options, region_blocks)
 from exabricks.stages.render import Renderer, _over_background
 
 from conftest import device_param
@@ -105,6 +105,21 @@ def test_pieces_tile_space_and_share_the_bytes(name, n, rng):
     # to both sides, and the bricks they list keep a cell beyond it)
     assert max(sizes) <= 1.3 * np.mean(sizes), (sizes, total)
     assert sum(sizes) <= 1.4 * total, (sizes, total)
+
+
+@pytest.mark.parametrize("name", sorted(DATASETS))
+def test_region_blocks_find_the_same_regions_as_a_pass_over_all(name, rng):
+    """The block index (`region_blocks`) that spares a budgeted render a pass over
+    every region per piece finds exactly the regions a full pass finds."""
+    regions = loaded(name)[0].regions
+    blocks = region_blocks(regions)
+    lo = regions.lower_lattice.min(axis=0).astype(np.float64)
+    hi = regions.upper_lattice.max(axis=0).astype(np.float64)
+    for _ in range(40):
+        a, b = np.sort(rng.uniform(lo - 2, hi + 2, (2, 3)), axis=0)
+        np.testing.assert_array_equal(_meeting(regions, a, b, blocks), _meeting(regions, a, b))
+    np.testing.assert_array_equal(_meeting(regions, lo - 1, hi + 1, blocks),
+                                  np.arange(regions.n_regions))
 
 
 @pytest.mark.parametrize("n", [2, 3, 7])

@@ -39,6 +39,8 @@ FRACTIONS = (2, 4, 8, 16)
 # Rows of a tile of the tiled runs, and the poster's tiles.
 TILE_ROWS = 32
 POSTER_TILE = (4096, 64)
+TABLE_HEAD = ("| dataset | budget | budget bytes | files | pieces | command s | peak | "
+              "above baseline | RMSE |\n|---|---|---:|---:|---:|---:|---:|---:|---:|\n")
 
 
 def tiny_scene(d: Path, field: str) -> list[Path]:
@@ -60,7 +62,11 @@ def tiny_scene(d: Path, field: str) -> list[Path]:
     return paths
 
 
-def bench_dataset(name: str, d: Path, field: str, size: int, tmp: Path) -> list[str]:
+def bench_dataset(name: str, d: Path, field: str, size: int, tmp: Path,
+                  runs=None) -> list[str]:
+    """Table rows: the in-memory render, then each (fraction k, extra flags) of `runs`
+    (default: every FRACTIONS, whole frames and bands of TILE_ROWS rows) under a
+    budget of 1/k of the files."""
     from exabricks.image_io import read_image
 
     eb = benchdoc.exabricks_command()
@@ -81,28 +87,31 @@ def bench_dataset(name: str, d: Path, field: str, size: int, tmp: Path) -> list[
     whole, _ = read_image(tmp / "whole.exr")
     rows = [f"| {name} | in memory | | {benchdoc.fmt_bytes(nbytes)} | 1 | {wall:.1f} | "
             f"{benchdoc.fmt_bytes(peak)} | | |"]
-    for k in FRACTIONS:
+    print(rows[-1], flush=True)
+    if runs is None:
+        runs = [(k, tiles) for k in FRACTIONS for tiles in ((), ("--tile", size, TILE_ROWS))]
+    for k, tiles in runs:
         budget = nbytes // k
-        for tiles in ((), ("--tile", size, TILE_ROWS)):
-            extra = ("--memory-budget", budget, *tiles)
-            label = f"1/{k} of the files" + (f", `--tile {size} {TILE_ROWS}`" if tiles else "")
-            _, _, base = run(tiny, tmp / "tiny.exr", *extra)
-            try:
-                wall, _, peak = run(files, tmp / f"b{k}.exr", *extra)
-            except SystemExit as e:  # refused: its one error line
-                reason = str(e).split("error: ", 1)[-1].strip()
-                rows.append(f"| {name} | {label} | {benchdoc.fmt_bytes(budget)} | "
-                            f"{benchdoc.fmt_bytes(nbytes)} | refused: {reason} | | | | |")
-                continue
-            image, meta = read_image(tmp / f"b{k}.exr")
-            rmse = float(np.sqrt(np.mean((image.astype(np.float64) - whole) ** 2))
-                         / np.abs(whole).max())
-            over = peak - base
+        extra = ("--memory-budget", budget, *tiles)
+        label = f"1/{k} of the files" + (f", `{' '.join(map(str, tiles))}`" if tiles else "")
+        _, _, base = run(tiny, tmp / "tiny.exr", *extra)
+        try:
+            wall, _, peak = run(files, tmp / f"b{k}.exr", *extra)
+        except SystemExit as e:  # refused: its one error line
+            reason = str(e).split("error: ", 1)[-1].strip()
             rows.append(f"| {name} | {label} | {benchdoc.fmt_bytes(budget)} | "
-                        f"{benchdoc.fmt_bytes(nbytes)} | {meta['settings']['pieces']} | "
-                        f"{wall:.1f} | {benchdoc.fmt_bytes(peak)} | {benchdoc.fmt_bytes(over)} "
-                        f"({over / budget:.2f} of the budget) | {rmse:.1e} |")
+                        f"{benchdoc.fmt_bytes(nbytes)} | refused: {reason} | | | | |")
             print(rows[-1], flush=True)
+            continue
+        image, meta = read_image(tmp / f"b{k}.exr")
+        rmse = float(np.sqrt(np.mean((image.astype(np.float64) - whole) ** 2))
+                     / np.abs(whole).max())
+        over = peak - base
+        rows.append(f"| {name} | {label} | {benchdoc.fmt_bytes(budget)} | "
+                    f"{benchdoc.fmt_bytes(nbytes)} | {meta['settings']['pieces']} | "
+                    f"{wall:.1f} | {benchdoc.fmt_bytes(peak)} | {benchdoc.fmt_bytes(over)} "
+                    f"({over / budget:.2f} of the budget) | {rmse:.1e} |")
+        print(rows[-1], flush=True)
     return rows
 
 
@@ -166,8 +175,7 @@ def main(argv=None) -> int:
         "peak: the command's peak resident memory; above baseline: the peak less that of the "
         "same budgeted command on a 64-cell dataset (the issue's bound is the budget); "
         "RMSE: against the in-memory image, over its maximum\n\n"
-        "| dataset | budget | budget bytes | files | pieces | command s | peak | above baseline "
-        "| RMSE |\n|---|---|---:|---:|---:|---:|---:|---:|---:|\n" + "\n".join(rows) + "\n")
+        + TABLE_HEAD + "\n".join(rows) + "\n")
     if posters:
         section += (
             f"\nPosters: the Gerris plume (field T, `--max-opacity 1`), PNG; `--tile "

@@ -293,7 +293,7 @@ def ensure_exajet() -> Path:
     print(f"making {BIG_CELLS} (AMR merge of {BIG_RAW.name})", flush=True)
     lower, level, values = amr_from_uniform(
         volume, max_level=make_big.MAX_LEVEL, threshold=make_big.THRESHOLD)
-    make_big.write_exajet(BIG_CELLS, lower, level, {"value": values})
+    make_big.write_exajet(BIG_CELLS, [(lower, level, values)], ["value"])
     return BIG_CELLS
 
 
@@ -315,9 +315,7 @@ def ensure_shell() -> Path:
     if not (SHELL_CELLS.is_file() and SHELL_CELLS.with_name("shell1024.rho.scalars").is_file()):
         make_big = _make_big()
         print(f"making {SHELL_CELLS} (make_big.py --thin-shell)", flush=True)
-        cells = make_big.thin_shell_cells(1024)
-        make_big.write_exajet(SHELL_CELLS, cells.lower_lattice, cells.level,
-                              dict(zip(cells.fields, cells.values)))
+        make_big.write_exajet(SHELL_CELLS, make_big.thin_shell_slabs(1024), ["rho"])
     return SHELL_CELLS
 
 

@@ -3,6 +3,7 @@
     .venv/bin/python workflows/make_big.py [--size 512] [--out bench-data/big512.raw] [--check]
     .venv/bin/python workflows/make_big.py --amrex [--check]   # also bench-data/plt_big512
     .venv/bin/python workflows/make_big.py --thin-shell [--size 1024]   # bench-data/shell1024.cells
+    .venv/bin/python workflows/make_big.py --thin-shell --size 2944     # 204 M cells
 
 The field is a sum of separable terms (Gaussian blobs of widths from 1/4 to 1/100
 of the domain, and a few sinusoids): one big smooth blob where 2x2x2 groups merge
@@ -20,8 +21,10 @@ With --thin-shell it writes instead octree-like leaf cells directly, in ExaJet f
 (bench-data/shellSIZE.cells and shellSIZE.rho.scalars; see `thin_shell_cells`): the
 layout of tree codes and thin refinement (Gerris, RAMSES, ExaJet), where
 refinement is a cell or two thick around a few spherical fronts, with a spherical
-hole.  At --size 1024 it has 20.6 M cells on 4 levels; the cell count scales with
-size**2 (the fronts' area) plus (size / 8)**3 (the coarse grid).
+hole.  At --size 1024 it has 20.6 M cells on 4 levels, at 2944 204 M (in 2.6 min);
+the cell count scales with size**2 (the fronts' area) plus (size / 8)**3 (the
+coarse grid).  It is made and written a slab of coarse cells at a time, so any
+size takes about 1.5 GB of memory.
 """
 
 from __future__ import annotations
@@ -210,70 +213,90 @@ SHELL_HOLE = (0.78, 0.25, 0.30, 0.12)
 SHELL_BAND = 0.9
 
 
-def thin_shell_cells(size: int = 1024):
-    """Octree leaf cells of the thin-shell layout, finest lattice `size` per axis.
+def thin_shell_slabs(size: int = 1024, slab_cells: int = 1 << 21):
+    """Octree leaf cells of the thin-shell layout, finest lattice `size` per axis,
+    a slab of coarsest cells at a time: yields (lower int32 (n, 3), level int8 (n,),
+    rho float32 (n,)) for the descendants of about `slab_cells` coarsest cells, so
+    that any size is made in bounded memory.
 
     Level SHELL_LEVELS - 1 covers the domain (size / 8 cells per axis for 4 levels);
     a cell of width w is split into its 8 children while its centre lies within
     SHELL_BAND * w of a front's sphere, down to level 0, so each level's refinement is
     about one or two cells thick.  Cells whose centre lies in the hole sphere are
-    dropped at every level.  Returns exabricks.schema.Cells with field "rho"
-    (float32), origin 0 and spacing 1 / size.
+    dropped at every level.
     """
-    from exabricks import schema
-
     top = SHELL_LEVELS - 1
     if size % (1 << top):
         raise SystemExit(f"--size must be a multiple of {1 << top} for the thin-shell layout")
     fronts = np.array(SHELL_FRONTS) * size
     hole = np.array(SHELL_HOLE) * size
     n = size >> top
-    grid = np.stack(np.meshgrid(*(np.arange(n, dtype=np.int32),) * 3, indexing="ij"), -1)
-    lower = (grid.reshape(-1, 3)[:, ::-1] << top).copy()  # x fastest
-    out_lower, out_level = [], []
-    for level in range(top, -1, -1):
-        w = 1 << level
-        centre = lower + 0.5 * w
-        lower = lower[np.sum((centre - hole[:3]) ** 2, axis=1) > hole[3] ** 2]
-        centre = lower + 0.5 * w
-        near = np.zeros(len(lower), bool)
-        for cx, cy, cz, r in fronts:
+    octet = np.array([(x, y, z) for z in (0, 1) for y in (0, 1) for x in (0, 1)], np.int32)
+    layers = max(1, slab_cells // (n * n))
+    for z0 in range(0, n, layers):
+        grid = np.stack(np.meshgrid(np.arange(z0, min(n, z0 + layers), dtype=np.int32),
+                                    *(np.arange(n, dtype=np.int32),) * 2, indexing="ij"), -1)
+        lower = (grid.reshape(-1, 3)[:, ::-1] << top).copy()  # x fastest
+        out_lower, out_level = [], []
+        for level in range(top, -1, -1):
+            w = 1 << level
+            centre = lower + 0.5 * w
+            lower = lower[np.sum((centre - hole[:3]) ** 2, axis=1) > hole[3] ** 2]
+            centre = lower + 0.5 * w
+            near = np.zeros(len(lower), bool)
+            for cx, cy, cz, r in fronts:
+                d = np.sqrt(((centre - (cx, cy, cz)) ** 2).sum(axis=1))
+                near |= np.abs(d - r) < SHELL_BAND * w
+            if level == 0:
+                near[:] = False
+            out_lower.append(lower[~near])
+            out_level.append(np.full(int((~near).sum()), level, np.int8))
+            lower = (lower[near][:, None, :] + octet[None] * (w >> 1)).reshape(-1, 3)
+        lower = np.concatenate(out_lower)
+        level = np.concatenate(out_level)
+        centre = lower + 0.5 * np.left_shift(1, level.astype(np.int32))[:, None]
+        rho = 0.05 + 0.03 * np.sin(centre @ np.array([3.0, 5.0, 7.0]) * (2 * np.pi / size))
+        for k, (cx, cy, cz, r) in enumerate(fronts):
             d = np.sqrt(((centre - (cx, cy, cz)) ** 2).sum(axis=1))
-            near |= np.abs(d - r) < SHELL_BAND * w
-        if level == 0:
-            near[:] = False
-        out_lower.append(lower[~near])
-        out_level.append(np.full(int((~near).sum()), level, np.int8))
-        parents = lower[near]
-        half = w >> 1
-        octet = np.array([(x, y, z) for z in (0, 1) for y in (0, 1) for x in (0, 1)],
-                         np.int32) * half
-        lower = (parents[:, None, :] + octet[None]).reshape(-1, 3)
-    lower = np.concatenate(out_lower)
-    level = np.concatenate(out_level)
-    centre = lower + 0.5 * np.left_shift(1, level.astype(np.int32))[:, None]
-    rho = 0.05 + 0.03 * np.sin(centre @ np.array([3.0, 5.0, 7.0]) * (2 * np.pi / size))
-    for k, (cx, cy, cz, r) in enumerate(fronts):
-        d = np.sqrt(((centre - (cx, cy, cz)) ** 2).sum(axis=1))
-        rho += (0.5 + 0.15 * k) * np.exp(-(((d - r) / 1.5) ** 2))
+            rho += (0.5 + 0.15 * k) * np.exp(-(((d - r) / 1.5) ** 2))
+        yield lower.astype(np.int32), level, rho.astype(np.float32)
+
+
+def thin_shell_cells(size: int = 1024):
+    """The thin-shell layout (`thin_shell_slabs`) as one exabricks.schema.Cells with
+    field "rho" (float32), origin 0 and spacing 1 / size."""
+    from exabricks import schema
+
+    lower, level, rho = (np.concatenate(a) for a in zip(*thin_shell_slabs(size)))
     return schema.Cells(
         fields=("rho",), origin_world=np.zeros(3), spacing_world=np.full(3, 1.0 / size),
-        lower_lattice=lower.astype(np.int32), level=level,
-        values=rho.astype(np.float32)[None],
+        lower_lattice=lower, level=level, values=rho[None],
     )
 
 
-def write_exajet(path: Path, lower, level, fields: dict) -> None:
+def write_exajet(path: Path, slabs, names) -> int:
     """Leaf cells as ExaJet files: `path` (int32 x, y, z, level per cell) and one
-    STEM.NAME.scalars float32 file per entry NAME: values of `fields` beside it."""
-    raw = np.empty((len(level), 4), "<i4")
-    raw[:, :3] = lower
-    raw[:, 3] = level
+    STEM.NAME.scalars float32 file per name of `names` beside it, written a slab at a
+    time from `slabs`, an iterable of (lower (n, 3), level (n,), *values (n,) in the
+    order of `names`).  Returns the number of cells."""
     path.parent.mkdir(parents=True, exist_ok=True)
-    raw.tofile(path)
     stem = path.name[: -len(".cells")]
-    for name, values in fields.items():
-        np.asarray(values).astype("<f4").tofile(path.with_name(f"{stem}.{name}.scalars"))
+    files = [open(path, "wb")] + [open(path.with_name(f"{stem}.{n}.scalars"), "wb")
+                                  for n in names]
+    count = 0
+    try:
+        for lower, level, *values in slabs:
+            raw = np.empty((len(level), 4), "<i4")
+            raw[:, :3] = lower
+            raw[:, 3] = level
+            raw.tofile(files[0])
+            for f, v in zip(files[1:], values):
+                np.asarray(v).astype("<f4").tofile(f)
+            count += len(level)
+    finally:
+        for f in files:
+            f.close()
+    return count
 
 
 def main(argv=None) -> int:
@@ -297,10 +320,15 @@ def main(argv=None) -> int:
         size = args.size or 1024
         out = args.out or ROOT / "bench-data" / f"shell{size}.cells"
         t = time.perf_counter()
-        cells = thin_shell_cells(size)
-        write_exajet(out, cells.lower_lattice, cells.level, dict(zip(cells.fields, cells.values)))
-        per_level = np.bincount(cells.level)
-        print(f"wrote {out}: {cells.n_cells:,} cells in {time.perf_counter() - t:.1f} s; per "
+        per_level = np.zeros(SHELL_LEVELS, np.int64)
+
+        def counted(slabs):
+            for slab in slabs:
+                per_level[:] += np.bincount(slab[1], minlength=SHELL_LEVELS)
+                yield slab
+
+        count = write_exajet(out, counted(thin_shell_slabs(size)), ["rho"])
+        print(f"wrote {out}: {count:,} cells in {time.perf_counter() - t:.1f} s; per "
               "level " + ", ".join(f"{l}: {c:,}" for l, c in enumerate(per_level)),
               file=sys.stderr, flush=True)
         print(f"exabricks ingest {out} -o {out.with_suffix('.npz')}", flush=True)

@@ -84,9 +84,11 @@ def byte_grid(bricks: schema.Bricks, regions: schema.Regions, max_bytes: int | N
     cells = GRID
     if max_bytes is not None:
         cells = int(min(GRID, max(64, (max_bytes / 24) ** (1 / 3) - 1)))
-    if regions.n_regions:
-        origin = np.floor(regions.lower_lattice.min(axis=0)).astype(np.float64)
-        top = np.ceil(regions.upper_lattice.max(axis=0)).astype(np.float64)
+    if regions.n_regions:  # in steps: the bounds may be mapped
+        origin = np.floor(schema.reduce_chunks(regions.lower_lattice, lambda a: a.min(axis=0),
+                                               np.minimum)).astype(np.float64)
+        top = np.ceil(schema.reduce_chunks(regions.upper_lattice, lambda a: a.max(axis=0),
+                                           np.maximum)).astype(np.float64)
     else:
         origin, top = np.zeros(3), np.ones(3)
     cell = float(2.0 ** max(0, int(np.ceil(np.log2(max(float((top - origin).max()), 1.0) / cells)))))
@@ -145,18 +147,21 @@ class _Uncuttable(ExabricksError):
 def budget_partition(bricks: schema.Bricks, regions: schema.Regions, max_bytes: int, *,
                      fields=None, halo: float = 0.0, crop: bool = True,
                      where=("the bricks", "the regions"),
-                     grid_bytes: int | None = None) -> KdPartition:
+                     grid_bytes: int | None = None, blocks=None) -> KdPartition:
     """Pieces each of whose `piece_data` (of `fields`, with `halo` and `crop`)
     holds at most `max_bytes` on the host and the device together
     (`piece_bytes`): a box is cut in halves of its bytes, as `kd_partition`
     cuts, until its exact piece fits. ExabricksError when a piece that fits
     would be smaller than a cell of the byte grid (at most `grid_bytes`),
-    naming the bytes needed."""
+    naming the bytes needed. `blocks`: `region_blocks` of the regions (made here
+    when not given)."""
+    blocks = region_blocks(regions) if blocks is None else blocks
+
     def split(lower, upper, _, block):
         if max(block.shape) > 1 and block.sum() > max_bytes:
             # the grid's estimate undercounts a piece: cut at once
             return 0.5, None, None
-        plan = _piece_plan(bricks, regions, lower, upper, halo, crop, where)
+        plan = _piece_plan(bricks, regions, lower, upper, halo, crop, where, blocks)
         need = piece_bytes(bricks, regions, plan, fields)
         for whole in (bricks, regions):  # mapped inputs: the plan's pages go back
             schema.release(whole)
@@ -250,7 +255,7 @@ def piece_options(bricks: schema.Bricks, scene) -> dict:
 
 def piece_data(bricks: schema.Bricks, regions: schema.Regions, lower, upper, *,
                halo: float = 0.0, crop: bool = True, fields=None,
-               where=("the bricks", "the regions")):
+               where=("the bricks", "the regions"), blocks=None):
     """(bricks, regions, bvh) of the piece [lower, upper) (module docstring).
 
     `halo` (lattice units) grows the piece for lookups outside it (central
@@ -260,7 +265,8 @@ def piece_data(bricks: schema.Bricks, regions: schema.Regions, lower, upper, *,
     support reaches half its width beyond it, so no sample of the piece loses a
     term), and dropped from the lists where nothing of it is left (its terms
     there are exactly zero). `crop` False keeps the bricks whole. `fields`:
-    the names of the fields to keep (default all).
+    the names of the fields to keep (default all). `blocks`: `region_blocks` of
+    the regions, which finds the piece's regions without a pass over them all.
 
     The inputs may be mapped and unvalidated (schema.load(mapped=True)): the
     indices used are checked on the way (errors name `where`, the two files),
@@ -268,7 +274,7 @@ def piece_data(bricks: schema.Bricks, regions: schema.Regions, lower, upper, *,
     from .bvh import build_bvh
 
     keep, used, first, new_dims, boxes = _piece_plan(bricks, regions, lower, upper, halo, crop,
-                                                     where)
+                                                     where, blocks)
     picked = _field_rows(bricks, fields)
     start, ids = regions.brick_start, regions.brick_ids
     alive = (new_dims > 0).all(axis=1)
@@ -321,14 +327,14 @@ def _field_rows(bricks: schema.Bricks, fields) -> list[int]:
     return [bricks.field_index(f) for f in dict.fromkeys(fields)]
 
 
-def _piece_plan(bricks, regions, lower, upper, halo, crop, where):
+def _piece_plan(bricks, regions, lower, upper, halo, crop, where, blocks=None):
     """(keep, used, first, new_dims, boxes): the regions meeting the piece grown
-    by `halo`, the bricks they list, each one's cells kept (`_crop_boxes`), and
-    their lower_lattice, level, dims and offset; every index followed is
-    checked (piece_data)."""
+    by `halo` (found through `blocks`, `region_blocks`, when given), the bricks
+    they list, each one's cells kept (`_crop_boxes`), and their lower_lattice,
+    level, dims and offset; every index followed is checked (piece_data)."""
     lo = np.asarray(lower, np.float64) - halo
     hi = np.asarray(upper, np.float64) + halo
-    keep = _meeting(regions, lo, hi)
+    keep = _meeting(regions, lo, hi, blocks)
     start, ids = regions.brick_start, regions.brick_ids
     used_mask = np.zeros(bricks.n_bricks, np.bool_)
     for part in _steps(keep, start, ids):
@@ -376,14 +382,48 @@ def _take(index: np.ndarray, *arrays) -> list[np.ndarray]:
     return out
 
 
-def _meeting(regions: schema.Regions, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
-    """Ids of the regions whose boxes overlap the open box (lo, hi), found in steps
-    (the pages of mapped boxes handed back after each)."""
+# Regions per block of `region_blocks`.
+BLOCK = 1 << 10
+
+
+def region_blocks(regions: schema.Regions) -> tuple[np.ndarray, np.ndarray]:
+    """The bounds of every BLOCK consecutive regions, (ceil(R / BLOCK), 3) each,
+    gathered in steps: a spatial index for `_meeting`, tight because the builder
+    stores regions in its k-d tree's order."""
+    n = regions.n_regions
+    lo = np.empty((-(-n // BLOCK), 3), regions.lower_lattice.dtype)
+    hi = np.empty_like(lo)
+    for s in range(0, n, STEP):  # STEP is a multiple of BLOCK
+        for bounds, out, reduce in ((regions.lower_lattice, lo, np.min),
+                                    (regions.upper_lattice, hi, np.max)):
+            part = np.asarray(bounds[s:s + STEP])
+            whole = len(part) // BLOCK * BLOCK
+            b = s // BLOCK
+            out[b:b + whole // BLOCK] = reduce(part[:whole].reshape(-1, BLOCK, 3), axis=1)
+            if whole < len(part):
+                out[b + whole // BLOCK] = reduce(part[whole:], axis=0)
+        schema.release_arrays(regions.lower_lattice, regions.upper_lattice)
+    return lo, hi
+
+
+def _meeting(regions: schema.Regions, lo: np.ndarray, hi: np.ndarray, blocks=None) -> np.ndarray:
+    """Ids of the regions whose boxes overlap the open box (lo, hi), ascending: of
+    every region, or with `blocks` (`region_blocks`) of the blocks that meet it;
+    found in steps (the pages of mapped boxes handed back after each)."""
+    if blocks is None:
+        spans = [(0, regions.n_regions)]
+    else:
+        meet = np.flatnonzero(np.all(blocks[0] < hi, axis=1) & np.all(blocks[1] > lo, axis=1))
+        breaks = np.flatnonzero(np.diff(meet) > 1) + 1
+        spans = [(int(run[0]) * BLOCK, min(regions.n_regions, (int(run[-1]) + 1) * BLOCK))
+                 for run in np.split(meet, breaks) if run.size]
     found = []
-    for s in range(0, regions.n_regions, STEP):
-        low, up = regions.lower_lattice[s:s + STEP], regions.upper_lattice[s:s + STEP]
-        found.append(s + np.flatnonzero(np.all(low < hi, axis=1) & np.all(up > lo, axis=1)))
-        schema.release(regions)
+    for begin, end in spans:
+        for s in range(begin, end, STEP):
+            e = min(end, s + STEP)
+            low, up = regions.lower_lattice[s:e], regions.upper_lattice[s:e]
+            found.append(s + np.flatnonzero(np.all(low < hi, axis=1) & np.all(up > lo, axis=1)))
+            schema.release_arrays(regions.lower_lattice, regions.upper_lattice)
     return np.concatenate(found) if found else np.zeros(0, np.int64)
 
 

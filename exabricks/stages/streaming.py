@@ -30,7 +30,8 @@ import numpy as np
 from .. import schema
 from ..errors import ExabricksError
 from .device_data import DatasetScale
-from .partition import budget_partition, eye_lattice, mib, piece_data, piece_options
+from .partition import (budget_partition, eye_lattice, mib, piece_data, piece_options,
+                        region_blocks)
 from .render import Renderer, RenderResult, _over_background
 
 # Units of a --memory-budget: binary for K, M, G, T and KiB..TiB (as SLURM's --mem,
@@ -112,6 +113,7 @@ class Budgeted:
         schema.release(bricks)
         self.fields = scene.fields()
         self.scale = DatasetScale.of(bricks, self.fields)
+        self.blocks = region_blocks(regions)
         self._current = (None, None)
         self._plan(scene)
 
@@ -127,7 +129,7 @@ class Budgeted:
         self.options = options
         self.partition = budget_partition(self.bricks, self.regions, room, fields=self.fields,
                                           where=self.where, grid_bytes=self.budget // 4,
-                                          **options)
+                                          blocks=self.blocks, **options)
         self.n_pieces = self.partition.n_pieces
         self._current = (None, None)
         if self.n_pieces > 1:
@@ -165,7 +167,7 @@ class Budgeted:
         schema.trim_heap()
         box = (self.partition.lower[index], self.partition.upper[index])
         data = piece_data(self.bricks, self.regions, *box, fields=self.fields, where=self.where,
-                          **self.options)
+                          blocks=self.blocks, **self.options)
         for whole in (self.bricks, self.regions):
             schema.release(whole)
         renderer = Renderer(*data, fields=self.fields, device=self.device,
