@@ -202,6 +202,30 @@ def test_bad_input_raises():
         build_bricks(make([(0, 0, 0), (1, 0, 0), (0, 0, 0)], [0, 0, 0]))
 
 
+@pytest.mark.parametrize("far", [40, 1 << 29])
+def test_require_disjoint_names_the_overlapping_bricks(far):
+    """Both ways of the check (one Morton-and-brick key a cell; per-cell corners
+    when the lattice is too wide for one key, `far`) name the same two bricks."""
+    from exabricks.stages.brick import require_disjoint
+
+    def bricks(lower, level, dims):
+        dims = np.array(dims, np.int32)
+        n = dims.prod(axis=1)
+        return schema.Bricks(
+            fields=("v",), origin_world=np.zeros(3), spacing_world=np.ones(3),
+            lower_lattice=np.array(lower, np.int32), level=np.array(level, np.int8), dims=dims,
+            offset=np.concatenate([[0], np.cumsum(n)[:-1]]).astype(np.int64),
+            values=np.zeros((1, int(n.sum())), np.float32))
+
+    # brick 2 (level 1 at x = 8..12) covers a cell of brick 0 (level 0, x = 0..11)
+    lower = [(0, 0, 0), (16, 0, 0), (8, 0, 0), (far, far, far)]
+    level, dims = [0, 0, 1, 0], [(12, 1, 1), (2, 2, 2), (2, 1, 1), (1, 1, 1)]
+    with pytest.raises(ExabricksError, match=r"brick 2 at \[8, 0, 0\] and brick 0 at \[0, 0, 0\]"):
+        require_disjoint(bricks(lower, level, dims))
+    lower[2] = (24, 0, 0)
+    require_disjoint(bricks(lower, level, dims))
+
+
 # ---------------------------------------------------------------------------
 # (2) properties on random valid AMR layouts
 

@@ -196,11 +196,9 @@ def partition(sup_lo, sup_hi, *, threads: int | None = None, level=None, cells=N
         parts = [run(t) for t in tasks]
     if len(parts) == 1:
         return tuple(parts[0])
-    for p in parts:  # each part's lists, shifted to follow the previous parts'
-        p[2] = p[2][1:]
     shift = 0
-    for p in parts:
-        p[2] += shift
+    for p in parts:  # each part's list ends, shifted to follow the previous parts' lists
+        p[2] = p[2][1:] + shift
         shift = int(p[2][-1]) if p[2].size else shift
     start = _concatenate(parts, 2, head=np.zeros(1, np.int64))
     return _concatenate(parts, 0), _concatenate(parts, 1), start, _concatenate(parts, 3)
