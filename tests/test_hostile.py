@@ -340,6 +340,31 @@ def test_overlapping_bricks_are_refused_by_regions(trio, tmp_path):
     assert_one_error_line(run("regions", paths[0], "-o", tmp_path / "r.npz"), "bricks overlap")
 
 
+@pytest.mark.parametrize("stage", ["brick", "regions"])
+def test_a_damaged_member_is_caught_by_the_mapped_checked_load(tmp_path, stage):
+    """The builders map their input's large members (schema.load(mapped=True,
+    checked=True)): a flipped byte in one is still caught by its CRC."""
+    import zipfile
+
+    from exabricks.stages.brick import build_bricks
+
+    g = np.stack(np.meshgrid(*[np.arange(72)] * 3, indexing="ij"), -1).reshape(-1, 3)
+    cells = schema.Cells(fields=("v",), origin_world=np.zeros(3), spacing_world=np.ones(3),
+                         lower_lattice=g.astype(np.int32), level=np.zeros(len(g), np.int8),
+                         values=np.linspace(0, 1, len(g), dtype=np.float32)[None])
+    path = tmp_path / "in.npz"
+    schema.save(path, cells if stage == "brick" else build_bricks(cells))
+    with zipfile.ZipFile(path) as z:
+        info = z.getinfo("values.npy")
+    assert info.file_size >= schema.NpzArchive.DIRECT_BYTES  # mapped, not read whole
+    data = bytearray(path.read_bytes())
+    data[info.header_offset + info.file_size // 2] ^= 0xFF
+    path.write_bytes(bytes(data))
+    out = tmp_path / "out.npz"
+    assert_one_error_line(run(stage, path, "-o", out), "'values'", "bad CRC")
+    assert not out.exists()
+
+
 @pytest.mark.parametrize("content", [b"PK", b"PK\x03\x04", b"hello\n", b"\x93NUMPY"])
 def test_files_that_are_not_npz_get_a_plain_message(content, tmp_path):
     path = tmp_path / "x.npz"

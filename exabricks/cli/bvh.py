@@ -58,11 +58,9 @@ def check_regions(regions: schema.Regions, path) -> None:
             f"{path}: holds {regions.n_regions} regions but its meta records "
             f"{upstream.get('n_regions')}; the file is inconsistent"
         )
+    # negative ids are refused by the load already
     ids = regions.brick_ids
-    if not ids.size:
-        return
-    lo, hi = schema.reduce_chunks(ids, lambda a: (int(a.min()), int(a.max())),
-                                  lambda x, y: (min(x[0], y[0]), max(x[1], y[1])))
-    if lo < 0 or hi >= n_bricks:
-        raise ExabricksError(f"{path}: brick ids range over {lo}..{hi}, outside the "
-                             f"{n_bricks} bricks its meta records")
+    top = schema.reduce_chunks(ids, lambda a: int(a.max()) if a.size else -1, max)
+    if top >= n_bricks:
+        raise ExabricksError(f"{path}: brick ids reach {top}, beyond the {n_bricks} bricks "
+                             "its meta records")
