@@ -7,7 +7,7 @@ import click
 from .. import schema
 from ..output import check_output
 from ..errors import ExabricksError
-from .options import input_path, output_option
+from .options import input_path, output_option, piece_option
 
 
 @click.command()
@@ -15,24 +15,27 @@ from .options import input_path, output_option
 @output_option
 @click.option("--max-brick-width", type=click.IntRange(min=1), default=32, show_default=True,
               help="Most cells per axis of a brick (smaller bricks skip space more finely).")
-def brick(cells_path, output, max_brick_width):
+@piece_option
+def brick(cells_path, output, max_brick_width, piece):
     """Group the leaf cells of CELLS into bricks of same-level cells (paper §3.1).
 
     A brick is a full box of cells of one level, at most --max-brick-width cells
     wide per axis; the bricks file holds every cell's values, brick by brick.
     """
     from ..stages.brick import build_bricks  # numba import only when the command runs
+    from ..stages.pieces import WHOLE
 
     check_output(output, [cells_path])
     schema.prefetch_sha256([cells_path])
     cells = schema.load(cells_path, "cells", mapped=True, checked=True)
     try:
-        bricks = build_bricks(cells, max_brick_width=max_brick_width)
+        bricks = build_bricks(cells, max_brick_width=max_brick_width, piece=piece or WHOLE)
     except ExabricksError as e:
         raise ExabricksError(f"{cells_path}: {e}") from e
     meta = schema.make_meta(
         inputs=[cells_path],
         parameters={"max_brick_width": max_brick_width},
         statistics=bricks.meta["statistics"],
+        **{k: v for k, v in bricks.meta.items() if k == "piece"},
     )
     schema.save(output, bricks.replace(meta=meta), inputs=[cells_path])

@@ -7,7 +7,7 @@ import click
 from .. import schema
 from ..output import check_output
 from ..errors import ExabricksError
-from .options import input_path, output_option
+from .options import input_path, output_option, piece_option
 
 
 @click.command()
@@ -17,16 +17,18 @@ from .options import input_path, output_option
               help="Most regions per BVH leaf.")
 @click.option("--bins", default=16, show_default=True, type=click.IntRange(min=2),
               help="SAH bins per axis.")
-def bvh(regions_path, output, leaf_size, bins):
+@piece_option
+def bvh(regions_path, output, leaf_size, bins, piece):
     """Build a bounding-volume hierarchy with per-node value ranges over the regions."""
     from ..stages.bvh import build_bvh
+    from ..stages.pieces import WHOLE
 
     check_output(output, [regions_path])
     schema.prefetch_sha256([regions_path])
     regions = schema.load(regions_path, "regions", mapped=True, checked=True)
     check_regions(regions, regions_path)
     try:
-        result = build_bvh(regions, leaf_size=leaf_size, bins=bins)
+        result = build_bvh(regions, leaf_size=leaf_size, bins=bins, piece=piece or WHOLE)
     except ExabricksError as e:
         raise ExabricksError(f"{regions_path}: {e}") from e
     upstream = regions.meta.get("consistency") or {}
@@ -40,6 +42,7 @@ def bvh(regions_path, output, leaf_size, bins):
             # The bricks file the regions were built from (sha256 chain).
             "bricks_inputs": regions.meta.get("inputs", []),
         },
+        **{k: v for k, v in result.meta.items() if k == "piece"},
     )
     schema.save(output, result.replace(meta=meta), inputs=[regions_path])
 

@@ -18,6 +18,7 @@ COMMANDS = (
     "brick",
     "regions",
     "bvh",
+    "join",
     "render",
     "probe",
     "compare",

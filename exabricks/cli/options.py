@@ -68,3 +68,22 @@ def numbers(counts=None, low=0.0, high=1.0):
             raise click.BadParameter(f"values must lie in [{low:g}, {high:g}], got {text}")
         return values
     return parse
+
+
+def _piece(ctx, param, text):
+    if text is None:
+        return None
+    from ..stages.pieces import Piece
+
+    try:
+        return Piece.parse(text)
+    except ExabricksError as e:
+        raise click.BadParameter(str(e)) from None
+
+
+piece_option = click.option(
+    "--piece", "piece", default=None, metavar="K/N", callback=_piece,
+    help="Build only piece K of N (from 0), e.g. a SLURM array task's "
+    "($SLURM_ARRAY_TASK_ID/$SLURM_ARRAY_TASK_COUNT); `exabricks join` puts the N pieces "
+    "together into what one process builds.",
+)

@@ -7,7 +7,7 @@ import click
 from .. import schema
 from ..errors import ExabricksError
 from ..output import check_output
-from .options import input_path, output_option
+from .options import input_path, output_option, piece_option
 
 
 @click.command()
@@ -25,13 +25,16 @@ from .options import input_path, output_option
 @click.option("--max-brick-cells", type=int, default=None, metavar="N",
               help="Merging: a piece with a brick of more cells is always split "
               "[default: 512].")
-def regions(bricks_path, output, exact, visit_cost, brick_cost, max_merged, max_brick_cells):
+@piece_option
+def regions(bricks_path, output, exact, visit_cost, brick_cost, max_merged, max_brick_cells,
+            piece):
     """Partition the brick supports into Active Brick Regions.
 
     By default pieces of the partition whose rays would cost more split than
     whole are kept whole, with the union of their bricks (docs/design.md
     "Merged regions"): far fewer, larger regions on octree-like data.
     """
+    from ..stages.pieces import WHOLE
     from ..stages.regions import EXACT, Merge, build_regions
 
     check_output(output, [bricks_path])
@@ -54,7 +57,7 @@ def regions(bricks_path, output, exact, visit_cost, brick_cost, max_merged, max_
         raise click.UsageError(str(e)) from None
     bricks = schema.load(bricks_path, "bricks", mapped=True, checked=True)
     try:
-        result = build_regions(bricks, merge)
+        result = build_regions(bricks, merge, piece or WHOLE)
     except ExabricksError as e:
         raise ExabricksError(f"{bricks_path}: {e}") from e
     stats = result.meta["statistics"]
@@ -64,5 +67,6 @@ def regions(bricks_path, output, exact, visit_cost, brick_cost, max_merged, max_
         statistics=stats,
         # Lets bvh/render/probe check that bricks, regions and BVH belong together.
         consistency={"n_bricks": bricks.n_bricks, "n_regions": result.n_regions},
+        **{k: v for k, v in result.meta.items() if k == "piece"},
     )
     schema.save(output, result.replace(meta=meta), inputs=[bricks_path])

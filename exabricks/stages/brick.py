@@ -27,6 +27,7 @@ from .. import schema
 from ..constants import LATTICE_DTYPE, LEVEL_DTYPE, OFFSET_DTYPE, VALUE_DTYPE
 from ..errors import ExabricksError
 from .ingest import _neighbour_overlap_keys, _spread3, find_overlap
+from .pieces import WHOLE, Piece, share_meta, task_range
 
 # Columns of a cell row in `rec` and fields of a node row.
 _LEVEL, _ID = 3, 4
@@ -38,6 +39,8 @@ _LEAF, _SPLIT, _OVERLAP = 0, 1, -1
 _PARALLEL_MIN_CELLS = 200_000
 # Subtrees per thread for the depth-first parallel phase (more: better balance).
 _TASKS_PER_THREAD = 16
+# Subtrees per piece when a build is cut into pieces (exabricks.stages.pieces).
+_TASKS_PER_PIECE = 16
 
 
 @numba.njit(cache=True, inline="always")
@@ -338,13 +341,17 @@ def _gather(values, source):
     return out
 
 
-def build_bricks(cells: schema.Cells, *, max_brick_width: int = 32) -> schema.Bricks:
+def build_bricks(cells: schema.Cells, *, max_brick_width: int = 32,
+                 piece: Piece = WHOLE) -> schema.Bricks:
     """Bricks of same-level cells that completely fill their box (paper §3.1).
 
     cells: schema.Cells with N >= 1 non-overlapping cells.
     max_brick_width: most cells per axis of a brick (the paper uses 32).
+    piece: build only this share (exabricks.stages.pieces): the bricks of one
+        run of the partitioned cells, offsets from 0, values of those cells only;
+        meta["piece"]["cells"] is the run, [a, b) of N.
     Returns schema.Bricks in k-d leaf order, with the same fields and world
-    frame; its values hold every cell's values once (V == N).  meta holds only
+    frame; its values hold every cell's values once (V == N).  meta holds
     "statistics" (see `statistics`), for the command to merge into its meta.
     Raises ExabricksError for no cells, a width below 1, or overlapping cells.
     """
@@ -360,9 +367,20 @@ def build_bricks(cells: schema.Cells, *, max_brick_width: int = 32) -> schema.Br
     schema.release_arrays(cells.lower_lattice, cells.level)  # when mapped: rec holds them now
     brick_end = np.full(n, -1, np.int32)
     width = np.int64(max_brick_width)
-    if threads > 1 and n >= _PARALLEL_MIN_CELLS:
+    a, b = 0, n  # the run of cells this share holds
+    if not piece.whole or (threads > 1 and n >= _PARALLEL_MIN_CELLS):
         # Split the top of the tree level by level, then build the subtrees in parallel.
-        pending, s, e = _build_top(rec, root, width, brick_end, threads * _TASKS_PER_THREAD)
+        # Pieces cut the same top whatever their thread counts (the bricks do not
+        # depend on where the top ends: a node's split depends on its cells alone).
+        target = threads * _TASKS_PER_THREAD if piece.whole else _TASKS_PER_PIECE * piece.count
+        pending, s, e = _build_top(rec, root, width, brick_end, target)
+        if not piece.whole and s < 0:
+            # Tasks are in cell order: task t owns the cells from its start to the
+            # next task's (with the bricks the top finished in between).
+            bounds = np.concatenate([[0], pending[1:, _START], [n]])
+            t0, t1 = task_range(np.diff(bounds), piece)
+            a, b = int(bounds[t0]), int(bounds[t1])
+            pending = pending[t0:t1]
         if s < 0 and pending.shape[0]:
             # Largest subtrees first, one at a time to whichever thread is free.
             tasks = np.ascontiguousarray(pending[np.argsort(pending[:, _START] - pending[:, _END],
@@ -377,29 +395,30 @@ def build_bricks(cells: schema.Cells, *, max_brick_width: int = 32) -> schema.Br
     if s >= 0:
         raise ExabricksError(_overlap_message(rec[s:e]))
 
-    starts = np.flatnonzero(brick_end >= 0)
-    ends = brick_end[starts].astype(np.int64)
-    b = starts.shape[0]
-    lower = np.empty((b, 3), LATTICE_DTYPE)
-    level = np.empty(b, LEVEL_DTYPE)
-    dims = np.empty((b, 3), LATTICE_DTYPE)
-    source = np.full(n, -1, np.int32)
-    clash = np.full((b, 2), -1, np.int32)
+    starts = np.flatnonzero(brick_end[a:b] >= 0)
+    ends = brick_end[a:b][starts].astype(np.int64) - a
+    nb = starts.shape[0]
+    lower = np.empty((nb, 3), LATTICE_DTYPE)
+    level = np.empty(nb, LEVEL_DTYPE)
+    dims = np.empty((nb, 3), LATTICE_DTYPE)
+    source = np.full(b - a, -1, np.int32)
+    clash = np.full((nb, 2), -1, np.int32)
     # Checked at ingest too, but a cells file can be edited after it.
-    _place(rec, starts.astype(np.int64), ends, lower, level, dims, source, clash)
+    _place(rec[a:b], starts.astype(np.int64), ends, lower, level, dims, source, clash)
     del rec, brick_end
     schema.trim_heap()
     bad = np.flatnonzero(clash[:, 0] >= 0)
     if bad.size:
-        a, c = (int(i) for i in clash[bad[0]])
+        i, j = (int(k) for k in clash[bad[0]])
         lo, lv = cells.lower_lattice, cells.level
-        raise ExabricksError(f"cells overlap: cell {c} at {lo[c].tolist()} level {int(lv[c])} and "
-                             f"cell {a} at {lo[a].tolist()} level {int(lv[a])}")
+        raise ExabricksError(f"cells overlap: cell {j} at {lo[j].tolist()} level {int(lv[j])} and "
+                             f"cell {i} at {lo[i].tolist()} level {int(lv[i])}")
     values = _gather(np.ascontiguousarray(cells.values, dtype=VALUE_DTYPE), source)
     schema.release_arrays(cells.values)
     return schema.Bricks(
         fields=cells.fields, origin_world=cells.origin_world, spacing_world=cells.spacing_world,
-        meta={"statistics": statistics(level, dims)},
+        meta={"statistics": statistics(level, dims),
+              **share_meta(piece, cells=[a, b], n_cells=n)},
         lower_lattice=lower, level=level, dims=dims,
         # A full brick holds exactly its run of cells, so its offset is the run's start.
         offset=starts.astype(OFFSET_DTYPE), values=values,

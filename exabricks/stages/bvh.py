@@ -20,9 +20,11 @@ import numpy as np
 from .. import schema
 from ..constants import INDEX_DTYPE
 from ..errors import ExabricksError
+from .pieces import WHOLE, Piece, share_meta, task_range
 
 
-def build_bvh(regions: schema.Regions, *, leaf_size: int = 4, bins: int = 16) -> schema.Bvh:
+def build_bvh(regions: schema.Regions, *, leaf_size: int = 4, bins: int = 16,
+              piece: Piece = WHOLE) -> schema.Bvh:
     """Binned-SAH BVH over `regions`; statistics in meta["statistics"].
 
     leaf_size: most regions per leaf (a node with more is always split).
@@ -31,10 +33,14 @@ def build_bvh(regions: schema.Regions, *, leaf_size: int = 4, bins: int = 16) ->
     bounds; value_range (M, F, 2) float32 is the min of the regions' minima and
     the max of their maxima per field (NaN where no region has a number);
     finest_level (M,) int8 is the finest level over the node's regions.
+    piece: build only this share (exabricks.stages.pieces): a BVH over every
+    region whose subtrees of other pieces are single leaves; meta["piece"] says
+    which subtrees are its own.
     """
     lo = np.ascontiguousarray(regions.lower_lattice)
     hi = np.ascontiguousarray(regions.upper_lattice)
-    first, count, order = build_tree(lo, hi, leaf_size=leaf_size, bins=bins, item="region")
+    first, count, order, share = build_tree(lo, hi, leaf_size=leaf_size, bins=bins,
+                                            item="region", piece=piece)
     node_lo, node_hi, vr, finest = _refit(
         first, count, order, lo, hi, np.ascontiguousarray(regions.value_range), regions.finest_level
     )
@@ -50,17 +56,19 @@ def build_bvh(regions: schema.Regions, *, leaf_size: int = 4, bins: int = 16) ->
         value_range=vr,
         finest_level=finest,
     )
-    return bvh.replace(meta={"statistics": bvh_statistics(bvh)})
+    return bvh.replace(meta={"statistics": bvh_statistics(bvh), **share_meta(piece, **share)})
 
 
 def build_tree(lower: np.ndarray, upper: np.ndarray, *, leaf_size: int = 4, bins: int = 16,
-               item: str = "box") -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+               item: str = "box", piece: Piece = WHOLE
+               ) -> tuple[np.ndarray, np.ndarray, np.ndarray, dict]:
     """Binned-SAH tree over boxes (the layout of schema.Bvh, without per-node data).
 
     lower, upper: float32 (N, 3) box bounds, finite and with volume; `item`
     names a box in error messages. Returns first, count (int64 (M,): an inner
     node has count 0 and its children at first, first + 1; a leaf lists
-    `count` boxes from order[first] on) and order (int64 (N,)).
+    `count` boxes from order[first] on), order (int64 (N,)) and, for a
+    `piece`, where its share lies (`_build`).
     """
     if leaf_size < 1:
         raise ExabricksError(f"leaf size must be at least 1, got {leaf_size}")
@@ -77,7 +85,7 @@ def build_tree(lower: np.ndarray, upper: np.ndarray, *, leaf_size: int = 4, bins
         raise ExabricksError(
             f"{item} {r} is empty ({lo[r].tolist()} .. {hi[r].tolist()}); {item}s must have volume"
         )
-    return _build(lo, hi, int(leaf_size), int(bins), numba.get_num_threads())
+    return _build(lo, hi, int(leaf_size), int(bins), numba.get_num_threads(), piece)
 
 
 def tree_bounds(first, count, order, lower, upper) -> tuple[np.ndarray, np.ndarray]:
@@ -133,7 +141,7 @@ def _half_area(lo0, lo1, lo2, hi0, hi1, hi2):
     return e0 * e1 + e1 * e2 + e2 * e0
 
 
-def _build(lo, hi, leaf_size, bins, threads):
+def _build(lo, hi, leaf_size, bins, threads, piece=WHOLE):
     """Binned SAH over box centroids, top down; subtrees on threads.
 
     lo, hi: float32 (R, 3) box bounds (regions, or brick supports).  Returns first, count (int64 (M,))
@@ -143,6 +151,13 @@ def _build(lo, hi, leaf_size, bins, threads):
     appended in subtree order, so the result does not depend on the number of
     threads.  Children are consecutive pairs after their parent, so a parent
     always has a smaller index than its children.
+
+    piece (exabricks.stages.pieces): build only a run of the subtrees; the others
+    stay leaves listing all their boxes (in the top's order), so the share is
+    still a tree over every box.  Then also returns where the share lies:
+    {"top": top node count, "subtrees": [[node, start, end], ...] (all of them),
+    "own": [t0, t1] (the share's run), "blocks": node count of each own subtree
+    below its root, whose nodes follow the top in subtree order}; else {}.
     """
     n = lo.shape[0]
     # Centroids and boxes are kept in the current order of `order` and swapped
@@ -168,6 +183,12 @@ def _build(lo, hi, leaf_size, bins, threads):
         first[node], count[node] = left, 0
         queue += [(left, s, mid), (left + 1, mid, e)]
     subtrees += queue
+    t0, t1 = task_range([e - s for _, s, e in subtrees], piece)
+    for node, s, e in subtrees[:t0] + subtrees[t1:]:
+        first[node], count[node] = s, e - s
+    share = {} if piece.whole else {"top": len(first), "subtrees": [list(t) for t in subtrees],
+                                    "own": [t0, t1]}
+    subtrees = subtrees[t0:t1]
 
     def run(task):
         return _build_subtree(cen, lo, hi, order, task[1], task[2], leaf_size, bins)
@@ -192,7 +213,9 @@ def _build(lo, hi, leaf_size, bins, threads):
         blocks_first.append(np.where(c == 0, base + f - 1, f))
         blocks_count.append(c)
         base += m - 1
-    return np.concatenate(blocks_first), np.concatenate(blocks_count), order
+    if share:
+        share["blocks"] = [int(m) - 1 for _, _, m in parts]
+    return np.concatenate(blocks_first), np.concatenate(blocks_count), order, share
 
 
 @numba.njit(cache=True, nogil=True)

@@ -59,7 +59,7 @@ def build_brick_tree(bricks: schema.Bricks, *, leaf_size: int = LEAF_SIZE) -> Br
     """The tree over `bricks`' supports (see BrickTree); ExabricksError if there are no
     bricks or the tree is deeper than the kernel's stack."""
     lo, hi = support_boxes(bricks)
-    first, count, order = build_tree(lo, hi, leaf_size=leaf_size, item="brick")
+    first, count, order, _ = build_tree(lo, hi, leaf_size=leaf_size, item="brick")
     node_lo, node_hi = tree_bounds(first, count, order, lo, hi)
     depth = int(_depths(first, count).max()) + 1
     if depth > MAX_TREE_DEPTH:

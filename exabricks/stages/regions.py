@@ -27,6 +27,7 @@ from .. import schema
 from ..constants import BOUNDS_DTYPE, INDEX_DTYPE, OFFSET_DTYPE
 from ..errors import ExabricksError
 from .brick import require_disjoint
+from .pieces import WHOLE, Piece, share_meta, task_range
 
 # float32 holds every half-integer exactly up to 2**23, i.e. doubled coordinates up to 2**24.
 _MAX_DOUBLED = 1 << 24
@@ -78,7 +79,8 @@ EXACT = Merge(visit_cost=0.0, brick_cost=0.0, max_bricks=0, max_brick_cells=0)
 """Merging off: the paper's exact Active Brick Regions."""
 
 
-def build_regions(bricks: schema.Bricks, merge: Merge = Merge()) -> schema.Regions:
+def build_regions(bricks: schema.Bricks, merge: Merge = Merge(),
+                  piece: Piece = WHOLE) -> schema.Regions:
     """Active Brick Regions of `bricks`; statistics (paper Table 1) in meta["statistics"].
 
     merge: with EXACT every region is an exact ABR piece (one set of active bricks);
@@ -104,13 +106,18 @@ def build_regions(bricks: schema.Bricks, merge: Merge = Merge()) -> schema.Regio
     require_disjoint(bricks)
     schema.trim_heap()
     sup_lo, sup_hi = support_boxes_doubled(bricks)
-    lo2, hi2, brick_start, brick_ids = partition(
-        sup_lo, sup_hi, level=bricks.level, cells=bricks.dims.astype(np.int64).prod(axis=1),
-        merge=merge)
-    del sup_lo, sup_hi
+    tasks, lv, small = _tasks(sup_lo, sup_hi, bricks.level,
+                              bricks.dims.astype(np.int64).prod(axis=1), merge)
+    t0, t1 = task_range([t[2].size for t in tasks], piece)
+    parts = _run(sup_lo, sup_hi, tasks[t0:t1], lv, small, merge)
+    del sup_lo, sup_hi, tasks, lv, small
     schema.trim_heap()
-    n_partition = lo2.shape[0]
-    lo2, hi2, brick_start, brick_ids = _coalesce(lo2, hi2, brick_start, brick_ids)
+    n_partition = sum(p[0].shape[0] for p in parts)
+    # Each task's leaves are coalesced on their own: the regions of a task are
+    # those of the piece that builds it, whatever the piece count.
+    for k, p in enumerate(parts):
+        parts[k] = list(_coalesce(*p))
+    lo2, hi2, brick_start, brick_ids = _join(parts)
     schema.trim_heap()
     value_range, finest = _leaf_ranges(
         lo2, hi2, brick_start, brick_ids, bricks.lower_lattice, bricks.dims,
@@ -131,7 +138,8 @@ def build_regions(bricks: schema.Bricks, merge: Merge = Merge()) -> schema.Regio
     stats = region_statistics(regions, lo2, hi2)
     stats["n_bricks"] = n
     stats["n_partition_leaves"] = n_partition
-    return regions.replace(meta={"statistics": stats, "parameters": {"merge": merge.as_dict()}})
+    return regions.replace(meta={"statistics": stats, "parameters": {"merge": merge.as_dict()},
+                                 **share_meta(piece)})
 
 
 def partition(sup_lo, sup_hi, *, threads: int | None = None, level=None, cells=None,
@@ -140,18 +148,23 @@ def partition(sup_lo, sup_hi, *, threads: int | None = None, level=None, cells=N
 
     sup_lo, sup_hi: int64 (B, 3) support boxes, doubled lattice units.
     Returns leaf bounds lo, hi int32 (R, 3) (doubled), CSR start int64 (R + 1,)
-    and ids int32 (K,).  The top of the tree is split breadth first here
-    until there are enough subtrees; those run in _partition (which releases
-    the GIL) and their leaves are concatenated in subtree order, so the result
-    does not depend on the number of threads.  level, cells: int (B,) brick levels
-    and cell counts, which `merge` needs (when enabled).
+    and ids int32 (K,), the leaves of `_tasks` in task order (`_join`), so the
+    result does not depend on the number of threads.  level, cells: int (B,)
+    brick levels and cell counts, which `merge` needs (when enabled).
     """
-    threads = numba.get_num_threads() if threads is None else threads
+    tasks, lv, small = _tasks(sup_lo, sup_hi, level, cells, merge)
+    return _join(_run(sup_lo, sup_hi, tasks, lv, small, merge, threads))
+
+
+def _tasks(sup_lo, sup_hi, level, cells, merge):
+    """The top of the partition, split breadth first here until there are enough
+    subtrees: their (lo, hi, ids) in order, and the level and merge flags per brick
+    that `_partition` takes.  The task count depends only on the input size,
+    never on the thread count; pieces (exabricks.stages.pieces) are runs of tasks."""
     n = sup_lo.shape[0]
     lv = np.zeros(n, np.int64) if level is None else np.ascontiguousarray(level, np.int64)
     # Bricks a merged piece may hold (Merge.max_brick_cells).
     small = np.ones(n, np.bool_) if cells is None else np.asarray(cells) <= merge.max_brick_cells
-    # The task count depends only on the input size, never on the thread count.
     want = 1 if n < 20_000 else 64
     queue = [(sup_lo.min(axis=0).astype(np.int64), sup_hi.max(axis=0).astype(np.int64),
               np.arange(n, dtype=np.int32))]
@@ -177,7 +190,13 @@ def partition(sup_lo, sup_hi, *, threads: int | None = None, level=None, cells=N
             lhi = hi.copy()
             lhi[axis] = plane
             queue.append((lo, lhi, left))
-    tasks += queue
+    return tasks + queue, lv, small
+
+
+def _run(sup_lo, sup_hi, tasks, lv, small, merge, threads=None):
+    """The leaves of every task, [lo, hi, start, ids] each, in task order."""
+    threads = numba.get_num_threads() if threads is None else threads
+    visit = float(merge.visit_cost) if merge.enabled else 0.0
 
     def run(task):
         # copies: the results are views of buffers grown by doubling
@@ -191,9 +210,16 @@ def partition(sup_lo, sup_hi, *, threads: int | None = None, level=None, cells=N
             # biggest first for load balance; results are put back in task order
             order = sorted(range(len(tasks)), key=lambda t: -tasks[t][2].size)
             futures = {t: pool.submit(run, tasks[t]) for t in order}
-            parts = [futures[t].result() for t in range(len(tasks))]
-    else:
-        parts = [run(t) for t in tasks]
+            return [futures[t].result() for t in range(len(tasks))]
+    return [run(t) for t in tasks]
+
+
+def _join(parts):
+    """The parts' leaves one after the other: lo, hi, CSR start (from 0), ids.
+    Each part's arrays are dropped as they are copied."""
+    if not parts:
+        return (np.empty((0, 3), np.int32), np.empty((0, 3), np.int32), np.zeros(1, np.int64),
+                np.empty(0, np.int32))
     if len(parts) == 1:
         return tuple(parts[0])
     shift = 0

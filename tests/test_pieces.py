@@ -1,0 +1,190 @@
+"""Builders by pieces (issue 12, deliverable 2): `brick`, `regions` and `bvh`
+with --piece K/N, then `join`, give exactly the one-process build, on the real
+datasets and on the thin-shell octree layout; every share is a valid file of
+its kind; bad sets of pieces are refused with one error line."""
+
+from __future__ import annotations
+
+import functools
+import json
+
+import numpy as np
+import pytest
+
+from exabricks import schema
+from exabricks.errors import ExabricksError
+from exabricks.readers import read
+from exabricks.stages.brick import build_bricks
+from exabricks.stages.bvh import build_bvh
+from exabricks.stages.pieces import Piece, join_bricks, join_bvh, join_regions, task_range
+from exabricks.stages.regions import build_regions
+
+from conftest import AMREX, ATHENA, ENZO, GERRIS, assert_one_error_line
+
+STAGES = ((build_bricks, join_bricks), (build_regions, join_regions), (build_bvh, join_bvh))
+
+
+@functools.lru_cache(maxsize=None)
+def dataset_cells(name):
+    if name == "shell":  # 1.1 M cells, 131 K bricks: every builder splits into 64 subtrees
+        from make_big import thin_shell_cells
+
+        return thin_shell_cells(256)
+    return read({"amrex": AMREX, "athena": ATHENA, "enzo": ENZO, "gerris": GERRIS}[name])
+
+
+def assert_same(a, b, what):
+    arrays = b.arrays()
+    for k, v in a.arrays().items():
+        assert v.dtype == arrays[k].dtype and np.array_equal(v, arrays[k], equal_nan=True), \
+            (what, k)
+    assert a.meta["statistics"] == b.meta["statistics"], what
+
+
+@pytest.mark.parametrize("name,counts", [("shell", (2, 3, 8)), ("gerris", (2, 5)),
+                                         ("amrex", (3,)), ("athena", (2,)), ("enzo", (4,))])
+def test_joined_pieces_equal_the_whole_build(name, counts):
+    """Each stage's N shares, joined in piece order, equal the whole build array for
+    array; each share alone is a valid file of its kind."""
+    whole = dataset_cells(name)
+    for build, join in STAGES:
+        built = build(whole)
+        for n in counts:
+            shares = [build(whole, piece=Piece(k, n)) for k in range(n)]
+            for k, s in enumerate(shares):
+                schema.validate(s, f"{name} share {k}/{n}")
+                assert s.meta["piece"]["index"] == k and s.meta["piece"]["count"] == n
+            joined = join([(f"{k}.npz", s) for k, s in enumerate(shares)])
+            assert_same(built, joined, (name, build.__name__, n))
+            if name == "shell":  # a real split: every share builds part of the whole
+                own = [s.meta["piece"].get("own", [0, 1]) for s in shares]
+                assert all(o[1] > o[0] for o in own)
+                assert all(s.n_bricks if build is build_bricks else
+                           s.n_regions if build is build_regions else 1 for s in shares)
+        whole = built
+
+
+def test_task_ranges_cover_every_task_once():
+    for sizes in ([], [5], [0, 0, 3], [1] * 64, list(range(64)), [100, 1, 1, 1]):
+        for n in (1, 2, 3, 7, 64, 100):
+            runs = [task_range(sizes, Piece(k, n)) for k in range(n)]
+            assert runs[0][0] == 0 and runs[-1][1] == len(sizes)
+            assert all(a[1] == b[0] for a, b in zip(runs, runs[1:]))
+            assert all(t0 <= t1 for t0, t1 in runs)
+
+
+@pytest.mark.parametrize("text,message", [("3/3", "does not exist"), ("x", "K/N"),
+                                          ("0/0", "count"), ("-1/2", "K/N"), ("1/99999999", "K/N")])
+def test_piece_parse_refuses_nonsense(text, message):
+    with pytest.raises(ExabricksError, match=message):
+        Piece.parse(text)
+
+
+@pytest.fixture(scope="module")
+def enzo_files(tmp_path_factory):
+    """The enzo dataset's stages, whole and in pieces, through the commands."""
+    from conftest import run_cli
+
+    d = tmp_path_factory.mktemp("pieces")
+    run_cli("ingest", ENZO, "-o", d / "cells.npz", check=0)
+    for stage, src, dst, n in (("brick", "cells", "bricks", 3), ("regions", "bricks", "regions", 2),
+                               ("bvh", "regions", "bvh", 4)):
+        run_cli(stage, d / f"{src}.npz", "-o", d / f"{dst}.npz", check=0)
+        for k in range(n):
+            run_cli(stage, d / f"{src}.npz", "--piece", f"{k}/{n}", "-o", d / f"{dst}.{k}.npz",
+                    check=0)
+    return d
+
+
+@pytest.mark.parametrize("kind,n", [("bricks", 3), ("regions", 2), ("bvh", 4)])
+def test_join_command_equals_the_whole_command(enzo_files, tmp_path, cli, kind, n):
+    d = enzo_files
+    parts = [d / f"{kind}.{k}.npz" for k in reversed(range(n))]  # any order
+    cli("join", *parts, "-o", tmp_path / "joined.npz", check=0)
+    joined = schema.load(tmp_path / "joined.npz", kind)
+    assert_same(schema.load(d / f"{kind}.npz", kind), joined, kind)
+    assert joined.meta["built_from"] == schema.load(parts[0], kind).meta["inputs"]
+    if kind == "regions":
+        assert joined.meta["consistency"]["n_regions"] == joined.n_regions
+
+
+def test_joined_files_render_like_the_whole_ones(enzo_files, tmp_path, cli):
+    d = enzo_files
+    for kind, n in (("bricks", 3), ("regions", 2), ("bvh", 4)):
+        cli("join", *[d / f"{kind}.{k}.npz" for k in range(n)], "-o", tmp_path / f"{kind}.npz",
+            check=0)
+    for where, out in ((d, tmp_path / "whole.exr"), (tmp_path, tmp_path / "joined.exr")):
+        cli("render", where / "bricks.npz", where / "regions.npz", where / "bvh.npz",
+            "--size", "48", "32", "-o", out, check=0)
+    from exabricks.image_io import read_image
+
+    np.testing.assert_array_equal(read_image(tmp_path / "whole.exr")[0],
+                                  read_image(tmp_path / "joined.exr")[0])
+
+
+def _rewrite_piece(src, dst, **changes):
+    obj = schema.load(src)
+    schema.save(dst, obj.replace(meta={**obj.meta, "piece": {**obj.meta["piece"], **changes}}))
+
+
+@pytest.mark.parametrize("case", ["missing", "twice", "kinds", "counts", "whole", "cells", "other-build",
+                                  "cell-run", "bvh-blocks", "bvh-subtrees", "output-is-input"])
+def test_join_refuses_a_bad_set_of_pieces(enzo_files, tmp_path, cli, case):
+    d = enzo_files
+    b = [d / f"bricks.{k}.npz" for k in range(3)]
+    v = [d / f"bvh.{k}.npz" for k in range(4)]
+    out = tmp_path / "out.npz"
+    if case == "missing":
+        args, needles = b[:2], ["piece 2 of 3 is missing"]
+    elif case == "twice":
+        args, needles = [b[0], b[1], b[1], b[2]], ["piece 1 is also given"]
+    elif case == "kinds":
+        args, needles = [d / "regions.0.npz", d / "regions.1.npz", d / "bvh.0.npz"], [
+            "bvh.0.npz", "expected a regions file"]
+    elif case == "counts":
+        from conftest import run_cli
+
+        run_cli("brick", d / "cells.npz", "--piece", "1/2", "-o", tmp_path / "half.npz", check=0)
+        args, needles = [b[0], tmp_path / "half.npz", b[2]], ["half.npz", "is piece 1 of 2",
+                                                             "one of 3"]
+    elif case == "whole":
+        args, needles = [d / "bricks.npz"], ["not a piece of a build", "bricks.npz"]
+    elif case == "cells":
+        args, needles = [d / "cells.npz"], ["holds cells"]
+    elif case == "other-build":
+        from conftest import run_cli
+
+        run_cli("brick", d / "cells.npz", "--max-brick-width", "8", "--piece", "1/3", "-o",
+                tmp_path / "narrow.npz", check=0)
+        args, needles = [b[0], tmp_path / "narrow.npz", b[2]], ["other inputs or with other"]
+    elif case == "cell-run":
+        _rewrite_piece(b[1], tmp_path / "b1.npz", cells=[0, 10])
+        args, needles = [b[0], tmp_path / "b1.npz", b[2]], ["b1.npz", "holds cells [0, 10]"]
+    elif case == "bvh-blocks":
+        info = schema.load(v[0]).meta["piece"]
+        _rewrite_piece(v[0], tmp_path / "v0.npz", blocks=[10 ** 9] * len(info["blocks"]))
+        args, needles = [tmp_path / "v0.npz", *v[1:]], ["v0.npz", "is not where its meta says"]
+    elif case == "bvh-subtrees":
+        _rewrite_piece(v[0], tmp_path / "v0.npz", subtrees=[[10 ** 6, 0, 1]])
+        args, needles = [tmp_path / "v0.npz", *v[1:]], ["v0.npz", "does not describe"]
+    else:
+        args, needles, out = b, ["input"], b[0]
+    before = {p: p.read_bytes() for p in args if p.exists()}
+    proc = cli("join", *args, "-o", out)
+    assert_one_error_line(proc, *needles)
+    assert case == "output-is-input" or not out.exists()
+    assert all(p.read_bytes() == data for p, data in before.items())
+
+
+def test_piece_option_refuses_nonsense(enzo_files, tmp_path, cli):
+    proc = cli("brick", enzo_files / "cells.npz", "--piece", "3/3", "-o", tmp_path / "b.npz")
+    assert proc.returncode == 2 and "does not exist" in proc.stderr
+    assert not (tmp_path / "b.npz").exists()
+
+
+def test_share_meta_is_json(enzo_files):
+    """What a job script reads back: the piece of every share, as plain JSON."""
+    for kind, n in (("bricks", 3), ("regions", 2), ("bvh", 4)):
+        for k in range(n):
+            _, _, meta = schema.peek(enzo_files / f"{kind}.{k}.npz")
+            assert json.loads(json.dumps(meta["piece"]))["index"] == k
