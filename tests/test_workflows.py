@@ -208,3 +208,33 @@ def test_field_range_over_a_series(series, tmp_path, cli):
     assert lo == min(float(v.min()) for v in each) and hi == max(float(v.max()) for v in each)
     proc = cli("info", "--field-range", "rho", *cells)
     assert_one_error_line(proc, str(cells[0]), "no field 'rho'")
+
+
+@pytest.mark.slurm
+@needs_cluster
+def test_slurm_build_by_pieces(tmp_path):
+    """build_pieces.sh: brick, regions and bvh each as a 3-task array and a join,
+    chained by dependencies, on the thin-shell layout (every stage really splits);
+    the three files equal the one-process build array for array."""
+    from make_big import thin_shell_cells
+
+    from exabricks import schema
+
+    schema.save(tmp_path / "cells.npz", thin_shell_cells(256))
+    out = tmp_path / "out"
+    proc = subprocess.run([str(WORKFLOWS / "slurm" / "build_pieces.sh"), str(tmp_path / "cells.npz"),
+                           str(out), "3"], capture_output=True, text=True,
+                          env={**ENV, "WAIT": "1"}, cwd=tmp_path, timeout=900)
+    assert proc.returncode == 0, proc.stderr + proc.stdout
+    jobs = dict(part.split("=") for part in proc.stdout.split())
+    assert set(jobs) == {f"{n}{j}" for n in ("bricks", "regions", "bvh") for j in ("", "-join")}
+    for job in jobs.values():
+        assert_completed(job)
+    src = tmp_path / "cells.npz"
+    for stage, name in (("brick", "bricks"), ("regions", "regions"), ("bvh", "bvh")):
+        eb(stage, src, "-o", tmp_path / f"{name}.npz")
+        src = tmp_path / f"{name}.npz"
+        whole, joined = schema.load(src, name), schema.load(out / f"{name}.npz", name)
+        for k, v in whole.arrays().items():
+            np.testing.assert_array_equal(v, joined.arrays()[k], err_msg=f"{name} {k}")
+        assert len(list((out / "pieces").glob(f"{name}.*.npz"))) == 3
