@@ -1,0 +1,108 @@
+"""Builders by pieces: each stage in one process against N pieces and a join.
+
+    .venv/bin/python workflows/bench_pieces.py [--pieces 4] [--only shell,big] [--write-docs]
+
+For each dataset (the cells file of workflows/bench_preprocess.py's work
+directory, bench-data/preprocess/KEY/cells.npz, or --cells), `brick`, `regions`
+and `bvh` run as one command and then as --pieces commands with --piece K/N,
+one after another, and `exabricks join` (each its own child process: wall
+time and peak resident memory from wait4). On N machines the stage would take
+its slowest piece plus the join; that sum against the one-process command is
+the speed-up column. The joined file is checked to equal the one-process file
+array for array. --write-docs replaces the section "Builders by pieces" of
+docs/benchmarks.md.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+import benchdoc  # noqa: E402
+
+from exabricks import schema  # noqa: E402
+
+SECTION = "Builders by pieces"
+STAGES = (("brick", "cells", "bricks"), ("regions", "bricks", "regions"), ("bvh", "regions", "bvh"))
+
+
+def identical(a: Path, b: Path, kind: str) -> bool:
+    x, y = schema.load(a, kind, mapped=True), schema.load(b, kind, mapped=True)
+    ya = y.arrays()
+    return all(v.shape == ya[k].shape and all(
+        np.array_equal(p, q, equal_nan=v.dtype.kind == "f") for _, (p, q) in schema.rows(v, ya[k]))
+        for k, v in x.arrays().items())
+
+
+def bench(label: str, cells: Path, n: int, work: Path) -> list[str]:
+    eb = benchdoc.exabricks_command()
+    rows = []
+    src_whole = src_joined = cells
+    for stage, _, out in STAGES:
+        whole = work / f"{out}.npz"
+        wall, _, peak = benchdoc.run_child([*eb, stage, src_whole, "-o", whole])
+        pieces = []
+        for k in range(n):
+            pieces.append(benchdoc.run_child([*eb, stage, src_joined, "--piece", f"{k}/{n}",
+                                              "-o", work / f"{out}.{k}.npz"]))
+        joined = work / f"{out}.joined.npz"
+        j_wall, _, j_peak = benchdoc.run_child(
+            [*eb, "join", *[work / f"{out}.{k}.npz" for k in range(n)], "-o", joined])
+        slowest = max(p[0] for p in pieces)
+        same = identical(whole, joined, out)
+        rows.append(
+            f"| {label} | {stage} | {wall:.2f} | {benchdoc.fmt_bytes(peak)} | "
+            f"{slowest:.2f} | {sum(p[0] for p in pieces):.2f} | "
+            f"{benchdoc.fmt_bytes(max(p[2] for p in pieces))} | {j_wall:.2f} | "
+            f"{benchdoc.fmt_bytes(j_peak)} | {wall / (slowest + j_wall):.2f} | "
+            f"{'yes' if same else 'NO'} |")
+        print(rows[-1], flush=True)
+        if not same:
+            raise SystemExit(f"{label} {stage}: the joined pieces differ from the one-process file")
+        for k in range(n):
+            (work / f"{out}.{k}.npz").unlink()
+        src_whole, src_joined = whole, joined
+    return rows
+
+
+def main(argv=None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--pieces", type=int, default=4)
+    p.add_argument("--only", default="shell", help="comma-separated keys of "
+                   "bench-data/preprocess/KEY/cells.npz (default: shell)")
+    p.add_argument("--cells", type=Path, action="append", default=[],
+                   help="another cells file (repeatable)")
+    p.add_argument("--write-docs", action="store_true")
+    args = p.parse_args(argv)
+    inputs = [(k, benchdoc.BENCH / "preprocess" / k / "cells.npz")
+              for k in args.only.split(",") if k] + [(c.stem, c) for c in args.cells]
+    rows = []
+    for label, cells in inputs:
+        if not cells.is_file():
+            raise SystemExit(f"{cells}: missing (workflows/bench_preprocess.py makes it)")
+        n_cells = schema.load(cells, "cells", mapped=True).n_cells
+        with tempfile.TemporaryDirectory(dir=cells.parent) as tmp:
+            rows += bench(f"{label}, {n_cells / 1e6:.1f} M cells", cells, args.pieces, Path(tmp))
+    body = (
+        f"Command: `.venv/bin/python workflows/bench_pieces.py --pieces {args.pieces} --only "
+        f"{args.only}{''.join(f' --cells {c}' for c in args.cells)} --write-docs`\n\n"
+        f"- machine: {benchdoc.machine()}\n"
+        f"- each stage as one command, then as {args.pieces} commands `--piece K/{args.pieces}` "
+        "run one after another, then `exabricks join`; s: wall seconds of a whole command; "
+        "peak: peak resident memory; on N machines a stage takes its slowest piece plus the "
+        "join (speed-up: one process / (slowest piece + join)); identical: the joined file "
+        "equals the one-process file array for array\n\n"
+        "| dataset | stage | one process s | peak | slowest piece s | all pieces s | "
+        "piece peak | join s | join peak | speed-up | identical |\n"
+        "|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---|\n" + "\n".join(rows) + "\n")
+    benchdoc.publish(SECTION, body, args.write_docs)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
