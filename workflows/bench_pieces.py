@@ -6,7 +6,8 @@ For each dataset (the cells file of workflows/bench_preprocess.py's work
 directory, bench-data/preprocess/KEY/cells.npz, or --cells), `brick`, `regions`
 and `bvh` run as one command and then as --pieces commands with --piece K/N,
 one after another, and `exabricks join` (each its own child process: wall
-time and peak resident memory from wait4). On N machines the stage would take
+time and peak resident memory from wait4), after a warm-up on a small input
+that fills numba's caches. On N machines the stage would take
 its slowest piece plus the join; that sum against the one-process command is
 the speed-up column. The joined file is checked to equal the one-process file
 array for array. --write-docs replaces the section "Builders by pieces" of
@@ -61,7 +62,8 @@ def bench(label: str, cells: Path, n: int, work: Path) -> list[str]:
             f"{benchdoc.fmt_bytes(max(p[2] for p in pieces))} | {j_wall:.2f} | "
             f"{benchdoc.fmt_bytes(j_peak)} | {wall / (slowest + j_wall):.2f} | "
             f"{'yes' if same else 'NO'} |")
-        print(rows[-1], flush=True)
+        if label != "warm-up":
+            print(rows[-1], flush=True)
         if not same:
             raise SystemExit(f"{label} {stage}: the joined pieces differ from the one-process file")
         for k in range(n):
@@ -80,7 +82,14 @@ def main(argv=None) -> int:
     p.add_argument("--write-docs", action="store_true")
     args = p.parse_args(argv)
     inputs = [(k, benchdoc.BENCH / "preprocess" / k / "cells.npz")
-              for k in args.only.split(",") if k] + [(c.stem, c) for c in args.cells]
+              for k in args.only.split(",") if k] + [
+                  (c.parent.name if c.stem == "cells" else c.stem, c) for c in args.cells]
+    with tempfile.TemporaryDirectory() as tmp:
+        # numba's caches are filled by a first run (after an edit they are recompiled)
+        from make_big import thin_shell_cells
+
+        schema.save(Path(tmp) / "cells.npz", thin_shell_cells(32))
+        bench("warm-up", Path(tmp) / "cells.npz", 2, Path(tmp))
     rows = []
     for label, cells in inputs:
         if not cells.is_file():

@@ -127,6 +127,26 @@ def _shares(parts: list[tuple[str, schema._Kind]]) -> list[tuple[str, schema._Ki
     return sorted(found, key=lambda f: f[2]["index"])
 
 
+def _stack(arrays, shifts=None, axis=0) -> np.ndarray:
+    """`arrays` one after the other along `axis` (0, or 1 for (F, V) values), the
+    k-th plus shifts[k]; copied in steps, each mapped share's pages handed back
+    as they are copied, so that a join holds about its output only."""
+    shape = list(arrays[0].shape)
+    shape[axis] = sum(a.shape[axis] for a in arrays)
+    out = np.empty(shape, arrays[0].dtype)
+    at = 0
+    for k, a in enumerate(arrays):
+        n = a.shape[axis]
+        pairs = [(a, out[at:at + n])] if axis == 0 else [(a[f], out[f, at:at + n])
+                                                          for f in range(a.shape[0])]
+        for src, dst in pairs:
+            for start, (part,) in schema.rows(src):
+                dst[start:start + part.shape[0]] = part if shifts is None else part + shifts[k]
+        schema.release_arrays(a)
+        at += n
+    return out
+
+
 def join_bricks(parts) -> schema.Bricks:
     """One bricks file from the shares of `brick --piece` ((path, Bricks) pairs):
     the bricks in piece order, offsets moved past the shares before them."""
@@ -147,15 +167,14 @@ def join_bricks(parts) -> schema.Bricks:
 
     objs = [obj for _, obj, _ in shares]
     first = objs[0]
-    level = np.concatenate([o.level for o in objs])
-    dims = np.concatenate([o.dims for o in objs])
+    level = _stack([o.level for o in objs])
+    dims = _stack([o.dims for o in objs])
     return schema.Bricks(
         fields=first.fields, origin_world=first.origin_world, spacing_world=first.spacing_world,
         meta={"statistics": statistics(level, dims)},
-        lower_lattice=np.concatenate([o.lower_lattice for o in objs]), level=level, dims=dims,
-        offset=np.concatenate([o.offset + info["cells"][0] for _, o, info in shares]).astype(
-            first.offset.dtype),
-        values=np.concatenate([o.values for o in objs], axis=1),
+        lower_lattice=_stack([o.lower_lattice for o in objs]), level=level, dims=dims,
+        offset=_stack([o.offset for o in objs], [info["cells"][0] for _, _, info in shares]),
+        values=_stack([o.values for o in objs], axis=1),
     )
 
 
@@ -167,20 +186,19 @@ def join_regions(parts) -> schema.Regions:
     shares = _shares(parts)
     objs = [obj for _, obj, _ in shares]
     first = objs[0]
-    start = np.zeros(1 + sum(o.n_regions for o in objs), first.brick_start.dtype)
-    at = 0
-    for o in objs:
-        start[at + 1:at + 1 + o.n_regions] = o.brick_start[1:] + start[at]
-        at += o.n_regions
+    # each share's CSR starts without its leading 0, after the lists before it
+    ends = np.cumsum([0] + [int(o.brick_start[-1]) for o in objs])
+    start = _stack([np.zeros(1, first.brick_start.dtype)] + [o.brick_start[1:] for o in objs],
+                   [0] + list(ends[:-1]))
     regions = schema.Regions(
         fields=first.fields, origin_world=first.origin_world, spacing_world=first.spacing_world,
         meta={},
-        lower_lattice=np.concatenate([o.lower_lattice for o in objs]),
-        upper_lattice=np.concatenate([o.upper_lattice for o in objs]),
+        lower_lattice=_stack([o.lower_lattice for o in objs]),
+        upper_lattice=_stack([o.upper_lattice for o in objs]),
         brick_start=start,
-        brick_ids=np.concatenate([o.brick_ids for o in objs]),
-        value_range=np.concatenate([o.value_range for o in objs]),
-        finest_level=np.concatenate([o.finest_level for o in objs]),
+        brick_ids=_stack([o.brick_ids for o in objs]),
+        value_range=_stack([o.value_range for o in objs]),
+        finest_level=_stack([o.finest_level for o in objs]),
     )
     stats = region_statistics(regions)
     for key in ("n_bricks",):
@@ -229,21 +247,21 @@ def join_bvh(parts) -> schema.Bvh:
     arrays = {k: np.empty((n_nodes,) + v.shape[1:], v.dtype) for k, v in base.arrays().items()
               if k in _NODE_ARRAYS}
     for k in arrays:
-        arrays[k][:top] = base.arrays()[k][:top]
-    region_index = base.region_index.copy()
+        arrays[k][:top] = getattr(base, k)[:top]
+    region_index = _stack([base.region_index])
     at = top
     for t, (node, s, e) in enumerate(subtrees):
         obj = owner[t]
         p, length = position[t]
-        src = obj.arrays()
         for k in arrays:
-            arrays[k][node] = src[k][node]
-            arrays[k][at:at + length] = src[k][p:p + length]
+            arrays[k][node] = getattr(obj, k)[node]
+            arrays[k][at:at + length] = getattr(obj, k)[p:p + length]
         moved = np.flatnonzero(arrays["count"][at:at + length] == 0) + at
         arrays["first"][moved] += at - p
         if arrays["count"][node] == 0:
             arrays["first"][node] += at - p
         region_index[s:e] = obj.region_index[s:e]
+        schema.release(obj)
         at += length
     bvh = schema.Bvh(fields=base.fields, origin_world=base.origin_world,
                      spacing_world=base.spacing_world, meta={}, region_index=region_index,

@@ -303,18 +303,27 @@ def support_boxes_doubled(bricks: schema.Bricks) -> tuple[np.ndarray, np.ndarray
 
 
 def region_statistics(regions: schema.Regions, lo2=None, hi2=None) -> dict:
-    """Paper Table 1: region count, bricks per region (by count, by volume, max), bytes."""
-    counts = np.diff(regions.brick_start)
-    if lo2 is None:
-        lo2 = regions.lower_lattice.astype(np.float64) * 2
-        hi2 = regions.upper_lattice.astype(np.float64) * 2
-    vol = np.prod((hi2 - lo2).astype(np.float64), axis=1)
-    total = float(vol.sum())
+    """Paper Table 1: region count, bricks per region (by count, by volume, max), bytes.
+    lo2, hi2: the bounds doubled, when at hand (else taken from the regions);
+    computed in steps (the regions may be mapped)."""
+    lo2 = regions.lower_lattice if lo2 is None else lo2
+    hi2 = regions.upper_lattice if hi2 is None else hi2
+    scale = 1.0 if lo2 is regions.lower_lattice else 0.125  # doubled: volumes 8 times larger
+    total = weighted = 0.0
+    biggest = 0
+    start = regions.brick_start
+    for at, (lo, hi) in schema.rows(lo2, hi2):
+        counts = np.diff(start[at:at + lo.shape[0] + 1])
+        vol = np.prod((hi.astype(np.float64) - lo.astype(np.float64)), axis=1) * scale
+        total += float(vol.sum())
+        weighted += float((counts * vol).sum())
+        biggest = max(biggest, int(counts.max()) if counts.size else 0)
+    n = regions.n_regions
     return {
-        "n_regions": regions.n_regions,
-        "avg_bricks_per_region_by_count": float(counts.mean()) if counts.size else 0.0,
-        "avg_bricks_per_region_by_volume": float((counts * vol).sum() / total) if total else 0.0,
-        "max_bricks_per_region": int(counts.max()) if counts.size else 0,
+        "n_regions": n,
+        "avg_bricks_per_region_by_count": float(start[-1]) / n if n else 0.0,
+        "avg_bricks_per_region_by_volume": weighted / total if total else 0.0,
+        "max_bricks_per_region": biggest,
         "region_brick_refs": int(regions.brick_ids.shape[0]),
         "bytes": int(sum(a.nbytes for a in regions.arrays().values())),
     }
