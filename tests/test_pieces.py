@@ -128,7 +128,8 @@ def _rewrite_piece(src, dst, **changes):
 
 
 @pytest.mark.parametrize("case", ["missing", "twice", "kinds", "counts", "whole", "cells", "other-build",
-                                  "cell-run", "bvh-blocks", "bvh-subtrees", "output-is-input"])
+                                  "cell-run", "cell-run-text", "index", "bvh-blocks", "bvh-subtrees",
+                                  "output-is-input"])
 def test_join_refuses_a_bad_set_of_pieces(enzo_files, tmp_path, cli, case):
     d = enzo_files
     b = [d / f"bricks.{k}.npz" for k in range(3)]
@@ -160,6 +161,12 @@ def test_join_refuses_a_bad_set_of_pieces(enzo_files, tmp_path, cli, case):
     elif case == "cell-run":
         _rewrite_piece(b[1], tmp_path / "b1.npz", cells=[0, 10])
         args, needles = [b[0], tmp_path / "b1.npz", b[2]], ["b1.npz", "holds cells [0, 10]"]
+    elif case == "cell-run-text":
+        _rewrite_piece(b[1], tmp_path / "b1.npz", cells=["a", "b"])
+        args, needles = [b[0], tmp_path / "b1.npz", b[2]], ["b1.npz", "holds cells"]
+    elif case == "index":
+        _rewrite_piece(b[1], tmp_path / "b1.npz", index=7)
+        args, needles = [*b, tmp_path / "b1.npz"], ["b1.npz", "piece 7 of 3 does not exist"]
     elif case == "bvh-blocks":
         info = schema.load(v[0]).meta["piece"]
         _rewrite_piece(v[0], tmp_path / "v0.npz", blocks=[10 ** 9] * len(info["blocks"]))

@@ -92,10 +92,14 @@ def _shares(parts: list[tuple[str, schema._Kind]]) -> list[tuple[str, schema._Ki
     found = []
     for path, obj in parts:
         info = obj.meta.get(_PIECE)
-        if not isinstance(info, dict) or not all(isinstance(info.get(k), int)
+        if not isinstance(info, dict) or not all(type(info.get(k)) is int
                                                   for k in ("index", "count")):
             raise ExabricksError(f"{path}: not a piece of a build (no meta['piece']); "
                                  "build pieces with --piece K/N")
+        try:
+            Piece(info["index"], info["count"])
+        except ExabricksError as e:
+            raise ExabricksError(f"{path}: {e}") from None
         found.append((path, obj, info))
     path0, obj0, info0 = found[0]
     count = info0["count"]
@@ -154,7 +158,8 @@ def join_bricks(parts) -> schema.Bricks:
     at = 0
     for path, obj, info in shares:
         run = info.get("cells")
-        if not (isinstance(run, list) and len(run) == 2 and run[0] == at
+        if not (isinstance(run, list) and len(run) == 2 and all(type(x) is int for x in run)
+                and run[0] == at
                 and run[1] - run[0] == obj.values.shape[1]
                 and info.get("n_cells") == shares[0][2].get("n_cells")):
             raise ExabricksError(f"{path}: holds cells {run}, but the pieces before it end at "
