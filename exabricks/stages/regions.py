@@ -6,7 +6,9 @@ superposition of all supports partitions space into pieces in which the set of
 active bricks is constant; a top-down partition along support faces cuts those
 pieces into disjoint boxes; boxes that touch face to face with the same active
 bricks are then merged again (the k-d cuts run through whole regions, also
-where nothing changes), giving the Active Brick Regions.  Each region records the
+where nothing changes), within each of the top subtrees that the partition
+builds independently (so that builds by pieces, exabricks.stages.pieces, give
+the same regions), giving the Active Brick Regions.  Each region records the
 bricks whose support overlaps it, the value range of every cell whose support
 overlaps it (space skipping, paper §4.1) and the finest level among its bricks
 (adaptive sampling, paper §4.2).
