@@ -99,10 +99,14 @@ bench: setup
 	@# rendering under a memory budget: thin shells (whole frames, bands), Gerris posters
 	$(PY) workflows/bench_budget.py --write-docs
 
-# The thin shells at 204 M cells: every stage and budgeted renders (about 25 min,
-# 15 GB of disk under bench-data/).
+# The thin shells at 204 M cells: every stage and budgeted renders, builders by
+# pieces, and MPI renders with 1, 2 and 4 ranks beside the 20.6 M-cell shells and
+# the 512³ volume (about 60 min, 25 GB of disk under bench-data/; the MPI orbit
+# runs when a SLURM cluster answers, workflows/slurm/up.sh).
 bench-large: setup
 	$(PY) workflows/bench_large.py --write-docs
+	$(PY) workflows/bench_pieces.py --pieces 4 --only shell --cells bench-data/large/shell2944/cells.npz --write-docs
+	$(PY) workflows/bench_mpi.py --only big,shell --ranks 1,2,4 --large bench-data/large/shell2944 --write-docs
 
 # Every image of docs/gallery.md, with the commands that make them.
 gallery: setup
