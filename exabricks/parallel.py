@@ -145,12 +145,13 @@ def load_for(mode: str, bricks_path, regions_path, bvh_path):
     """The three structure files for a run in `mode`: in data mode the bricks and
     regions mapped (a rank reads the pages of its piece only; exabricks.stages.
     partition.piece_data checks what it takes) and the bvh only checked to be
-    one of the same regions; else loaded and validated as for one process."""
+    one of the same regions; else loaded as for one process (load_structures)."""
     from . import schema
 
     if mode != "data":
-        return (schema.load(bricks_path, "bricks"), schema.load(regions_path, "regions"),
-                schema.load(bvh_path, "bvh"))
+        from .stages.device_data import load_structures
+
+        return load_structures(bricks_path, regions_path, bvh_path)
     bricks = schema.load(bricks_path, "bricks", mapped=True)
     regions = schema.load(regions_path, "regions", mapped=True)
     bvh = schema.load(bvh_path, "bvh", mapped=True)

@@ -9,7 +9,6 @@ from ..errors import ExabricksError
 from ..output import check_output, write_output
 from ..scene import RECONSTRUCTIONS
 from .options import device_option, field_option, input_path, output_option
-from .render import load_scene
 
 
 def _load_points(path) -> np.ndarray:
@@ -47,12 +46,13 @@ def _load_points(path) -> np.ndarray:
 @device_option
 def probe(bricks_path, regions_path, bvh_path, points_path, field, reconstruction, output, device):
     """Reconstructed FIELD at world points (float32 .npy, NaN where no cell has support)."""
+    from ..stages.device_data import load_structures
     from ..stages.probe import probe as probe_points
 
     inputs = [bricks_path, regions_path, bvh_path, points_path]
     check_output(output, inputs)
     points = _load_points(points_path)
-    bricks, regions, bvh = load_scene(bricks_path, regions_path, bvh_path)
+    bricks, regions, bvh = load_structures(bricks_path, regions_path, bvh_path)
     values = probe_points(bricks, regions, bvh, points, field=field, device=device,
                           reconstruction=reconstruction)
     def write(tmp):

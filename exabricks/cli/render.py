@@ -22,12 +22,6 @@ def _vector(name, nargs=3, metavar="X Y Z", check_finite=True, **kw):
                         callback=finite if check_finite else None, **kw)
 
 
-def load_scene(bricks_path, regions_path, bvh_path):
-    """The three structure files of one dataset, each checked for its kind."""
-    return (schema.load(bricks_path, "bricks"), schema.load(regions_path, "regions"),
-            schema.load(bvh_path, "bvh"))
-
-
 POSITIVE = click.FloatRange(min=0, min_open=True)
 
 
@@ -282,7 +276,9 @@ def _prepare(bricks_path, regions_path, bvh_path, output, scene_path, camera_pat
                  f"{steps['budget']:,}", pieces.n_pieces)
         return pieces, scene, jobs, inputs, _dataset(bricks, bricks_path, regions_path, bvh_path)
     if comm is None:
-        bricks, regions, bvh = load_scene(bricks_path, regions_path, bvh_path)
+        from ..stages.device_data import load_structures
+
+        bricks, regions, bvh = load_structures(bricks_path, regions_path, bvh_path)
     else:
         from ..parallel import load_for, needs_image_mode
 

@@ -35,6 +35,15 @@ def check_reconstruction(reconstruction: str) -> None:
                              f"(one of {', '.join(RECONSTRUCTIONS)})")
 
 
+def load_structures(bricks_path, regions_path, bvh_path):
+    """The three structure files of one dataset for a DeviceScene, each checked for
+    its kind: mapped and checked in steps, so that what the device takes as it is
+    (values, lists) is shared with the page cache and what it takes in another
+    layout (boxes, links) is handed back once converted."""
+    return tuple(schema.load(path, kind, mapped=True, checked=True) for path, kind in (
+        (bricks_path, "bricks"), (regions_path, "regions"), (bvh_path, "bvh")))
+
+
 def check_inputs(bricks: schema.Bricks, regions: schema.Regions, bvh: schema.Bvh) -> None:
     """ExabricksError unless `regions` were built from `bricks` and `bvh` from `regions`.
 
@@ -217,6 +226,10 @@ class DeviceScene:
         self._bvh_static = [up(q, lo), up(q, hi), up(q, link), up(q, bvh.region_index, np.int32)]
         self._all_visible = (up(q, np.ones(max(bvh.n_nodes, 1), np.uint8)),
                              up(q, np.ones(max(r.n_regions, 1), np.uint8)))
+        # The device holds these in its own layout now: mapped pages go back.
+        schema.release_arrays(b.lower_lattice, b.level, b.dims, r.lower_lattice,
+                              r.upper_lattice, bvh.lower_lattice, bvh.upper_lattice, bvh.first,
+                              bvh.count)
 
         self.origin_world4 = _float4(b.origin_world)
         self.inv_spacing4 = _float4(1.0 / b.spacing_world)
@@ -247,14 +260,16 @@ class DeviceScene:
         name, value) lies inside it; uint8 (M,), (R,)."""
         out = []
         for ranges in (self.bvh.value_range, self.regions.value_range):
-            seen = np.zeros(ranges.shape[0], bool)
-            for name, tf in layers:
-                r = ranges[:, self.bricks.field_index(name)]
-                seen |= tf.max_alpha(r[:, 0], r[:, 1]) > 0
-            for name, value in isovalues:
-                r = ranges[:, self.bricks.field_index(name)]
-                seen |= (r[:, 0] <= value) & (value <= r[:, 1])
-            out.append(seen.astype(np.uint8))
+            seen = np.zeros(ranges.shape[0], np.uint8)
+            for start, (part,) in schema.rows(ranges):  # steps: small temporaries
+                here = seen[start:start + part.shape[0]]
+                for name, tf in layers:
+                    r = part[:, self.bricks.field_index(name)]
+                    here |= tf.max_alpha(r[:, 0], r[:, 1]) > 0
+                for name, value in isovalues:
+                    r = part[:, self.bricks.field_index(name)]
+                    here |= (r[:, 0] <= value) & (value <= r[:, 1])
+            out.append(seen)
         return tuple(out)
 
     def scene_args(self, node_visible=None, region_visible=None,
