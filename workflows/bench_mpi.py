@@ -45,14 +45,15 @@ so more ranks only share them: the MPI frame is not faster here (data mode pays
 the partition, each piece's BVH and the compositing on top; image mode is a
 wash), and neither is a job array, whose tasks each pay the start-up of Python,
 the OpenCL runtime and the upload (about 1 s): with one frame per task the array
-is about 4 times slower than one process, with 30 frames per task under 2
-times (four tasks share two cores). What MPI buys on one machine is memory. In
-data mode a rank holds 1/N of what one process holds above the baseline (× N / one near
-1.00 on the thin shells at both sizes, 1.1-1.2 on the 512³ volume, whose big
-bricks cross the cuts and are cropped with a margin): at 204 M cells the largest
-rank's peak falls from 6.88 GiB to 3.76 and 1.99 GiB with 2 and 4 ranks, because
-a rank maps the structure files and hands back the pages of every pass over them
-(the partition's byte grid, the search for the piece's regions).
+is about 4 times slower than one process, with 30 frames per task 0.6-1.0
+times as fast from run to run (four tasks share two cores). What MPI buys on one machine is memory.
+One process uses the files' pages in place (the device shares the values and
+brick lists with the page cache); a data-mode rank copies its piece (the bricks
+cropped to it, its regions and lists, a BVH of its own), so above the baseline
+it holds about 1.35-1.5/N of what one process holds on the thin shells (× N /
+one), and about 2/N on the 512³ volume, whose big bricks cross the cuts and are
+cropped with a margin. At 204 M cells the largest rank's peak falls from 4.24
+GiB for one process to 3.08 and 1.66 GiB with 2 and 4 ranks.
 The baseline itself (Python, numba, PoCL, mpi4py: about 270-350 MiB a rank) is
 paid by every rank. The speed-ups MPI is for come from ranks on separate nodes,
 which this machine cannot show.
