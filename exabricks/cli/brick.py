@@ -23,13 +23,12 @@ def brick(cells_path, output, max_brick_width, piece):
     wide per axis; the bricks file holds every cell's values, brick by brick.
     """
     from ..stages.brick import build_bricks  # numba import only when the command runs
-    from ..stages.pieces import WHOLE
 
     check_output(output, [cells_path])
     schema.prefetch_sha256([cells_path])
     cells = schema.load(cells_path, "cells", mapped=True, checked=True)
     try:
-        bricks = build_bricks(cells, max_brick_width=max_brick_width, piece=piece or WHOLE)
+        bricks = build_bricks(cells, max_brick_width=max_brick_width, piece=piece)
     except ExabricksError as e:
         raise ExabricksError(f"{cells_path}: {e}") from e
     meta = schema.make_meta(

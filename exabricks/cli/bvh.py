@@ -21,14 +21,13 @@ from .options import input_path, output_option, piece_option
 def bvh(regions_path, output, leaf_size, bins, piece):
     """Build a bounding-volume hierarchy with per-node value ranges over the regions."""
     from ..stages.bvh import build_bvh
-    from ..stages.pieces import WHOLE
 
     check_output(output, [regions_path])
     schema.prefetch_sha256([regions_path])
     regions = schema.load(regions_path, "regions", mapped=True, checked=True)
     check_regions(regions, regions_path)
     try:
-        result = build_bvh(regions, leaf_size=leaf_size, bins=bins, piece=piece or WHOLE)
+        result = build_bvh(regions, leaf_size=leaf_size, bins=bins, piece=piece)
     except ExabricksError as e:
         raise ExabricksError(f"{regions_path}: {e}") from e
     upstream = regions.meta.get("consistency") or {}

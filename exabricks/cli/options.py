@@ -71,10 +71,11 @@ def numbers(counts=None, low=0.0, high=1.0):
 
 
 def _piece(ctx, param, text):
-    if text is None:
-        return None
-    from ..stages.pieces import Piece
+    """Callback: "K/N" as a Piece (WHOLE when not given)."""
+    from ..stages.pieces import WHOLE, Piece
 
+    if text is None:
+        return WHOLE
     try:
         return Piece.parse(text)
     except ExabricksError as e:

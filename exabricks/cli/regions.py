@@ -34,7 +34,6 @@ def regions(bricks_path, output, exact, visit_cost, brick_cost, max_merged, max_
     whole are kept whole, with the union of their bricks (docs/design.md
     "Merged regions"): far fewer, larger regions on octree-like data.
     """
-    from ..stages.pieces import WHOLE
     from ..stages.regions import EXACT, Merge, build_regions
 
     check_output(output, [bricks_path])
@@ -57,7 +56,7 @@ def regions(bricks_path, output, exact, visit_cost, brick_cost, max_merged, max_
         raise click.UsageError(str(e)) from None
     bricks = schema.load(bricks_path, "bricks", mapped=True, checked=True)
     try:
-        result = build_regions(bricks, merge, piece or WHOLE)
+        result = build_regions(bricks, merge, piece)
     except ExabricksError as e:
         raise ExabricksError(f"{bricks_path}: {e}") from e
     stats = result.meta["statistics"]

@@ -57,9 +57,6 @@ class Piece:
     def whole(self) -> bool:
         return self.count == 1
 
-    def __str__(self) -> str:
-        return f"{self.index}/{self.count}"
-
 
 WHOLE = Piece()
 
