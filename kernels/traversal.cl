@@ -21,11 +21,17 @@
 #pragma once
 #include "common.h"
 
+/* Box i's corner from an (n, 3) float32 array of corners: the boxes of the
+ * BVH, the regions and the cell-location tree are read as their files hold
+ * them (on CPU devices the very pages of the mapped files, with no converted
+ * copy: exabricks.stages.device_data). */
+#define EB_CORNER(corners, i) vload3((i), (corners))
+
 /* exabricks.schema.Bvh on the device: node boxes, (first, count) links, the
  * leaf-order region ids, and the per-frame visibility flags. */
 typedef struct {
-    __global const float4 *lower;
-    __global const float4 *upper;
+    __global const float *lower;
+    __global const float *upper;
     __global const int2 *link;         /* (first, count); count 0: inner node */
     __global const int *region_index;
     __global const uchar *visible;
@@ -35,8 +41,8 @@ typedef struct {
 
 /* exabricks.schema.Regions on the device. */
 typedef struct {
-    __global const float4 *lower;
-    __global const float4 *upper;
+    __global const float *lower;
+    __global const float *upper;
     __global const long *brick_start;  /* CSR row pointers into brick_ids */
     __global const int *brick_ids;
     __global const char *finest_level;
@@ -59,7 +65,7 @@ inline int eb_next_region(eb_bvh bvh, eb_regions regions, float3 org, float3 inv
 
     if (!bvh.visible[0])
         return -1;
-    float2 root = eb_box_interval(bvh.lower[0].xyz, bvh.upper[0].xyz, org, inv_dir);
+    float2 root = eb_box_interval(EB_CORNER(bvh.lower, 0), EB_CORNER(bvh.upper, 0), org, inv_dir);
     if (fmin(root.y, t_max) <= fmax(root.x, t_cur))
         return -1;
     stack[sp] = 0;
@@ -76,7 +82,8 @@ inline int eb_next_region(eb_bvh bvh, eb_regions regions, float3 org, float3 inv
                 int r = bvh.region_index[i];
                 if (!regions.visible[r])
                     continue;
-                float2 iv = eb_box_interval(regions.lower[r].xyz, regions.upper[r].xyz, org, inv_dir);
+                float2 iv = eb_box_interval(EB_CORNER(regions.lower, r),
+                                            EB_CORNER(regions.upper, r), org, inv_dir);
                 float t0 = fmax(iv.x, t_cur), t1 = fmin(iv.y, t_max);
                 if (t1 > t0 && t0 < best_in) {
                     best = r;
@@ -90,7 +97,8 @@ inline int eb_next_region(eb_bvh bvh, eb_regions regions, float3 org, float3 inv
         float t_near[2];
         int hit[2];
         for (int k = 0; k < 2; ++k) {
-            float2 iv = eb_box_interval(bvh.lower[c + k].xyz, bvh.upper[c + k].xyz, org, inv_dir);
+            float2 iv = eb_box_interval(EB_CORNER(bvh.lower, c + k), EB_CORNER(bvh.upper, c + k),
+                                        org, inv_dir);
             t_near[k] = fmax(iv.x, t_cur);
             hit[k] = bvh.visible[c + k] && fmin(iv.y, t_max) > t_near[k] && t_near[k] < best_in;
         }
@@ -171,7 +179,7 @@ EB_INLINE void eb_queue_start(eb_queue *q, eb_bvh bvh, float3 org, float3 inv_di
     q->size = 0;
     if (!bvh.visible[0])
         return;
-    float2 iv = eb_box_interval(bvh.lower[0].xyz, bvh.upper[0].xyz, org, inv_dir);
+    float2 iv = eb_box_interval(EB_CORNER(bvh.lower, 0), EB_CORNER(bvh.upper, 0), org, inv_dir);
     float t0 = fmax(iv.x, t_min);
     if (fmin(iv.y, t_max) > t0)
         eb_queue_push(q, t0, 0);
@@ -190,7 +198,8 @@ EB_INLINE int eb_queue_expand(eb_queue *q, eb_bvh bvh, eb_regions regions, int n
             int r = bvh.region_index[i];
             if (!regions.visible[r])
                 continue;
-            float2 iv = eb_box_interval(regions.lower[r].xyz, regions.upper[r].xyz, org, inv_dir);
+            float2 iv = eb_box_interval(EB_CORNER(regions.lower, r), EB_CORNER(regions.upper, r),
+                                        org, inv_dir);
             float t0 = fmax(iv.x, t_cur);
             if (fmin(iv.y, t_max) > t0) {
                 if (q->size == EB_QUEUE_SIZE)
@@ -203,7 +212,7 @@ EB_INLINE int eb_queue_expand(eb_queue *q, eb_bvh bvh, eb_regions regions, int n
     for (int c = link.x; c < link.x + 2; ++c) {
         if (!bvh.visible[c])
             continue;
-        float2 iv = eb_box_interval(bvh.lower[c].xyz, bvh.upper[c].xyz, org, inv_dir);
+        float2 iv = eb_box_interval(EB_CORNER(bvh.lower, c), EB_CORNER(bvh.upper, c), org, inv_dir);
         float t0 = fmax(iv.x, t_cur);
         if (fmin(iv.y, t_max) > t0) {
             if (q->size == EB_QUEUE_SIZE)
@@ -252,7 +261,8 @@ EB_PROFILED int eb_walk_next(eb_walk *w, eb_bvh bvh, eb_regions regions, float3 
                 continue;
             }
             int r = ~item;
-            float2 iv = eb_box_interval(regions.lower[r].xyz, regions.upper[r].xyz, org, inv_dir);
+            float2 iv = eb_box_interval(EB_CORNER(regions.lower, r), EB_CORNER(regions.upper, r),
+                                        org, inv_dir);
             float a = fmax(iv.x, w->t_cur), b = fmin(iv.y, w->t_max);
             if (!(b > a))
                 continue;
@@ -282,18 +292,18 @@ typedef struct {
     int steps;
 } eb_descent;
 
-EB_INLINE void eb_descent_start(eb_descent *d, __global const float4 *lower,
-                                __global const float4 *upper, float3 p)
+EB_INLINE void eb_descent_start(eb_descent *d, __global const float *lower,
+                                __global const float *upper, float3 p)
 {
     d->sp = 0;
     d->steps = 0;
-    if (eb_point_in_box(p, lower[0].xyz, upper[0].xyz))
+    if (eb_point_in_box(p, EB_CORNER(lower, 0), EB_CORNER(upper, 0)))
         d->stack[d->sp++] = 0;
 }
 
 /* The next leaf containing p, or -1. n_nodes bounds the loop. */
-EB_INLINE int eb_descent_next(eb_descent *d, __global const float4 *lower,
-                              __global const float4 *upper, __global const int2 *link,
+EB_INLINE int eb_descent_next(eb_descent *d, __global const float *lower,
+                              __global const float *upper, __global const int2 *link,
                               float3 p, int n_nodes)
 {
     while (d->sp > 0 && d->steps++ < n_nodes) {
@@ -303,7 +313,8 @@ EB_INLINE int eb_descent_next(eb_descent *d, __global const float4 *lower,
             return node;
         /* Right child first on the stack, so the left one is visited first. */
         for (int c = l.x + 1; c >= l.x; --c)
-            if (eb_point_in_box(p, lower[c].xyz, upper[c].xyz) && d->sp < EB_STACK_SIZE)
+            if (eb_point_in_box(p, EB_CORNER(lower, c), EB_CORNER(upper, c))
+                && d->sp < EB_STACK_SIZE)
                 d->stack[d->sp++] = c;
     }
     return -1;
@@ -321,7 +332,7 @@ inline int eb_find_region(eb_bvh bvh, eb_regions regions, float3 p)
         int2 link = bvh.link[leaf];
         for (int i = link.x; i < link.x + link.y; ++i) {
             int r = bvh.region_index[i];
-            if (eb_point_in_box(p, regions.lower[r].xyz, regions.upper[r].xyz))
+            if (eb_point_in_box(p, EB_CORNER(regions.lower, r), EB_CORNER(regions.upper, r)))
                 return r;
         }
     }

@@ -18,7 +18,6 @@ import numpy as np
 from .. import opencl, schema
 from ..scene import RECONSTRUCTIONS
 from ..errors import ExabricksError
-from .cell_location import build_brick_tree
 
 
 # Reconstructions (exabricks.scene.RECONSTRUCTIONS, docs/design.md): the basis
@@ -152,10 +151,16 @@ def _float4(xyz, w=0.0) -> np.ndarray:
     return cltypes.make_float4(x, y, z, float(w))
 
 
-def _boxes4(lower, upper):
-    """(n, 3) bounds -> two (n, 4) float32 arrays (OpenCL float4 is 16 bytes)."""
-    pad = np.zeros((lower.shape[0], 1), np.float32)
-    return (np.hstack([lower.astype(np.float32), pad]), np.hstack([upper.astype(np.float32), pad]))
+def _packed(dtype, *parts) -> np.ndarray:
+    """Parts ((n,) or (n, k) arrays) side by side as the columns of one (n, width)
+    `dtype` array, written in place: the rows of OpenCL's int2, int4 or float4."""
+    widths = [1 if p.ndim == 1 else p.shape[1] for p in parts]
+    out = np.empty((parts[0].shape[0], sum(widths)), dtype)
+    at = 0
+    for part, width in zip(parts, widths):
+        out[:, at:at + width] = part.reshape(-1, width)
+        at += width
+    return out
 
 
 class DeviceScene:
@@ -199,10 +204,9 @@ class DeviceScene:
             return opencl.to_device(queue, array, dtype, share=True)
 
         b = bricks
-        width = np.ldexp(1.0, b.level.astype(np.int32))
-        box = np.hstack([b.lower_lattice.astype(np.float32),
-                         (1.0 / width).astype(np.float32)[:, None]])
-        dims = np.hstack([b.dims, b.level.astype(np.int32)[:, None]]).astype(np.int32)
+        inv_width = np.ldexp(np.float32(1), -b.level.astype(np.int32))
+        box = _packed(np.float32, b.lower_lattice, inv_width)
+        dims = _packed(np.int32, b.dims, b.level)
         # A run of consecutive fields is a view (no copy of the values on the host).
         first = self.field_indices[0] if self.fields else 0
         consecutive = self.field_indices == list(range(first, first + len(self.field_indices)))
@@ -217,19 +221,19 @@ class DeviceScene:
                              np.int64(0)]
         self._vertex_args = self._mip_args = None
 
+        # Region and node boxes as the files hold them, (n, 3) float32 (traversal.cl, EB_CORNER).
         r = regions
-        lo, hi = _boxes4(r.lower_lattice, r.upper_lattice)
-        self._region_static = [up(q, lo), up(q, hi), up(q, r.brick_start, np.int64),
-                               up(q, r.brick_ids, np.int32), up(q, r.finest_level, np.int8)]
-        lo, hi = _boxes4(bvh.lower_lattice, bvh.upper_lattice)
-        link = np.column_stack([bvh.first, bvh.count]).astype(np.int32)
-        self._bvh_static = [up(q, lo), up(q, hi), up(q, link), up(q, bvh.region_index, np.int32)]
+        self._region_static = [up(q, r.lower_lattice, np.float32), up(q, r.upper_lattice, np.float32),
+                               up(q, r.brick_start, np.int64), up(q, r.brick_ids, np.int32),
+                               up(q, r.finest_level, np.int8)]
+        link = _packed(np.int32, bvh.first, bvh.count)
+        self._bvh_static = [up(q, bvh.lower_lattice, np.float32),
+                            up(q, bvh.upper_lattice, np.float32), up(q, link),
+                            up(q, bvh.region_index, np.int32)]
         self._all_visible = (up(q, np.ones(max(bvh.n_nodes, 1), np.uint8)),
                              up(q, np.ones(max(r.n_regions, 1), np.uint8)))
         # The device holds these in its own layout now: mapped pages go back.
-        schema.release_arrays(b.lower_lattice, b.level, b.dims, r.lower_lattice,
-                              r.upper_lattice, bvh.lower_lattice, bvh.upper_lattice, bvh.first,
-                              bvh.count)
+        schema.release_arrays(b.lower_lattice, b.level, b.dims, bvh.first, bvh.count)
 
         self.origin_world4 = _float4(b.origin_world)
         self.inv_spacing4 = _float4(1.0 / b.spacing_world)
@@ -265,7 +269,7 @@ class DeviceScene:
                 here = seen[start:start + part.shape[0]]
                 for name, tf in layers:
                     r = part[:, self.bricks.field_index(name)]
-                    here |= tf.max_alpha(r[:, 0], r[:, 1]) > 0
+                    here |= tf.any_alpha(r[:, 0], r[:, 1])
                 for name, value in isovalues:
                     r = part[:, self.bricks.field_index(name)]
                     here |= (r[:, 0] <= value) & (value <= r[:, 1])
@@ -321,11 +325,12 @@ class DeviceScene:
         (kept as `brick_tree`, its build time in `brick_tree_seconds`)."""
         if self._location_args is None:
             start = time.perf_counter()
+            from .cell_location import build_brick_tree  # numba: only for this lookup
+
             tree = self.brick_tree = build_brick_tree(self.bricks)
             self.brick_tree_seconds = time.perf_counter() - start
             q, up = self.queue, opencl.to_device
-            lo, hi = _boxes4(tree.lower, tree.upper)
-            link = np.column_stack([tree.first, tree.count]).astype(np.int32)
-            self._location_args = [up(q, lo), up(q, hi), up(q, link),
-                                   up(q, tree.brick_index, np.int32), np.int32(link.shape[0])]
+            self._location_args = [up(q, tree.lower, np.float32), up(q, tree.upper, np.float32),
+                                   up(q, _packed(np.int32, tree.first, tree.count)),
+                                   up(q, tree.brick_index, np.int32), np.int32(tree.first.shape[0])]
         return self._location_args

@@ -28,8 +28,7 @@ import numpy as np
 from .. import schema
 from ..constants import LATTICE_DTYPE, LEVEL_DTYPE, MAX_LEVEL, VALUE_DTYPE
 from ..errors import ExabricksError
-from ..schema import Cells
-from ._checks import first_misaligned
+from ..schema import Cells, first_misaligned
 
 NAN_POLICIES = ("error", "zero", "drop", "keep")
 """What `validate_cells` does with NaN or +-Inf values.
@@ -270,7 +269,7 @@ def validate_cells(cells: Cells, *, source: str, nan_policy: str = "error") -> C
             f"{source}: cell {i} at {lower[i].tolist()} has level {int(level[i])}, "
             f"outside 0..{MAX_LEVEL}"
         )
-    i = first_misaligned(np.ascontiguousarray(lower), np.ascontiguousarray(level))
+    i = first_misaligned(lower, level)
     if i >= 0:
         w = 1 << int(level[i])
         raise ExabricksError(
