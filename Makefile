@@ -88,6 +88,8 @@ bench: setup
 	$(PY) workflows/bench_merge.py --write-docs
 	@# render: the OpenCL renderer on the four real datasets and the thin shells, both walks, both sample paths
 	$(PY) workflows/bench_render.py --write-docs
+	@# loading: a render command's cost before its first sample, against reading its files
+	$(PY) workflows/bench_load.py --write-docs
 	@# where a frame's time goes: perf samples by kernel function (skipped without perf)
 	@if command -v perf >/dev/null; then $(PY) workflows/profile_render.py --write-docs; fi
 	@# peers: exabricks vs yt, VTK, per-sample cell location and the uniform-grid ceiling (1024², all datasets)
