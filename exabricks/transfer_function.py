@@ -5,8 +5,8 @@ A `TransferFunction` holds RGB knots ``[x, r, g, b]`` and opacity knots
 its first/last knot outside its range (docs/design.md, "Transfer function").
 `evaluate` is the float64 reference; `merged_knots` is the exact representation
 the OpenCL kernel interpolates; `any_alpha` says where opacity is above zero over
-value intervals, so the renderer can skip transparent BVH nodes and regions (the majorant idea of
-paper §3.3/§4.1).
+value intervals, so the renderer can skip transparent BVH nodes and regions (the
+majorant idea of paper §3.3/§4.1).
 
 Opacity unit: ``alpha`` is the opacity of a slab of thickness
 ``unit_distance`` (world units); a step of length ``dt`` has opacity

@@ -15,8 +15,8 @@
 
 /* exabricks.stages.cell_location.BrickTree on the device. */
 typedef struct {
-    __global const float *lower;   /* node boxes: union of the supports below, lattice units */
-    __global const float *upper;
+    __global const float *lower;    /* node boxes: union of the supports below, lattice units */
+    __global const float *upper;    /* (n, 3) corners: traversal.cl, EB_CORNER */
     __global const int2 *link;      /* (first, count); count 0: inner node */
     __global const int *brick_index;
     int n_nodes;

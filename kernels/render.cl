@@ -6,11 +6,11 @@
 #include "integrator.cl"
 
 #define EB_BVH_ARGS                                                             \
-    __global const float *bvh_lower, __global const float *bvh_upper,         \
+    __global const float *bvh_lower, __global const float *bvh_upper,           \
     __global const int2 *bvh_link, __global const int *bvh_region_index,        \
     __global const uchar *bvh_visible, int bvh_n_nodes, int bvh_n_regions
 #define EB_REGION_ARGS                                                          \
-    __global const float *region_lower, __global const float *region_upper,   \
+    __global const float *region_lower, __global const float *region_upper,     \
     __global const long *region_brick_start, __global const int *region_brick_ids, \
     __global const char *region_finest_level, __global const uchar *region_visible
 #define EB_BRICK_ARGS                                                           \
@@ -57,7 +57,7 @@
  * the tree over the brick supports, exabricks.stages.cell_location.BrickTree. */
 #ifdef EB_CELL_LOCATION
 #define EB_LOCATION_ARGS                                                        \
-    , __global const float *tree_lower, __global const float *tree_upper,     \
+    , __global const float *tree_lower, __global const float *tree_upper,       \
     __global const int2 *tree_link, __global const int *tree_brick_index,      \
     int tree_n_nodes
 #define EB_SAMPLE_BRICKS_STRUCT                                                 \

@@ -189,8 +189,8 @@ class DeviceScene:
             "brick values": bricks.values.shape[1] * 4 * max(1, len(self.fields)),
             "brick boxes": bricks.n_bricks * 40,
             "region lists": regions.brick_ids.nbytes + regions.brick_start.nbytes,
-            "region boxes": regions.n_regions * 34,
-            "BVH nodes": bvh.n_nodes * 42 + bvh.region_index.nbytes,
+            "region boxes": regions.n_regions * 26,  # two float3 corners, level, visible
+            "BVH nodes": bvh.n_nodes * 33 + bvh.region_index.nbytes,  # corners, int2, visible
         })
         self.context, self.queue = opencl.context_for(self.device)
         # The resident buffers share host memory on CPU devices (opencl.to_device):
