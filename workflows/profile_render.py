@@ -69,8 +69,10 @@ once (8-16 %), and the reconstruction becomes the largest part (17-43 %: its gat
 per corner, lane and brick), followed by the transfer function's gathers (9-18 %) and, on
 octree-like data (Gerris, the thin shells), the walk (11-12 %), which packets do not
 touch: one region visit there buys a partial packet. "sampling (no line)" is code of the
-sampling functions that LLVM left without a source line; "ray set-up" the rest of the
-work-item (camera ray, clip interval, writing the pixel).
+sampling functions that LLVM left without a source line; "ray set-up" the samples in the
+kernel's entry function that carry no source line: PoCL's loop over the work-items and
+whatever LLVM inlined there without a line (the camera ray, the clip interval and the
+pixel's write among it), so it is an upper bound on the set-up, not its cost.
 """
 FUNCTION = re.compile(r"^(?:EB_INLINE|inline|__kernel|__attribute__\(\(noinline\)\))\b[^(]*?\b(\w+)\(")
 
