@@ -90,6 +90,8 @@ bench: setup
 	$(PY) workflows/bench_render.py --write-docs
 	@# loading: a render command's cost before its first sample, against reading its files
 	$(PY) workflows/bench_load.py --write-docs
+	@# kernel builds: the first frame of each program variant with empty PoCL caches
+	$(PY) workflows/bench_compile.py --write-docs
 	@# where a frame's time goes: perf samples by kernel function (skipped without perf)
 	@if command -v perf >/dev/null; then $(PY) workflows/profile_render.py --write-docs; fi
 	@# peers: exabricks vs yt, VTK, per-sample cell location and the uniform-grid ceiling (1024², all datasets)

@@ -29,6 +29,12 @@
  * a constant want_gradient is not folded away. */
 #define EB_INLINE inline __attribute__((always_inline))
 
+/* Rare, heavy paths kept out of line (an iso crossing's refinement, a surface
+ * hit): inlined into every copy of the ray loop they made the kernel so large
+ * that LLVM's compile time went superlinear (minutes per program variant with
+ * surfaces on 2 cores; docs/design.md "Kernel builds"). */
+#define EB_COLD __attribute__((noinline))
+
 /* The few functions that are kept out of line in a profiling build
  * (-DEB_PROFILE, workflows/profile_render.py), so that a sampling profiler
  * sees the walk and the sampling as separate symbols. */

@@ -60,8 +60,8 @@ EB_INLINE void eb_slices_start(eb_frame *fr, eb_ray *ray, float t0, float t1, eb
 /* Where field f crosses iso between ta and tb, given da = B(ta) - iso and
  * db = B(tb) - iso of opposite signs. A point without data shrinks the bracket
  * toward its front (the crossing nearest the eye is wanted). */
-EB_INLINE float eb_refine_crossing(eb_frame *fr, eb_ray *ray, int f, float iso,
-                                   float ta, float da, float tb, float db)
+EB_COLD float eb_refine_crossing(eb_frame *fr, eb_ray *ray, int f, float iso,
+                                 float ta, float da, float tb, float db)
 {
     for (int i = 0; i < EB_REFINE_STEPS && tb - ta > fr->surf.tolerance; ++i) {
         float tm = 0.5f * (ta + tb);
@@ -84,7 +84,7 @@ EB_INLINE float eb_refine_crossing(eb_frame *fr, eb_ray *ray, int f, float iso,
 
 /* Shade and composite one surface hit at distance t: iso-surface j (k < 0) or
  * slice k (j < 0). Returns 1 once the ray is opaque enough to stop. */
-EB_INLINE int eb_surface_hit(eb_frame *fr, eb_ray *ray, eb_ray_state *st, float t, int j, int k)
+EB_COLD int eb_surface_hit(eb_frame *fr, eb_ray *ray, eb_ray_state *st, float t, int j, int k)
 {
     float3 p = ray->org + t * ray->dir;
     int level;
@@ -182,7 +182,7 @@ EB_INLINE int eb_surfaces_until(eb_frame *fr, eb_ray *ray, eb_ray_state *st, flo
 /* Close the open bracket at the last region's exit (before a gap, and at the
  * end of the walk): the field there ends the crossing test of the last
  * samples. Returns 1 once the ray is opaque enough to stop. */
-EB_INLINE int eb_close_bracket(eb_frame *fr, eb_ray *ray, eb_ray_state *st)
+EB_COLD int eb_close_bracket(eb_frame *fr, eb_ray *ray, eb_ray_state *st)
 {
     if (fr->surf.n_iso == 0 || !st->prev_valid || !(st->last_exit > st->prev_t))
         return 0;
