@@ -61,15 +61,10 @@ NOTES = """
 *build* is the first frame less the second, in a process whose PoCL and pyopencl
 caches start empty: clBuildProgram (Clang and LLVM's optimisation of the program)
 plus PoCL's work-group function for the 8x8 work-groups at the first enqueue. A
-user pays it once per variant and machine; the caches keep it. The kernels inline
-every helper into the ray loop (`EB_INLINE`), and the loop is instantiated four
-times (shading on or off, ordered or re-trace walk); the surface paths that run only
-at a crossing or a hit (`eb_refine_crossing`, `eb_surface_hit` with its ambient
-occlusion rays, `eb_close_bracket`) are kept out of line (`EB_COLD`, kernels/common.h).
-Inlined as well, they made the ray loop so large that LLVM's MemorySSA and register
-allocation went superlinear: minutes per variant with surfaces. The before column
-builds the kernels of e9aeb32, the commit before that change (`git worktree add
-/tmp/before-e9aeb32 e9aeb32`), with the same host code.
+user pays it once per variant and machine; the caches keep it. The before column
+builds the kernels of e9aeb32 (`git worktree add /tmp/before-e9aeb32 e9aeb32`), with
+the same host code: there the rare surface paths were still inlined into every copy
+of the ray loop (docs/design.md, "Kernel builds").
 """
 
 
