@@ -94,6 +94,8 @@ bench: setup
 	$(PY) workflows/bench_compile.py --write-docs
 	@# where a frame's time goes: perf samples by kernel function (skipped without perf)
 	@if command -v perf >/dev/null; then $(PY) workflows/profile_render.py --write-docs; fi
+	@# the same for bench_peers' frame (shading none), on which the targets are measured
+	@if command -v perf >/dev/null; then $(PY) workflows/profile_render.py --only amrex,athena,gerris --view peers --write-docs; fi
 	@# peers: exabricks vs yt, VTK, per-sample cell location and the uniform-grid ceiling (1024², all datasets)
 	$(PY) workflows/bench_peers.py --json bench-data/peers.json
 	@# render modes: iso-surfaces, slices, clipping, AO, layers, gradients (Gerris, AMReX)

@@ -49,6 +49,25 @@ files' bytes. The parts are measured in one warm process: `load_structures`
 (brick boxes, dims and BVH links written in the device's layout, the buffers
 made), and one frame's node and region visibility for the default transfer
 function. Cold: after `echo 3 > /proc/sys/vm/drop_caches` (only as root).
+
+*fresh memory*: new processes each allocate and first write 256 MiB, then write
+them again. On a virtual machine whose guest hands free pages back to the host
+(Firecracker with `page_reporting`, as the one of 2026-12-03), a first write of
+pages the process never used costs from about as much as the second to a hundred
+times more, differently in every run. Every fresh array of a command pays it:
+there the DeviceScene's brick boxes and dims in the device's layout (74 MB on the
+thin shells) took from 0.06 to 0.9 s in four runs of the same process. That, not
+the checks, is most of the spread between runs.
+
+Before the loading work of ab99888 (this script run on 4e7817c minutes before it,
+on the same AMD EPYC, 2026-12-03): baseline command 1.88 s, peak 238 MiB; thin
+shells 5.67 / 4.24 s (2.35 s above the baseline), peak 658 MiB (1.20 of the files
+above the baseline), parts 0.91 / 0.69 / 0.25 s. What changed then: the alignment
+check in NumPy steps instead of numba (every command that builds nothing no longer
+starts numba: 0.8 s and 100 MiB of the baseline), the region and BVH boxes read by
+the kernels as the files hold them (no float4 copies), the brick rows written in
+place, and the visibility's opacity test by a prefix count of the positive knots
+instead of a sparse-table maximum.
 """
 
 
@@ -74,6 +93,23 @@ def command(files, field: str, out: Path) -> tuple[float, int]:
                                         "--field", field, "--size", "64", "64",
                                         "--max-opacity", "1", "-o", out])
     return wall, peak
+
+
+# The first touch of fresh memory in a new process, against writing it again: on some
+# virtual machines (free page reporting) the first costs far more, and varies widely.
+TOUCH = """
+import time, numpy as np
+t = time.perf_counter(); a = np.ones(64 << 20, np.float32); t1 = time.perf_counter()
+a[:] = 2; print(t1 - t, time.perf_counter() - t1)
+"""
+
+
+def first_touch(runs: int) -> tuple[list[float], float]:
+    """Seconds to allocate and first write 256 MiB in each of `runs` fresh processes, and
+    the median seconds to write them again."""
+    out = [subprocess.run([sys.executable, "-c", TOUCH], capture_output=True, text=True,
+                          check=True).stdout.split() for _ in range(runs)]
+    return sorted(float(a) for a, _ in out), statistics.median(float(b) for _, b in out)
 
 
 def parts(files, field: str) -> tuple[float, float, float]:
@@ -135,6 +171,7 @@ def main(argv=None) -> int:
                 f"{cold_cmd}{wall:.2f} | {wall - base_wall:.2f} | {benchdoc.fmt_bytes(peak)} | "
                 f"{(peak - base_peak) / size:.2f} | {load:.2f} / {device:.2f} / {visible:.2f} |")
             print(rows[-1], flush=True)
+    touch, again = first_touch(max(args.runs, 5))
     temperature = "cold / warm" if can_drop else "warm"
     body = "\n".join([
         f"`.venv/bin/python workflows/bench_load.py --runs {args.runs}"
@@ -143,6 +180,9 @@ def main(argv=None) -> int:
         f"- machine: {benchdoc.machine(opencl=True)}",
         f"- baseline (64-cell dataset): command {base_wall:.2f} s, peak "
         f"{benchdoc.fmt_bytes(base_peak)}; medians of {args.runs} warm runs",
+        f"- fresh memory: allocating and first writing 256 MiB took "
+        f"{', '.join(f'{t:.2f}' for t in touch)} s in {len(touch)} new processes; writing "
+        f"it again {again:.2f} s",
         "",
         f"| dataset | files | read s ({temperature}) | command s ({temperature}) | "
         "above baseline s (warm) | peak | peak above baseline / files | "

@@ -1154,15 +1154,16 @@ def gaps(rows, machine_line: str) -> list[str]:
     return [
         text,
         "",
-        "What would close the gaps (profile: docs/benchmarks.md, \"Where a frame's time goes "
-        "(perf)\"): with packets the reconstruction's gathers (one per corner, lane and listed "
-        "brick) and the transfer function's are the largest parts, then the polynomials of the "
-        "opacity correction; a packet of samples is on average 4-7 of 8 lanes full, since it "
-        "stays within one region visit. On octree-like data the region walk, which packets do "
-        "not touch, bounds the frame: fewer, larger regions (issue 10's merging) or a cheaper "
-        "step from one region to the next would help there; packets of rays that share a walk "
-        "would fill the lanes better on block-structured data. On a GPU the kernels run one "
-        "ray per lane, one sample at a time.",
+        "What would close the gaps (these frames profiled: docs/benchmarks.md, \"Where "
+        "bench_peers' frame goes (perf)\"; what bounds each missed target: \"What bounds the "
+        "missed targets\"): with packets the reconstruction's gathers (one per corner, lane and "
+        "listed brick) and the transfer function's are the largest parts, then the walk and the "
+        "compositing; a packet of samples is on average 4-7 of 8 lanes full, since it stays "
+        "within one region visit. On octree-like data the reconstruction from long lists (Gerris: "
+        "11.6 bricks per sample by volume) and the region walk, which packets do not touch, "
+        "weigh most: fewer bricks per sample or a cheaper step from one region to the next would "
+        "help there; packets of rays that share a walk would fill the lanes better on "
+        "block-structured data. On a GPU the kernels run one ray per lane, one sample at a time.",
     ]
 
 

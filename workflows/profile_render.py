@@ -1,7 +1,8 @@
 """Where a frame's time goes: perf samples of the render kernel, by source function.
 
     .venv/bin/python workflows/profile_render.py [--only amrex,athena,...] [--size 1024]
-                                                 [--frames 6] [--write-docs]
+                                                 [--frames 6] [--view render|peers]
+                                                 [--rate 2] [--write-docs]
 
 For each dataset (bench_render's inputs, bench-data/render/<name>/, made by
 workflows/bench_render.py) and for each path (one sample at a time, the GPU's;
@@ -19,8 +20,11 @@ kernel (Python, the driver, page faults) are left out: the percentages are of
 the kernel's time, and the "kernel share" column says how much of the process
 that was.
 
---write-docs replaces the "## Where a frame's time goes (perf)" section of
-docs/benchmarks.md.
+--view peers profiles bench_peers' frame instead (its transfer function, opacity
+unit and no shading, at --rate), the frame the targets against yt and VTK are
+measured on. --write-docs replaces the "## Where a frame's time goes (perf)"
+section of docs/benchmarks.md (with --view peers: "## Where bench_peers' frame
+goes (perf)").
 """
 
 from __future__ import annotations
@@ -41,6 +45,11 @@ sys.path.insert(0, str(ROOT / "workflows"))
 import benchdoc  # noqa: E402
 
 SECTION = "Where a frame's time goes (perf)"
+PEERS_SECTION = "Where bench_peers' frame goes (perf)"
+PEERS_VIEW = ("As in \"Where a frame's time goes (perf)\", but each child renders "
+              "bench_peers' frame of the dataset: its camera, the default transfer function "
+              "with the opacity ramp scaled by bench_peers.ALPHA_SCALE (0.1), its opacity unit, "
+              "early termination and seed, shading none, at --rate samples per finest cell.")
 DEFAULT = ("amrex", "athena", "gerris", "enzo", "shell")
 KERNELS = ROOT / "kernels"
 
@@ -63,16 +72,19 @@ PARTS = (
 )
 NOTES = """What it says. One sample at a time, the opacity correction (two fitted polynomials,
 a chain of about 16 dependent multiply-adds) is the largest part wherever regions are
-long (43-46 % on AMReX and Athena++): the scalar code cannot overlap one sample's chain
-with the next one's. With sample packets the same polynomials run on eight samples at
-once (8-16 %), and the reconstruction becomes the largest part (17-43 %: its gathers, one
-per corner, lane and brick), followed by the transfer function's gathers (9-18 %) and, on
-octree-like data (Gerris, the thin shells), the walk (11-12 %), which packets do not
-touch: one region visit there buys a partial packet. "sampling (no line)" is code of the
-sampling functions that LLVM left without a source line; "ray set-up" the samples in the
-kernel's entry function that carry no source line: PoCL's loop over the work-items and
-whatever LLVM inlined there without a line (the camera ray, the clip interval and the
-pixel's write among it), so it is an upper bound on the set-up, not its cost.
+long (26-28 % on AMReX and Athena++ on an AMD EPYC with AVX2; 43-46 % on the Xeon with
+AVX-512 of 2026-12-02): the scalar code cannot overlap one sample's chain with the next
+one's. With sample packets the same polynomials run on eight samples at once (4-6 %;
+8-16 % on that Xeon), and the reconstruction becomes the largest part (19-42 %: its
+gathers, one per corner, lane and brick), followed by the transfer function's gathers
+(8-19 %) and the walk (12-16 %), which packets do not touch: on octree-like data
+(Gerris, the thin shells) one region visit buys a partial packet. "sampling (no line)"
+is code of the sampling functions that LLVM left without a source line; "ray set-up"
+the samples in the kernel's entry function, which carry no source line (PoCL drops the
+work-group function's debug info): the camera ray, the clip interval, the walk's start,
+the per-region glue of the integrator and the pixel's write. It is largest where a
+pixel takes few samples (Athena++ and Gerris, 17-19 %); PoCL's per-work-item context
+arrays are not its cost (docs/design.md, "Work-group size and PoCL's context arrays").
 """
 FUNCTION = re.compile(r"^(?:EB_INLINE|inline|__kernel|__attribute__\(\(noinline\)\))\b[^(]*?\b(\w+)\(")
 
@@ -127,12 +139,12 @@ def attribute(report: str, starts) -> tuple[Counter, float]:
     return Counter({k: 100.0 * v / kernel for k, v in parts.items()}) if kernel else parts, kernel
 
 
-def child(name: str, packets: bool, size: int, frames: int) -> None:
+def child(name: str, packets: bool, size: int, frames: int, view: str, rate: float) -> None:
     """Render under the parent's perf record: a -g build, one warm-up frame, `frames` frames."""
     from exabricks import opencl, schema
     from exabricks.camera import default_camera
     from exabricks.stages.render import Renderer
-    from exabricks.transfer_function import default_transfer_function
+    from exabricks.transfer_function import TransferFunction, default_transfer_function
 
     opencl.BUILD_OPTIONS = (*opencl.BUILD_OPTIONS, "-g", "-DEB_PROFILE")
     d = ROOT / "bench-data" / "render" / name
@@ -142,19 +154,30 @@ def child(name: str, packets: bool, size: int, frames: int) -> None:
     values = b.values[renderer.scene.field_indices[0]]
     tf = default_transfer_function((float(values.min()), float(values.max())))
     lo, hi = schema.world_bounds(b)
-    camera = default_camera(lo, hi)
-    renderer.render(camera=camera, transfer_function=tf, width=size, height=size)
+    settings = {"camera": default_camera(lo, hi), "width": size, "height": size,
+                "sampling_rate": rate}
+    if view == "peers":  # bench_peers' frame: its opacity ramp, unit and no shading
+        import bench_peers
+
+        alpha = tf.alpha_points.copy()
+        alpha[:, 1] *= bench_peers.ALPHA_SCALE
+        tf = TransferFunction(tf.rgb_points, alpha, tf.name)
+        settings.update(shading="none", unit_distance=bench_peers.opacity_unit((lo, hi)),
+                        max_opacity=bench_peers.MAX_OPACITY, seed=bench_peers.SEED)
+    renderer.render(transfer_function=tf, **settings)
     for _ in range(frames):
-        renderer.render(camera=camera, transfer_function=tf, width=size, height=size)
+        renderer.render(transfer_function=tf, **settings)
 
 
-def profile(name: str, packets: bool, size: int, frames: int, starts) -> tuple[Counter, float]:
-    command = [sys.executable, __file__, "--child", name, str(int(packets)), str(size)]
+def profile(name: str, packets: bool, size: int, frames: int, view: str, rate: float,
+            starts) -> tuple[Counter, float]:
+    command = lambda n: [sys.executable, __file__, "--child", name, str(int(packets)), str(size),
+                         str(n), view, str(rate)]
     # The program build (minutes the first time) happens outside the profile.
-    subprocess.run([*command, "0"], check=True, cwd=ROOT, capture_output=True)
+    subprocess.run(command(0), check=True, cwd=ROOT, capture_output=True)
     with tempfile.TemporaryDirectory() as tmp:
         data = Path(tmp) / "perf.data"
-        subprocess.run(["perf", "record", "-q", "-F", "499", "-o", str(data), *command, str(frames)],
+        subprocess.run(["perf", "record", "-q", "-F", "499", "-o", str(data), *command(frames)],
                        check=True, cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
         report = subprocess.run(["perf", "report", "-i", str(data), "--no-children", "--stdio",
                                  "--sort", "sym,srcline"], check=True, capture_output=True,
@@ -165,12 +188,16 @@ def profile(name: str, packets: bool, size: int, frames: int, starts) -> tuple[C
 def main(argv=None) -> int:
     argv = sys.argv[1:] if argv is None else argv
     if argv[:1] == ["--child"]:
-        child(argv[1], argv[2] == "1", int(argv[3]), int(argv[4]))
+        child(argv[1], argv[2] == "1", int(argv[3]), int(argv[4]), argv[5], float(argv[6]))
         return 0
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--only", default=",".join(DEFAULT))
     parser.add_argument("--size", type=int, default=1024)
     parser.add_argument("--frames", type=int, default=6)
+    parser.add_argument("--view", choices=("render", "peers"), default="render",
+                        help="bench_render's frame (headlight shading), or bench_peers' "
+                             "(its opacity ramp and unit, no shading)")
+    parser.add_argument("--rate", type=float, default=2.0, help="samples per finest cell")
     parser.add_argument("--write-docs", action="store_true")
     args = parser.parse_args(argv)
     if shutil.which("perf") is None:
@@ -185,11 +212,13 @@ def main(argv=None) -> int:
                   f"--only {name} first", file=sys.stderr)
             return 1
         for packets in (False, True):
-            parts, kernel = profile(name, packets, args.size, args.frames, starts)
+            parts, kernel = profile(name, packets, args.size, args.frames, args.view, args.rate,
+                                    starts)
             rows[name, packets] = (parts, kernel)
             shown = ", ".join(f"{k} {v:.0f}%" for k, v in parts.most_common())
             print(f"{name} {'packets' if packets else 'one sample'}: kernel {kernel:.0f}% of the "
                   f"process; {shown}", flush=True)
+    view = f" --view peers --rate {args.rate:g}" if args.view == "peers" else ""
     order = [p for p, _ in PARTS] + ["other kernel code", "sampling (no line)", "ray set-up"]
     head = "| dataset | path | kernel share | " + " | ".join(order) + " |"
     lines = [head, "|" + "---|" * (3 + len(order))]
@@ -198,17 +227,17 @@ def main(argv=None) -> int:
                      + " | ".join(f"{parts.get(p, 0.0):.0f}%" for p in order) + " |")
     body = "\n".join([
         f"`.venv/bin/python workflows/profile_render.py --size {args.size} --frames {args.frames}"
-        f" --only {','.join(names)} --write-docs`",
+        f" --only {','.join(names)}{view} --write-docs`",
         "",
         f"- machine: {benchdoc.machine(opencl=True)}",
         "",
-        __doc__.split("\n\n")[2].replace("\n", " "),
+        __doc__.split("\n\n")[2].replace("\n", " ") if args.view == "render" else PEERS_VIEW,
         "",
         *lines,
         "",
-        NOTES,
+        NOTES if args.view == "render" else "",
     ])
-    benchdoc.publish(SECTION, body, args.write_docs)
+    benchdoc.publish(SECTION if args.view == "render" else PEERS_SECTION, body, args.write_docs)
     return 0
 
 
