@@ -252,16 +252,23 @@ def view_of(cells, alpha_scale: float):
     ramp 0 -> 1 scaled by `alpha_scale`)."""
     from exabricks import schema
     from exabricks.camera import default_camera
-    from exabricks.transfer_function import TransferFunction, default_transfer_function
 
     lo, hi = schema.world_bounds(cells)
     values = cells.values[0]
     value_range = (float(np.nanmin(values)), float(np.nanmax(values)))
+    tf = transfer_function(value_range, alpha_scale)
+    return default_camera(lo, hi), tf, (lo, hi), value_range
+
+
+def transfer_function(value_range, alpha_scale: float = ALPHA_SCALE):
+    """The benchmark's transfer function: the built-in default over `value_range`, its
+    opacity ramp 0 -> 1 scaled by `alpha_scale`."""
+    from exabricks.transfer_function import TransferFunction, default_transfer_function
+
     tf = default_transfer_function(value_range)
     alpha = tf.alpha_points.copy()
     alpha[:, 1] *= alpha_scale
-    tf = TransferFunction(tf.rgb_points, alpha, tf.name)
-    return default_camera(lo, hi), tf, (lo, hi), value_range
+    return TransferFunction(tf.rgb_points, alpha, tf.name)
 
 
 def opacity_unit(bounds) -> float:

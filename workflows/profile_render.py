@@ -144,7 +144,7 @@ def child(name: str, packets: bool, size: int, frames: int, view: str, rate: flo
     from exabricks import opencl, schema
     from exabricks.camera import default_camera
     from exabricks.stages.render import Renderer
-    from exabricks.transfer_function import TransferFunction, default_transfer_function
+    from exabricks.transfer_function import default_transfer_function
 
     opencl.BUILD_OPTIONS = (*opencl.BUILD_OPTIONS, "-g", "-DEB_PROFILE")
     d = ROOT / "bench-data" / "render" / name
@@ -152,16 +152,15 @@ def child(name: str, packets: bool, size: int, frames: int, view: str, rate: flo
     renderer = Renderer(b, schema.load(d / "regions.npz", "regions"),
                         schema.load(d / "bvh.npz", "bvh"), packets=packets)
     values = b.values[renderer.scene.field_indices[0]]
-    tf = default_transfer_function((float(values.min()), float(values.max())))
+    value_range = (float(values.min()), float(values.max()))
+    tf = default_transfer_function(value_range)
     lo, hi = schema.world_bounds(b)
     settings = {"camera": default_camera(lo, hi), "width": size, "height": size,
                 "sampling_rate": rate}
     if view == "peers":  # bench_peers' frame: its opacity ramp, unit and no shading
         import bench_peers
 
-        alpha = tf.alpha_points.copy()
-        alpha[:, 1] *= bench_peers.ALPHA_SCALE
-        tf = TransferFunction(tf.rgb_points, alpha, tf.name)
+        tf = bench_peers.transfer_function(value_range)
         settings.update(shading="none", unit_distance=bench_peers.opacity_unit((lo, hi)),
                         max_opacity=bench_peers.MAX_OPACITY, seed=bench_peers.SEED)
     renderer.render(transfer_function=tf, **settings)
