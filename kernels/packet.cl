@@ -107,6 +107,21 @@ EB_INLINE void eb_packet_add_grid(float4 box, int4 n, __global const float *v, l
     }
 }
 
+/* The least and the greatest of W lanes. */
+EB_INLINE float eb_min_lanes(eb_vf v)
+{
+    float4 m = fmin(v.lo, v.hi);
+    float2 q = fmin(m.lo, m.hi);
+    return fmin(q.x, q.y);
+}
+
+EB_INLINE float eb_max_lanes(eb_vf v)
+{
+    float4 m = fmax(v.lo, v.hi);
+    float2 q = fmax(m.lo, m.hi);
+    return fmax(q.x, q.y);
+}
+
 /* The sums of eq. 1-2 at W points over the bricks brick_ids[begin:end]. */
 EB_INLINE eb_packet_sums eb_packet_reconstruct(eb_bricks bricks, __global const int *brick_ids,
                                                long begin, long end, eb_vf px, eb_vf py,
@@ -116,10 +131,24 @@ EB_INLINE eb_packet_sums eb_packet_reconstruct(eb_bricks bricks, __global const 
     s.weight = s.dw_x = s.dw_y = s.dw_z = (eb_vf)(0.0f);
     for (int f = 0; f < EB_N_FIELDS; ++f)
         s.weighted[f] = s.dv_x[f] = s.dv_y[f] = s.dv_z[f] = (eb_vf)(0.0f);
+    /* The packet's bounding box: a listed brick whose hats reach none of it is
+     * passed over with one test on its box, instead of the lanes' cell indices
+     * (on octree-like data most listed bricks reach no lane; docs/design.md).
+     * The margin of 1e-3 cells keeps the test conservative, whatever the
+     * rounding: a brick it passes over gives every lane zero weight. */
+    float4 lo = (float4)(eb_min_lanes(px), eb_min_lanes(py), eb_min_lanes(pz), 0.0f);
+    float4 hi = (float4)(eb_max_lanes(px), eb_max_lanes(py), eb_max_lanes(pz), 0.0f);
     for (long k = begin; k < end; ++k) {
         int b = brick_ids[k];
-        eb_packet_add_grid(bricks.box[b], bricks.dims[b], bricks.values + bricks.offset[b],
-                           bricks.field_stride, px, py, pz, &s, want_gradient);
+        float4 box = bricks.box[b];
+        int4 dims = bricks.dims[b];
+        /* Lane hats reach the brick where -1/2 <= (p - L) / w < N + 1/2. */
+        float4 xlo = (lo - box) * box.w, xhi = (hi - box) * box.w;
+        int4 out = (xhi < -0.501f) | (xlo >= convert_float4(dims) + 0.501f);
+        if (out.x | out.y | out.z)
+            continue;
+        eb_packet_add_grid(box, dims, bricks.values + bricks.offset[b], bricks.field_stride,
+                           px, py, pz, &s, want_gradient);
     }
     return s;
 }

@@ -8,7 +8,9 @@ node's coarsest cell width so that no cell is cut (paper §3.1.2).  The cells
 are partitioned in place (like quicksort), so every brick ends up as one
 contiguous run of the partitioned cell array; the bricks are those runs in
 order, and because a brick is full its offset into the value array is simply
-the start of its run.
+the start of its run.  A whole build then joins bricks of one level that fill a
+box together (`merge_bricks`: the midpoint planes cut octree-like layouts into
+many more bricks than their cells need).
 
 Internally each cell is one row of an int32 (N, 5) array `rec`: lower corner
 x, y, z (lattice units), level, and the cell's index in the input.  A k-d node
@@ -341,6 +343,153 @@ def _gather(values, source):
     return out
 
 
+@numba.njit(cache=True, inline="always")
+def _mix(h, v):
+    """One step of a polynomial hash modulo 2**31 - 1 (no overflow in int64)."""
+    return (h * 1000003 + (np.int64(v) & 0xFFFFFFFF)) % 2147483647
+
+
+@numba.njit(cache=True, inline="always")
+def _face_key(level, a, b, da, db, at):
+    """Hash of a brick face: the level, the lower corner and dims on the two
+    other axes, and the position along the merge axis."""
+    return _mix(_mix(_mix(_mix(_mix(np.int64(level) + 1, a), b), da), db), at)
+
+
+@numba.njit(cache=True, parallel=True)
+def _merge_axis(lower, level, dims, ax, max_width, new_id, shift):
+    """One pass of `merge_bricks` along axis `ax`: bricks of one level with the same
+    extent on the two other axes that touch face to face along `ax` are joined,
+    front to back, into runs of at most `max_width` cells.
+
+    lower, dims: int32 (B, 3); level: int8 (B,).  Out: new_id (B,), the run holding
+    each brick; shift (B,), its first cell's position along `ax` in the run.
+    Returns the runs' lower corners, levels and dims (bricks again)."""
+    n = level.shape[0]
+    o0 = (ax + 1) % 3
+    o1 = (ax + 2) % 3
+    size = 1
+    while size < 2 * n:
+        size *= 2
+    mask = size - 1
+    table = np.full(size, -1, np.int32)
+    for b in range(n):  # every brick by the face it starts at (open addressing)
+        h = _face_key(level[b], lower[b, o0], lower[b, o1], dims[b, o0], dims[b, o1],
+                      lower[b, ax]) & mask
+        while table[h] >= 0:
+            h = (h + 1) & mask
+        table[h] = b
+    succ = np.full(n, -1, np.int32)
+    for b in numba.prange(n):  # the brick starting where b ends, if any
+        end = np.int64(lower[b, ax]) + (np.int64(dims[b, ax]) << level[b])
+        h = _face_key(level[b], lower[b, o0], lower[b, o1], dims[b, o0], dims[b, o1],
+                      end) & mask
+        while table[h] >= 0:
+            c = table[h]
+            if (level[c] == level[b] and lower[c, ax] == end and lower[c, o0] == lower[b, o0]
+                    and lower[c, o1] == lower[b, o1] and dims[c, o0] == dims[b, o0]
+                    and dims[c, o1] == dims[b, o1]):
+                succ[b] = c
+                break
+            h = (h + 1) & mask
+    has_pred = np.zeros(n, np.bool_)
+    for b in range(n):
+        if succ[b] >= 0:
+            has_pred[succ[b]] = True
+    out_lower = np.empty((n, 3), lower.dtype)
+    out_level = np.empty(n, level.dtype)
+    out_dims = np.empty((n, 3), dims.dtype)
+    m = 0
+    for b in range(n):  # runs from the bricks with no predecessor (chains never loop)
+        if has_pred[b]:
+            continue
+        c = np.int64(b)
+        while c >= 0:  # a run from c
+            out_lower[m] = lower[c]
+            out_level[m] = level[c]
+            out_dims[m] = dims[c]
+            new_id[c] = m
+            shift[c] = 0
+            width = np.int64(dims[c, ax])
+            c = succ[c]
+            while c >= 0 and width + dims[c, ax] <= max_width:
+                new_id[c] = m
+                shift[c] = width
+                width += dims[c, ax]
+                c = succ[c]
+            out_dims[m, ax] = width
+            m += 1
+    return out_lower[:m], out_level[:m], out_dims[:m]
+
+
+@numba.njit(cache=True)
+def _first_members(owner, m):
+    """For each of m bricks, the least index of the bricks merged into it."""
+    first = np.full(m, owner.shape[0], np.int64)
+    for b in range(owner.shape[0] - 1, -1, -1):
+        first[owner[b]] = b
+    return first
+
+
+@numba.njit(cache=True, parallel=True)
+def _move_slots(dims, offset, owner, pos, new_dims, new_offset, payload, source, out):
+    """out[:, new slot] = payload[:, source[old slot]] (no source: old slot) for bricks
+    joined by `merge_bricks`."""
+    for b in numba.prange(dims.shape[0]):
+        f = owner[b]
+        nx = np.int64(new_dims[f, 0])
+        ny = np.int64(new_dims[f, 1])
+        for z in range(dims[b, 2]):
+            for y in range(dims[b, 1]):
+                k = offset[b] + (np.int64(z) * dims[b, 1] + y) * dims[b, 0]
+                row = new_offset[f] + ((pos[b, 2] + z) * ny + pos[b, 1] + y) * nx + pos[b, 0]
+                for x in range(dims[b, 0]):
+                    i = k + x if source is None else np.int64(source[k + x])
+                    for c in range(payload.shape[0]):
+                        out[c, row + x] = payload[c, i]
+
+
+def merge_bricks(lower: np.ndarray, level: np.ndarray, dims: np.ndarray, offset: np.ndarray,
+                 payload: np.ndarray, max_width: int, source: np.ndarray | None = None):
+    """Join bricks of one level that together fill a box, at most `max_width`
+    cells per axis: runs along x, then runs of those along y, then along z.
+
+    The k-d partition (§3.1.2) only cuts at the middle of a node, so on octree-like
+    layouts a block of same-level cells split by a plane that the other levels
+    needed ends up in many small bricks; joining them again halves the bricks a
+    sample sums there (docs/design.md "Larger bricks").  A deterministic function
+    of the bricks in order, so the joined shares of a build by pieces give what
+    one build gives.  payload: (C, V) values; the value of a brick's slot s is
+    payload[:, s], or payload[:, source[s]] when `source` (int32 (V,)) is given.
+    Returns (lower, level, dims, offset, values): the joined bricks in the order
+    of their first member, their values gathered.
+    """
+    n = level.shape[0]
+    owner = np.arange(n, dtype=np.int32)
+    pos = np.zeros((n, 3), np.int32)
+    cur = (lower, level, dims)
+    for ax in range(3):  # further rounds join under 0.02 % more (thin shells)
+        new_id = np.empty(cur[1].shape[0], np.int32)
+        shift = np.empty(cur[1].shape[0], np.int32)
+        nxt = _merge_axis(*cur, ax, max_width, new_id, shift)
+        if nxt[1].shape[0] < cur[1].shape[0]:
+            pos[:, ax] += shift[owner]
+            owner = new_id[owner]
+            cur = nxt
+        del new_id, shift
+    m = cur[1].shape[0]
+    order = np.argsort(_first_members(owner, m), kind="stable")
+    rank = np.empty(m, np.int32)
+    rank[order] = np.arange(m, dtype=np.int32)
+    new_lower, new_level, new_dims = (a[order] for a in cur)
+    cells = new_dims.astype(np.int64).prod(axis=1)
+    new_offset = np.zeros(m, OFFSET_DTYPE)
+    np.cumsum(cells[:-1], out=new_offset[1:])
+    out = np.empty((payload.shape[0], int(cells.sum())), payload.dtype)
+    _move_slots(dims, offset, rank[owner], pos, new_dims, new_offset, payload, source, out)
+    return new_lower, new_level, new_dims, new_offset, out
+
+
 def build_bricks(cells: schema.Cells, *, max_brick_width: int = 32,
                  piece: Piece = WHOLE) -> schema.Bricks:
     """Bricks of same-level cells that completely fill their box (paper §3.1).
@@ -350,7 +499,8 @@ def build_bricks(cells: schema.Cells, *, max_brick_width: int = 32,
     piece: build only this share (exabricks.stages.pieces): the bricks of one
         run of the partitioned cells, offsets from 0, values of those cells only;
         meta["piece"]["cells"] is the run, [a, b) of N.
-    Returns schema.Bricks in k-d leaf order, with the same fields and world
+    Returns schema.Bricks in k-d leaf order (whole builds: joined by `merge_bricks`,
+    in the order of their first k-d leaf), with the same fields and world
     frame; its values hold every cell's values once (V == N).  meta holds
     "statistics" (see `statistics`), for the command to merge into its meta.
     Raises ExabricksError for no cells, a width below 1, or overlapping cells.
@@ -413,15 +563,19 @@ def build_bricks(cells: schema.Cells, *, max_brick_width: int = 32,
         lo, lv = cells.lower_lattice, cells.level
         raise ExabricksError(f"cells overlap: cell {j} at {lo[j].tolist()} level {int(lv[j])} and "
                              f"cell {i} at {lo[i].tolist()} level {int(lv[i])}")
-    values = _gather(np.ascontiguousarray(cells.values, dtype=VALUE_DTYPE), source)
+    offset = starts.astype(OFFSET_DTYPE)
+    values = np.ascontiguousarray(cells.values, dtype=VALUE_DTYPE)
+    if piece.whole:  # shares are joined by `exabricks join` (pieces.join_bricks)
+        lower, level, dims, offset, values = merge_bricks(lower, level, dims, offset, values,
+                                                          max_brick_width, source)
+    else:
+        values = _gather(values, source)
     schema.release_arrays(cells.values)
     return schema.Bricks(
         fields=cells.fields, origin_world=cells.origin_world, spacing_world=cells.spacing_world,
         meta={"statistics": statistics(level, dims),
-              **share_meta(piece, cells=[a, b], n_cells=n)},
-        lower_lattice=lower, level=level, dims=dims,
-        # A full brick holds exactly its run of cells, so its offset is the run's start.
-        offset=starts.astype(OFFSET_DTYPE), values=values,
+              **share_meta(piece, cells=[a, b], n_cells=n, max_brick_width=max_brick_width)},
+        lower_lattice=lower, level=level, dims=dims, offset=offset, values=values,
     )
 
 

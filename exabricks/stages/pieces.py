@@ -165,18 +165,26 @@ def join_bricks(parts) -> schema.Bricks:
     if at != shares[0][2].get("n_cells"):
         raise ExabricksError(f"the pieces hold {at} cells, not the {shares[0][2].get('n_cells')} "
                              "of their build")
-    from .brick import statistics
+    width = shares[0][2].get("max_brick_width")
+    for path, _, info in shares:
+        if not (type(width) is int and 1 <= width <= 1 << 30
+                and info.get("max_brick_width") == width):
+            raise ExabricksError(f"{path}: its max brick width {info.get('max_brick_width')!r} "
+                                 f"is not {width!r}, or not a width")
+    from .brick import merge_bricks, statistics
 
     objs = [obj for _, obj, _ in shares]
     first = objs[0]
-    level = _stack([o.level for o in objs])
-    dims = _stack([o.dims for o in objs])
+    # What one build does after its partition: join bricks that fill a box together.
+    lower, level, dims, offset, values = merge_bricks(
+        _stack([o.lower_lattice for o in objs]), _stack([o.level for o in objs]),
+        _stack([o.dims for o in objs]),
+        _stack([o.offset for o in objs], [info["cells"][0] for _, _, info in shares]),
+        _stack([o.values for o in objs], axis=1), width)
     return schema.Bricks(
         fields=first.fields, origin_world=first.origin_world, spacing_world=first.spacing_world,
         meta={"statistics": statistics(level, dims)},
-        lower_lattice=_stack([o.lower_lattice for o in objs]), level=level, dims=dims,
-        offset=_stack([o.offset for o in objs], [info["cells"][0] for _, _, info in shares]),
-        values=_stack([o.values for o in objs], axis=1),
+        lower_lattice=lower, level=level, dims=dims, offset=offset, values=values,
     )
 
 
