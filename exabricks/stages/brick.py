@@ -357,74 +357,96 @@ def _face_key(level, a, b, da, db, at):
 
 
 @numba.njit(cache=True, parallel=True)
-def _merge_axis(lower, level, dims, ax, max_width, new_id, shift):
-    """One pass of `merge_bricks` along axis `ax`: bricks of one level with the same
-    extent on the two other axes that touch face to face along `ax` are joined,
-    front to back, into runs of at most `max_width` cells.
+def _merge_runs(lower, level, dims, max_width):
+    """The joins of `merge_bricks`: along x, then y, then z, bricks of one level with
+    the same extent on the two other axes that touch face to face are joined, front
+    to back, into runs of at most `max_width` cells.  Each pass finds every brick's
+    successor through a hash table of the faces bricks start at.
 
-    lower, dims: int32 (B, 3); level: int8 (B,).  Out: new_id (B,), the run holding
-    each brick; shift (B,), its first cell's position along `ax` in the run.
-    Returns the runs' lower corners, levels and dims (bricks again)."""
+    lower, dims: int32 (B, 3); level: int8 (B,).  Returns (owner, pos, lower, level,
+    dims, m): for each input brick the joined brick holding it and its first
+    cell's position there (cells, int32 (B,) and (B, 3)), and the m joined bricks
+    (in the order of their runs' first bricks, not yet sorted)."""
     n = level.shape[0]
-    o0 = (ax + 1) % 3
-    o1 = (ax + 2) % 3
     size = 1
-    while size < 2 * n:
+    while 3 * size < 4 * n:  # load factor at most 3/4
         size *= 2
-    mask = size - 1
-    table = np.full(size, -1, np.int32)
-    for b in range(n):  # every brick by the face it starts at (open addressing)
-        h = _face_key(level[b], lower[b, o0], lower[b, o1], dims[b, o0], dims[b, o1],
-                      lower[b, ax]) & mask
-        while table[h] >= 0:
-            h = (h + 1) & mask
-        table[h] = b
-    succ = np.full(n, -1, np.int32)
-    for b in numba.prange(n):  # the brick starting where b ends, if any
-        end = np.int64(lower[b, ax]) + (np.int64(dims[b, ax]) << level[b])
-        h = _face_key(level[b], lower[b, o0], lower[b, o1], dims[b, o0], dims[b, o1],
-                      end) & mask
-        while table[h] >= 0:
-            c = table[h]
-            if (level[c] == level[b] and lower[c, ax] == end and lower[c, o0] == lower[b, o0]
-                    and lower[c, o1] == lower[b, o1] and dims[c, o0] == dims[b, o0]
-                    and dims[c, o1] == dims[b, o1]):
-                succ[b] = c
-                break
-            h = (h + 1) & mask
-    has_pred = np.zeros(n, np.bool_)
-    for b in range(n):
-        if succ[b] >= 0:
-            has_pred[succ[b]] = True
-    out_lower = np.empty((n, 3), lower.dtype)
-    out_level = np.empty(n, level.dtype)
-    out_dims = np.empty((n, 3), dims.dtype)
-    m = 0
-    for b in range(n):  # runs from the bricks with no predecessor (chains never loop)
-        if has_pred[b]:
-            continue
-        c = np.int64(b)
-        while c >= 0:  # a run from c
-            out_lower[m] = lower[c]
-            out_level[m] = level[c]
-            out_dims[m] = dims[c]
-            new_id[c] = m
-            shift[c] = 0
-            width = np.int64(dims[c, ax])
-            c = succ[c]
-            while c >= 0 and width + dims[c, ax] <= max_width:
-                new_id[c] = m
-                shift[c] = width
-                width += dims[c, ax]
+    table = np.empty(size, np.int32)
+    succ = np.empty(n, np.int32)
+    has_pred = np.empty(n, np.bool_)
+    new_id = np.empty(n, np.int32)
+    shift = np.empty(n, np.int32)
+    owner = np.arange(n).astype(np.int32)
+    pos = np.zeros((n, 3), np.int32)
+    cur = (lower.copy(), level.copy(), dims.copy())
+    out = (np.empty_like(lower), np.empty_like(level), np.empty_like(dims))
+    m = n
+    for ax in range(3):
+        lo, lv, d = cur
+        o0 = (ax + 1) % 3
+        o1 = (ax + 2) % 3
+        used = 1
+        while 3 * used < 4 * m:
+            used *= 2
+        mask = used - 1
+        table[:used] = -1
+        for b in range(m):  # every brick by the face it starts at (open addressing)
+            h = _face_key(lv[b], lo[b, o0], lo[b, o1], d[b, o0], d[b, o1], lo[b, ax]) & mask
+            while table[h] >= 0:
+                h = (h + 1) & mask
+            table[h] = b
+        for b in numba.prange(m):  # the brick starting where b ends, if any
+            succ[b] = -1
+            has_pred[b] = False
+            end = np.int64(lo[b, ax]) + (np.int64(d[b, ax]) << lv[b])
+            h = _face_key(lv[b], lo[b, o0], lo[b, o1], d[b, o0], d[b, o1], end) & mask
+            while table[h] >= 0:
+                c = table[h]
+                if (lv[c] == lv[b] and lo[c, ax] == end and lo[c, o0] == lo[b, o0]
+                        and lo[c, o1] == lo[b, o1] and d[c, o0] == d[b, o0]
+                        and d[c, o1] == d[b, o1]):
+                    succ[b] = c
+                    break
+                h = (h + 1) & mask
+        for b in range(m):
+            if succ[b] >= 0:
+                has_pred[succ[b]] = True
+        olo, olv, od = out
+        k = 0
+        for b in range(m):  # runs from the bricks with no predecessor (chains never loop)
+            if has_pred[b]:
+                continue
+            c = np.int64(b)
+            while c >= 0:  # a run from c
+                for a in range(3):
+                    olo[k, a] = lo[c, a]
+                    od[k, a] = d[c, a]
+                olv[k] = lv[c]
+                new_id[c] = k
+                shift[c] = 0
+                width = np.int64(d[c, ax])
                 c = succ[c]
-            out_dims[m, ax] = width
-            m += 1
-    return out_lower[:m], out_level[:m], out_dims[:m]
+                while c >= 0 and width + d[c, ax] <= max_width:
+                    new_id[c] = k
+                    shift[c] = width
+                    width += d[c, ax]
+                    c = succ[c]
+                od[k, ax] = width
+                k += 1
+        if k < m:
+            for i in numba.prange(n):
+                o = owner[i]
+                pos[i, ax] += shift[o]
+                owner[i] = new_id[o]
+            cur, out = out, cur
+            m = k
+    lo, lv, d = cur
+    return owner, pos, lo[:m].copy(), lv[:m].copy(), d[:m].copy(), m
 
 
 @numba.njit(cache=True)
 def _first_members(owner, m):
-    """For each of m bricks, the least index of the bricks merged into it."""
+    """For each of m bricks, the least index of the bricks joined into it."""
     first = np.full(m, owner.shape[0], np.int64)
     for b in range(owner.shape[0] - 1, -1, -1):
         first[owner[b]] = b
@@ -464,20 +486,7 @@ def merge_bricks(lower: np.ndarray, level: np.ndarray, dims: np.ndarray, offset:
     Returns (lower, level, dims, offset, values): the joined bricks in the order
     of their first member, their values gathered.
     """
-    n = level.shape[0]
-    owner = np.arange(n, dtype=np.int32)
-    pos = np.zeros((n, 3), np.int32)
-    cur = (lower, level, dims)
-    for ax in range(3):  # further rounds join under 0.02 % more (thin shells)
-        new_id = np.empty(cur[1].shape[0], np.int32)
-        shift = np.empty(cur[1].shape[0], np.int32)
-        nxt = _merge_axis(*cur, ax, max_width, new_id, shift)
-        if nxt[1].shape[0] < cur[1].shape[0]:
-            pos[:, ax] += shift[owner]
-            owner = new_id[owner]
-            cur = nxt
-        del new_id, shift
-    m = cur[1].shape[0]
+    owner, pos, *cur, m = _merge_runs(lower, level, dims, max_width)
     order = np.argsort(_first_members(owner, m), kind="stable")
     rank = np.empty(m, np.int32)
     rank[order] = np.arange(m, dtype=np.int32)
