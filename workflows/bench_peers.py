@@ -1166,11 +1166,13 @@ def gaps(rows, machine_line: str) -> list[str]:
         "missed targets\"): with packets the reconstruction's gathers (one per corner, lane and "
         "listed brick) and the transfer function's are the largest parts, then the walk and the "
         "compositing; a packet of samples is on average 4-7 of 8 lanes full, since it stays "
-        "within one region visit. On octree-like data the reconstruction from long lists (Gerris: "
-        "11.6 bricks per sample by volume) and the region walk, which packets do not touch, "
-        "weigh most: fewer bricks per sample or a cheaper step from one region to the next would "
-        "help there; packets of rays that share a walk would fill the lanes better on "
-        "block-structured data. On a GPU the kernels run one ray per lane, one sample at a time.",
+        "within one region visit. On octree-like data the reconstruction from long lists and the "
+        "region walk, which packets do not touch, weigh most, although `brick` now joins the "
+        "small bricks the k-d partition leaves and packets pass over listed bricks that reach "
+        "none of their lanes (docs/design.md \"Larger bricks\", \"Sample packets\"): a cheaper "
+        "step from one region to the next would help there; packets of rays that share a walk "
+        "would fill the lanes better on block-structured data. On a GPU the kernels run one "
+        "ray per lane, one sample at a time.",
     ]
 
 
