@@ -140,7 +140,8 @@ def test_merge_rows_and_stale_regions(tmp_path):
     exact_row, merged_row = bench_merge.rows(result)
     assert merged_row == (f"| {sets['shell'].name} | merged | 10 | 3.0 | 0.50 | 2.00 | 1.00 "
                           "| 0.75 | 0.5 | 0.25 | 12 |")
-    assert "| exact | 83,364,768 |" in exact_row and "(not built)" in exact_row
+    assert "| exact (of the 2.33 M k-d bricks" in exact_row and "| 83,364,768 |" in exact_row
+    assert "(not built)" in exact_row
 
     cells = schema.Cells(fields=("v",), origin_world=np.zeros(3), spacing_world=np.ones(3),
                          lower_lattice=np.array([[0, 0, 0], [1, 0, 0]], np.int32),

@@ -12,7 +12,8 @@ index (everything but the values), of the regions and of the BVH, (regions + BVH
 scalars, and the median kernel time of --runs frames (after a warm-up) at 512x512,
 default camera and transfer function, no shading.
 
-The exact regions of the thin shells are not built here: 83.4 M regions, 5.45 GB,
+The exact regions of the thin shells are not built here: of the 2.33 M bricks the k-d
+partition made before `brick` joined them (docs/design.md "Larger bricks"), 83.4 M regions, 5.45 GB,
 193 s at 13.7 GiB for `exabricks regions --exact` alone (measured once, docs/design.md
 "Merged regions"); the row gives those figures.
 --write-docs replaces the "## merged regions against exact ones" section of
@@ -115,7 +116,8 @@ def rows(r: dict) -> list[str]:
         if m is None:
             e = SHELL_EXACT
             lines.append(
-                f"| {name} | exact | {e['regions']:,} | - | {r['index_per_cell']:.2f} "
+                f"| {name} | exact (of the 2.33 M k-d bricks before `brick` joined them; "
+                f"measured once) | {e['regions']:,} | - | {r['index_per_cell']:.2f} "
                 f"| {e['regions_bytes'] / r['cells']:.1f} | (not built) "
                 f"| > {e['regions_bytes'] / r['scalars']:.0f} | {e['seconds']:.0f} as a command "
                 f"at {e['peak_gib']} GiB | - | (not rendered) |")
