@@ -765,3 +765,27 @@ def test_report_tables_are_whole(which, no_vtk, request, tmp_path):
     assert ("--no-vtk" in lines[0]) == no_vtk and ("How VTK was matched" in text) == (not no_vtk)
     if which == "gerris" and not no_vtk:
         assert "| gerris (T) | no VTK reader |" in text
+
+
+def test_to_amr_grids_fill_holes():
+    """With `fill`, the 6 missing children of the refined cell and the missing coarsest
+    cell of the bounding box become leaves of the fill value; the given cells keep
+    theirs, and the level-1 grid covers the box (2 x 1 x 2 cells: the one refined cell,
+    the one given beside it and the two missing above them)."""
+    cells = schema.Cells(
+        fields=("v",), origin_world=np.zeros(3), spacing_world=np.ones(3),
+        lower_lattice=np.array([[0, 0, 0], [1, 0, 0], [2, 0, 0], [0, 0, 2]], np.int32),
+        level=np.array([0, 0, 1, 1], np.int8), values=np.array([[1, 2, 5, 7]], np.float32))
+    grids, top = yt_bridge.to_amr_grids(cells, fill=-9.0)
+    assert top == 1
+    by_level = {g["level"]: g for g in grids}
+    assert len(grids) == 2
+    coarse, child = by_level[0], by_level[1]
+    np.testing.assert_array_equal(coarse["dimensions"], [2, 1, 2])
+    # the refined cell's mean over its 2 given and 6 filled children; 5, 7 and the filled one
+    mean = (1 + 2 - 9 * 6) / 8
+    np.testing.assert_array_equal(coarse["v"][0][:, 0, :], [[mean, 7.0], [5.0, -9.0]])
+    np.testing.assert_array_equal(child["dimensions"], [2, 2, 2])
+    expect = np.full((2, 2, 2), -9.0)
+    expect[0, 0, 0], expect[1, 0, 0] = 1, 2
+    np.testing.assert_array_equal(child["v"][0], expect)

@@ -1,6 +1,6 @@
 """exabricks against yt, VTK, per-sample cell location and the uniform-grid ceiling.
 
-    .venv/bin/python workflows/bench_peers.py [--datasets amrex,athena,gerris,enzo,big]
+    .venv/bin/python workflows/bench_peers.py [--datasets amrex,athena,gerris,enzo,shell256,big]
         [--size 1024] [--runs 5] [--no-yt] [--yt-max-cells 10000000]
         [--no-vtk] [--vtk-threads CORES]
         [--docs docs/benchmarks.md] [--images docs/images]
@@ -115,13 +115,22 @@ field_interpolation_tables.pxd):
   yt's reconstruction is trilinear within each brick from vertex values it
   averages from cell values (no ghost zones), not the basis method.
 
-ExaJet data (gerris, big) has no yt front end (and yt.load_octree says of
+ExaJet data (gerris, big, shell256) has no yt front end (and yt.load_octree says of
 itself that "fluid fields will not work yet, or possibly ever"): our reader's
 leaf cells are turned into properly nested grids
 (`exabricks.readers.yt_bridge.to_amr_grids`) and given to
 yt.load_amr_grids. yt then has exactly our leaves and values (checked on the
 Gerris plume); the conversion is timed on its own and not counted as yt's
-load, but it is part of the yt process's peak memory.
+load, but it is part of the yt process's peak memory. Where the data has a
+hole (make_big.py's thin shells drop every cell whose centre lies in a sphere,
+so refined cells there lack children), yt, which has no empty cells, gets the
+missing cells as leaves of a value below its transfer function's bounds:
+transparent, as the hole is in ours (its vertex values next to the hole mix
+that value in, so yt's image differs there).
+
+shell256 is make_big.py's thin-shell layout at --size 256 (1.1 M cells, 4
+levels; benchdoc.ensure_shell makes it): the octree-like layout of the other
+benchmarks at a size yt loads.
 
 How VTK is matched (vtk_camera_parameters, vtk_volume_property, vtk_image_to_ours;
 tests/test_bench_peers.py checks each): the vtkCamera gets our position, look_at as focal
@@ -185,6 +194,10 @@ DATASETS = {
     # workflows/make_big.py's 512^3 volume merged to 23.6 M cells on 6 levels
     # (made by workflows/bench_ingest.py when missing).
     "big": (ROOT / "bench-data" / "big512.cells", "value", "grids"),
+    # workflows/make_big.py's octree-like thin shells at --size 256: 1.1 M cells on 4
+    # levels, small enough for yt (the 20.6 M-cell size of the other benchmarks is
+    # not); made by benchdoc.ensure_shell(256) when missing.
+    "shell256": (ROOT / "bench-data" / "shell256.cells", "rho", "grids"),
 }
 RATES = (2.0, 10.0)          # ours: the default, and yt's 10 samples per cell
 RATE_KEYS = tuple(str(r) for r in RATES)  # the results' keys: '2.0', '10.0'
@@ -206,8 +219,11 @@ SECTION = "exabricks vs yt, cell location and the uniform-grid ceiling"
 # Issue 15's targets (issue 10's for cell location): yt's on the block-structured
 # datasets, VTK's as VTK time / ours (its frame at half a finest cell, ours at rate 2).
 TARGETS = {"yt_default": 6.0, "yt_equal": 2.5, "cell_location": 2.0, "ceiling": 0.8,
-           "vtk_frame": 2.0, "vtk_first_image": 3.0}
+           "vtk_frame": 2.0, "vtk_first_image": 3.0,
+           # issue 10's, on octree-like data
+           "yt_default_octree": 3.0, "yt_equal_octree": 1.2}
 BLOCK_STRUCTURED = ("amrex", "athena")
+OCTREE_LIKE = ("gerris", "shell256")
 
 
 # ----------------------------------------------------------------------------- helpers
@@ -491,7 +507,11 @@ def worker_yt(spec: dict) -> dict:
 
         t = time.perf_counter()
         cells = readers.read(spec["path"], fields=[spec["field"]])
-        grids, top = yt_bridge.to_amr_grids(cells, source=spec["path"])
+        # Cells missing from the data (the thin shells' hole) become leaves of a value
+        # below yt's bounds, which its transfer function makes transparent.
+        low, high = yt_bounds(spec["value_range"])
+        grids, top = yt_bridge.to_amr_grids(cells, source=spec["path"],
+                                            fill=low - (high - low))
         lo, hi = (np.asarray(b) for b in schema.world_bounds(cells))
         root = np.rint((hi - lo) / cells.spacing_world / (1 << top)).astype(int)
         del cells
@@ -550,7 +570,8 @@ def worker_yt(spec: dict) -> dict:
 # The VTK reader ParaView opens each dataset with (None: VTK has none) and the file it
 # opens: the plotfile directory, Enzo's .hierarchy, Athena++'s .athdf.xdmf sidecar.
 VTK_READERS = {"amrex": ("vtkAMReXGridReader", ""), "enzo": ("vtkAMREnzoReader", ".hierarchy"),
-               "athena": ("vtkXdmfReader", ".xdmf"), "gerris": None, "big": None}
+               "athena": ("vtkXdmfReader", ".xdmf"), "gerris": None, "big": None,
+               "shell256": None}
 VTK_WINDOW = "vtkEGLRenderWindow"   # offscreen OpenGL through EGL (Mesa's llvmpipe here)
 VTK_SAMPLES_PER_CELL = RATES[0]     # fixed-point sample distance: finest cell / this (ours' rate 2)
 
@@ -1049,6 +1070,8 @@ def bench_dataset(name: str, args, workdir: Path) -> dict:
     path, field, yt_mode = DATASETS[name]
     if name == "big" and not Path(path).exists():
         path = benchdoc.ensure_exajet()  # the big AMR in ExaJet form, from workflows/make_big.py
+    if name == "shell256":
+        path = benchdoc.ensure_shell(256)
     if not Path(path).exists():
         return {"name": name, "error": f"{path} missing"}
     base = {"name": name, "path": str(path), "field": field, "size": args.size, "runs": args.runs,
@@ -1203,8 +1226,11 @@ def target_figures(rows) -> dict:
             cell[f"{r['name']} rate {float(rate):g}"] = (
                 _median(c["rates"][rate]["kernel_s"]) / _median(r["ours"]["rates"][rate]["kernel_s"]))
     block = lambda ratios: {k: v for k, v in ratios.items() if k in BLOCK_STRUCTURED}
+    octree = lambda ratios: {k: v for k, v in ratios.items() if k in OCTREE_LIKE}
     vtk = vtk_ratios(rows)
     return {"yt_default": block(yt_ratios(rows, low)), "yt_equal": block(yt_ratios(rows, high)),
+            "yt_default_octree": octree(yt_ratios(rows, low)),
+            "yt_equal_octree": octree(yt_ratios(rows, high)),
             "vtk_frame": {k: v["frame"] for k, v in vtk.items() if "frame" in v},
             "vtk_first_image": {k: v["first_image"] for k, v in vtk.items() if "first_image" in v},
             "cell_location": cell,
@@ -1222,6 +1248,10 @@ def targets(rows) -> list[str]:
                  TARGETS["yt_default"], figures["yt_default"], "x"),
         _verdict(f"yt / ours, ours at {RATES[-1]:g} samples per finest cell (block-structured)",
                  TARGETS["yt_equal"], figures["yt_equal"], "x"),
+        _verdict("yt / ours, each at its default sampling (octree-like datasets)",
+                 TARGETS["yt_default_octree"], figures["yt_default_octree"], "x"),
+        _verdict(f"yt / ours, ours at {RATES[-1]:g} samples per finest cell (octree-like)",
+                 TARGETS["yt_equal_octree"], figures["yt_equal_octree"], "x"),
         _verdict("VTK fixed-point frame / ours at rate 2", TARGETS["vtk_frame"],
                  figures["vtk_frame"], "x"),
         _verdict("VTK to the first image from the files / ours", TARGETS["vtk_first_image"],
@@ -1621,7 +1651,7 @@ def machine() -> str:
 
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    p.add_argument("--datasets", default="amrex,athena,gerris,enzo,big")
+    p.add_argument("--datasets", default="amrex,athena,gerris,enzo,shell256,big")
     p.add_argument("--size", type=int, default=1024)
     p.add_argument("--runs", type=int, default=5)
     p.add_argument("--docs", default=str(benchdoc.DOCS),

@@ -309,14 +309,17 @@ def ensure_amrex() -> Path:
 SHELL_CELLS = BENCH / "shell1024.cells"
 
 
-def ensure_shell() -> Path:
-    """bench-data/shell1024.cells (+ shell1024.rho.scalars): make_big.py's octree-like
-    thin-shell layout, 20.6 M cells on 4 levels, made when missing."""
-    if not (SHELL_CELLS.is_file() and SHELL_CELLS.with_name("shell1024.rho.scalars").is_file()):
+def ensure_shell(size: int = 1024) -> Path:
+    """bench-data/shellSIZE.cells (+ shellSIZE.rho.scalars): make_big.py's octree-like
+    thin-shell layout (at 1024: 20.6 M cells on 4 levels; at 256: 1.1 M), made when
+    missing."""
+    cells = BENCH / f"shell{size}.cells"
+    if not (cells.is_file() and cells.with_name(f"shell{size}.rho.scalars").is_file()):
         make_big = _make_big()
-        print(f"making {SHELL_CELLS} (make_big.py --thin-shell)", flush=True)
-        make_big.write_exajet(SHELL_CELLS, make_big.thin_shell_slabs(1024), ["rho"])
-    return SHELL_CELLS
+        BENCH.mkdir(exist_ok=True)
+        print(f"making {cells} (make_big.py --thin-shell --size {size})", flush=True)
+        make_big.write_exajet(cells, make_big.thin_shell_slabs(size), ["rho"])
+    return cells
 
 
 def datasets() -> dict[str, Dataset]:

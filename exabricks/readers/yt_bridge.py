@@ -159,7 +159,8 @@ def _read(ds, path: Path, fields: Sequence[str] | None) -> schema.Cells:
     )
 
 
-def to_amr_grids(cells: schema.Cells, *, source: str = "cells") -> tuple[list[dict], int]:
+def to_amr_grids(cells: schema.Cells, *, source: str = "cells",
+                 fill: float | None = None) -> tuple[list[dict], int]:
     """Leaf cells (their first field) as properly nested grids for yt.load_amr_grids.
 
     yt needs every level to cover what the finer levels refine, grids aligned to
@@ -170,7 +171,11 @@ def to_amr_grids(cells: schema.Cells, *, source: str = "cells") -> tuple[list[di
     every finer level into bricks of the refined parent cells, grouped by the
     parent's grid. The data must be octree-complete (every refined cell has all
     8 children, as in Gerris and workflows/make_big.py's merge); ExabricksError
-    naming `source` otherwise.
+    naming `source` otherwise, unless `fill` is given: then every missing child
+    and every missing cell of the coarsest level over the cells' bounding box (a
+    hole in the data, as in make_big.py's thin shells) is added as a leaf of
+    value `fill` (yt has no empty cells; a value outside its transfer function's
+    bounds is transparent there, as empty space is in ours).
 
     Returns (grids, top): one dict per grid with left_edge, right_edge (3,) float64
     world units, level (yt's: 0 = our coarsest level `top`), dimensions (3,) int64
@@ -190,6 +195,8 @@ def to_amr_grids(cells: schema.Cells, *, source: str = "cells") -> tuple[list[di
             _, first, inverse = np.unique(_cell_keys(parents), return_index=True, return_inverse=True)
             mean = np.bincount(inverse, weights=finer_v) / np.bincount(inverse)
             lo, v = np.vstack([lo, parents[first]]), np.concatenate([v, mean])
+        if fill is not None:
+            lo, v = _complete(lo, v, lev, top, lower, level, fill)
         covering.append((lo, v))
     origin, spacing = cells.origin_world, cells.spacing_world
     grids = []
@@ -225,6 +232,24 @@ def to_amr_grids(cells: schema.Cells, *, source: str = "cells") -> tuple[list[di
                               cells.fields[0]: (v[index].reshape(dims), "")})
         parent_keys, parent_grid = sorted_keys, grid_of[order]
     return grids, top
+
+
+def _complete(lo, v, lev: int, top: int, lower, level, fill: float):
+    """Covering cells (lo, v) of level `lev` with the missing ones added, value `fill`:
+    below the coarsest level every child of their parents, at it every cell of the
+    bounding box of all leaves (lower, level)."""
+    w = 1 << lev
+    if lev < top:
+        parents = np.unique((lo >> (lev + 1)) << (lev + 1), axis=0)
+        octet = np.array([(x, y, z) for z in (0, 1) for y in (0, 1) for x in (0, 1)], np.int64)
+        want = (parents[:, None, :] + octet[None] * w).reshape(-1, 3)
+    else:
+        start = (lower.min(axis=0) >> lev) << lev
+        end = (lower + (np.int64(1) << level)[:, None]).max(axis=0)
+        want = np.stack(np.meshgrid(*(np.arange(a, b, w) for a, b in zip(start, end)),
+                                    indexing="ij"), -1).reshape(-1, 3)
+    missing = want[~np.isin(_cell_keys(want), _cell_keys(lo))]
+    return np.vstack([lo, missing]), np.concatenate([v, np.full(len(missing), float(fill))])
 
 
 def _cell_keys(lower) -> np.ndarray:
