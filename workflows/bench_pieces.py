@@ -36,9 +36,11 @@ splits run on one thread; `regions` checks that no two bricks share a cell and
 computes every support and the 64 top tasks; `bvh` makes the top SAH splits
 over every region), and the join reads the shares and writes the whole file.
 So a piece takes about half of a one-process run rather than a quarter, and 4
-pieces end a stage 0.8-1.4 times as soon as one process (`bvh` at 20.6 M cells
-is slower in pieces). Memory per piece is that of one process for `brick` (the packed cells), about 0.7 of it for
-`regions` and `bvh`; a join holds about its output. What pieces buy today is a
+pieces end a stage 0.8-1.5 times as soon as one process (`bvh` is slower in
+pieces). Memory per piece is that of one process for `brick` (the packed cells), about 0.7 of it for
+`regions` and `bvh`; a join holds about its output, except `brick`'s, which
+also joins the small bricks of the shares (`merge_bricks`; 3-5 times its output
+at its peak, and a join of 3.0 s at 20.6 M cells and 24.2 s at 204 M). What pieces buy today is a
 stage cut into jobs of half the length, each on its own node; cutting the
 replicated top (pieces that read only their own cells) is the next step.
 """
