@@ -39,6 +39,11 @@ typedef int8 eb_vi;
  * 1 to 5: docs/design.md, "Sample packets on CPU devices"). */
 #define EB_PACKET_MIN_LANES 2
 
+/* The most consecutive region visits one packet spans (integrator.cl): more
+ * lists make a longer merge for few more full lanes (3 and 8 measured alike,
+ * docs/design.md "Sample packets"). */
+#define EB_PACKET_REGIONS 3
+
 /* v[i] lane by lane (LLVM makes a gather instruction of it on AVX2/AVX-512). */
 #define EB_GATHER(v, i) EB_GATHER_AS(eb_vf, v, i)
 
@@ -122,33 +127,61 @@ EB_INLINE float eb_max_lanes(eb_vf v)
     return fmax(q.x, q.y);
 }
 
-/* The sums of eq. 1-2 at W points over the bricks brick_ids[begin:end]. */
+/* Brick b's terms added to the sums of W points whose bounding box is [lo, hi]:
+ * a brick whose hats reach none of the box is passed over with one test on its
+ * box, instead of the lanes' cell indices (on octree-like data most listed
+ * bricks reach no lane; docs/design.md). The margin of 1e-3 cells keeps the
+ * test conservative, whatever the rounding: a brick it passes over gives every
+ * lane zero weight. */
+EB_INLINE void eb_packet_add_brick(eb_bricks bricks, int b, float4 lo, float4 hi, eb_vf px,
+                                   eb_vf py, eb_vf pz, eb_packet_sums *s, const int want_gradient)
+{
+    float4 box = bricks.box[b];
+    int4 dims = bricks.dims[b];
+    /* Lane hats reach the brick where -1/2 <= (p - L) / w < N + 1/2. */
+    float4 xlo = (lo - box) * box.w, xhi = (hi - box) * box.w;
+    int4 out = (xhi < -0.501f) | (xlo >= convert_float4(dims) + 0.501f);
+    if (out.x | out.y | out.z)
+        return;
+    eb_packet_add_grid(box, dims, bricks.values + bricks.offset[b], bricks.field_stride,
+                       px, py, pz, s, want_gradient);
+}
+
+/* The sums of eq. 1-2 at W points over the union of n_lists brick lists
+ * brick_ids[begin[i]:end[i]], those of the regions the lanes lie in (a packet
+ * may span consecutive regions of its ray). A brick whose support holds a lane
+ * is in the list of that lane's region, so the union gives every lane its own
+ * region's sum; the lists are ascending (the builder's order), and their union
+ * is taken in ascending order too, so that each lane adds its bricks in the
+ * order of its own list: the same sums, bit for bit, as a packet of one region
+ * (bricks that reach no lane add exact zeros). Each step of the merge consumes
+ * at least one entry, so it ends whatever a file holds. */
 EB_INLINE eb_packet_sums eb_packet_reconstruct(eb_bricks bricks, __global const int *brick_ids,
-                                               long begin, long end, eb_vf px, eb_vf py,
-                                               eb_vf pz, const int want_gradient)
+                                               long *begin, long *end, int n_lists, eb_vf px,
+                                               eb_vf py, eb_vf pz, const int want_gradient)
 {
     eb_packet_sums s;
     s.weight = s.dw_x = s.dw_y = s.dw_z = (eb_vf)(0.0f);
     for (int f = 0; f < EB_N_FIELDS; ++f)
         s.weighted[f] = s.dv_x[f] = s.dv_y[f] = s.dv_z[f] = (eb_vf)(0.0f);
-    /* The packet's bounding box: a listed brick whose hats reach none of it is
-     * passed over with one test on its box, instead of the lanes' cell indices
-     * (on octree-like data most listed bricks reach no lane; docs/design.md).
-     * The margin of 1e-3 cells keeps the test conservative, whatever the
-     * rounding: a brick it passes over gives every lane zero weight. */
     float4 lo = (float4)(eb_min_lanes(px), eb_min_lanes(py), eb_min_lanes(pz), 0.0f);
     float4 hi = (float4)(eb_max_lanes(px), eb_max_lanes(py), eb_max_lanes(pz), 0.0f);
-    for (long k = begin; k < end; ++k) {
-        int b = brick_ids[k];
-        float4 box = bricks.box[b];
-        int4 dims = bricks.dims[b];
-        /* Lane hats reach the brick where -1/2 <= (p - L) / w < N + 1/2. */
-        float4 xlo = (lo - box) * box.w, xhi = (hi - box) * box.w;
-        int4 out = (xhi < -0.501f) | (xlo >= convert_float4(dims) + 0.501f);
-        if (out.x | out.y | out.z)
-            continue;
-        eb_packet_add_grid(box, dims, bricks.values + bricks.offset[b], bricks.field_stride,
-                           px, py, pz, &s, want_gradient);
+    if (n_lists == 1) {
+        for (long k = begin[0]; k < end[0]; ++k)
+            eb_packet_add_brick(bricks, brick_ids[k], lo, hi, px, py, pz, &s, want_gradient);
+        return s;
+    }
+    for (;;) {
+        int b = INT_MAX;  /* the least brick id at the head of a list */
+        for (int i = 0; i < n_lists; ++i)
+            if (begin[i] < end[i])
+                b = min(b, brick_ids[begin[i]]);
+        if (b == INT_MAX)
+            break;
+        for (int i = 0; i < n_lists; ++i)
+            if (begin[i] < end[i] && brick_ids[begin[i]] == b)
+                ++begin[i];
+        eb_packet_add_brick(bricks, b, lo, hi, px, py, pz, &s, want_gradient);
     }
     return s;
 }

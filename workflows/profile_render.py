@@ -59,15 +59,15 @@ PARTS = (
     ("walk", ("traversal.cl",)),
     ("reconstruction", ("eb_add_grid", "eb_add_brick", "eb_add_reconstruction", "eb_reconstruct",
                         "eb_basis_zero", "eb_sample_region", "eb_sample_region_at",
-                        "eb_packet_add_grid", "eb_packet_reconstruct", "eb_packet_store",
-                        "eb_packet_lane", "eb_basis_value", "eb_fields")),
+                        "eb_packet_add_grid", "eb_packet_add_brick", "eb_packet_reconstruct",
+                        "eb_packet_store", "eb_packet_lane", "eb_basis_value", "eb_fields")),
     ("transfer function", ("eb_transfer_function", "eb_lookup", "eb_packet_lookup")),
     ("opacity", ("eb_opacity_correct", "eb_log2_positive", "eb_exp2_nonpositive",
                  "eb_packet_log2_positive", "eb_packet_exp2_nonpositive")),
     ("shading", ("eb_headlight", "eb_field_gradient", "eb_basis_gradient")),
     ("medium (one step)", ("eb_medium_step", "eb_packet_medium")),
-    ("compositing", ("eb_composite", "eb_sample_step", "eb_sample_packets", "eb_sample_interval",
-                     "eb_integrate_region", "eb_integrate")),
+    ("compositing", ("eb_composite", "eb_sample_step", "eb_batch_add", "eb_batch_take",
+                     "eb_sample_interval", "eb_integrate_region", "eb_integrate")),
     ("sample placement", ("sampler.cl",)),
 )
 NOTES = """What it says. One sample at a time, the opacity correction (two fitted polynomials,
@@ -77,8 +77,9 @@ AVX-512 of 2026-12-02): the scalar code cannot overlap one sample's chain with t
 one's. With sample packets the same polynomials run on eight samples at once (4-6 %;
 8-16 % on that Xeon), and the reconstruction becomes the largest part (19-42 %: its
 gathers, one per corner, lane and brick), followed by the transfer function's gathers
-(8-19 %) and the walk (12-16 %), which packets do not touch: on octree-like data
-(Gerris, the thin shells) one region visit buys a partial packet. "sampling (no line)"
+(8-19 %) and the walk (12-16 %), which packets do not touch. On octree-like data
+(Gerris, the thin shells) one region visit holds 5-6 samples, so in a volume frame a
+packet spans up to three visits (docs/design.md "Sample packets"). "sampling (no line)"
 is code of the sampling functions that LLVM left without a source line; "ray set-up"
 the samples in the kernel's entry function, which carry no source line (PoCL drops the
 work-group function's debug info): the camera ray, the clip interval, the walk's start,
@@ -112,7 +113,7 @@ def part_of(file: str, function: str) -> str:
 # Kernel symbols of a profiling build (-DEB_PROFILE keeps these out of line), for
 # samples whose address has no source line.
 SYMBOLS = (("eb_walk_next", "walk"), ("eb_sample_interval", "sampling (no line)"),
-           ("eb_sample_packets", "sampling (no line)"), ("_pocl_kernel_eb_render", "ray set-up"))
+           ("eb_batch_take", "sampling (no line)"), ("_pocl_kernel_eb_render", "ray set-up"))
 
 
 def attribute(report: str, starts) -> tuple[Counter, float]:
