@@ -1,9 +1,10 @@
 /* Sample packets for CPU devices (docs/design.md, "Sample packets"): built
- * with -DEB_PACKET=8, a ray reconstructs the next eight samples of a
- * region at once with OpenCL vector types, one lane per sample. The lanes
- * share what a packet of rays would have to gather: the region, its brick
- * list and each brick's box, dims and values pointer; only the cell indices
- * and the value loads differ per lane. Compositing, surfaces and everything
+ * with -DEB_PACKET=8, a ray reconstructs its next eight samples at once with
+ * OpenCL vector types, one lane per sample, from up to EB_PACKET_REGIONS
+ * consecutive region visits (integrator.cl, eb_sample_batch). The lanes
+ * share what a packet of rays would have to gather: the brick list (the
+ * union of the regions' lists) and each brick's box, dims and values pointer;
+ * only the cell indices and the value loads differ per lane. Compositing, surfaces and everything
  * after the reconstruction then take the lanes in order, exactly as the
  * one-sample loop does, so the image is the same and early ray termination
  * stops at the same sample (the lanes computed beyond it are wasted work).

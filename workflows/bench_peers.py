@@ -1162,8 +1162,9 @@ def gaps(rows, machine_line: str) -> list[str]:
             "compositing code as the uniform-grid marcher, which does one trilinear lookup "
             "per sample and no region walk.")
     if "pocl" in machine_line.lower():
-        text += (" On PoCL ours reconstructs and shades the next eight samples of a region at "
-                 "once in vector registers (sample packets, kernels/packet.cl), while the "
+        text += (" On PoCL ours reconstructs and shades the next eight samples of a ray at "
+                 "once in vector registers (sample packets, kernels/packet.cl, spanning up to "
+                 "three region visits), while the "
                  "marcher stays scalar (one sample at a time, as our GPU path), and yt's C ray "
                  "caster runs one OpenMP thread per core.")
     ceiling = ceiling_ratios(measured)
