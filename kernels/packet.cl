@@ -3,11 +3,12 @@
  * OpenCL vector types, one lane per sample, from up to EB_PACKET_REGIONS
  * consecutive region visits (integrator.cl, eb_sample_batch). The lanes
  * share what a packet of rays would have to gather: the brick list (the
- * union of the regions' lists) and each brick's box, dims and values pointer;
- * only the cell indices and the value loads differ per lane. Compositing, surfaces and everything
- * after the reconstruction then take the lanes in order, exactly as the
- * one-sample loop does, so the image is the same and early ray termination
- * stops at the same sample (the lanes computed beyond it are wasted work).
+ * union of the regions' lists) and each brick's box, dims and values
+ * pointer; only the cell indices and the value loads differ per lane.
+ * Compositing, surfaces and everything after the reconstruction then take
+ * the lanes in order, exactly as the one-sample loop does, so the image is
+ * the same and early ray termination stops at the same sample (the lanes
+ * computed beyond it are wasted work).
  *
  * Only the basis reconstruction from the region's list is vectorised (the
  * host builds other reconstructions and the cell-location lookup without

@@ -37,8 +37,9 @@ absorption. Conventions the design leaves open, chosen here:
   reading the region's brick list. Same samples, and the same bricks summed in
   the same order, so the same frame; only the speed differs. ``"regions"``
   (default) is the paper's method.
-* Sample packets: on CPU devices a ray reconstructs the next PACKET_WIDTH
-  samples of a region at once in vector registers (kernels/packet.cl), the
+* Sample packets: on CPU devices a ray reconstructs its next PACKET_WIDTH
+  samples at once in vector registers (kernels/packet.cl; in a volume frame
+  from up to three consecutive region visits), the
   transfer function and opacity of one volume layer too; compositing stays in
   order, so the image equals the one-sample path's up to float rounding.
   ``Renderer(..., packets=False)`` (or `with_packets`) forces the one-sample
