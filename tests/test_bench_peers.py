@@ -789,3 +789,27 @@ def test_to_amr_grids_fill_holes():
     expect = np.full((2, 2, 2), -9.0)
     expect[0, 0, 0], expect[1, 0, 0] = 1, 2
     np.testing.assert_array_equal(child["v"][0], expect)
+
+
+def test_ab_kernels_alternates_two_kernel_directories(tmp_path):
+    """workflows/ab_kernels.py: a revision's kernels/ files land in a directory of their
+    own, and two versions (here both the working tree's kernels, built and cached apart)
+    render the same Gerris frames in turn with the same samples and image; exabricks'
+    program caches and kernel directory are its own again afterwards."""
+    import ab_kernels
+    from exabricks import opencl
+
+    base = ab_kernels.base_kernels("HEAD", tmp_path)
+    assert {p.name for p in base.iterdir()} >= {"render.cl", "packet.cl", "integrator.cl"}
+    saved = opencl._PROGRAMS, opencl._KERNELS, opencl.kernel_dir
+    here = opencl.kernel_dir()
+    versions = {v: {"dir": here, "programs": {}, "kernels": {}} for v in ("base", "this")}
+    try:
+        (line,) = ab_kernels.compare("gerris", versions, [2.0], 1, 24, "none")
+    finally:
+        opencl._PROGRAMS, opencl._KERNELS, opencl.kernel_dir = saved
+    samples = line.split("samples ")[1].split(";")[0].split(" / ")
+    assert samples[0] == samples[1] and int(samples[0].replace(",", "")) > 0
+    assert line.endswith("max abs diff 0.00e+00")
+    assert all(versions[v]["programs"] for v in versions)  # each built its own program
+    assert opencl.kernel_dir() == here

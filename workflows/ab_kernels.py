@@ -1,0 +1,116 @@
+"""The kernels of a git revision against the working tree's, on bench_peers' frames.
+
+    .venv/bin/python workflows/ab_kernels.py [--base HEAD] [--datasets gerris,shell256]
+        [--rates 2] [--rounds 5] [--size 1024] [--shading none]
+
+A kernel change is measured here before it is kept (docs/design.md quotes these
+ratios): both versions render the same frames (bench_peers' camera, transfer
+function, opacity unit, seed and early termination) with the same uploaded scene,
+alternating frame by frame in one process, so that the load of this machine hits
+both alike; after one warm-up round each, the median kernel time of --rounds frames
+(min-max) and base / this is printed, with the sample counts and the largest
+difference between the two images. The base kernels are `git show REV:kernels/...`
+in a temporary directory; each version's programs are kept apart by swapping
+exabricks.opencl's program and kernel caches (keyed by context and defines, not by
+directory) and its kernel directory.
+"""
+from __future__ import annotations
+
+import argparse
+import statistics
+import subprocess
+import sys
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+import bench_peers  # noqa: E402
+import benchdoc  # noqa: E402
+
+
+def base_kernels(rev: str, into: Path) -> Path:
+    """The kernels/ files of git revision `rev`, written under `into`."""
+    names = subprocess.run(["git", "-C", str(ROOT), "ls-tree", "--name-only", rev, "kernels/"],
+                           check=True, capture_output=True, text=True).stdout.split()
+    for name in names:
+        data = subprocess.run(["git", "-C", str(ROOT), "show", f"{rev}:{name}"], check=True,
+                              capture_output=True).stdout
+        (into / Path(name).name).write_bytes(data)
+    return into
+
+
+def use(version: dict) -> None:
+    """Make exabricks.opencl build and cache programs from `version`'s kernel directory."""
+    from exabricks import opencl
+    opencl._PROGRAMS = version["programs"]
+    opencl._KERNELS = version["kernels"]
+    opencl.kernel_dir = lambda: version["dir"]
+
+
+def compare(name: str, versions: dict, rates, rounds: int, size: int, shading: str) -> list[str]:
+    from exabricks.stages.render import Renderer
+
+    if name == "shell256":
+        benchdoc.ensure_shell(256)
+    path, field, _ = bench_peers.DATASETS[name]
+    cells, bricks, regions, bvh, _, _ = bench_peers.build_scene(path, field)
+    camera, tf, bounds, _ = bench_peers.view_of(cells, bench_peers.ALPHA_SCALE)
+    unit = bench_peers.opacity_unit(bounds)
+    renderer = Renderer(bricks, regions, bvh)
+    lines = []
+    for rate in rates:
+        times = {v: [] for v in versions}
+        images, samples = {}, {}
+        for k in range(rounds + 1):
+            for v in (list(versions) if k % 2 else list(versions)[::-1]):
+                use(versions[v])
+                result = renderer.render(camera=camera, transfer_function=tf, width=size,
+                                         height=size, sampling_rate=rate, seed=bench_peers.SEED,
+                                         jitter=True, max_opacity=bench_peers.MAX_OPACITY,
+                                         unit_distance=unit, shading=shading)
+                if k:
+                    times[v].append(result.stats["ms"])
+                images[v], samples[v] = result.rgba, result.stats["samples"]
+        base, this = (statistics.median(times[v]) for v in versions)
+        diff = float(np.abs(images["base"] - images["this"]).max())
+        lines.append(f"{name} rate {rate:g} {shading}: base {base:.0f} ms "
+                     f"({min(times['base']):.0f}-{max(times['base']):.0f}), this {this:.0f} ms "
+                     f"({min(times['this']):.0f}-{max(times['this']):.0f}), base / this "
+                     f"{base / this:.3f}; samples {samples['base']:,} / {samples['this']:,}; "
+                     f"max abs diff {diff:.2e}")
+        print(lines[-1], flush=True)
+    return lines
+
+
+def main(argv=None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("--base", default="HEAD", help="git revision of the base kernels")
+    p.add_argument("--datasets", default="gerris,shell256")
+    p.add_argument("--rates", default="2", help="samples per finest cell, comma-separated")
+    p.add_argument("--rounds", type=int, default=5)
+    p.add_argument("--size", type=int, default=1024)
+    p.add_argument("--shading", default="none", choices=("none", "headlight"))
+    args = p.parse_args(argv)
+    from exabricks import opencl
+
+    saved = opencl._PROGRAMS, opencl._KERNELS, opencl.kernel_dir
+    with tempfile.TemporaryDirectory(prefix="ab-kernels-") as tmp:
+        versions = {"base": {"dir": base_kernels(args.base, Path(tmp))},
+                    "this": {"dir": opencl.kernel_dir()}}
+        for v in versions.values():
+            v.update(programs={}, kernels={})
+        rates = [float(r) for r in args.rates.split(",")]
+        try:
+            for name in benchdoc.chosen([args.datasets], list(bench_peers.DATASETS)):
+                compare(name, versions, rates, args.rounds, args.size, args.shading)
+        finally:
+            opencl._PROGRAMS, opencl._KERNELS, opencl.kernel_dir = saved
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
