@@ -204,8 +204,8 @@ EB_PROFILED int eb_sample_interval(eb_frame *fr, eb_ray *ray, int r, int level, 
         return 0;
 #endif
     }
-    if (eb_batch_take(fr, ray, q, shade, st))  /* the samples before this region first */
-        return 1;
+    /* Only --lod samples a region coarser than its finest level, and with --lod
+     * the batch is taken at every region's end: it is empty here. */
 #endif
     while (eb_next_sample(fr, ray, &it, &tm, &len)) {
         float3 p = ray->org + tm * ray->dir;

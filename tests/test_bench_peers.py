@@ -801,13 +801,9 @@ def test_ab_kernels_alternates_two_kernel_directories(tmp_path):
 
     base = ab_kernels.base_kernels("HEAD", tmp_path)
     assert {p.name for p in base.iterdir()} >= {"render.cl", "packet.cl", "integrator.cl"}
-    saved = opencl._PROGRAMS, opencl._KERNELS, opencl.kernel_dir
     here = opencl.kernel_dir()
-    versions = {v: {"dir": here, "programs": {}, "kernels": {}} for v in ("base", "this")}
-    try:
+    with ab_kernels.versions_of(here, here) as versions:
         (line,) = ab_kernels.compare("gerris", versions, [2.0], 1, 24, "none")
-    finally:
-        opencl._PROGRAMS, opencl._KERNELS, opencl.kernel_dir = saved
     samples = line.split("samples ")[1].split(";")[0].split(" / ")
     assert samples[0] == samples[1] and int(samples[0].replace(",", "")) > 0
     assert line.endswith("max abs diff 0.00e+00")

@@ -7,7 +7,7 @@ A kernel change is measured here before it is kept (docs/design.md quotes these
 ratios): both versions render the same frames (bench_peers' camera, transfer
 function, opacity unit, seed and early termination) with the same uploaded scene,
 alternating frame by frame in one process, so that the load of this machine hits
-both alike; after one warm-up round each, the median kernel time of --rounds frames
+both alike (bench_peers.interleaved); after one warm-up frame each, the median kernel time of --rounds frames
 (min-max) and base / this is printed, with the sample counts and the largest
 difference between the two images. The base kernels are `git show REV:kernels/...`
 in a temporary directory; each version's programs are kept apart by swapping
@@ -17,6 +17,7 @@ directory) and its kernel directory.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import statistics
 import subprocess
 import sys
@@ -51,6 +52,18 @@ def use(version: dict) -> None:
     opencl.kernel_dir = lambda: version["dir"]
 
 
+@contextlib.contextmanager
+def versions_of(*dirs: Path):
+    """{"base": ..., "this": ...} versions of the kernel directories `dirs`, each with
+    program and kernel caches of its own; exabricks.opencl's own come back afterwards."""
+    from exabricks import opencl
+    saved = opencl._PROGRAMS, opencl._KERNELS, opencl.kernel_dir
+    try:
+        yield {v: {"dir": d, "programs": {}, "kernels": {}} for v, d in zip(("base", "this"), dirs)}
+    finally:
+        opencl._PROGRAMS, opencl._KERNELS, opencl.kernel_dir = saved
+
+
 def compare(name: str, versions: dict, rates, rounds: int, size: int, shading: str) -> list[str]:
     from exabricks.stages.render import Renderer
 
@@ -61,27 +74,29 @@ def compare(name: str, versions: dict, rates, rounds: int, size: int, shading: s
     camera, tf, bounds, _ = bench_peers.view_of(cells, bench_peers.ALPHA_SCALE)
     unit = bench_peers.opacity_unit(bounds)
     renderer = Renderer(bricks, regions, bvh)
+
+    def frame(version, rate):
+        def render():
+            use(version)
+            result = renderer.render(camera=camera, transfer_function=tf, width=size,
+                                     height=size, sampling_rate=rate, seed=bench_peers.SEED,
+                                     jitter=True, max_opacity=bench_peers.MAX_OPACITY,
+                                     unit_distance=unit, shading=shading)
+            return result.stats["ms"] / 1e3, result.stats["samples"], result.rgba
+        return render
+
     lines = []
     for rate in rates:
-        times = {v: [] for v in versions}
-        images, samples = {}, {}
-        for k in range(rounds + 1):
-            for v in (list(versions) if k % 2 else list(versions)[::-1]):
-                use(versions[v])
-                result = renderer.render(camera=camera, transfer_function=tf, width=size,
-                                         height=size, sampling_rate=rate, seed=bench_peers.SEED,
-                                         jitter=True, max_opacity=bench_peers.MAX_OPACITY,
-                                         unit_distance=unit, shading=shading)
-                if k:
-                    times[v].append(result.stats["ms"])
-                images[v], samples[v] = result.rgba, result.stats["samples"]
-        base, this = (statistics.median(times[v]) for v in versions)
+        measured, images = bench_peers.interleaved(
+            {v: frame(version, rate) for v, version in versions.items()}, rounds)
+        ms = {v: [1e3 * t for t in measured[v]["kernel_s"]] for v in versions}
+        base, this = (statistics.median(ms[v]) for v in versions)
         diff = float(np.abs(images["base"] - images["this"]).max())
         lines.append(f"{name} rate {rate:g} {shading}: base {base:.0f} ms "
-                     f"({min(times['base']):.0f}-{max(times['base']):.0f}), this {this:.0f} ms "
-                     f"({min(times['this']):.0f}-{max(times['this']):.0f}), base / this "
-                     f"{base / this:.3f}; samples {samples['base']:,} / {samples['this']:,}; "
-                     f"max abs diff {diff:.2e}")
+                     f"({min(ms['base']):.0f}-{max(ms['base']):.0f}), this {this:.0f} ms "
+                     f"({min(ms['this']):.0f}-{max(ms['this']):.0f}), base / this "
+                     f"{base / this:.3f}; samples {measured['base']['samples']:,} / "
+                     f"{measured['this']['samples']:,}; max abs diff {diff:.2e}")
         print(lines[-1], flush=True)
     return lines
 
@@ -97,18 +112,11 @@ def main(argv=None) -> int:
     args = p.parse_args(argv)
     from exabricks import opencl
 
-    saved = opencl._PROGRAMS, opencl._KERNELS, opencl.kernel_dir
-    with tempfile.TemporaryDirectory(prefix="ab-kernels-") as tmp:
-        versions = {"base": {"dir": base_kernels(args.base, Path(tmp))},
-                    "this": {"dir": opencl.kernel_dir()}}
-        for v in versions.values():
-            v.update(programs={}, kernels={})
-        rates = [float(r) for r in args.rates.split(",")]
-        try:
-            for name in benchdoc.chosen([args.datasets], list(bench_peers.DATASETS)):
-                compare(name, versions, rates, args.rounds, args.size, args.shading)
-        finally:
-            opencl._PROGRAMS, opencl._KERNELS, opencl.kernel_dir = saved
+    rates = [float(r) for r in args.rates.split(",")]
+    with tempfile.TemporaryDirectory(prefix="ab-kernels-") as tmp, \
+            versions_of(base_kernels(args.base, Path(tmp)), opencl.kernel_dir()) as versions:
+        for name in benchdoc.chosen([args.datasets], list(bench_peers.DATASETS)):
+            compare(name, versions, rates, args.rounds, args.size, args.shading)
     return 0
 
 
