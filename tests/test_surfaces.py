@@ -733,17 +733,41 @@ def test_ambient_occlusion_is_seeded(device):
 # ---------------------------------------------------------------------------------------
 # 6. slices
 
+def slice_colour_tolerance(cells, points, t, depth, origin_size: float) -> np.ndarray:
+    """Per pixel, how far the kernel's slice colour may be from SLICE_MAP of the float64
+    value at the float64 plane points `points` (world = lattice units here): the
+    kernel's point is within |depth - t| + t x 2.4e-7 (4 float32 ulps of the ray
+    direction) + origin_size x 1.2e-7 of them; the field changes by at most its
+    steepest one-sided difference over 1e-3 cells (x sqrt 3 for any direction) per
+    unit of that distance, and the colour by the map's steepest slope per unit of
+    value; plus 3e-6 for the float32 weights, knots and colour lerp."""
+    knots = SLICE_MAP.rgb_points
+    map_slope = np.max(np.abs(np.diff(knots[:, 1:], axis=0)) / np.diff(knots[:, :1], axis=0))
+    here = reference.reconstruct(cells, reference.to_lattice(cells, points), "T")
+    field_slope = np.zeros(len(points))
+    for step in np.vstack([np.eye(3), -np.eye(3)]) * 1e-3:
+        there = reference.reconstruct(cells, reference.to_lattice(cells, points + step), "T")
+        field_slope = np.maximum(field_slope, np.abs(there - here) / 1e-3)
+    distance = np.abs(depth - t) + t * 2.4e-7 + origin_size * 1.2e-7
+    return map_slope * np.sqrt(3.0) * field_slope * distance + 3e-6
+
+
 @device_param
 @pytest.mark.parametrize("normal, clipped", [((0.3, 1.0, 0.2), False), ((0.0, 0.0, 1.0), False),
                                              ((-1.0, 0.4, 0.7), False), ((0.3, 1.0, 0.2), True)])
 def test_slice_shows_the_colour_map_of_the_basis_field(normal, clipped, device):
     """Opaque slice, shading none: each pixel is the colour map of the float64 basis
     value at the float64 ray-plane point (alpha 1), or nothing where the point has no
-    data or the plane is behind. Tolerance 3e-5: the float32 plane point is within
-    ~1e-5 cells of the float64 one (t ~ 200 cells x 6e-8), T changes by < 0.05 per cell
-    and viridis by < 4 per unit of T over (0, 0.3), i.e. < 2e-6, plus float32 weights
-    and knots (~1e-6); measured below 1e-5. Clipped: nothing where the plane point is
-    outside the clip box or plane (1e-3 cells of slack at their faces)."""
+    data or the plane is behind. Tolerance per pixel (slice_colour_tolerance): the
+    kernel's float32 plane point (origin + depth x direction) is off the float64 one by
+    |depth - t| + t x 4 float32 ulps of the direction + the origin's rounding, so its
+    colour is off by at most the map's steepest slope x the field's slope there x that
+    distance, plus 3e-6 for the float32 weights, knots and colour lerp. A flat bound
+    cannot hold: where the ray grazes the plane (|d.n| ~ 0.09) the float32 t moves by
+    1e-6 of itself, and T's slope reaches 0.2 per cell. The worst pixel uses under a
+    quarter of its bound, on PoCL and on NVIDIA's driver alike (measured 2026-12-04).
+    Clipped: nothing where the plane point is outside the clip box or plane (1e-3 cells
+    of slack at their faces)."""
     built = load("gerris")
     camera, _ = view("gerris")
     size = 32
@@ -755,23 +779,27 @@ def test_slice_shows_the_colour_map_of_the_basis_field(normal, clipped, device):
     o, d = (x.reshape(-1, 3) for x in camera.rays(size, size))
     n = np.asarray(normal, float) / np.linalg.norm(normal)
     t = ((np.asarray(point) - o) @ n) / (d @ n)
-    value = reference.reconstruct(built.cells, reference.to_lattice(built.cells, o + t[:, None] * d), "T")
+    hit = o + t[:, None] * d
+    value = reference.reconstruct(built.cells, reference.to_lattice(built.cells, hit), "T")
     drawn = np.isfinite(value) & (t > 0)
     rgba = result.rgba.reshape(-1, 4).astype(np.float64)
+    depth = result.depth.reshape(-1).astype(np.float64)
     if clipped:
         c0, c1 = reference.clip_interval(o, d, clip.box, clip.planes)
-        edge = (np.abs(t - c0) < 1e-3) | (np.abs(t - c1) < 1e-3)
+        keep = (np.abs(t - c0) >= 1e-3) & (np.abs(t - c1) >= 1e-3)  # not at a clip face
         drawn &= (t >= c0) & (t <= c1)
-        drawn, rgba, value, t = drawn[~edge], rgba[~edge], value[~edge], t[~edge]
-        depth = result.depth.reshape(-1)[~edge]
+        drawn, rgba, value, t, depth, hit = (x[keep] for x in (drawn, rgba, value, t, depth, hit))
         assert 0.1 < drawn.mean() < 0.5
     else:
-        depth = result.depth.reshape(-1)
         assert drawn.mean() > 0.3
     want = SLICE_MAP.evaluate(value[drawn])[:, :3]
-    error = np.abs(rgba[drawn, :3] - want).max()
-    print(f"slice {normal}: {drawn.sum()} pixels, max colour error {error:.2g}")
-    assert error <= 3e-5
+    error = np.abs(rgba[drawn, :3] - want).max(axis=1)
+    tolerance = slice_colour_tolerance(built.cells, hit[drawn], t[drawn], depth[drawn],
+                                       np.abs(o).max())
+    worst = np.argmax(error / tolerance)
+    print(f"slice {normal}: {drawn.sum()} pixels, max colour error {error.max():.2g}, "
+          f"worst pixel {error[worst]:.2g} of its bound {tolerance[worst]:.2g}")
+    assert (error <= tolerance).all()
     assert (rgba[drawn, 3] == 1.0).all() and not rgba[~drawn].any()
     np.testing.assert_allclose(depth[drawn], t[drawn], rtol=2e-6)
     assert np.isinf(depth[~drawn]).all()
