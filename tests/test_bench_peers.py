@@ -14,6 +14,7 @@ from conftest import DEVICES, GERRIS
 
 
 import bench_peers  # noqa: E402
+import kernel_resources  # noqa: E402
 import make_big  # noqa: E402
 
 from exabricks import schema  # noqa: E402
@@ -809,3 +810,39 @@ def test_ab_kernels_alternates_two_kernel_directories(tmp_path):
     assert line.endswith("max abs diff 0.00e+00")
     assert all(versions[v]["programs"] for v in versions)  # each built its own program
     assert opencl.kernel_dir() == here
+
+
+# ptxas's report through -cl-nv-verbose, as NVIDIA's OpenCL driver (580.159.04) wrote
+# it for the one-sample volume variant on an H200 (2026-12-04).
+NVIDIA_LOG = """(): Warning: Function eb_render is a kernel, so overriding noinline attribute.
+ptxas info    : 0 bytes gmem
+ptxas info    : Compiling entry function 'eb_probe' for 'sm_90a'
+ptxas info    : Function properties for eb_probe
+ptxas         .     264 bytes stack frame, 0 bytes spill stores, 0 bytes spill loads
+ptxas info    : Used 38 registers, used 0 barriers
+ptxas info    : Compile time = 36.837 ms
+ptxas info    : Compiling entry function 'eb_render' for 'sm_90a'
+ptxas info    : Function properties for eb_render
+ptxas         .     1648 bytes stack frame, 0 bytes spill stores, 0 bytes spill loads
+ptxas info    : Used 126 registers, used 0 barriers
+ptxas info    : Compile time = 1294.676 ms
+"""
+
+
+def test_kernel_resources_reads_each_kernels_lines_of_the_driver_log():
+    assert kernel_resources.report_of(NVIDIA_LOG, "eb_render") == [
+        "1648 bytes stack frame, 0 bytes spill stores, 0 bytes spill loads",
+        "Used 126 registers, used 0 barriers", "Compile time = 1294.676 ms"]
+    assert kernel_resources.report_of(NVIDIA_LOG, "eb_probe")[1] == \
+        "Used 38 registers, used 0 barriers"
+    assert kernel_resources.report_of("", "eb_render") == []
+
+
+@pytest.mark.parametrize("device", DEVICES)
+def test_kernel_resources_builds_every_variant(device, capsys):
+    assert kernel_resources.main(["--device", device]) == 0
+    rows = [l for l in capsys.readouterr().out.splitlines() if l.startswith("| ")][1:]
+    assert [r.split(" | ")[0][2:] for r in rows] == [v[0] for v in kernel_resources.VARIANTS]
+    for row in rows:
+        private, local, group, multiple = (int(x) for x in row.split(" | ")[1:5])
+        assert private >= 0 and local >= 0 and group >= 1 and multiple >= 1

@@ -20,7 +20,8 @@ jobs on a shared machine than wall time). All variants must give the same
 image up to float rounding (checked: the largest difference is printed).
 The datasets are the four shared real ones (workflows/benchdoc.py; `--only big`
 renders the generated 23.6 M-cell one instead).
---write-docs replaces the "## render (PoCL)" section of docs/benchmarks.md.
+--write-docs replaces the "## render (PoCL)" section of docs/benchmarks.md (on a
+GPU, the "## render (GPU)" section).
 """
 
 from __future__ import annotations
@@ -39,12 +40,12 @@ sys.path.insert(0, str(ROOT / "workflows"))
 
 import benchdoc  # noqa: E402
 
-from exabricks import schema  # noqa: E402
+from exabricks import opencl, schema  # noqa: E402
 from exabricks.camera import default_camera  # noqa: E402
 from exabricks.stages.render import TRAVERSALS, Renderer  # noqa: E402
 from exabricks.transfer_function import default_transfer_function  # noqa: E402
 
-SECTION = "render (PoCL)"
+SECTIONS = {"CPU": "render (PoCL)", "GPU": "render (GPU)"}  # by the device's type
 DEFAULT = ("gerris", "amrex", "athena", "enzo", "shell")
 
 NOTES = """
@@ -55,6 +56,14 @@ the process CPU time of a `render` call (all of the OpenCL runtime's threads). B
 walks and both paths (sample packets, the CPU default, kernels/packet.cl; one sample
 at a time, the GPU path) give the same image up to float rounding (the largest
 difference is printed by the script).
+"""
+
+GPU_NOTES = """
+On a GPU the default path runs one ray per work-item and one sample at a time; the
+packet rows run the CPU's path on the GPU, for comparison. What each variant asks of
+the GPU (registers, the stack frame that holds the region walk's heap) is printed
+by workflows/kernel_resources.py, and docs/benchmarks.md "On a GPU" says what it
+means for these figures.
 """
 
 
@@ -114,8 +123,8 @@ def variants(renderer) -> dict:
 
 
 def bench_one(d: Path, field: str, frames: int, size: int):
-    """{(traversal, path): (times ms, samples, rgba, CPU ms)}, the device description and
-    the regions' statistics (their meta["statistics"])."""
+    """{(traversal, path): (times ms, samples, rgba, CPU ms)}, the device description, its
+    kind ("CPU" or "GPU") and the regions' statistics (their meta["statistics"])."""
     b = schema.load(d / "bricks.npz", "bricks")
     r = schema.load(d / "regions.npz", "regions")
     v = schema.load(d / "bvh.npz", "bvh")
@@ -143,7 +152,8 @@ def bench_one(d: Path, field: str, frames: int, size: int):
     scene = renderer.scene
     device = (f"{scene.device.name.strip()} ({scene.device.platform.version.strip()}, "
               f"{scene.device.max_compute_units} compute units)")
-    return out, device, r.meta["statistics"]
+    kind = "CPU" if opencl.is_cpu(scene.device) else "GPU"
+    return out, device, kind, r.meta["statistics"]
 
 
 def main(argv=None) -> int:
@@ -159,13 +169,13 @@ def main(argv=None) -> int:
     if args.runs < 1:
         parser.error("--runs must be at least 1")
 
-    rows, device, region_stats, speedups = [], "?", {}, []
+    rows, device, kind, region_stats, speedups = [], "?", "CPU", {}, []
     sets = benchdoc.datasets()
     keys = benchdoc.chosen(args.only, list(sets)) if args.only else DEFAULT
     for key in keys:
         name, field = sets[key].name, sets[key].field
         d = ensure_scene(args.work, sets[key])
-        results, device, region_stats[name] = bench_one(d, field, args.runs, args.size)
+        results, device, kind, region_stats[name] = bench_one(d, field, args.runs, args.size)
         first = next(iter(results))
         diff = max(float(np.max(np.abs(results[k][2] - results[first][2]))) for k in results)
         med = {k: float(np.median(results[k][0])) for k in results}
@@ -194,8 +204,9 @@ def main(argv=None) -> int:
                "| dataset | field | traversal | path | ms/frame | samples/frame | M samples/s "
                "| CPU ms/frame |\n"
                "|---|---|---|---|---:|---:|---:|---:|\n"
-               + "\n".join(rows) + "\n" + NOTES + "\n" + time_notes(region_stats) + "\n")
-    benchdoc.publish(SECTION, section, args.write_docs)
+               + "\n".join(rows) + "\n" + NOTES + "\n"
+               + (GPU_NOTES if kind == "GPU" else time_notes(region_stats)) + "\n")
+    benchdoc.publish(SECTIONS.get(kind, SECTIONS["CPU"]), section, args.write_docs)
     return 0
 
 

@@ -1,0 +1,111 @@
+"""What each kernel variant asks of an OpenCL device: per-work-item private memory,
+local memory, the largest work-group and, on NVIDIA's driver, the registers, stack
+frame and spills that its compiler reports.
+
+    .venv/bin/python workflows/kernel_resources.py [--device SPEC]
+
+Each variant is the render kernel (kernels/render.cl, eb_render) built with the
+defines that exabricks.stages.render.Renderer passes for a mode (one field, the basis
+reconstruction unless named), or the uniform-grid marcher (kernels/uniform_grid.cl).
+Every variant is built afresh (into an empty pyopencl binary cache, so that the
+driver writes its build log), with exabricks.opencl.BUILD_OPTIONS, plus -cl-nv-verbose on
+NVIDIA's platform. Reported: CL_KERNEL_PRIVATE_MEM_SIZE (bytes per work-item that
+do not fit registers: on a GPU, spills and private arrays in off-chip local memory),
+CL_KERNEL_LOCAL_MEM_SIZE, CL_KERNEL_WORK_GROUP_SIZE, the preferred work-group
+multiple, and the driver log's resource lines. Nothing is rendered.
+"""
+
+from __future__ import annotations
+
+import argparse
+import re
+import sys
+import tempfile
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from exabricks import opencl  # noqa: E402
+from exabricks.stages.device_data import RECONSTRUCTION_DEFINES  # noqa: E402
+from exabricks.stages.render import PACKET_WIDTH  # noqa: E402
+
+# (label, source, kernel, defines)
+VARIANTS = (
+    ("volume, one sample (GPU default)", "render.cl", "eb_render", ()),
+    ("volume, sample packets (CPU default)", "render.cl", "eb_render",
+     (f"EB_PACKET={PACKET_WIDTH}",)),
+    ("surfaces, slices, clipping, AO", "render.cl", "eb_render", ("EB_SURFACES",)),
+    ("level of detail", "render.cl", "eb_render", ("EB_LOD",)),
+    ("cell location", "render.cl", "eb_render", ("EB_CELL_LOCATION",)),
+    ("vertex reconstruction", "render.cl", "eb_render", RECONSTRUCTION_DEFINES["vertex"]),
+    ("uniform-grid marcher", "uniform_grid.cl", "eb_uniform_render", None),
+)
+ENTRY = re.compile(r"(?:entry function|Function properties for) '?(\w+)'?")
+
+
+def report_of(log: str, name: str) -> list[str]:
+    """The driver log's lines about kernel `name` (ptxas prints, per function, its
+    registers, stack frame, spills and constant memory after naming it)."""
+    lines, current = [], None
+    for line in log.splitlines():
+        m = ENTRY.search(line)
+        if m:
+            current = m.group(1)
+            continue
+        if current == name and line.strip():
+            lines.append(re.sub(r"^ptxas\s+(info\s*:|\.)\s*", "", line.strip()))
+    return lines
+
+
+def build(context, device, source: str, defines, verbose: bool, cache_dir: str):
+    import pyopencl as cl
+
+    directory = opencl.kernel_dir()
+    options = [*opencl.BUILD_OPTIONS, f"-I{directory}"]
+    if defines is not None:
+        options += ["-DEB_N_FIELDS=1", *(f"-D{d}" for d in defines)]
+    if verbose:
+        options.append("-cl-nv-verbose")
+    program = cl.Program(context, (directory / source).read_text()).build(
+        options=options, cache_dir=cache_dir)
+    log = program.get_build_info(device, cl.program_build_info.LOG) or ""
+    return program, log
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--device", default=None, help="as `exabricks render --device`")
+    args = parser.parse_args(argv)
+    import pyopencl as cl
+
+    device = opencl.choose_device(args.device)
+    context = opencl.context_for(device)[0]
+    nvidia = "NVIDIA" in device.platform.name.upper()
+    print(f"device: {device.name.strip()} ({device.platform.version.strip()}), "
+          f"{device.max_compute_units} compute units, "
+          f"{device.local_mem_size // 1024} KiB local memory per work-group")
+    info = cl.kernel_work_group_info
+    print("| variant | private B/work-item | local B | max work-group | preferred multiple "
+          "| driver's resource report |")
+    print("|---|---:|---:|---:|---:|---|")
+    for label, source, name, defines in VARIANTS:
+        with tempfile.TemporaryDirectory() as cache_dir:
+            program, log = build(context, device, source, defines, nvidia, cache_dir)
+        kernel = cl.Kernel(program, name)
+        lines = report_of(log, name)
+        print(f"| {label} | {kernel.get_work_group_info(info.PRIVATE_MEM_SIZE, device)} "
+              f"| {kernel.get_work_group_info(info.LOCAL_MEM_SIZE, device)} "
+              f"| {kernel.get_work_group_info(info.WORK_GROUP_SIZE, device)} "
+              f"| {kernel.get_work_group_info(info.PREFERRED_WORK_GROUP_SIZE_MULTIPLE, device)} "
+              f"| {'; '.join(lines) or '-'} |", flush=True)
+        warnings = [l.strip() for l in log.splitlines() if "warning" in l.lower()]
+        for line in warnings[:10]:
+            print(f"  {label}: {line}")
+        if nvidia and not lines:
+            print(log[-2000:])
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
