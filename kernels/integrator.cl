@@ -141,6 +141,9 @@ __attribute__((noinline)) int eb_batch_take(eb_frame *fr, eb_ray *ray, eb_sample
             eb_packet_medium(fr, &ps, eb_vload(0, q->len), ray->dir_world, 1, &a, &cr_, &cg_, &cb_);
         else
             eb_packet_medium(fr, &ps, eb_vload(0, q->len), ray->dir_world, 0, &a, &cr_, &cg_, &cb_);
+#ifndef EB_SURFACES
+        return eb_packet_composite(st, a, cr_, cg_, cb_, q->tm, m, fr->max_opacity);
+#endif
         eb_vstore(a, 0, ca);
         eb_vstore(cr_, 0, cr);
         eb_vstore(cg_, 0, cg);

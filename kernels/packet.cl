@@ -46,6 +46,13 @@ typedef int8 eb_vi;
  * docs/design.md "Sample packets"). */
 #define EB_PACKET_REGIONS 3
 
+/* The sum of a vector's lanes, as a tree of halves. */
+EB_INLINE float eb_vsum(eb_vf v)
+{
+    float4 h = v.lo + v.hi;
+    return (h.x + h.z) + (h.y + h.w);
+}
+
 /* v[i] lane by lane (LLVM makes a gather instruction of it on AVX2/AVX-512). */
 #define EB_GATHER(v, i) EB_GATHER_AS(eb_vf, v, i)
 
@@ -324,4 +331,46 @@ EB_INLINE void eb_packet_medium(eb_frame *fr, eb_packet_sums *s, eb_vf len, floa
         *g *= light;
         *b *= light;
     }
+}
+
+/* Composite lanes 0 .. m-1 of opacity a and colour (r, g, b) at distances
+ * tm[] into `st`, with the result of eb_composite lane after lane, in order:
+ * the transmittance before each lane comes from the same products in the same
+ * order, so the depth, the lane that stops the ray and the sample count are
+ * the same; the colour is one sum per channel of the same terms (T a) rgb over
+ * the lanes up to the stopping one, added in another order (the colour moves by
+ * rounding only). The thresholds are looked for lane by lane only in the packet
+ * that crosses one, once or twice per ray. Returns 1 once the ray is opaque
+ * enough to stop. Volume frames only (surfaces come between the lanes). */
+EB_INLINE int eb_packet_composite(eb_ray_state *st, eb_vf a, eb_vf r, eb_vf g, eb_vf b,
+                                  const float *tm, int m, float max_opacity)
+{
+    const eb_vi lane = (eb_vi)(0, 1, 2, 3, 4, 5, 6, 7);
+    a = select(a, (eb_vf)(0.0f), lane >= m);  /* lanes beyond m: T *= 1 exactly */
+    float av[EB_PACKET], before[EB_PACKET];
+    eb_vstore(a, 0, av);
+    float t = st->transmittance;
+    for (int k = 0; k < EB_PACKET; ++k) {
+        before[k] = t;
+        t *= 1.0f - av[k];
+    }
+    int stop = m, stopped = 0;
+    if (1.0f - t >= max_opacity || (st->t_depth == EB_INF && 1.0f - t >= EB_DEPTH_OPACITY)) {
+        for (int k = 0; k < m; ++k) {
+            float after = before[k] * (1.0f - av[k]);
+            if (st->t_depth == EB_INF && 1.0f - after >= EB_DEPTH_OPACITY)
+                st->t_depth = tm[k];
+            if (1.0f - after >= max_opacity) {
+                stop = k + 1;
+                stopped = 1;
+                t = after;
+                break;
+            }
+        }
+    }
+    eb_vf w = select((eb_vf)(0.0f), eb_vload(0, before) * a, lane < stop);
+    st->color += (float3)(eb_vsum(w * r), eb_vsum(w * g), eb_vsum(w * b));
+    st->transmittance = t;
+    st->samples += stop;
+    return stopped;
 }
