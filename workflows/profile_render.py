@@ -66,7 +66,8 @@ PARTS = (
                  "eb_packet_log2_positive", "eb_packet_exp2_nonpositive")),
     ("shading", ("eb_headlight", "eb_field_gradient", "eb_basis_gradient")),
     ("medium (one step)", ("eb_medium_step", "eb_packet_medium")),
-    ("compositing", ("eb_composite", "eb_sample_step", "eb_batch_add", "eb_batch_take",
+    ("compositing", ("eb_composite", "eb_packet_composite", "eb_vsum", "eb_sample_step",
+                     "eb_batch_add", "eb_batch_take",
                      "eb_sample_interval", "eb_integrate_region", "eb_integrate")),
     ("sample placement", ("sampler.cl",)),
 )
