@@ -794,22 +794,25 @@ def test_to_amr_grids_fill_holes():
 
 def test_ab_kernels_alternates_two_kernel_directories(tmp_path):
     """workflows/ab_kernels.py: a revision's kernels/ files land in a directory of their
-    own, and two versions (here both the working tree's kernels, built and cached apart)
-    render the same Gerris frames in turn with the same samples and image; exabricks'
-    program caches and kernel directory are its own again afterwards."""
+    own, and two versions (here both the working tree's kernels, built and cached apart,
+    the second with a two-entry walk heap given as a build option, so that every ray
+    falls back to the re-trace walk) render the same Gerris frames in turn with the same
+    samples and image; exabricks' program caches, kernel directory and build options
+    are its own again afterwards."""
     import ab_kernels
     from exabricks import opencl
 
     base = ab_kernels.base_kernels("HEAD", tmp_path)
     assert {p.name for p in base.iterdir()} >= {"render.cl", "packet.cl", "integrator.cl"}
-    here = opencl.kernel_dir()
-    with ab_kernels.versions_of(here, here) as versions:
+    here, options = opencl.kernel_dir(), opencl.BUILD_OPTIONS
+    with ab_kernels.versions_of(here, here, options=((), ("-DEB_QUEUE_SIZE=2",))) as versions:
         (line,) = ab_kernels.compare("gerris", versions, [2.0], 1, 24, "none")
     samples = line.split("samples ")[1].split(";")[0].split(" / ")
     assert samples[0] == samples[1] and int(samples[0].replace(",", "")) > 0
     assert line.endswith("max abs diff 0.00e+00")
     assert all(versions[v]["programs"] for v in versions)  # each built its own program
-    assert opencl.kernel_dir() == here
+    assert versions["this"]["options"] == (*options, "-DEB_QUEUE_SIZE=2")
+    assert opencl.kernel_dir() == here and opencl.BUILD_OPTIONS == options
 
 
 # ptxas's report through -cl-nv-verbose, as NVIDIA's OpenCL driver (580.159.04) wrote

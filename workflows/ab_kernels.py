@@ -1,6 +1,7 @@
 """The kernels of a git revision against the working tree's, on bench_peers' frames.
 
-    .venv/bin/python workflows/ab_kernels.py [--base HEAD] [--datasets gerris,shell256]
+    .venv/bin/python workflows/ab_kernels.py [--base HEAD | --base-dir DIR]
+        [--base-options=...] [--options=...] [--datasets gerris,shell256]
         [--rates 2] [--rounds 5] [--size 1024] [--shading none]
 
 A kernel change is measured here before it is kept (docs/design.md quotes these
@@ -10,14 +11,21 @@ alternating frame by frame in one process, so that the load of this machine hits
 both alike (bench_peers.interleaved); after one warm-up frame each, the median kernel time of --rounds frames
 (min-max) and base / this is printed, with the sample counts and the largest
 difference between the two images. The base kernels are `git show REV:kernels/...`
-in a temporary directory; each version's programs are kept apart by swapping
-exabricks.opencl's program and kernel caches (keyed by context and defines, not by
-directory) and its kernel directory.
+in a temporary directory, or the kernels/ folder --base-dir names (a copy of an
+older tree, where git is not at hand); each version's programs are kept apart by
+swapping exabricks.opencl's program and kernel caches (keyed by context and defines,
+not by directory), its kernel directory and its build options. --options (and
+--base-options) add OpenCL build options to this (the base) version, so that one
+kernel tree can be measured against itself with and without them: a define
+(`--options=-DEB_QUEUE_SIZE=16`, the walk's heap) or a driver's option
+(`--options=-cl-nv-maxrregcount=64` on NVIDIA's; the `=` keeps argparse from
+reading the value as a flag).
 """
 from __future__ import annotations
 
 import argparse
 import contextlib
+import shlex
 import statistics
 import subprocess
 import sys
@@ -45,23 +53,28 @@ def base_kernels(rev: str, into: Path) -> Path:
 
 
 def use(version: dict) -> None:
-    """Make exabricks.opencl build and cache programs from `version`'s kernel directory."""
+    """Make exabricks.opencl build and cache programs from `version`'s kernel directory,
+    with its build options."""
     from exabricks import opencl
     opencl._PROGRAMS = version["programs"]
     opencl._KERNELS = version["kernels"]
     opencl.kernel_dir = lambda: version["dir"]
+    opencl.BUILD_OPTIONS = version["options"]
 
 
 @contextlib.contextmanager
-def versions_of(*dirs: Path):
+def versions_of(*dirs: Path, options=((), ())):
     """{"base": ..., "this": ...} versions of the kernel directories `dirs`, each with
-    program and kernel caches of its own; exabricks.opencl's own come back afterwards."""
+    program and kernel caches of its own and exabricks.opencl.BUILD_OPTIONS plus its
+    entry of `options`; exabricks.opencl's own come back afterwards."""
     from exabricks import opencl
-    saved = opencl._PROGRAMS, opencl._KERNELS, opencl.kernel_dir
+    saved = opencl._PROGRAMS, opencl._KERNELS, opencl.kernel_dir, opencl.BUILD_OPTIONS
     try:
-        yield {v: {"dir": d, "programs": {}, "kernels": {}} for v, d in zip(("base", "this"), dirs)}
+        yield {v: {"dir": d, "programs": {}, "kernels": {},
+                   "options": (*opencl.BUILD_OPTIONS, *extra)}
+               for v, d, extra in zip(("base", "this"), dirs, options)}
     finally:
-        opencl._PROGRAMS, opencl._KERNELS, opencl.kernel_dir = saved
+        opencl._PROGRAMS, opencl._KERNELS, opencl.kernel_dir, opencl.BUILD_OPTIONS = saved
 
 
 def compare(name: str, versions: dict, rates, rounds: int, size: int, shading: str) -> list[str]:
@@ -104,6 +117,9 @@ def compare(name: str, versions: dict, rates, rounds: int, size: int, shading: s
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--base", default="HEAD", help="git revision of the base kernels")
+    p.add_argument("--base-dir", type=Path, help="the base kernels from this folder instead")
+    p.add_argument("--base-options", default="", help="OpenCL build options added to the base")
+    p.add_argument("--options", default="", help="OpenCL build options added to this version")
     p.add_argument("--datasets", default="gerris,shell256")
     p.add_argument("--rates", default="2", help="samples per finest cell, comma-separated")
     p.add_argument("--rounds", type=int, default=5)
@@ -113,10 +129,14 @@ def main(argv=None) -> int:
     from exabricks import opencl
 
     rates = [float(r) for r in args.rates.split(",")]
-    with tempfile.TemporaryDirectory(prefix="ab-kernels-") as tmp, \
-            versions_of(base_kernels(args.base, Path(tmp)), opencl.kernel_dir()) as versions:
-        for name in benchdoc.chosen([args.datasets], list(bench_peers.DATASETS)):
-            compare(name, versions, rates, args.rounds, args.size, args.shading)
+    options = (tuple(shlex.split(args.base_options)), tuple(shlex.split(args.options)))
+    with tempfile.TemporaryDirectory(prefix="ab-kernels-") as tmp:
+        base = args.base_dir or base_kernels(args.base, Path(tmp))
+        if not (Path(base) / opencl.ENTRY_SOURCE).is_file():
+            p.error(f"{base}: no {opencl.ENTRY_SOURCE} there")
+        with versions_of(Path(base), opencl.kernel_dir(), options=options) as versions:
+            for name in benchdoc.chosen([args.datasets], list(bench_peers.DATASETS)):
+                compare(name, versions, rates, args.rounds, args.size, args.shading)
     return 0
 
 

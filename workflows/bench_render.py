@@ -206,7 +206,7 @@ def main(argv=None) -> int:
                "|---|---|---|---|---:|---:|---:|---:|\n"
                + "\n".join(rows) + "\n" + NOTES + "\n"
                + (GPU_NOTES if kind == "GPU" else time_notes(region_stats)) + "\n")
-    benchdoc.publish(SECTIONS.get(kind, SECTIONS["CPU"]), section, args.write_docs)
+    benchdoc.publish(SECTIONS[kind], section, args.write_docs)
     return 0
 
 
