@@ -626,8 +626,10 @@ def test_worker_interleaves_regions_cell_location_and_uniform(gerris_row):
     for rate in bench_peers.RATE_KEYS:
         a, b, u = ours["rates"][rate], located["rates"][rate], uniform["rates"][rate]
         assert len(a["kernel_s"]) == len(b["kernel_s"]) == len(u["kernel_s"]) == 2
-        # The same samples, summed alike: the same frame.
-        assert b["samples"] == a["samples"] > 0 and b["max_abs_vs_regions"] == 0.0
+        # The same samples and sums: the same frame, up to the order in which a packet
+        # (regions, on a CPU) adds its lanes' colours (kernels/packet.cl,
+        # eb_packet_composite) where cell location adds them one at a time.
+        assert b["samples"] == a["samples"] > 0 and b["max_abs_vs_regions"] <= 1e-5
         assert u["samples"] > 0
     low, high = bench_peers.RATE_KEYS
     assert ours["rates"][high]["samples"] > ours["rates"][low]["samples"]
