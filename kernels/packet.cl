@@ -357,6 +357,8 @@ EB_INLINE int eb_packet_composite(eb_ray_state *st, eb_vf a, eb_vf r, eb_vf g, e
     int stop = m, stopped = 0;
     if (1.0f - t >= max_opacity || (st->t_depth == EB_INF && 1.0f - t >= EB_DEPTH_OPACITY)) {
         for (int k = 0; k < m; ++k) {
+            if (!(av[k] > 0.0f))
+                continue;  /* as eb_batch_take lane by lane: no step, no test */
             float after = before[k] * (1.0f - av[k]);
             if (st->t_depth == EB_INF && 1.0f - after >= EB_DEPTH_OPACITY)
                 st->t_depth = tm[k];
