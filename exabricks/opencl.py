@@ -174,6 +174,11 @@ def context_for(device):
     return _CONTEXTS[key]
 
 
+def build_options(defines=()) -> list[str]:
+    """The OpenCL build options of a program with preprocessor `defines`."""
+    return [*BUILD_OPTIONS, f"-I{kernel_dir()}", *(f"-D{d}" for d in defines)]
+
+
 def program_for(context, defines=(), source_name: str = ENTRY_SOURCE):
     """The built kernel program `source_name` (a main file of kernels/) of
     `context` with preprocessor `defines` (e.g. ``("EB_CELL_LOCATION",)``, each
@@ -184,9 +189,8 @@ def program_for(context, defines=(), source_name: str = ENTRY_SOURCE):
     if key not in _PROGRAMS:
         directory = kernel_dir()
         source = (directory / source_name).read_text(encoding="utf-8")
-        options = [*BUILD_OPTIONS, f"-I{directory}", *(f"-D{d}" for d in defines)]
         try:
-            _PROGRAMS[key] = cl.Program(context, source).build(options=options)
+            _PROGRAMS[key] = cl.Program(context, source).build(options=build_options(defines))
         except cl.RuntimeError as e:
             raise ExabricksError(f"{directory / source_name}: OpenCL build failed: {e}") from None
     return _PROGRAMS[key]

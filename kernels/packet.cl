@@ -6,9 +6,10 @@
  * union of the regions' lists) and each brick's box, dims and values
  * pointer; only the cell indices and the value loads differ per lane.
  * Compositing, surfaces and everything after the reconstruction then take
- * the lanes in order, exactly as the one-sample loop does, so the image is
- * the same and early ray termination stops at the same sample (the lanes
- * computed beyond it are wasted work).
+ * the lanes in order, as the one-sample loop does, so the image is the same
+ * up to rounding and early ray termination stops at the same sample (the
+ * lanes computed beyond it are wasted work); in a volume frame the colours
+ * of a packet are summed as a vector (eb_packet_composite).
  *
  * Only the basis reconstruction from the region's list is vectorised (the
  * host builds other reconstructions and the cell-location lookup without

@@ -301,8 +301,7 @@ def test_opacity_correction_matches_float64(device):
     import pyopencl as cl
 
     context, queue = opencl.context_for(opencl.choose_device(device))
-    program = cl.Program(context, OPACITY_TEST_SOURCE).build(
-        options=[*opencl.BUILD_OPTIONS, f"-I{opencl.kernel_dir()}"])
+    program = cl.Program(context, OPACITY_TEST_SOURCE).build(options=opencl.build_options())
     alphas = np.concatenate([np.geomspace(1e-7, 1, 400), np.linspace(0, 1, 401)[1:],
                              1 - np.geomspace(1e-7, 0.5, 200)])
     ks = np.concatenate([np.geomspace(1e-4, 1e3, 120), [0.5, 1.0, 2.0]])

@@ -61,13 +61,10 @@ def report_of(log: str, name: str) -> list[str]:
 def build(context, device, source: str, defines, verbose: bool, cache_dir: str):
     import pyopencl as cl
 
-    directory = opencl.kernel_dir()
-    options = [*opencl.BUILD_OPTIONS, f"-I{directory}"]
-    if defines is not None:
-        options += ["-DEB_N_FIELDS=1", *(f"-D{d}" for d in defines)]
+    options = opencl.build_options(() if defines is None else ("EB_N_FIELDS=1", *defines))
     if verbose:
         options.append("-cl-nv-verbose")
-    program = cl.Program(context, (directory / source).read_text()).build(
+    program = cl.Program(context, (opencl.kernel_dir() / source).read_text()).build(
         options=options, cache_dir=cache_dir)
     log = program.get_build_info(device, cl.program_build_info.LOG) or ""
     return program, log
