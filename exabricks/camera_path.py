@@ -42,7 +42,11 @@ VERSION = 1
 # An hour of movie at 30 frames per second is 108,000 frames; a path file of this many is about 20 MB.
 MAX_FRAMES = 100_000
 # The largest camera-path file read (MAX_FRAMES frames take about 13 MB).
-MAX_PATH_BYTES = 64 << 20
+MAX_PATH_BYTES = 32 << 20
+# Keyframes of one path: a few dozen in practice; each is checked as a camera.
+MAX_KEYFRAMES = 4096
+# Values in a camera-path file: a frame is an object of a few lists of 3 numbers.
+MAX_PATH_VALUES = 32 * MAX_FRAMES
 
 
 def _check_frames(n: int) -> int:
@@ -224,7 +228,8 @@ def read_keyframes(path) -> tuple[list[Camera], np.ndarray, bool]:
     too). Times default to 0, 1, 2, ..."""
     from .jsonfile import read_json
 
-    doc = read_json(path, "keyframe file", max_bytes=MAX_PATH_BYTES)
+    doc = read_json(path, "keyframe file", max_bytes=MAX_PATH_BYTES, max_list=MAX_FRAMES,
+                    max_values=MAX_PATH_VALUES)
     loop = False
     if isinstance(doc, dict):
         unknown = sorted(set(doc) - {"kind", "version", "keyframes", "loop", "frames", "source"})
@@ -239,6 +244,8 @@ def read_keyframes(path) -> tuple[list[Camera], np.ndarray, bool]:
         doc = doc["keyframes"]
     if not isinstance(doc, list) or not doc:
         raise ExabricksError(f"{path}: keyframes must be a non-empty list of cameras")
+    if len(doc) > MAX_KEYFRAMES:
+        raise ExabricksError(f"{path}: {len(doc):,} keyframes, at most {MAX_KEYFRAMES:,}")
     cameras, times = [], []
     for i, entry in enumerate(doc):
         where = f"{path}: keyframes[{i}]"
@@ -256,11 +263,26 @@ def read_keyframes(path) -> tuple[list[Camera], np.ndarray, bool]:
     return cameras, np.asarray(times), loop
 
 
-def read_frames(path) -> list[Camera]:
-    """The frames of a camera-path file, each checked as a camera."""
+class Frames:
+    """The frames of a camera-path file, a sequence of Camera: each is checked as a
+    camera when it is taken (a render of frame I of a long path builds that one)."""
+
+    def __init__(self, path, frames: list):
+        self.path, self._frames = path, frames
+
+    def __len__(self) -> int:
+        return len(self._frames)
+
+    def __getitem__(self, i: int) -> Camera:
+        return Camera.from_dict(self._frames[i], source=f"{self.path}: frames[{i % len(self)}]")
+
+
+def read_frames(path) -> Frames:
+    """The frames of a camera-path file (Frames)."""
     from .jsonfile import read_json
 
-    doc = read_json(path, "camera path", max_bytes=MAX_PATH_BYTES)
+    doc = read_json(path, "camera path", max_bytes=MAX_PATH_BYTES, max_list=MAX_FRAMES,
+                    max_values=MAX_PATH_VALUES)
     if not isinstance(doc, dict) or doc.get("kind") != KIND:
         raise ExabricksError(f"{path}: not a camera path (expected an object with \"kind\": "
                              f"\"{KIND}\"; `exabricks camera orbit|path` writes one)")
@@ -270,7 +292,7 @@ def read_frames(path) -> list[Camera]:
     frames = doc.get("frames")
     if not isinstance(frames, list) or not frames:
         raise ExabricksError(f"{path}: 'frames' must be a non-empty list of cameras")
-    return [Camera.from_dict(f, source=f"{path}: frames[{i}]") for i, f in enumerate(frames)]
+    return Frames(path, frames)
 
 
 def parse_frame_range(text: str, n: int, where: str) -> range:

@@ -25,3 +25,7 @@ MAX_TREE_DEPTH = 64
 # Samples one ray may take (per pixel sample): a sampling rate that would need
 # more is refused before rendering (and bounds every kernel loop).
 MAX_SAMPLES_PER_RAY = 1 << 20
+# Knots of one transfer-function list (RGBPoints or Points). ParaView's presets
+# and matplotlib's tables have at most a few hundred; the cap bounds the cost of
+# checking a hostile preset and the image metadata that embeds it.
+MAX_KNOTS = 4096

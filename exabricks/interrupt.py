@@ -55,6 +55,20 @@ def install() -> None:
             pass
 
 
+def ignore() -> None:
+    """Ignore SIGTERM, SIGHUP and SIGINT from now on: the CLI calls this once the
+    run's outcome is decided (its output in place, or its error known), so that a
+    signal during the exit can change neither the output nor the exit status.
+    (Python restores the default action of its own handlers while it shuts
+    down, which would end the process by the signal; an ignored signal stays
+    ignored.)"""
+    for s in SIGNALS:
+        try:
+            signal.signal(s, signal.SIG_IGN)
+        except (ValueError, OSError):
+            pass
+
+
 def pending() -> int | None:
     """The first signal received so far, or None."""
     return _received[0] if _received else None

@@ -8,12 +8,20 @@ fresh temporary file and then puts the result at `path`:
   (``.eb-XXXXXXXX.tmp``) and is renamed into place, so a failed or killed run
   never leaves a file that `make` would take as up to date;
 * a symbolic link is followed: the file it names is replaced, the link stays;
-* a character device or a FIFO (``/dev/null``, ``/dev/stdout``, a pipe) is
+* an open descriptor named by ``/dev/stdout``, ``/dev/stderr``, ``/dev/fd/N``
+  or ``/proc/self/fd/N`` (or a link to one) is written through, whatever it
+  is open on (a file opened for appending, a pipe, a terminal): the file
+  behind it is never replaced (`descriptor`);
+* a character device or a FIFO given by name (``/dev/null``, a named pipe) is
   written into directly, never replaced;
 * a directory, a socket or a block device is refused;
 * an output that is one of the command's inputs (after resolving symbolic
   links, or a hard link to one) is refused before anything is computed:
   `check_output` runs when a command starts, `write_output` checks again.
+
+What goes through a descriptor, a device or a FIFO is first written to an
+anonymous in-memory file (memfd; a file in the system's temporary directory
+where there is none), so no temporary directory is needed.
 
 Temporary files are registered while they exist: `remove_temporaries` (called
 by the CLI on SIGTERM, SIGHUP and SIGINT) deletes them, and a signal that
@@ -25,7 +33,8 @@ from __future__ import annotations
 import contextlib
 import errno
 import os
-import shutil
+import re
+import select
 import stat
 import tempfile
 from pathlib import Path
@@ -60,15 +69,72 @@ def _same_file(a: Path, b: Path) -> bool:
         return _resolved(a) == _resolved(b)
 
 
+# The magic links of a process's open descriptors, after /proc/self and /dev/fd
+# are resolved: /proc/PID/fd/N or /proc/PID/task/TID/fd/N.
+_FD_LINK = re.compile(r"/proc/(\d+)(?:/task/\d+)?/fd/(\d+)")
+
+
+def descriptor(path) -> int | None:
+    """The open descriptor of this process that `path` names (``/dev/stdout``,
+    ``/dev/fd/3``, ``/proc/self/fd/1``, or a symbolic link to one), else None.
+
+    The links are followed one at a time and the descriptor's own link
+    (``/proc/PID/fd/N``, which points at the file, pipe or terminal behind it) is
+    recognised before it would be followed; a descriptor of another process is
+    refused."""
+    p = os.path.abspath(os.fspath(path))
+    for _ in range(40):  # the kernel's own limit on links in a path
+        head, tail = os.path.split(p)
+        p = os.path.join(os.path.realpath(head), tail)
+        m = _FD_LINK.fullmatch(p)
+        if m:
+            if int(m.group(1)) != os.getpid():
+                raise ExabricksError(f"{path}: names a descriptor of another process")
+            return int(m.group(2))
+        if not os.path.islink(p):
+            return None
+        p = os.path.join(head if os.path.isabs(head) else os.getcwd(), os.readlink(p))
+    raise ExabricksError(f"{path}: cannot resolve the output path (too many symbolic links)")
+
+
+def _check_descriptor(path, fd: int, inputs: Iterable) -> None:
+    """Refuse descriptor `fd` (named by `path`) unless it is open for writing on
+    something other than a directory or one of the `inputs`."""
+    import fcntl
+
+    try:
+        st = os.fstat(fd)
+        flags = fcntl.fcntl(fd, fcntl.F_GETFL)
+    except OSError:
+        raise ExabricksError(f"{path}: descriptor {fd} is not open") from None
+    if flags & os.O_ACCMODE not in (os.O_WRONLY, os.O_RDWR):
+        raise ExabricksError(f"{path}: descriptor {fd} is not open for writing")
+    if stat.S_ISDIR(st.st_mode):
+        raise ExabricksError(f"{path}: descriptor {fd} is open on a directory")
+    for inp in inputs:
+        try:
+            other = os.stat(inp) if inp is not None else None
+        except OSError:
+            continue
+        if other is not None and stat.S_ISREG(st.st_mode) \
+                and (other.st_dev, other.st_ino) == (st.st_dev, st.st_ino):
+            raise ExabricksError(f"{path}: the output would overwrite the input {inp}")
+
+
 def check_output(path, inputs: Iterable = ()) -> Path:
     """Refuse an output `path` that cannot be written or that names an input;
-    returns the resolved path that will receive the output."""
+    returns the resolved path that will receive the output (for a descriptor,
+    ``/proc/self/fd/N``)."""
     text = os.fspath(path)
     if not text:
         raise ExabricksError("the output path is empty")
     path = Path(text)
     if "\0" in text:
         raise ExabricksError(f"{text!r}: the output path contains a NUL byte")
+    fd = descriptor(path)
+    if fd is not None:
+        _check_descriptor(path, fd, inputs)
+        return Path(f"/proc/self/fd/{fd}")
     target = _resolved(path)
     for inp in inputs:
         if inp is not None and _same_file(path, Path(inp)):
@@ -97,18 +163,27 @@ def write_output(path, write: Callable[[str], None], *, inputs: Iterable = ()) -
     from . import interrupt
 
     target = check_output(path, inputs)
-    try:
-        mode = os.stat(target).st_mode
-    except FileNotFoundError:
-        mode = None
-    direct = mode is not None and not stat.S_ISREG(mode)
-    tmp = _temporary(path, None if direct else target.parent)
+    fd = descriptor(path)
+    if fd is None:
+        try:
+            mode = os.stat(target).st_mode
+        except FileNotFoundError:
+            mode = None
+        direct = mode is not None and not stat.S_ISREG(mode)
+    else:
+        direct = True
+    tmp = _memory_file(path) if direct else _temporary(path, target.parent)
     try:
         write(tmp)
         interrupt.raise_pending()
-        if direct:
-            with open(tmp, "rb") as src, open(target, "wb", buffering=0) as dst:
-                shutil.copyfileobj(src, dst, 1 << 20)
+        if fd is not None:
+            _copy_into(tmp, fd)
+        elif direct:
+            out = os.open(target, os.O_WRONLY | getattr(os, "O_CLOEXEC", 0))
+            try:
+                _copy_into(tmp, out)
+            finally:
+                os.close(out)
         else:
             os.chmod(tmp, 0o644)
             os.replace(tmp, target)
@@ -117,6 +192,20 @@ def write_output(path, write: Callable[[str], None], *, inputs: Iterable = ()) -
         raise ExabricksError(f"{path}: cannot write the output: {_describe(e)}") from None
     finally:
         _remove(tmp)
+
+
+def _copy_into(tmp: str, out: int) -> None:
+    """Write the bytes of file `tmp` to descriptor `out` at its own position (or
+    its end, when it was opened for appending), waiting while a non-blocking pipe
+    is full."""
+    with open(tmp, "rb") as src:
+        while block := src.read(1 << 20):
+            view = memoryview(block)
+            while view:
+                try:
+                    view = view[os.write(out, view):]
+                except BlockingIOError:
+                    select.select([], [out], [])
 
 
 def _temporary(path, directory) -> str:
@@ -132,6 +221,24 @@ def _temporary(path, directory) -> str:
     return tmp
 
 
+# Anonymous in-memory files in use (their /proc/self/fd names -> descriptors).
+_MEMORY_FILES: dict[str, int] = {}
+
+
+def _memory_file(path) -> str:
+    """A registered anonymous in-memory file for an output that goes through a
+    descriptor, device or FIFO, by a name that `open` takes; a file in the
+    system's temporary directory where memfd_create is missing."""
+    try:
+        fd = os.memfd_create("exabricks-output", getattr(os, "MFD_CLOEXEC", 0))
+    except (AttributeError, OSError):
+        return _temporary(path, None)
+    name = f"/proc/self/fd/{fd}"
+    _MEMORY_FILES[name] = fd
+    _TEMPORARIES.add(name)
+    return name
+
+
 @contextlib.contextmanager
 def scratch(path):
     """A temporary file to build the output `path` in pieces (a frame larger than
@@ -139,7 +246,7 @@ def scratch(path):
     FIFO); deleted on leaving, and by the signal handlers like every temporary."""
     target = check_output(path)
     try:
-        regular = stat.S_ISREG(os.stat(target).st_mode)
+        regular = descriptor(path) is None and stat.S_ISREG(os.stat(target).st_mode)
     except FileNotFoundError:
         regular = True
     tmp = _temporary(path, target.parent if regular else None)
@@ -152,6 +259,10 @@ def scratch(path):
 def _remove(tmp: str) -> None:
     """Delete `tmp` if it is still ours (not yet renamed into place)."""
     if tmp not in _TEMPORARIES:
+        return
+    if tmp in _MEMORY_FILES:
+        os.close(_MEMORY_FILES.pop(tmp))
+        _TEMPORARIES.discard(tmp)
         return
     try:
         os.unlink(tmp)

@@ -147,14 +147,14 @@ def load_for(mode: str, bricks_path, regions_path, bvh_path):
     partition.piece_data checks what it takes) and the bvh only checked to be
     one of the same regions; else loaded as for one process (load_structures)."""
     from . import schema
+    from .stages.device_data import check_chain, load_structures
 
     if mode != "data":
-        from .stages.device_data import load_structures
-
         return load_structures(bricks_path, regions_path, bvh_path)
     bricks = schema.load(bricks_path, "bricks", mapped=True)
     regions = schema.load(regions_path, "regions", mapped=True)
     bvh = schema.load(bvh_path, "bvh", mapped=True)
+    check_chain(bricks, regions, bvh, (bricks_path, regions_path, bvh_path))
     if tuple(regions.fields) != tuple(bricks.fields) or not (
             np.array_equal(regions.origin_world, bricks.origin_world)
             and np.array_equal(regions.spacing_world, bricks.spacing_world)):

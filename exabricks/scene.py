@@ -16,6 +16,7 @@ import numpy as np
 
 from .camera import Camera
 from .errors import ExabricksError
+from .jsonfile import not_regular
 from .transfer_function import TransferFunction
 
 SHADING_MODES = ("headlight", "none")
@@ -430,6 +431,13 @@ def read_scene_file(path) -> dict:
 
     doc = read_json(path, "scene file", object_pairs_hook=_no_duplicate_keys)
     schema = scene_schema()
+    if isinstance(doc, dict):  # the top-level lists' limits, before their items are validated
+        for key, value in doc.items():
+            limit = schema["properties"].get(key, {}).get("maxItems")
+            if isinstance(value, list) and limit is not None and len(value) > limit:
+                raise ExabricksError(f"{_at(str(path), (key,))}: expected "
+                                     f"{schema['properties'][key]['description']} "
+                                     f"(found a list of {len(value):,})")
     base = jsonschema.Draft202012Validator
     validator_class = jsonschema.validators.extend(
         base, type_checker=base.TYPE_CHECKER.redefine("number", _finite_number))
@@ -470,9 +478,10 @@ class _SceneFile:
         if not isinstance(value, str):
             return None
         path = self.folder / value
-        if not path.is_file():
+        problem = not_regular(path)
+        if problem:
             raise ExabricksError(f"{self.at('camera')}: expected a camera file (found {_shown(value)}: "
-                                 f"no such file {path})")
+                                 f"{problem}: {path})")
         return path
 
     def preset_file(self, value, *path) -> Path | None:
@@ -480,13 +489,14 @@ class _SceneFile:
         from .transfer_function import builtin_presets
 
         file = self.folder / value
-        if file.is_file():
+        problem = not_regular(file)
+        if problem is None:
             return file
         if value in builtin_presets():
             return None
         raise ExabricksError(
             f"{self.at(*path)}: expected a preset file, a built-in preset name or a preset object "
-            f"(found {_shown(value)}: no such file {file}, nor a built-in preset: "
+            f"(found {_shown(value)}: {problem}: {file}, nor a built-in preset: "
             f"{', '.join(builtin_presets())})")
 
     def references(self) -> list[Path]:

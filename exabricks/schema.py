@@ -440,61 +440,72 @@ def validate(obj: _Kind, where: str = "<memory>") -> None:
 # meta
 
 
-def sha256_file(path: str | os.PathLike, chunk: int = 1 << 22) -> str:
-    """The file's sha256 (hex): the one `prefetch_sha256` started, when the file has
-    not changed since, else computed now."""
-    key = _file_key(path)
-    pending = _DIGESTS.get(key)
+def sha256_file(path: str | os.PathLike) -> str | None:
+    """The sha256 (hex) of input `path`: of the bytes read through the descriptor
+    its data came from, when it was opened by `load(digest=True)` or
+    `prefetch_sha256`, else of the file now; None for what is not a regular file
+    (an AMReX plotfile directory)."""
+    pending = _DIGESTS.get(os.fspath(path))
     if pending is not None:
-        digest = pending.result()
-        if _file_key(path) == key:  # not rewritten while it was hashed
-            return digest
-    return _sha256_now(path, chunk)
+        return pending.result()
+    from .jsonfile import open_regular
+
+    try:
+        with open_regular(path, "an input") as f:
+            return _sha256_fd(f.fileno())
+    except ExabricksError:
+        return None
 
 
 def prefetch_sha256(paths) -> None:
-    """Start hashing the regular files among `paths` on a background thread, so that
-    `make_meta` at the end of a command finds their digests ready instead of reading
-    the inputs once more (hashlib and file reads release the GIL; a daemon thread
-    never holds up an interrupted command's exit)."""
-    import threading
-    from concurrent.futures import Future
+    """Start hashing the regular files among `paths` on background threads, each
+    from the file as opened now, so that `make_meta` at the end of a command finds
+    their digests ready instead of reading the inputs once more (hashlib and
+    file reads release the GIL; a daemon thread never holds up an interrupted
+    command's exit)."""
+    from .jsonfile import open_regular
 
     for p in paths:
-        key = _file_key(p)
-        if key is None or key in _DIGESTS:
+        try:
+            with open_regular(p, "an input") as f:
+                _hash_in_background(p, f.fileno())
+        except ExabricksError:
             continue
-        future = Future()
-        _DIGESTS[key] = future
-
-        def run(p=p, future=future):
-            try:
-                future.set_result(_sha256_now(p))
-            except BaseException as e:  # re-raised by sha256_file in the main thread
-                future.set_exception(e)
-
-        threading.Thread(target=run, name="sha256", daemon=True).start()
 
 
+# The inputs being hashed: path as given -> Future of the sha256 of the file
+# that was opened under that path (the bytes read, even if a rename has since
+# put another file there).
 _DIGESTS: dict = {}
 
 
-def _file_key(path):
-    """(device, inode, size, mtime) of a regular file, else None."""
-    try:
-        st = os.stat(path)
-    except (OSError, ValueError):
-        return None
-    import stat
+def _hash_in_background(path, fd: int) -> None:
+    """Hash the file open on `fd` (through a duplicate of it) on a daemon thread,
+    as `path`'s digest."""
+    import threading
+    from concurrent.futures import Future
 
-    return (st.st_dev, st.st_ino, st.st_size, st.st_mtime_ns) if stat.S_ISREG(st.st_mode) else None
+    own = os.dup(fd)
+    future = Future()
+
+    def run():
+        try:
+            future.set_result(_sha256_fd(own))
+        except BaseException as e:  # re-raised by sha256_file in the main thread
+            future.set_exception(e)
+        finally:
+            os.close(own)
+
+    _DIGESTS[os.fspath(path)] = future
+    threading.Thread(target=run, name="sha256", daemon=True).start()
 
 
-def _sha256_now(path, chunk: int = 1 << 22) -> str:
+def _sha256_fd(fd: int, chunk: int = 1 << 22) -> str:
     h = hashlib.sha256()
-    with open(path, "rb") as f:
-        while block := f.read(chunk):
-            h.update(block)
+    offset = 0
+    while block := os.pread(fd, chunk, offset):
+        h.update(block)
+        offset += len(block)
     return h.hexdigest()
 
 
@@ -502,14 +513,18 @@ def make_meta(
     inputs: list[str | os.PathLike] = (),
     parameters: dict[str, Any] | None = None,
     statistics: dict[str, Any] | None = None,
+    upstream: _Kind | None = None,
     **extra: Any,
 ) -> dict[str, Any]:
-    """The provenance every output carries: software, command line, input hashes."""
+    """The provenance every output carries: software, command line, input hashes,
+    and what it was built from (`upstream`, the loaded input: `built_from`)."""
+    if upstream is not None:
+        extra["built_from"] = built_from(upstream)
     return {
         "software": f"exabricks {__version__}",
         "command": shlex.join([Path(sys.argv[0]).name, *sys.argv[1:]]),
         "inputs": [
-            {"path": str(p), "sha256": sha256_file(p) if Path(p).is_file() else None}
+            {"path": str(p), "sha256": sha256_file(p)}
             for p in inputs
         ],
         "parameters": parameters or {},
@@ -528,6 +543,7 @@ def save(path: str | os.PathLike, obj: _Kind, *, inputs=()) -> None:
     validate(obj, str(path))
     meta = dict(obj.meta)
     meta["fields"] = list(obj.fields)
+    meta["content_sha256"] = content_sha256(obj)
     header = {
         "format": np.array(FORMAT),
         "kind": np.array(obj.KIND),
@@ -542,6 +558,43 @@ def save(path: str | os.PathLike, obj: _Kind, *, inputs=()) -> None:
             os.fsync(f.fileno())
 
     write_output(path, write, inputs=inputs)
+
+
+def content_sha256(obj: _Kind) -> str:
+    """The sha256 (hex) of what `obj` holds: its kind, field names and every array
+    (name, dtype, shape, bytes). `save` stores it in the file's meta; the files
+    built from it record it as `meta.built_from` (`built_from`, `check_built_from`),
+    so that a consumer checks a chain of files by comparing stored digests."""
+    h = hashlib.sha256(json.dumps([obj.KIND, list(obj.fields)]).encode())
+    for name in sorted(obj.SPECS):
+        a = np.ascontiguousarray(getattr(obj, name))
+        h.update(json.dumps([name, a.dtype.str, list(a.shape)]).encode())
+        flat = a.reshape(-1).view(np.uint8)
+        for start in range(0, flat.size, 1 << 26):
+            h.update(flat[start:start + (1 << 26)])
+    return h.hexdigest()
+
+
+def built_from(source: _Kind) -> dict:
+    """What a file built from `source` records of it (meta key `built_from`)."""
+    return {"kind": source.KIND, "content_sha256": source.meta.get("content_sha256")}
+
+
+def check_built_from(obj: _Kind, where, source: _Kind, source_where) -> None:
+    """ExabricksError (one line naming both files) unless `obj` (read from `where`)
+    records that it was built from `source` (read from `source_where`): the
+    regions from the bricks, the BVH from the regions. Files that predate the
+    record, or objects built in memory, carry none and are checked by their
+    counts and frames only (exabricks.stages.device_data.check_inputs)."""
+    recorded = obj.meta.get("built_from")
+    recorded = recorded.get("content_sha256") if isinstance(recorded, dict) else None
+    actual = source.meta.get("content_sha256")
+    if recorded is None or actual is None or recorded == actual:
+        return
+    raise ExabricksError(
+        f"{where}: was built from another {source.KIND} file than {source_where} (it records "
+        f"{source.KIND} content sha256 {str(recorded)[:12]}..., {source_where} holds "
+        f"{str(actual)[:12]}...): rebuild it from {source_where}")
 
 
 def _json_default(x):
@@ -559,7 +612,7 @@ def peek(path: str | os.PathLike) -> tuple[str, int, dict]:
 
 
 def load(path: str | os.PathLike, kind: str | None = None, *, mapped: bool = False,
-         checked: bool | None = None) -> _Kind:
+         checked: bool | None = None, digest: bool = False) -> _Kind:
     """Read and validate an exabricks file; with `kind`, refuse any other kind.
 
     The arrays' dtypes and shapes are read from their .npy headers and checked
@@ -574,9 +627,13 @@ def load(path: str | os.PathLike, kind: str | None = None, *, mapped: bool = Fal
     uses.  Mapped and unchecked, only dtypes and shapes are checked: for a caller
     that uses a part of the data and validates that part itself
     (exabricks.stages.partition.piece_data, whose output goes through `validate`
-    like any file)."""
+    like any file).
+
+    `digest`: hash the file on a background thread, from the descriptor its
+    arrays are read and mapped through, for the `inputs` of the `make_meta` of
+    what is built from it (`sha256_file`)."""
     where = str(path)
-    with NpzArchive(path) as z:
+    with NpzArchive(path, digest=digest) as z:
         found, version, meta = _header(z, where)
         if kind is not None and found != kind:
             raise ExabricksError(f"{where}: expected a {kind} file, found a {found} file")
@@ -751,20 +808,27 @@ class NpzArchive:
     # straight into their array: one copy from the file, no chunked copies.
     DIRECT_BYTES = 1 << 20
 
-    def __init__(self, path):
+    def __init__(self, path, *, digest: bool = False):
         self.path = Path(path)
+        self.digest = digest
+        self.file = None
         self.zip = None
         self._headers = {}  # name -> (shape, dtype, bytes of the .npy header)
 
     def __enter__(self):
-        p = self.path
-        if not p.exists():
-            raise ExabricksError(f"{p}: no such file")
-        if not p.is_file():
-            raise ExabricksError(f"{p}: not a file")
+        from .jsonfile import open_regular
+
+        self.file = open_regular(self.path, "an exabricks file")
         try:
-            with open(p, "rb") as f:
-                head = f.read(4)
+            return self._open_zip()
+        except BaseException:
+            self.file.close()
+            raise
+
+    def _open_zip(self):
+        p = self.path
+        try:
+            head = os.pread(self.file.fileno(), 4, 0)
         except OSError as e:
             raise ExabricksError(f"{p}: cannot read ({e.strerror or e})") from None
         if not head:
@@ -774,8 +838,10 @@ class NpzArchive:
         if head != b"PK\x03\x04":
             raise ExabricksError(f"{p}: not an exabricks .npz file (not a zip archive; "
                                  "an image, a raw data file or text?)")
+        if self.digest:
+            _hash_in_background(p, self.file.fileno())
         try:
-            self.zip = zipfile.ZipFile(p)
+            self.zip = zipfile.ZipFile(self.file)
             self.members = {i.filename[:-4]: i for i in self.zip.infolist()
                             if i.filename.endswith(".npy")}
         except (zipfile.BadZipFile, zipfile.LargeZipFile, ValueError, OSError, EOFError,
@@ -787,7 +853,14 @@ class NpzArchive:
     def __exit__(self, *exc):
         if self.zip is not None:
             self.zip.close()
+        if self.file is not None:
+            self.file.close()
         return False
+
+    def _pread(self, n: int, offset: int) -> bytes:
+        """`n` bytes of the archive at `offset` (fewer at its end), through the one
+        descriptor every read of this archive goes through."""
+        return os.pread(self.file.fileno(), n, offset)
 
     @property
     def files(self) -> list[str]:
@@ -852,10 +925,9 @@ class NpzArchive:
         except Exception as e:  # truncated member, CRC error, ...
             raise self._fail(name, f"cannot be read ({e})") from None
 
-    def _data_offset(self, f, info) -> int:
+    def _data_offset(self, info) -> int:
         """Where a stored member's bytes (its .npy header first) start in the file."""
-        f.seek(info.header_offset)
-        local = f.read(30)
+        local = self._pread(30, info.header_offset)
         if len(local) != 30 or local[:4] != b"PK\x03\x04":
             raise ValueError("bad local file header")
         name_len = int.from_bytes(local[26:28], "little")
@@ -867,11 +939,10 @@ class NpzArchive:
         shape, dtype = self.header(name)
         skip = self._headers[name][2]
         try:
-            with open(self.path, "rb") as f:
-                offset = self._data_offset(f, info) + skip
-                if offset + info.file_size - skip > os.fstat(f.fileno()).st_size:
-                    raise ValueError("truncated")
-            return np.memmap(self.path, dtype=dtype, mode="r", offset=offset, shape=shape)
+            offset = self._data_offset(info) + skip
+            if offset + info.file_size - skip > os.fstat(self.file.fileno()).st_size:
+                raise ValueError("truncated")
+            return np.memmap(self.file, dtype=dtype, mode="r", offset=offset, shape=shape)
         except OSError as e:
             raise self._fail(name, f"cannot be read ({e.strerror or e})") from None
         except ValueError as e:
@@ -886,9 +957,7 @@ class NpzArchive:
         if _mapping(array) is None:
             return
         try:
-            with open(self.path, "rb") as f:
-                f.seek(self._data_offset(f, info))
-                crc = zlib.crc32(f.read(self._headers[name][2]))
+            crc = zlib.crc32(self._pread(self._headers[name][2], self._data_offset(info)))
         except (OSError, ValueError) as e:
             raise self._fail(name, f"cannot be read ({e})") from None
         for _, (part,) in rows(array.reshape(-1)):
@@ -906,11 +975,16 @@ class NpzArchive:
         out = np.empty(shape, dtype)
         view = memoryview(out.reshape(-1).view(np.uint8))
         try:
-            with open(self.path, "rb") as f:
-                f.seek(self._data_offset(f, info))
-                head = f.read(skip)
-                if f.readinto(view) != len(view) or len(head) != skip:
-                    raise ValueError("truncated")
+            start = self._data_offset(info)
+            head = self._pread(skip, start)
+            done = 0
+            while done < len(view):
+                n = os.preadv(self.file.fileno(), [view[done:]], start + skip + done)
+                if n <= 0:
+                    break
+                done += n
+            if done != len(view) or len(head) != skip:
+                raise ValueError("truncated")
         except OSError as e:
             raise self._fail(name, f"cannot be read ({e.strerror or e})") from None
         except ValueError as e:

@@ -29,6 +29,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .constants import MAX_KNOTS
 from .errors import ExabricksError
 
 # Knots of a matplotlib colormap shortcut: matplotlib's own lookup tables have 256
@@ -55,8 +56,17 @@ def _knots(points, width: int, what: str, where: str) -> np.ndarray:
 
     x (column 0) must be strictly increasing and column 1 (the first colour
     channel or alpha) onwards in [0, 1] -- except the ParaView ``Points``
-    midpoint/sharpness columns 2-3, which are ignored. ExabricksError otherwise.
+    midpoint/sharpness columns 2-3, which are ignored. At most MAX_KNOTS knots,
+    refused before the numbers are looked at. ExabricksError otherwise.
     """
+    if isinstance(points, np.ndarray):
+        n = points.shape[0] if points.ndim == 2 else points.size // width
+    elif isinstance(points, (list, tuple)):
+        n = len(points) if points and isinstance(points[0], (list, tuple)) else len(points) // width
+    else:
+        n = 0
+    if n > MAX_KNOTS:
+        raise ExabricksError(f"{where}: {what} holds more than {MAX_KNOTS:,} knots")
     if isinstance(points, (list, tuple)) and points and all(isinstance(p, (list, tuple)) for p in points):
         try:  # rows given as nested lists (Python callers; presets are flat)
             points = np.asarray(points, dtype=np.float64)
@@ -188,6 +198,9 @@ class TransferFunction:
         alphas = np.atleast_1d(np.asarray(opacity, dtype=np.float64))
         if alphas.ndim != 1 or alphas.size == 0:
             raise ExabricksError(f"colormap {name!r}: opacity must be a non-empty list of alpha values")
+        if alphas.size > MAX_KNOTS:
+            raise ExabricksError(f"colormap {name!r}: {alphas.size:,} opacity knots, at most "
+                                 f"{MAX_KNOTS:,}")
         ax = np.linspace(lo, hi, alphas.size) if alphas.size > 1 else np.array([lo])
         return cls(rgb, np.column_stack([ax, alphas]), name)
 

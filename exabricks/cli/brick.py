@@ -25,8 +25,7 @@ def brick(cells_path, output, max_brick_width, piece):
     from ..stages.brick import build_bricks  # numba import only when the command runs
 
     check_output(output, [cells_path])
-    schema.prefetch_sha256([cells_path])
-    cells = schema.load(cells_path, "cells", mapped=True, checked=True)
+    cells = schema.load(cells_path, "cells", mapped=True, checked=True, digest=True)
     try:
         bricks = build_bricks(cells, max_brick_width=max_brick_width, piece=piece)
     except ExabricksError as e:
@@ -35,6 +34,7 @@ def brick(cells_path, output, max_brick_width, piece):
         inputs=[cells_path],
         parameters={"max_brick_width": max_brick_width},
         statistics=bricks.meta["statistics"],
+        upstream=cells,
         **{k: v for k, v in bricks.meta.items() if k == "piece"},
     )
     schema.save(output, bricks.replace(meta=meta), inputs=[cells_path])

@@ -23,8 +23,7 @@ def bvh(regions_path, output, leaf_size, bins, piece):
     from ..stages.bvh import build_bvh
 
     check_output(output, [regions_path])
-    schema.prefetch_sha256([regions_path])
-    regions = schema.load(regions_path, "regions", mapped=True, checked=True)
+    regions = schema.load(regions_path, "regions", mapped=True, checked=True, digest=True)
     check_regions(regions, regions_path)
     try:
         result = build_bvh(regions, leaf_size=leaf_size, bins=bins, piece=piece)
@@ -35,6 +34,7 @@ def bvh(regions_path, output, leaf_size, bins, piece):
         inputs=[regions_path],
         parameters={"leaf_size": leaf_size, "bins": bins},
         statistics=result.meta["statistics"],
+        upstream=regions,
         consistency={
             "n_regions": regions.n_regions,
             "n_bricks": upstream.get("n_bricks"),

@@ -6,9 +6,10 @@ from __future__ import annotations
 import click
 
 from .. import camera_path, schema
+from ..errors import ExabricksError
 from ..output import check_output, write_output
 from ..scene import DEFAULT_FOVY
-from .options import input_path, output_option
+from .options import finite, input_path, output_option
 
 FRAMES = click.IntRange(1, camera_path.MAX_FRAMES)
 FOVY = click.FloatRange(0, 180, min_open=True, max_open=True)
@@ -32,16 +33,16 @@ def camera():
 @input_path("dataset", metavar="DATASET.npz")
 @output_option
 @click.option("--frames", "n_frames", type=FRAMES, required=True, help="Number of frames.")
-@click.option("--look-at", type=float, nargs=3, default=None, metavar="X Y Z",
+@click.option("--look-at", type=float, callback=finite, nargs=3, default=None, metavar="X Y Z",
               help="The point turned about and looked at (default: the centre of the data).")
-@click.option("--axis", type=float, nargs=3, default=None, metavar="X Y Z",
+@click.option("--axis", type=float, callback=finite, nargs=3, default=None, metavar="X Y Z",
               help="Axis of the turn, also the cameras' up (default 0 1 0, render's default up).")
-@click.option("--elevation", type=float, default=None, metavar="DEG",
+@click.option("--elevation", type=float, callback=finite, default=None, metavar="DEG",
               help="Angle above the plane perpendicular to the axis (default: that of render's "
                    "default three-quarter view, about 20.8).")
-@click.option("--fovy", type=FOVY, default=DEFAULT_FOVY, show_default=True,
+@click.option("--fovy", type=FOVY, callback=finite, default=DEFAULT_FOVY, show_default=True,
               help="Full vertical field of view, degrees (the distance shows the whole data).")
-@click.option("--degrees", type=float, default=360.0, show_default=True,
+@click.option("--degrees", type=float, callback=finite, default=360.0, show_default=True,
               help="Angle turned over the path (a full turn leaves out its end, which is its start).")
 def orbit(dataset, output, n_frames, look_at, axis, elevation, fovy, degrees):
     """N frames turning round DATASET (any exabricks .npz) from render's default view."""
@@ -68,6 +69,9 @@ def path(keyframes_path, output, n_frames, loop):
     check_output(output, [keyframes_path])
     keys, times, file_loop = camera_path.read_keyframes(keyframes_path)
     loop = file_loop if loop is None else loop
-    frames = camera_path.interpolate(keys, times, n_frames, loop=loop)
+    try:
+        frames = camera_path.interpolate(keys, times, n_frames, loop=loop)
+    except ExabricksError as e:
+        raise ExabricksError(f"{keyframes_path}: {e}") from None
     _write(output, camera_path.to_dict(frames, keyframes=keys, times=times, loop=loop,
                                        source={"keyframes": keyframes_path}), [keyframes_path])

@@ -32,7 +32,6 @@ def coarsen(input_path, output, levels, fields):
     from ..stages.coarsen import coarsen_cells, coarsen_plotfile
 
     check_output(output, [input_path])
-    schema.prefetch_sha256([input_path])
     plotfile = input_path.is_dir()  # the reader refuses a directory that is not one
     if fields and not plotfile:
         raise click.UsageError("--field applies to an AMReX plotfile INPUT; a cells file "
@@ -44,7 +43,7 @@ def coarsen(input_path, output, levels, fields):
                 bar.update()
             schema.save(output, coarse, inputs=[input_path])
             return
-        cells = schema.load(input_path, "cells")
+        cells = schema.load(input_path, "cells", digest=True)
         coarse = coarsen_cells(cells, levels=levels)
     except ExabricksError as e:
         if str(e).startswith(str(input_path)):
@@ -54,5 +53,6 @@ def coarsen(input_path, output, levels, fields):
         inputs=[input_path],
         parameters=coarse.meta["parameters"],
         statistics=coarse.meta["statistics"],
+        upstream=cells,
     )
     schema.save(output, coarse.replace(meta=meta), inputs=[input_path])

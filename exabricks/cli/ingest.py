@@ -11,7 +11,7 @@ from ..output import check_output
 from ..readers.raw import BYTE_ORDERS, DTYPES
 from ..stages.ingest import AUTO_MASK_FIELD, NAN_POLICIES
 from ..stages.ingest import ingest as ingest_stage
-from .options import output_option
+from .options import finite, output_option
 
 
 def _name_equals(kind: str):
@@ -44,7 +44,7 @@ def _name_equals(kind: str):
 @click.option("--name", "raw_name", default="value", show_default=True, help="raw: field name.")
 @click.option("--max-level", type=click.IntRange(min=0), default=None,
               help="raw: coarsest level to merge to [default: as coarse as the dims allow].")
-@click.option("--threshold", type=click.FloatRange(min=0), default=0.0, show_default=True,
+@click.option("--threshold", type=click.FloatRange(min=0), callback=finite, default=0.0, show_default=True,
               help="raw: a 2x2x2 group merges when max - min of its voxels is at most this "
               "(absolute, in data units).")
 @click.option("--magnitude", multiple=True, metavar="NAME=A,B,C",

@@ -23,12 +23,12 @@ def join(piece_paths, output):
     from ..stages import pieces
 
     check_output(output, list(piece_paths))
-    schema.prefetch_sha256(list(piece_paths))
     kind, _, _ = schema.peek(piece_paths[0])
     if kind not in KINDS:
         raise ExabricksError(f"{piece_paths[0]}: holds {kind}; join puts together pieces of "
                              f"{', '.join(KINDS)}")
-    parts = [(p, schema.load(p, kind, mapped=True, checked=True)) for p in piece_paths]
+    parts = [(p, schema.load(p, kind, mapped=True, checked=True, digest=True))
+             for p in piece_paths]
     joined = {"bricks": pieces.join_bricks, "regions": pieces.join_regions,
               "bvh": pieces.join_bvh}[kind](parts)
     first = parts[0][1].meta
@@ -41,8 +41,9 @@ def join(piece_paths, output):
         inputs=list(piece_paths),
         parameters=first.get("parameters", {}),
         statistics=joined.meta["statistics"],
-        # What the pieces were built from (their own inputs).
-        built_from=first.get("inputs", []),
+        # What the pieces were built from: their own inputs, and the content they record.
+        source_inputs=first.get("inputs", []),
+        built_from=first.get("built_from"),
         **extra,
     )
     schema.save(output, joined.replace(meta=meta), inputs=list(piece_paths))

@@ -107,9 +107,14 @@ def main(argv=None) -> None:
         # `error:` line; every condition that matters is checked and named instead.
         warnings.simplefilter("ignore", RuntimeWarning)
     try:
-        # Without standalone mode click *returns* the status of ctx.exit(N) instead of raising.
-        status = cli.main(args=argv, prog_name="exabricks", standalone_mode=False)
-        interrupt.raise_pending()
+        try:
+            # Without standalone mode click *returns* the status of ctx.exit(N) instead of raising.
+            status = cli.main(args=argv, prog_name="exabricks", standalone_mode=False)
+            interrupt.raise_pending()
+        finally:
+            # The outcome is decided: a signal from here on neither kills the process
+            # nor changes its status (docs/design.md, "Signals").
+            interrupt.ignore()
     except interrupt.Interrupted as e:
         _fail(f"interrupted ({signal_name(e.signum)})", e.exit_status, shared=True)
     except (KeyboardInterrupt, click.exceptions.Abort):

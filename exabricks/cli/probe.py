@@ -6,23 +6,24 @@ import click
 import numpy as np
 
 from ..errors import ExabricksError
+from ..jsonfile import open_regular
 from ..output import check_output, write_output
 from ..scene import RECONSTRUCTIONS
 from .options import device_option, field_option, input_path, output_option
 
 
 def _load_points(path) -> np.ndarray:
-    with open(path, "rb") as f:
-        magic = f.read(6)
-    if magic != b"\x93NUMPY":
-        raise ExabricksError(f"{path}: not a .npy array file (it must start with numpy's "
-                             "\\x93NUMPY magic; save points with numpy.save)")
-    try:
-        points = np.load(path, allow_pickle=False)
-    except MemoryError:
-        raise
-    except Exception as e:  # numpy raises ValueError, OSError, EOFError...
-        raise ExabricksError(f"{path}: not a readable .npy array ({e})") from None
+    with open_regular(path, "points") as f:
+        if f.read(6) != b"\x93NUMPY":
+            raise ExabricksError(f"{path}: not a .npy array file (it must start with numpy's "
+                                 "\\x93NUMPY magic; save points with numpy.save)")
+        f.seek(0)
+        try:
+            points = np.load(f, allow_pickle=False)
+        except MemoryError:
+            raise
+        except Exception as e:  # numpy raises ValueError, OSError, EOFError...
+            raise ExabricksError(f"{path}: not a readable .npy array ({e})") from None
     if not isinstance(points, np.ndarray) or points.ndim != 2 or points.shape[1] != 3 \
             or not (np.issubdtype(points.dtype, np.floating) or np.issubdtype(points.dtype, np.integer)):
         shape = getattr(points, "shape", None)

@@ -7,7 +7,7 @@ import click
 from .. import schema
 from ..errors import ExabricksError
 from ..output import check_output
-from .options import input_path, output_option, piece_option
+from .options import finite, input_path, output_option, piece_option
 
 
 @click.command()
@@ -16,9 +16,9 @@ from .options import input_path, output_option, piece_option
 @click.option("--exact", is_flag=True,
               help="The paper's exact Active Brick Regions: no merging (one set of active "
               "bricks per region).")
-@click.option("--visit-cost", type=float, default=None, metavar="X",
+@click.option("--visit-cost", type=float, callback=finite, default=None, metavar="X",
               help="Merging: cost of entering a region, in samples [default: 20; 0: exact].")
-@click.option("--brick-cost", type=float, default=None, metavar="X",
+@click.option("--brick-cost", type=float, callback=finite, default=None, metavar="X",
               help="Merging: cost of a listed brick per sample, in samples [default: 0.3].")
 @click.option("--max-merged", type=int, default=None, metavar="N",
               help="Merging: a piece with more bricks is always split [default: 64].")
@@ -37,7 +37,6 @@ def regions(bricks_path, output, exact, visit_cost, brick_cost, max_merged, max_
     from ..stages.regions import EXACT, Merge, build_regions
 
     check_output(output, [bricks_path])
-    schema.prefetch_sha256([bricks_path])
     given = [name for name, v in (("--visit-cost", visit_cost), ("--brick-cost", brick_cost),
                                   ("--max-merged", max_merged),
                                   ("--max-brick-cells", max_brick_cells)) if v is not None]
@@ -54,7 +53,7 @@ def regions(bricks_path, output, exact, visit_cost, brick_cost, max_merged, max_
         )
     except ExabricksError as e:
         raise click.UsageError(str(e)) from None
-    bricks = schema.load(bricks_path, "bricks", mapped=True, checked=True)
+    bricks = schema.load(bricks_path, "bricks", mapped=True, checked=True, digest=True)
     try:
         result = build_regions(bricks, merge, piece)
     except ExabricksError as e:
@@ -64,6 +63,7 @@ def regions(bricks_path, output, exact, visit_cost, brick_cost, max_merged, max_
         inputs=[bricks_path],
         parameters=result.meta["parameters"],
         statistics=stats,
+        upstream=bricks,
         # Lets bvh/render/probe check that bricks, regions and BVH belong together.
         consistency={"n_bricks": bricks.n_bricks, "n_regions": result.n_regions},
         **{k: v for k, v in result.meta.items() if k == "piece"},

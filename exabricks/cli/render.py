@@ -40,13 +40,13 @@ POSITIVE = click.FloatRange(min=0, min_open=True)
 @_vector("--position", check_finite=False)
 @_vector("--look-at", check_finite=False)
 @_vector("--up", check_finite=False)
-@click.option("--fovy", type=float, default=None, help="Full vertical field of view, degrees.")
+@click.option("--fovy", type=float, callback=finite, default=None, help="Full vertical field of view, degrees.")
 @field_option
 @click.option("--transfer-function", metavar="PRESET",
               help="ParaView colour-map preset JSON, or a built-in name (default, inferno-shells; "
                    "built-ins are stretched over --range or the field's range).")
 @click.option("--colormap", metavar="NAME", help="A matplotlib colormap over --range (default: the field's range).")
-@click.option("--range", type=float, nargs=2, default=None, metavar="LO HI",
+@click.option("--range", type=float, callback=finite, nargs=2, default=None, metavar="LO HI",
               help="Data range of the colormap (and rescales a preset file to it).")
 @click.option("--opacity", callback=numbers(), metavar="A0,A1,...",
               help="With --colormap: alpha knots spread evenly over the range (default 0,1: a ramp).")
@@ -58,7 +58,7 @@ POSITIVE = click.FloatRange(min=0, min_open=True)
                    "replaces the scene's iso-surfaces.")
 @click.option("--iso-color", callback=numbers((3,)), metavar="R,G,B",
               help="Colour of the iso-surfaces, in [0, 1] (default 0.9,0.9,0.9).")
-@click.option("--iso-opacity", type=click.FloatRange(0, 1), default=None, metavar="A",
+@click.option("--iso-opacity", type=click.FloatRange(0, 1), callback=finite, default=None, metavar="A",
               help="Opacity of the iso-surfaces (default 1).")
 @click.option("--iso-color-field", metavar="NAME", help="Colour the iso-surfaces by this field.")
 @click.option("--iso-colormap", metavar="NAME", help="Colormap of --iso-color-field (default viridis).")
@@ -95,7 +95,7 @@ POSITIVE = click.FloatRange(min=0, min_open=True)
               help="Length of the ambient-occlusion rays, world units (default: 10 finest cell widths).")
 @click.option("--background", callback=numbers((3, 4)), metavar="R,G,B[,A]",
               help="Background colour in [0, 1] (RGB is opaque; default transparent).")
-@click.option("--unit-distance", type=float, default=None,
+@click.option("--unit-distance", type=float, callback=finite, default=None,
               help="World thickness over which alpha is the opacity (default: the finest cell width).")
 @click.option("--size", type=click.IntRange(1, 32768), nargs=2, default=None, metavar="W H",
               help="Image size in pixels (default 512 512).")
@@ -104,9 +104,9 @@ POSITIVE = click.FloatRange(min=0, min_open=True)
               help="Seed of the interleaved jitter and sub-pixel positions (default 0).")
 @click.option("--jitter/--no-jitter", default=None,
               help="--no-jitter: no interleaved jitter (rho = 0.5): fully deterministic sample positions.")
-@click.option("--sampling-rate", type=POSITIVE, default=None,
+@click.option("--sampling-rate", type=POSITIVE, callback=finite, default=None,
               help="Samples per finest cell width of each region (default 2).")
-@click.option("--max-opacity", type=click.FloatRange(0, 1, min_open=True), default=None,
+@click.option("--max-opacity", type=click.FloatRange(0, 1, min_open=True), callback=finite, default=None,
               help="Early ray termination threshold (default 0.98; 1 turns it off).")
 @click.option("--depth/--no-depth", default=None,
               help="Add a depth channel Z (.exr only): distance to the first opaque surface, else "

@@ -39,8 +39,17 @@ def load_structures(bricks_path, regions_path, bvh_path):
     its kind: mapped and checked in steps, so that what the device takes as it is
     (values, lists) is shared with the page cache and what it takes in another
     layout (boxes, links) is handed back once converted."""
-    return tuple(schema.load(path, kind, mapped=True, checked=True) for path, kind in (
+    bricks, regions, bvh = (schema.load(path, kind, mapped=True, checked=True) for path, kind in (
         (bricks_path, "bricks"), (regions_path, "regions"), (bvh_path, "bvh")))
+    check_chain(bricks, regions, bvh, (bricks_path, regions_path, bvh_path))
+    return bricks, regions, bvh
+
+
+def check_chain(bricks, regions, bvh, paths) -> None:
+    """ExabricksError unless the files at `paths` record that the regions were built
+    from these bricks and the BVH from these regions (schema.check_built_from)."""
+    schema.check_built_from(regions, paths[1], bricks, paths[0])
+    schema.check_built_from(bvh, paths[2], regions, paths[1])
 
 
 def check_inputs(bricks: schema.Bricks, regions: schema.Regions, bvh: schema.Bvh) -> None:

@@ -181,7 +181,9 @@ def budget_partition(bricks: schema.Bricks, regions: schema.Regions, max_bytes: 
 
 
 def mib(nbytes) -> str:
-    """A byte count for messages, in MiB (KiB below one MiB)."""
+    """A byte count for messages, in MiB (KiB below one MiB, bytes below one KiB)."""
+    if nbytes < 2**10:
+        return f"{int(nbytes)} byte{'' if nbytes == 1 else 's'}"
     if nbytes < 2**20:
         return f"{nbytes / 2**10:,.1f} KiB"
     return f"{nbytes / 2**20:,.{1 if nbytes < 10 * 2**20 else 0}f} MiB"

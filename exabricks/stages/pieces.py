@@ -116,8 +116,8 @@ def _shares(parts: list[tuple[str, schema._Kind]]) -> list[tuple[str, schema._Ki
                 and np.array_equal(obj.spacing_world, obj0.spacing_world)):
             raise ExabricksError(f"{path}: has other fields or another world frame than "
                                  f"{path0}: the pieces are not of one dataset")
-        if obj.meta.get("parameters") != obj0.meta.get("parameters") or \
-                obj.meta.get("inputs") != obj0.meta.get("inputs"):
+        if any(obj.meta.get(key) != obj0.meta.get(key)
+               for key in ("parameters", "inputs", "built_from")):
             raise ExabricksError(f"{path}: was built from other inputs or with other "
                                  f"parameters than {path0}")
     missing = sorted(set(range(count)) - set(seen))
