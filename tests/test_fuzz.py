@@ -901,3 +901,154 @@ def test_signal_ends_render_cleanly(gerris, tmp_path, signum, status):
     assert elapsed <= 2.0, f"{name}: the process took {elapsed:.2f} s to exit"
     assert not out.exists()
     assert not temporaries(tmp_path)
+
+
+# ---------------------------------------------------------------------------
+# the small JSON inputs (scene, camera, preset, keyframes, camera path) up to the
+# caps of exabricks/jsonfile.py, and descriptors and FIFOs as inputs and outputs
+
+JSON_SCALARS = st.one_of(st.none(), st.booleans(), st.integers(-2**70, 2**70),
+                         st.floats(allow_nan=False), st.text(max_size=20))
+JSON_VALUES = st.recursive(JSON_SCALARS, lambda inner: st.one_of(
+    st.lists(inner, max_size=6), st.dictionaries(st.text(max_size=10), inner, max_size=6)),
+    max_leaves=40)
+CAMERA_DOC = {"position": [4, 4, 30], "look_at": [4, 4, 4], "up": [0, 1, 0], "fovy": 30}
+JSON_INPUTS = {  # option or command -> (a valid document, how to run it)
+    "scene": {"camera": CAMERA_DOC, "volumes": [{"field": "v", "transfer_function":
+                                                 {"colormap": "viridis", "opacity": [0, 1]}}],
+              "isosurfaces": [{"field": "v", "value": 4.0}]},
+    "camera": CAMERA_DOC,
+    "transfer-function": {"RGBPoints": [0, 0, 0, 0, 12, 1, 1, 1], "Points": [0, 0, 0.5, 0, 12, 1, 0.5, 0]},
+    "keyframes": [CAMERA_DOC, {**CAMERA_DOC, "position": [30, 4, 4]}],
+    "camera-path": {"kind": "exabricks camera path", "version": 1, "frames": [CAMERA_DOC]},
+}
+JSON_PLACES = ("list", "list value", "key", "root")
+
+
+def mutate_json(data, doc):
+    """`doc` with one drawn value replaced: by random JSON, a list of up to twice the
+    list cap, a deep nest, or a long string (the sizes a hostile file can reach)."""
+    from exabricks.jsonfile import MAX_DEPTH, MAX_LIST
+
+    d = data.draw
+    big = st.one_of(
+        JSON_VALUES,
+        st.integers(0, 2 * MAX_LIST).map(lambda n: [0.5] * n),
+        st.integers(1, 2 * MAX_DEPTH).map(lambda n: json.loads("[" * n + "]" * n)),
+        st.integers(0, 1 << 20).map(lambda n: "x" * n),
+        st.integers(0, 40).map(lambda n: [{"field": "v", "value": 1.0}] * n),
+    )
+    doc = json.loads(json.dumps(doc))
+    node, path = doc, []
+    while isinstance(node, (dict, list)) and node and d(st.booleans(), label="deeper"):
+        key = d(st.sampled_from(sorted(node) if isinstance(node, dict) else range(len(node))))
+        path.append(key)
+        node = node[key]
+    value = d(big, label="value")
+    if not path:
+        return value, "root"
+    parent = doc
+    for key in path[:-1]:
+        parent = parent[key]
+    parent[path[-1]] = value
+    return doc, f"at {path}"
+
+
+def json_input_path(data, work: Path, text: str) -> Path:
+    """Where the drawn JSON input is: a regular file holding `text`, a symbolic link
+    to one, a FIFO with no writer, a device or a directory."""
+    case = data.draw(st.sampled_from(("file", "file", "file", "link", "fifo", "/dev/zero",
+                                      "/dev/null", "directory", "link to /dev/zero")), label="where")
+    path = work / "input.json"
+    if case in ("file", "link"):
+        path.write_text(text)
+        if case == "link":
+            (work / "link.json").symlink_to(path)
+            return work / "link.json"
+        return path
+    if case == "fifo":
+        os.mkfifo(path)
+        return path
+    if case == "directory":
+        path.mkdir()
+        return path
+    if case == "link to /dev/zero":
+        (work / "link.json").symlink_to("/dev/zero")
+        return work / "link.json"
+    return Path(case)
+
+
+@pytest.mark.fuzz
+@settings(max_examples=FUZZ_EXAMPLES, deadline=None, suppress_health_check=SUPPRESSED)
+@given(data=st.data())
+def test_json_inputs(tiny, tmp_path, data):
+    work = fresh_dir(tmp_path)
+    kind = data.draw(st.sampled_from(sorted(JSON_INPUTS)), label="kind")
+    doc, where = mutate_json(data, JSON_INPUTS[kind]) if data.draw(st.booleans(), label="mutate") \
+        else (JSON_INPUTS[kind], "valid")
+    path = json_input_path(data, work, json.dumps(doc))
+    out = work / ("path.json" if kind == "keyframes" else "out.png")
+    if kind == "keyframes":
+        args = ["camera", "path", path, "--frames", "3", "-o", out]
+    else:
+        args = ["render", *tiny.trio(), "-o", out, "--size", "8", "8", f"--{kind}", path]
+        args += ["--frame", "0"] if kind == "camera-path" else []
+    proc = cli(*args, cwd=work, tmpdir=work, timeout=TIMEOUT)
+    assert_contract(proc, outputs=[out], dirs=[work], note=f"{kind} {where} via {path}")
+
+
+DESCRIPTOR_CASES = ("append", "truncate", "pipe", "read-only", "closed", "fd 3", "proc fd 3",
+                    "link to stdout", "TMPDIR missing")
+
+
+@pytest.mark.fuzz
+@settings(max_examples=FUZZ_EXAMPLES, deadline=None, suppress_health_check=SUPPRESSED)
+@given(data=st.data())
+def test_descriptor_outputs(tiny, tmp_path, data):
+    """-o through a descriptor: the bytes land behind it (after what was there, for
+    a file opened for appending), or one error line; nothing is replaced."""
+    work = fresh_dir(tmp_path)
+    case = data.draw(st.sampled_from(DESCRIPTOR_CASES), label="case")
+    command = data.draw(st.sampled_from(("bvh", "probe", "render")), label="command")
+    target = work / "target"
+    target.write_bytes(b"before\n")
+    out = {"fd 3": "/dev/fd/3", "proc fd 3": "/proc/self/fd/3", "closed": "/dev/fd/7"}.get(
+        case, "/dev/stdout")
+    if case == "link to stdout" or command == "render":  # render takes its format from the name
+        link = work / ("x.png" if command == "render" else "x.out")
+        link.symlink_to(out)
+        out = link
+    args = {"bvh": ["bvh", tiny.path["regions"]],
+            "probe": ["probe", *tiny.trio(), "--points", tiny.points],
+            "render": ["render", *tiny.trio(), "--size", "8", "8"]}[command]
+    env = {k: v for k, v in os.environ.items() if k != "EXABRICKS_DEBUG"}
+    if case == "TMPDIR missing":
+        env["TMPDIR"] = str(work / "missing")
+    flags = {"append": os.O_WRONLY | os.O_APPEND, "truncate": os.O_WRONLY, "fd 3": os.O_WRONLY,
+             "proc fd 3": os.O_WRONLY | os.O_APPEND, "read-only": os.O_RDONLY}
+    fd = os.open(target, flags[case]) if case in flags else None
+    stdout = subprocess.PIPE if case in ("pipe", "link to stdout", "TMPDIR missing") else \
+        (subprocess.DEVNULL if fd is None or case.startswith(("fd", "proc")) else fd)
+    try:
+        proc = subprocess.run([sys.executable, "-m", "exabricks.cli.main", *map(str, args),
+                               "-o", str(out)], stdout=stdout, stderr=subprocess.PIPE,
+                              pass_fds=(3,) if case.startswith(("fd", "proc")) else (),
+                              preexec_fn=(lambda: os.dup2(fd, 3)) if case.startswith(("fd", "proc"))
+                              else None, env=env, timeout=TIMEOUT, cwd=work)
+    finally:
+        if fd is not None:
+            os.close(fd)
+    err = proc.stderr.decode(errors="replace")
+    note = f"{command} -o {out} ({case})\n{err}"
+    assert proc.returncode in (0, 1, 2) and "Traceback" not in err, note
+    if proc.returncode == 1:
+        lines = [line for line in err.splitlines() if line.strip()]
+        assert len(lines) == 1 and lines[0].startswith("error: "), note
+    if case == "closed":
+        assert proc.returncode == 1 and "not open" in err, note
+    data_bytes = target.read_bytes()
+    if case in ("append", "proc fd 3") and proc.returncode == 0:
+        assert data_bytes.startswith(b"before\n") and len(data_bytes) > 7, note
+    if case == "read-only":
+        assert proc.returncode == 1 and data_bytes == b"before\n", note
+    assert not temporaries(work), note
