@@ -10,7 +10,7 @@ OUT    ?= out
 DATA    = exabricks/data/gerris-plume
 SUDO   := $(shell [ "$$(id -u)" = 0 ] || echo sudo)
 
-.PHONY: setup system-deps demo test test-slow fuzz test-slurm test-all bench bench-large gallery clean
+.PHONY: setup system-deps demo lint test test-slow fuzz test-slurm test-all bench bench-large gallery clean
 
 system-deps:
 	@if ! ls /etc/OpenCL/vendors/*.icd >/dev/null 2>&1; then \
@@ -52,6 +52,10 @@ $(OUT)/plume.png: $(OUT)/bvh.npz
 demo: setup $(OUT)/plume.png
 	@echo "image: $(OUT)/plume.png"
 
+# ruff (its rules in pyproject.toml) over the package, the tests and the workflows.
+lint: setup
+	$(VENV)/bin/ruff check exabricks tests workflows
+
 # The fast suite (minutes): everything but the `slow` tests; each fuzzer runs a
 # few examples (EXABRICKS_FUZZ_EXAMPLES, default in tests/conftest.py).
 test: setup
@@ -71,8 +75,8 @@ test-slurm: setup
 	$(SUDO) workflows/slurm/up.sh
 	EXABRICKS_SLURM=1 $(PY) -m pytest -q -m "slurm"
 
-# What CI runs: all four.
-test-all: test test-slow fuzz test-slurm
+# What CI runs: the linter and all four suites.
+test-all: lint test test-slow fuzz test-slurm
 
 # Every benchmark, in order, each replacing its own "## section" of docs/benchmarks.md
 # (median of 5 runs after a warm-up; figures are only meaningful on a quiet machine).

@@ -22,6 +22,9 @@ import signal
 SIGNALS = tuple(s for s in (signal.SIGTERM, getattr(signal, "SIGHUP", None), signal.SIGINT) if s)
 
 _received: list[int] = []
+# What a signal must undo before the run ends (exabricks.output registers the
+# removal of its temporary files).
+_cleanups: list = []
 
 
 class Interrupted(BaseException):
@@ -37,13 +40,18 @@ class Interrupted(BaseException):
 
 
 def _handler(signum, frame):
-    from .output import remove_temporaries
-
     _received.append(signum)
-    remove_temporaries()
+    for cleanup in _cleanups:
+        cleanup()
     for s in SIGNALS:  # a second signal must not interrupt the clean exit
         signal.signal(s, signal.SIG_IGN)
     raise Interrupted(signum)
+
+
+def at_signal(cleanup) -> None:
+    """Have the signal handlers call `cleanup()` (no arguments) before the run ends."""
+    if cleanup not in _cleanups:
+        _cleanups.append(cleanup)
 
 
 def install() -> None:

@@ -24,8 +24,9 @@ anonymous in-memory file (memfd; a file in the system's temporary directory
 where there is none), so no temporary directory is needed.
 
 Temporary files are registered while they exist: `remove_temporaries` (called
-by the CLI on SIGTERM, SIGHUP and SIGINT) deletes them, and a signal that
-arrived during a write aborts it before the rename (`interrupt.pending`).
+by exabricks.interrupt's handlers of SIGTERM, SIGHUP and SIGINT) deletes them,
+and a signal that arrived during a write aborts it before the rename
+(`interrupt.pending`).
 """
 
 from __future__ import annotations
@@ -40,6 +41,7 @@ import tempfile
 from pathlib import Path
 from typing import Callable, Iterable
 
+from . import interrupt
 from .errors import ExabricksError
 
 # Short, fixed-length temporary names: the target's own name may already be
@@ -160,8 +162,6 @@ def check_output(path, inputs: Iterable = ()) -> Path:
 
 def write_output(path, write: Callable[[str], None], *, inputs: Iterable = ()) -> None:
     """Have `write(tmp)` write a file, then put it at `path` (module docstring)."""
-    from . import interrupt
-
     target = check_output(path, inputs)
     fd = descriptor(path)
     if fd is None:
@@ -276,3 +276,6 @@ def remove_temporaries() -> None:
     """Delete every temporary file of a write in progress (signal handlers call this)."""
     for tmp in list(_TEMPORARIES):
         _remove(tmp)
+
+
+interrupt.at_signal(remove_temporaries)

@@ -110,7 +110,7 @@ def agree(comm, step, *args, **kw):
     """step(*args, **kw) on every rank; if it raised on any rank, every rank raises
     AgreedError with the lowest failing rank's message. Without MPI (comm None)
     just step(*args, **kw)."""
-    from .cli.main import one_line
+    from .errors import one_line
 
     if comm is None:
         return step(*args, **kw)
@@ -221,7 +221,7 @@ class ParallelRenderer:
                                  scale=DatasetScale.of(bricks, fields))
 
     def render_scene(self, scene):
-        from .stages.render import RenderResult, _over_background
+        from .stages.render import RenderResult, over_background
 
         start = time.perf_counter()
         if self.mode == "image":
@@ -235,7 +235,7 @@ class ParallelRenderer:
         stats.update(ms=1e3 * seconds, samples_per_second=stats["samples"] / seconds if seconds
                      else 0.0, mpi={"ranks": self.size, "mode": self.mode,
                                     **({"image_mode_for": self.reason} if self.reason else {})})
-        return RenderResult(_over_background(rgba, scene.background), depth, stats)
+        return RenderResult(over_background(rgba, scene.background), depth, stats)
 
     def _image(self, scene):
         cfg = scene.settings

@@ -62,7 +62,7 @@ def _common_specs() -> dict[str, ArraySpec]:
 
 
 @dataclass(frozen=True, eq=False)
-class _Kind:
+class Kind:
     """Fields shared by every kind: field names, world frame and free-form meta."""
 
     fields: tuple[str, ...]
@@ -91,12 +91,12 @@ class _Kind:
     def arrays(self) -> dict[str, np.ndarray]:
         return {k: getattr(self, k) for k in self.SPECS}
 
-    def replace(self, **changes) -> "_Kind":
+    def replace(self, **changes) -> "Kind":
         return dataclasses.replace(self, **changes)
 
 
 @dataclass(frozen=True, eq=False)
-class Cells(_Kind):
+class Cells(Kind):
     """Leaf cells of an AMR dataset.
 
     lower_lattice: int32 (N, 3), lower corner in finest-cell units, a multiple of 2**level.
@@ -123,7 +123,7 @@ class Cells(_Kind):
 
 
 @dataclass(frozen=True, eq=False)
-class Bricks(_Kind):
+class Bricks(Kind):
     """Same-level, fully filled bricks of cells (paper §3.1).
 
     lower_lattice: int32 (B, 3), lower corner in finest-cell units.
@@ -156,7 +156,7 @@ class Bricks(_Kind):
 
 
 @dataclass(frozen=True, eq=False)
-class Regions(_Kind):
+class Regions(Kind):
     """Active Brick Regions (paper §3.2.3): disjoint boxes with the bricks active in each.
 
     lower_lattice, upper_lattice: float32 (R, 3), box bounds in finest-cell units.
@@ -191,7 +191,7 @@ class Regions(_Kind):
 
 
 @dataclass(frozen=True, eq=False)
-class Bvh(_Kind):
+class Bvh(Kind):
     """Bounding-volume hierarchy over the regions (flat node array, node 0 the root).
 
     lower_lattice, upper_lattice: float32 (M, 3), node bounds in finest-cell units.
@@ -229,14 +229,14 @@ class Bvh(_Kind):
         return int(self.count.shape[0])
 
 
-KINDS: dict[str, type[_Kind]] = {k.KIND: k for k in (Cells, Bricks, Regions, Bvh)}
+KINDS: dict[str, type[Kind]] = {k.KIND: k for k in (Cells, Bricks, Regions, Bvh)}
 
 
 # ---------------------------------------------------------------------------
 # validation
 
 
-def _check_shapes(obj: _Kind, where: str) -> None:
+def _check_shapes(obj: Kind, where: str) -> None:
     """Check dtypes and symbolic shapes of every array of `obj`."""
     sizes: dict[str, int] = {"F": obj.n_fields}
     for name, spec in obj.SPECS.items():
@@ -266,7 +266,7 @@ def _check_shapes(obj: _Kind, where: str) -> None:
                 )
 
 
-def _check_semantics(obj: _Kind, where: str) -> None:
+def _check_semantics(obj: Kind, where: str) -> None:
     """Cheap whole-array checks (O(N), vectorised) that catch inconsistent files,
     including everything a kernel follows: no file can make one read out of
     bounds or loop.  Per-item arrays are checked in steps of about CHUNK elements
@@ -430,7 +430,7 @@ def tree_depth(first: np.ndarray, count: np.ndarray) -> int:
     return depth
 
 
-def validate(obj: _Kind, where: str = "<memory>") -> None:
+def validate(obj: Kind, where: str = "<memory>") -> None:
     """Raise ExabricksError naming `where` if `obj` breaks its kind's schema."""
     _check_shapes(obj, where)
     _check_semantics(obj, where)
@@ -513,7 +513,7 @@ def make_meta(
     inputs: list[str | os.PathLike] = (),
     parameters: dict[str, Any] | None = None,
     statistics: dict[str, Any] | None = None,
-    upstream: _Kind | None = None,
+    upstream: Kind | None = None,
     **extra: Any,
 ) -> dict[str, Any]:
     """The provenance every output carries: software, command line, input hashes,
@@ -537,7 +537,7 @@ def make_meta(
 # file I/O
 
 
-def save(path: str | os.PathLike, obj: _Kind, *, inputs=()) -> None:
+def save(path: str | os.PathLike, obj: Kind, *, inputs=()) -> None:
     """Validate `obj` and write it to `path` through exabricks.output (atomic
     for files, direct for devices; refused if `path` names one of `inputs`)."""
     validate(obj, str(path))
@@ -560,7 +560,7 @@ def save(path: str | os.PathLike, obj: _Kind, *, inputs=()) -> None:
     write_output(path, write, inputs=inputs)
 
 
-def content_sha256(obj: _Kind) -> str:
+def content_sha256(obj: Kind) -> str:
     """The sha256 (hex) of what `obj` holds: its kind, field names and every array
     (name, dtype, shape, bytes). `save` stores it in the file's meta; the files
     built from it record it as `meta.built_from` (`built_from`, `check_built_from`),
@@ -575,12 +575,12 @@ def content_sha256(obj: _Kind) -> str:
     return h.hexdigest()
 
 
-def built_from(source: _Kind) -> dict:
+def built_from(source: Kind) -> dict:
     """What a file built from `source` records of it (meta key `built_from`)."""
     return {"kind": source.KIND, "content_sha256": source.meta.get("content_sha256")}
 
 
-def check_built_from(obj: _Kind, where, source: _Kind, source_where) -> None:
+def check_built_from(obj: Kind, where, source: Kind, source_where) -> None:
     """ExabricksError (one line naming both files) unless `obj` (read from `where`)
     records that it was built from `source` (read from `source_where`): the
     regions from the bricks, the BVH from the regions. Files that predate the
@@ -612,7 +612,7 @@ def peek(path: str | os.PathLike) -> tuple[str, int, dict]:
 
 
 def load(path: str | os.PathLike, kind: str | None = None, *, mapped: bool = False,
-         checked: bool | None = None, digest: bool = False) -> _Kind:
+         checked: bool | None = None, digest: bool = False) -> Kind:
     """Read and validate an exabricks file; with `kind`, refuse any other kind.
 
     The arrays' dtypes and shapes are read from their .npy headers and checked
@@ -692,7 +692,7 @@ def _hand_back(base, start: int = 0, length: int = 0) -> None:
     base.madvise(mmap.MADV_DONTNEED, lo, start + length - lo)
 
 
-def release(obj: "_Kind") -> None:
+def release(obj: "Kind") -> None:
     """Hand back the resident pages of `obj`'s mapped arrays."""
     release_arrays(*obj.arrays().values())
 
@@ -1031,7 +1031,7 @@ def _header(z: NpzArchive, where: str) -> tuple[str, int, dict]:
 # summaries (for `exabricks info`; the keys are documented in docs/file-formats.md)
 
 
-def world_bounds(obj: _Kind) -> tuple[list[float], list[float]]:
+def world_bounds(obj: Kind) -> tuple[list[float], list[float]]:
     """World-space bounding box of the data (cells/bricks) or the structure (regions/bvh)."""
     if isinstance(obj, Cells):
         lo, hi = _cell_box(obj.lower_lattice, obj.level)
@@ -1063,7 +1063,7 @@ def _cell_box(lower, level, dims=None):
     return np.min(lo, axis=0), np.max(hi, axis=0)
 
 
-def summary(obj: _Kind) -> dict[str, Any]:
+def summary(obj: Kind) -> dict[str, Any]:
     """A JSON-ready description: kind, version, counts, fields with ranges, frame, meta."""
     counts: dict[str, Any] = {}
     ranges: dict[str, list[float | None]] = {}

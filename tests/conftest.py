@@ -147,3 +147,18 @@ def rng():
 
 # Examples per fuzzer (tests marked `fuzz`): a few in `make test`, many in `make fuzz`.
 FUZZ_EXAMPLES = int(os.environ.get("EXABRICKS_FUZZ_EXAMPLES", "8"))
+
+
+@pytest.fixture(scope="session")
+def plume_trio(tmp_path_factory):
+    """bricks, regions and bvh files of the Gerris plume's T field."""
+    from exabricks import schema
+
+    d = tmp_path_factory.mktemp("trio")
+    bricks, regions, bvh, *_ = built_scene(GERRIS, "T")
+    paths = [d / "bricks.npz", d / "regions.npz", d / "bvh.npz"]
+    regions = regions.replace(meta={"consistency": {"n_bricks": bricks.n_bricks,
+                                                    "n_regions": regions.n_regions}})
+    for path, obj in zip(paths, (bricks, regions, bvh)):
+        schema.save(path, obj)
+    return paths

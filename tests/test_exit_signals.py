@@ -13,15 +13,15 @@ import time
 
 import pytest
 
-from test_hostile import TIMEOUT, trio  # noqa: F401 (the fixture)
+from test_hostile import TIMEOUT
 
 
 @pytest.mark.parametrize("signum", [signal.SIGTERM, signal.SIGINT, signal.SIGHUP])
-def test_a_signal_once_the_output_is_in_place(signum, trio, tmp_path):
+def test_a_signal_once_the_output_is_in_place(signum, plume_trio, tmp_path):
     out = tmp_path / "regions.npz"
     for _ in range(4):
         out.unlink(missing_ok=True)
-        proc = subprocess.Popen([sys.executable, "-m", "exabricks.cli.main", "regions", trio[0],
+        proc = subprocess.Popen([sys.executable, "-m", "exabricks.cli.main", "regions", plume_trio[0],
                                  "-o", out], stderr=subprocess.PIPE, text=True)
         # The event is the rename that puts the output in place; the signal follows it.
         while not out.exists() and proc.poll() is None:

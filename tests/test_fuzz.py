@@ -112,10 +112,10 @@ def tiny_cells() -> schema.Cells:
         for j in range(2):
             for i in range(2):
                 if (i, j, k) != (0, 0, 0):
-                    lower.append((4 * i, 4 * j, 4 * k)); level.append(2)
-                    lower.append((2 * i, 2 * j, 2 * k)); level.append(1)
-                    lower.append((i, j, k)); level.append(0)
-    lower.append((0, 0, 0)); level.append(0)
+                    lower += [(4 * i, 4 * j, 4 * k), (2 * i, 2 * j, 2 * k), (i, j, k)]
+                    level += [2, 1, 0]
+    lower.append((0, 0, 0))
+    level.append(0)
     lower = np.array(lower, np.int32)
     level = np.array(level, np.int8)
     centre = lower + 0.5 * (1 << level.astype(np.int32))[:, None]

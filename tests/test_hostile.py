@@ -20,7 +20,7 @@ import pytest
 
 from exabricks import schema
 
-from conftest import GERRIS, assert_one_error_line, built_scene
+from conftest import GERRIS, assert_one_error_line
 
 TIMEOUT = 120
 
@@ -39,19 +39,6 @@ def sha(path) -> str:
     return hashlib.sha256(Path(path).read_bytes()).hexdigest()
 
 
-@pytest.fixture(scope="module")
-def trio(tmp_path_factory):
-    """bricks, regions and bvh files of the Gerris plume's T field."""
-    d = tmp_path_factory.mktemp("trio")
-    bricks, regions, bvh, *_ = built_scene(GERRIS, "T")
-    paths = [d / "bricks.npz", d / "regions.npz", d / "bvh.npz"]
-    regions = regions.replace(meta={"consistency": {"n_bricks": bricks.n_bricks,
-                                                    "n_regions": regions.n_regions}})
-    for path, obj in zip(paths, (bricks, regions, bvh)):
-        schema.save(path, obj)
-    return paths
-
-
 def rewrite(src: Path, dst: Path, **arrays) -> Path:
     """A copy of the .npz `src` at `dst` with some members replaced."""
     with np.load(src, allow_pickle=False) as z:
@@ -61,14 +48,14 @@ def rewrite(src: Path, dst: Path, **arrays) -> Path:
     return dst
 
 
-def crafted(trio, tmp_path, which: int, **arrays) -> list[Path]:
-    paths = list(trio)
-    paths[which] = rewrite(trio[which], tmp_path / trio[which].name, **arrays)
+def crafted(plume_trio, tmp_path, which: int, **arrays) -> list[Path]:
+    paths = list(plume_trio)
+    paths[which] = rewrite(plume_trio[which], tmp_path / plume_trio[which].name, **arrays)
     return paths
 
 
-def bvh_arrays(trio):
-    with np.load(trio[2], allow_pickle=False) as z:
+def bvh_arrays(plume_trio):
+    with np.load(plume_trio[2], allow_pickle=False) as z:
         return {k: z[k].copy() for k in ("first", "count", "lower_lattice", "upper_lattice")}
 
 
@@ -76,45 +63,45 @@ def bvh_arrays(trio):
 # 1. output paths
 
 
-def test_device_nodes_are_written_into_never_replaced(trio, tmp_path):
-    proc = run("bvh", trio[1], "-o", "/dev/null")
+def test_device_nodes_are_written_into_never_replaced(plume_trio, tmp_path):
+    proc = run("bvh", plume_trio[1], "-o", "/dev/null")
     assert proc.returncode == 0, proc.stderr
     assert stat.S_ISCHR(os.stat("/dev/null").st_mode)
     if os.path.exists("/dev/full"):
-        assert_one_error_line(run("bvh", trio[1], "-o", "/dev/full"), "/dev/full", "No space left")
+        assert_one_error_line(run("bvh", plume_trio[1], "-o", "/dev/full"), "/dev/full", "No space left")
         assert stat.S_ISCHR(os.stat("/dev/full").st_mode)
     assert not [p for p in os.listdir("/dev") if p.startswith(".eb-")]
 
 
-def test_a_fifo_receives_the_output(trio, tmp_path):
+def test_a_fifo_receives_the_output(plume_trio, tmp_path):
     fifo = tmp_path / "out.npz"
     os.mkfifo(fifo)
     received = tmp_path / "received"
     with open(received, "wb") as sink:
         reader = subprocess.Popen(["cat", str(fifo)], stdout=sink)
-        proc = run("bvh", trio[1], "-o", fifo)
+        proc = run("bvh", plume_trio[1], "-o", fifo)
         reader.wait(timeout=TIMEOUT)
     data = received.read_bytes()
     assert proc.returncode == 0, proc.stderr
     assert stat.S_ISFIFO(os.stat(fifo).st_mode) and data[:2] == b"PK"
 
 
-def test_a_symlinked_output_writes_the_file_it_names_and_keeps_the_link(trio, tmp_path):
+def test_a_symlinked_output_writes_the_file_it_names_and_keeps_the_link(plume_trio, tmp_path):
     link = tmp_path / "link.npz"
     link.symlink_to("target.npz")
-    assert run("bvh", trio[1], "-o", link).returncode == 0
+    assert run("bvh", plume_trio[1], "-o", link).returncode == 0
     assert link.is_symlink() and os.readlink(link) == "target.npz"
     assert schema.peek(tmp_path / "target.npz")[0] == "bvh"
 
 
-def test_a_directory_is_not_an_output(trio, tmp_path):
-    proc = run("bvh", trio[1], "-o", tmp_path)
+def test_a_directory_is_not_an_output(plume_trio, tmp_path):
+    proc = run("bvh", plume_trio[1], "-o", tmp_path)
     assert proc.returncode == 2 and "is a directory" in proc.stderr  # click's usage error
 
 
 @pytest.mark.parametrize("command", ["brick", "regions", "bvh"])
-def test_an_output_naming_an_input_is_refused(command, trio, tmp_path):
-    inputs = {"brick": None, "regions": trio[0], "bvh": trio[1]}
+def test_an_output_naming_an_input_is_refused(command, plume_trio, tmp_path):
+    inputs = {"brick": None, "regions": plume_trio[0], "bvh": plume_trio[1]}
     source = inputs[command]
     if source is None:
         source = tmp_path / "cells.npz"
@@ -145,13 +132,13 @@ def test_compare_diff_onto_an_input_is_refused(tmp_path):
     ("nodir/x.npz", "does not exist"),
     ("a" * 300 + ".npz", "file name too long"),
 ])
-def test_unwritable_output_names_get_a_plain_message(name, needle, trio, tmp_path):
-    assert_one_error_line(run("bvh", trio[1], "-o", name, cwd=tmp_path), needle)
+def test_unwritable_output_names_get_a_plain_message(name, needle, plume_trio, tmp_path):
+    assert_one_error_line(run("bvh", plume_trio[1], "-o", name, cwd=tmp_path), needle)
 
 
-def test_a_long_output_name_keeps_a_short_temporary(trio, tmp_path):
+def test_a_long_output_name_keeps_a_short_temporary(plume_trio, tmp_path):
     name = "a" * 249 + ".npz"
-    assert run("bvh", trio[1], "-o", name, cwd=tmp_path).returncode == 0
+    assert run("bvh", plume_trio[1], "-o", name, cwd=tmp_path).returncode == 0
     assert (tmp_path / name).is_file() and not leftovers(tmp_path)
 
 
@@ -159,12 +146,12 @@ def test_a_long_output_name_keeps_a_short_temporary(trio, tmp_path):
 # 2. crafted files that used to crash or hang the kernels
 
 
-def test_a_bvh_leaf_with_a_negative_count_is_refused(trio, tmp_path):
-    a = bvh_arrays(trio)
+def test_a_bvh_leaf_with_a_negative_count_is_refused(plume_trio, tmp_path):
+    a = bvh_arrays(plume_trio)
     leaf = int(np.flatnonzero(a["count"] > 0)[0])
     a["count"][leaf] = -2_000_000_000
     a["first"][leaf] = 2_000_000_000
-    paths = crafted(trio, tmp_path, 2, count=a["count"], first=a["first"])
+    paths = crafted(plume_trio, tmp_path, 2, count=a["count"], first=a["first"])
     for command in (["render", *paths, "-o", tmp_path / "x.png", "--size", "16", "16"],
                     ["probe", *paths, "--points", _points(tmp_path), "-o", tmp_path / "v.npy"]):
         assert_one_error_line(run(*command), "negative region count")
@@ -172,51 +159,51 @@ def test_a_bvh_leaf_with_a_negative_count_is_refused(trio, tmp_path):
 
 
 @pytest.mark.parametrize("target", ["self", "root"])
-def test_a_bvh_cycle_is_refused(target, trio, tmp_path):
-    a = bvh_arrays(trio)
+def test_a_bvh_cycle_is_refused(target, plume_trio, tmp_path):
+    a = bvh_arrays(plume_trio)
     inner = int(np.flatnonzero(a["count"] == 0)[1])
     a["first"][inner] = inner if target == "self" else 0
-    paths = crafted(trio, tmp_path, 2, first=a["first"])
+    paths = crafted(plume_trio, tmp_path, 2, first=a["first"])
     assert_one_error_line(run("render", *paths, "-o", tmp_path / "x.png", "--size", "16", "16"),
                           f"BVH node {inner}", "must follow it")
 
 
-def test_a_bvh_node_with_two_parents_is_refused(trio, tmp_path):
-    a = bvh_arrays(trio)
+def test_a_bvh_node_with_two_parents_is_refused(plume_trio, tmp_path):
+    a = bvh_arrays(plume_trio)
     inner = np.flatnonzero(a["count"] == 0)
     a["first"][inner[2]] = a["first"][inner[1]]
-    paths = crafted(trio, tmp_path, 2, first=a["first"])
+    paths = crafted(plume_trio, tmp_path, 2, first=a["first"])
     assert_one_error_line(run("render", *paths, "-o", tmp_path / "x.png"), "one parent per node")
 
 
-def test_region_levels_outside_the_range_are_refused(trio, tmp_path):
-    with np.load(trio[1], allow_pickle=False) as z:
+def test_region_levels_outside_the_range_are_refused(plume_trio, tmp_path):
+    with np.load(plume_trio[1], allow_pickle=False) as z:
         level = z["finest_level"].copy()
     level[0] = -40
-    paths = crafted(trio, tmp_path, 1, finest_level=level)
+    paths = crafted(plume_trio, tmp_path, 1, finest_level=level)
     assert_one_error_line(run("render", *paths, "-o", tmp_path / "x.png"),
                           "region 0 has level -40")
 
 
 @pytest.mark.parametrize("which, member", [(1, "upper_lattice"), (2, "lower_lattice")])
-def test_infinite_bounds_are_refused(which, member, trio, tmp_path):
-    with np.load(trio[which], allow_pickle=False) as z:
+def test_infinite_bounds_are_refused(which, member, plume_trio, tmp_path):
+    with np.load(plume_trio[which], allow_pickle=False) as z:
         bounds = z[member].copy()
     bounds[0, 1] = np.inf if member == "upper_lattice" else -np.inf
-    paths = crafted(trio, tmp_path, which, **{member: bounds})
+    paths = crafted(plume_trio, tmp_path, which, **{member: bounds})
     assert_one_error_line(run("render", *paths, "-o", tmp_path / "x.png"), "must be finite")
 
 
-def test_a_negative_brick_id_is_named_as_such(trio, tmp_path):
-    with np.load(trio[1], allow_pickle=False) as z:
+def test_a_negative_brick_id_is_named_as_such(plume_trio, tmp_path):
+    with np.load(plume_trio[1], allow_pickle=False) as z:
         ids = z["brick_ids"].copy()
     ids[3] = -5
-    paths = crafted(trio, tmp_path, 1, brick_ids=ids)
+    paths = crafted(plume_trio, tmp_path, 1, brick_ids=ids)
     assert_one_error_line(run("render", *paths, "-o", tmp_path / "x.png"), "negative brick id (-5)")
 
 
-def test_an_absurd_sampling_rate_is_refused_at_once(trio, tmp_path):
-    proc = run("render", *trio, "-o", tmp_path / "x.png", "--sampling-rate", "1e30", timeout=30)
+def test_an_absurd_sampling_rate_is_refused_at_once(plume_trio, tmp_path):
+    proc = run("render", *plume_trio, "-o", tmp_path / "x.png", "--sampling-rate", "1e30", timeout=30)
     assert_one_error_line(proc, "samples on a ray", "lower it")
 
 
@@ -264,9 +251,9 @@ def _points(tmp_path) -> Path:
 # 3. resources claimed before they are checked
 
 
-def test_a_zip_bomb_is_refused_before_decompressing(trio, tmp_path):
+def test_a_zip_bomb_is_refused_before_decompressing(plume_trio, tmp_path):
     bomb = tmp_path / "bomb.npz"
-    with np.load(trio[0], allow_pickle=False) as z:
+    with np.load(plume_trio[0], allow_pickle=False) as z:
         members = {k: z[k] for k in z.files if k != "values"}
     np.savez(bomb, **members)
     # A values member whose .npy header claims 1 GiB of float32, deflated to ~1 MB.
@@ -282,13 +269,13 @@ def test_a_zip_bomb_is_refused_before_decompressing(trio, tmp_path):
     assert_one_error_line(proc, "values", "inconsistent")
 
 
-def test_an_image_larger_than_memory_allows_is_refused(trio, tmp_path):
+def test_an_image_larger_than_memory_allows_is_refused(plume_trio, tmp_path):
     import resource
 
     def limit():  # 3 GiB of address space: far below a 20000^2 float RGBA image
         resource.setrlimit(resource.RLIMIT_AS, (3 << 30, 3 << 30))
 
-    proc = run("render", *trio, "-o", tmp_path / "x.exr", "--size", "20000", "20000",
+    proc = run("render", *plume_trio, "-o", tmp_path / "x.exr", "--size", "20000", "20000",
                preexec_fn=limit)
     assert_one_error_line(proc, "GiB")
     assert not (tmp_path / "x.exr").exists() and not leftovers(tmp_path)
@@ -331,12 +318,12 @@ def test_a_cell_overwritten_by_a_copy_of_another_is_refused_by_brick(tmp_path):
     assert not (tmp_path / "b.npz").exists()
 
 
-def test_overlapping_bricks_are_refused_by_regions(trio, tmp_path):
-    with np.load(trio[0], allow_pickle=False) as z:
+def test_overlapping_bricks_are_refused_by_regions(plume_trio, tmp_path):
+    with np.load(plume_trio[0], allow_pickle=False) as z:
         lower, level, dims = z["lower_lattice"].copy(), z["level"].copy(), z["dims"]
     same = np.flatnonzero((level == level[0]) & (dims == dims[0]).all(axis=1))
     lower[same[1]] = lower[same[0]]
-    paths = crafted(trio, tmp_path, 0, lower_lattice=lower)
+    paths = crafted(plume_trio, tmp_path, 0, lower_lattice=lower)
     assert_one_error_line(run("regions", paths[0], "-o", tmp_path / "r.npz"), "bricks overlap")
 
 
@@ -374,24 +361,24 @@ def test_files_that_are_not_npz_get_a_plain_message(content, tmp_path):
     assert "allow_pickle" not in proc.stderr
 
 
-def test_text_points_get_a_plain_message(trio, tmp_path):
+def test_text_points_get_a_plain_message(plume_trio, tmp_path):
     points = tmp_path / "p.npy"
     points.write_text("0 0 0\n1 1 1\n")
-    proc = run("probe", *trio, "--points", points, "-o", tmp_path / "v.npy")
+    proc = run("probe", *plume_trio, "--points", points, "-o", tmp_path / "v.npy")
     assert_one_error_line(proc, "not a .npy array file")
     assert "allow_pickle" not in proc.stderr
 
 
 @pytest.mark.parametrize("option", ["--camera", "--transfer-function"])
-def test_deeply_nested_json_is_named(option, trio, tmp_path):
+def test_deeply_nested_json_is_named(option, plume_trio, tmp_path):
     path = tmp_path / "deep.json"
     path.write_text("[" * 100_000 + "]" * 100_000)
-    proc = run("render", *trio, "-o", tmp_path / "x.png", option, path)
+    proc = run("render", *plume_trio, "-o", tmp_path / "x.png", option, path)
     assert_one_error_line(proc, str(path), "nested too deeply")
 
 
-def test_deeply_nested_meta_is_named(trio, tmp_path):
-    path = rewrite(trio[1], tmp_path / "r.npz", meta=np.array("[" * 100_000 + "]" * 100_000))
+def test_deeply_nested_meta_is_named(plume_trio, tmp_path):
+    path = rewrite(plume_trio[1], tmp_path / "r.npz", meta=np.array("[" * 100_000 + "]" * 100_000))
     assert_one_error_line(run("info", path), "nested too deeply")
 
 

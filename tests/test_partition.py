@@ -19,7 +19,7 @@ import pytest
 from exabricks.stages.device_data import DatasetScale
 from exabricks.stages.partition import (_meeting, composite, eye_lattice, kd_partition,
                                          piece_data, piece_options, region_blocks)
-from exabricks.stages.render import Renderer, _over_background
+from exabricks.stages.render import Renderer, over_background
 
 from conftest import device_param
 from test_packets import DATASETS, loaded, renderer, scene_for
@@ -60,7 +60,7 @@ def composited(name: str, n: int, device, scene):
         for k in order[1:]:
             composite(image, results[k].rgba)
         total = image if total is None else total + image
-    return _over_background(total / np.float32(spp), scene.background), samples
+    return over_background(total / np.float32(spp), scene.background), samples
 
 
 def no_termination(scene):

@@ -12,7 +12,6 @@ from exabricks.scene import IsoSurface, Scene, Settings
 from exabricks.stages.brick import build_bricks
 from exabricks.stages.bvh import build_bvh
 from exabricks.stages.device_data import DeviceScene
-from exabricks.stages.probe import probe_fields
 from exabricks.stages.regions import build_regions
 from exabricks.stages.render import Renderer
 
@@ -51,7 +50,7 @@ def test_nearest_is_the_containing_cell_value(path, field, device):
     bricks, regions, bvh, *_ = built_scene(path, field)
     cells = read(path, fields=[field])
     points = random_points(bricks, 4000)
-    got = probe_fields(DeviceScene(bricks, regions, bvh, field=field, device=device), points,
+    got = DeviceScene(bricks, regions, bvh, field=field, device=device).probe_fields(points,
                        reconstruction="nearest")[0]
     lattice = (points.astype(np.float64) - cells.origin_world) / cells.spacing_world
     want = containing_cell_values(cells, lattice).astype(np.float32)
@@ -100,7 +99,7 @@ def test_vertex_reproduces_a_linear_field_inside_one_level(device):
     coarse = 2.0 + 20.0 * rng.random((8000, 3))
     coarse = coarse[np.any((coarse < 6.0) | (coarse > 18.0), axis=1)]
     for points in (fine, coarse):
-        got = probe_fields(scene, points, reconstruction="vertex")[0]
+        got = scene.probe_fields(points, reconstruction="vertex")[0]
         np.testing.assert_allclose(got, points @ a + b, atol=2e-5, rtol=0)
 
 
@@ -129,8 +128,8 @@ def test_vertex_is_continuous_across_level_boundaries(path, field, device):
     to_world = lambda lattice: cells.origin_world + cells.spacing_world * lattice
     jumps = {}
     for recon in ("vertex", "nearest", "basis"):
-        a = probe_fields(scene, to_world(inside[across]), reconstruction=recon)[0]
-        b = probe_fields(scene, to_world(outside[across]), reconstruction=recon)[0]
+        a = scene.probe_fields(to_world(inside[across]), reconstruction=recon)[0]
+        b = scene.probe_fields(to_world(outside[across]), reconstruction=recon)[0]
         jumps[recon] = float(np.nanmax(np.abs(a - b)))
     span = float(np.ptp(cells.values[0]))
     # A continuous field changes by at most |gradient| * 2e-3 cells over the pair;
@@ -342,7 +341,7 @@ def test_vertex_equals_its_float64_reference_on_a_random_hierarchy(device):
     scene = DeviceScene(bricks, regions, bvh, field="noise", device=device)
     lo, hi = (np.array(x) for x in schema.world_bounds(bricks))
     points = (lo + (hi - lo) * rng.random((600, 3))).astype(np.float32).astype(np.float64)
-    got = probe_fields(scene, points, reconstruction="vertex")[0]
+    got = scene.probe_fields(points, reconstruction="vertex")[0]
     want = vertex_reference(cells, points)
     np.testing.assert_array_equal(np.isnan(got), np.isnan(want))
     ok = ~np.isnan(want)

@@ -325,7 +325,8 @@ def gerris_cells() -> schema.Cells:
     return make_cells(raw[:, :3], raw[:, 3], values, names)
 
 
-def check_real(cells, n_regions_checked=300, n_points=400, merge=Merge()):
+def check_real(cells, n_regions_checked=300, n_points=400, merge=None):
+    merge = Merge() if merge is None else merge
     bricks = build_bricks(cells)
     regions = build_regions(bricks, merge)
     s_lo, s_hi = support_boxes_doubled(bricks)

@@ -23,9 +23,11 @@ def two_level_cells() -> schema.Cells:
                     for kk in range(2):
                         for jj in range(2):
                             for ii in range(2):
-                                lower.append((ii, jj, kk)); level.append(0)
+                                lower.append((ii, jj, kk))
+                                level.append(0)
                 else:
-                    lower.append((2 * i, 2 * j, 2 * k)); level.append(1)
+                    lower.append((2 * i, 2 * j, 2 * k))
+                    level.append(1)
     n = len(level)
     values = np.stack([np.arange(n, dtype=np.float32), -np.arange(n, dtype=np.float32)])
     return schema.Cells(

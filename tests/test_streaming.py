@@ -9,8 +9,6 @@ maximum), early ray termination included."""
 from __future__ import annotations
 
 import dataclasses
-import json
-import os
 import signal
 import subprocess
 import sys
@@ -193,8 +191,8 @@ def test_cli_budget_from_the_environment_gives_the_same_image(gerris_files, cli,
 
 
 def test_cli_time_limit_writes_the_best_image_so_far(gerris_files, cli, tmp_path):
-    proc = cli("render", *gerris_files, "-o", tmp_path / "t.png", *FLAGS, "--spp", 64,
-               "--memory-budget", "600k", "--time-limit", "0.001", check=0)
+    cli("render", *gerris_files, "-o", tmp_path / "t.png", *FLAGS, "--spp", 64,
+        "--memory-budget", "600k", "--time-limit", "0.001", check=0)
     image, meta = read_image(tmp_path / "t.png")
     progress = meta["settings"]["progress"]
     assert progress["complete"] is False and progress["samples"][0] < 64
@@ -372,13 +370,13 @@ def test_cli_tiles_write_the_same_image_in_bands(gerris_files, cli, tmp_path):
         np.testing.assert_array_equal(t, a)
         assert meta["settings"]["tile"] == [64, 16]
         assert meta["settings"]["progress"]["rows"] == [70, 70]
-    proc = cli("render", *gerris_files, "-o", tmp_path / "b.exr", *flags, "--tile", 64, 16,
-               "--memory-budget", "600k", check=0)
+    cli("render", *gerris_files, "-o", tmp_path / "b.exr", *flags, "--tile", 64, 16,
+        "--memory-budget", "600k", check=0)
     b, meta = read_image(tmp_path / "b.exr")
     same(b, read_image(tmp_path / "a.exr")[0])
     assert meta["settings"]["pieces"] > 1
-    proc = cli("render", *gerris_files, "-o", tmp_path / "c.png", *flags, "--spp", 64,
-               "--tile", 150, 8, "--time-limit", "0.001", "--background", "1,0,0", check=0)
+    cli("render", *gerris_files, "-o", tmp_path / "c.png", *flags, "--spp", 64,
+        "--tile", 150, 8, "--time-limit", "0.001", "--background", "1,0,0", check=0)
     c, meta = read_image(tmp_path / "c.png")
     progress = meta["settings"]["progress"]
     assert progress["complete"] is False and 8 <= progress["rows"][0] < 70

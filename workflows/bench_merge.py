@@ -56,7 +56,7 @@ def bricks_of(dataset: benchdoc.Dataset) -> schema.Bricks:
     path = work / "bricks.npz"
     if not path.is_file():
         work.mkdir(parents=True, exist_ok=True)
-        for stage, argv in bench_preprocess.commands(dataset, work)[:2]:
+        for _, argv in bench_preprocess.commands(dataset, work)[:2]:
             benchdoc.run_child(argv)
     return schema.load(path, "bricks")
 

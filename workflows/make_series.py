@@ -72,7 +72,7 @@ def hierarchy(c, size: int, max_level: int) -> list[list[tuple[tuple, tuple]]]:
     piece = size // 2
     levels = [split((0, 0, 0), size, piece)]
     below_lo, below_hi, below_n = np.zeros(3, int), np.full(3, size), size  # [lo, hi) cells
-    for level in range(1, max_level + 1):
+    for _ in range(1, max_level + 1):
         n, width = 2 * below_n, size
         ideal = np.rint((c * n - width / 2) / BLOCKING).astype(int) * BLOCKING
         # Inside the level below's cube (refined), BLOCKING cells in from each of its

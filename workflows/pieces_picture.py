@@ -40,7 +40,7 @@ def main(argv=None) -> int:
     from exabricks.stages.device_data import DatasetScale
     from exabricks.stages.partition import (composite, eye_lattice, kd_partition, piece_data,
                                             piece_options)
-    from exabricks.stages.render import Renderer, _over_background
+    from exabricks.stages.render import Renderer, over_background
 
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--ranks", type=int, default=4)
@@ -60,7 +60,7 @@ def main(argv=None) -> int:
         images.append(Renderer(*piece, fields=scene.fields(), piece=box, scale=scale)
                       .render_scene(scene).rgba)
         out = ROOT / "docs" / "images" / f"workflow-pieces-{k}.png"
-        write_image(out, _over_background(images[-1].copy(), BACKGROUND), metadata={})
+        write_image(out, over_background(images[-1].copy(), BACKGROUND), metadata={})
         print(f"piece {k}: {piece[0].n_bricks:,} bricks, {piece[1].n_regions:,} regions -> {out}")
     order = part.visibility_order(eye_lattice(bricks, scene.camera.position))
     over = images[order[0]].copy()
@@ -68,7 +68,7 @@ def main(argv=None) -> int:
         composite(over, images[k])
     rmse = float(np.sqrt(np.mean((over - whole) ** 2))) / float(np.abs(whole).max())
     out = ROOT / "docs" / "images" / "workflow-pieces-composite.png"
-    write_image(out, _over_background(over, BACKGROUND), metadata={})
+    write_image(out, over_background(over, BACKGROUND), metadata={})
     print(f"visibility order {order}; composite -> {out}; RMSE against one process {rmse:.1e}")
     return 0
 

@@ -14,7 +14,6 @@ Prints the command's pieces, bands and peak memory.
 from __future__ import annotations
 
 import argparse
-import subprocess
 import sys
 import tempfile
 from pathlib import Path

@@ -36,7 +36,7 @@ def main(argv=None) -> int:
     from exabricks.image_io import write_image
     from exabricks.scene import scene_from_options
     from exabricks.stages.partition import _piece_plan, piece_bytes
-    from exabricks.stages.render import Renderer, _over_background
+    from exabricks.stages.render import Renderer, over_background
     from exabricks.stages.streaming import PER_BRICK, SLACK, Budgeted, image_bytes, render_steps
 
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
@@ -66,7 +66,7 @@ def main(argv=None) -> int:
     shots.append((final.rgba, final.stats["progress"]))
     for _, progress in shots:
         print(progress)
-    strip = np.concatenate([_over_background(img.copy(), BACKGROUND) for img, _ in shots], axis=1)
+    strip = np.concatenate([over_background(img.copy(), BACKGROUND) for img, _ in shots], axis=1)
     out = ROOT / "docs" / "images" / "budget-progress.png"
     write_image(out, strip, metadata={})
     rmse = float(np.sqrt(np.mean((final.rgba - whole) ** 2))) / float(np.abs(whole).max())

@@ -66,7 +66,7 @@ def compare(ctx, image_a, image_b, max_rmse, min_psnr, max_abs, min_ssim, diff_p
                             **{k: _json_number(v) for k, v in metrics.items()}},
             }, inputs=[image_a, image_b])
     except ExabricksError as e:
-        from .main import one_line
+        from ..errors import one_line
 
         click.echo(f"error: {one_line(str(e))}", err=True)
         ctx.exit(2)

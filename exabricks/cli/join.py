@@ -20,7 +20,7 @@ KINDS = ("bricks", "regions", "bvh")
 def join(piece_paths, output):
     """Put the N pieces of a build (`brick`, `regions` or `bvh` with --piece K/N)
     together, in any order given: the result equals the build of one process."""
-    from ..stages import pieces
+    from ..stages import join as stage
 
     check_output(output, list(piece_paths))
     kind, _, _ = schema.peek(piece_paths[0])
@@ -29,8 +29,8 @@ def join(piece_paths, output):
                              f"{', '.join(KINDS)}")
     parts = [(p, schema.load(p, kind, mapped=True, checked=True, digest=True))
              for p in piece_paths]
-    joined = {"bricks": pieces.join_bricks, "regions": pieces.join_regions,
-              "bvh": pieces.join_bvh}[kind](parts)
+    joined = {"bricks": stage.join_bricks, "regions": stage.join_regions,
+              "bvh": stage.join_bvh}[kind](parts)
     first = parts[0][1].meta
     extra = {}
     if kind == "regions":

@@ -10,7 +10,7 @@ import warnings
 import click
 
 from .. import __version__, interrupt
-from ..errors import ExabricksError
+from ..errors import ExabricksError, one_line
 
 COMMANDS = (
     "ingest",
@@ -69,12 +69,6 @@ def cli(ctx, verbose, quiet, debug):
     ctx.obj = {"quiet": quiet, "debug": debug}
     if quiet:
         os.environ["EXABRICKS_QUIET"] = "1"
-
-
-def one_line(message: str) -> str:
-    """`message` with control characters (a newline in a file name) escaped, so that
-    an error stays one line."""
-    return "".join(c if c.isprintable() or c == " " else repr(c)[1:-1] for c in message)
 
 
 def _fail(message: str, status: int = 1, shared: bool = False) -> None:

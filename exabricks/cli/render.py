@@ -174,8 +174,12 @@ def render(bricks_path, regions_path, bvh_path, output, scene_path, camera_path,
     with progress.bar(total=len(jobs), desc="render", unit="frame", disable=not root) as bar:
         for index, cam, image in jobs:
             frame_scene = scene if cam is None else scene.replace(camera=cam)
-            describe = lambda stats: _metadata(frame_scene, dataset, path_file, index, stats)
-            write = lambda result: _write(image, result, describe, inputs)
+            def describe(stats, frame_scene=frame_scene, index=index):
+                return _metadata(frame_scene, dataset, path_file, index, stats)
+
+            def write(result, image=image, describe=describe):
+                return _write(image, result, describe, inputs)
+
             if comm is None and tile is not None:
                 _render_tiled(renderer, frame_scene, started, image, describe, inputs, **steps)
                 started = None  # later frames count their time from their own start

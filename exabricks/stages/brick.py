@@ -28,7 +28,7 @@ import numpy as np
 from .. import schema
 from ..constants import LATTICE_DTYPE, LEVEL_DTYPE, OFFSET_DTYPE, VALUE_DTYPE
 from ..errors import ExabricksError
-from .ingest import _neighbour_overlap_keys, _spread3, find_overlap
+from .ingest import neighbour_overlap_keys, spread3, find_overlap
 from .pieces import WHOLE, Piece, share_meta, task_range
 
 # Columns of a cell row in `rec` and fields of a node row.
@@ -582,7 +582,7 @@ def build_bricks(cells: schema.Cells, *, max_brick_width: int = 32,
                              f"cell {i} at {lo[i].tolist()} level {int(lv[i])}")
     offset = starts.astype(OFFSET_DTYPE)
     values = np.ascontiguousarray(cells.values, dtype=VALUE_DTYPE)
-    if piece.whole:  # shares are joined by `exabricks join` (pieces.join_bricks)
+    if piece.whole:  # shares are joined by `exabricks join` (exabricks.stages.join)
         lower, level, dims, offset, values = merge_bricks(lower, level, dims, offset, values,
                                                           max_brick_width, source)
     else:
@@ -617,7 +617,7 @@ def require_disjoint(bricks: schema.Bricks) -> None:
         keys = _brick_keys(bricks.lower_lattice, level, bricks.dims, bricks.offset,
                            bricks.values.shape[1], cmin, lmin, np.uint64(id_bits))
         keys.sort()
-        a, b = _neighbour_overlap_keys(keys, np.uint64(id_bits), level, lmin)
+        a, b = neighbour_overlap_keys(keys, np.uint64(id_bits), level, lmin)
         pair = None if a < 0 else (int(a), int(b))
     else:
         lower, lv = brick_cells(bricks.lower_lattice, level, bricks.dims, bricks.offset,
@@ -653,11 +653,11 @@ def _brick_keys(lower, level, dims, offset, n_cells, cmin, lmin, id_bits):
         w = np.int64(1) << np.int64(level[b])
         i = offset[b]
         for z in range(dims[b, 2]):
-            mz = _spread3(np.uint64((np.int64(lower[b, 2]) + z * w - cmin[2]) >> lmin))
+            mz = spread3(np.uint64((np.int64(lower[b, 2]) + z * w - cmin[2]) >> lmin))
             for y in range(dims[b, 1]):
-                my = _spread3(np.uint64((np.int64(lower[b, 1]) + y * w - cmin[1]) >> lmin))
+                my = spread3(np.uint64((np.int64(lower[b, 1]) + y * w - cmin[1]) >> lmin))
                 for x in range(dims[b, 0]):
-                    mx = _spread3(np.uint64((np.int64(lower[b, 0]) + x * w - cmin[0]) >> lmin))
+                    mx = spread3(np.uint64((np.int64(lower[b, 0]) + x * w - cmin[0]) >> lmin))
                     m = mx | (my << np.uint64(1)) | (mz << np.uint64(2))
                     out[i] = (m << id_bits) | np.uint64(b)
                     i += 1

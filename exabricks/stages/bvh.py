@@ -100,7 +100,7 @@ def tree_bounds(first, count, order, lower, upper) -> tuple[np.ndarray, np.ndarr
 
 def bvh_statistics(bvh: schema.Bvh) -> dict:
     """Node, leaf and region counts, depth, mean leaf size, SAH cost, bytes."""
-    depth = _depths(bvh.first, bvh.count)
+    depth = tree_depths(bvh.first, bvh.count)
     leaves = bvh.count > 0
     ext = (bvh.upper_lattice - bvh.lower_lattice).astype(np.float64)
     area = ext[:, 0] * ext[:, 1] + ext[:, 1] * ext[:, 2] + ext[:, 2] * ext[:, 0]
@@ -123,7 +123,7 @@ def bvh_statistics(bvh: schema.Bvh) -> dict:
 
 
 @numba.njit(cache=True)
-def _depths(first, count):
+def tree_depths(first, count):
     """Depth of every node (root 0); parents always precede their children."""
     d = np.zeros(first.shape[0], np.int64)
     for i in range(first.shape[0]):

@@ -19,7 +19,7 @@ import numpy as np
 from .. import schema
 from ..constants import BOUNDS_DTYPE, INDEX_DTYPE, MAX_TREE_DEPTH
 from ..errors import ExabricksError
-from .bvh import _depths, build_tree, tree_bounds
+from .bvh import tree_depths, build_tree, tree_bounds
 
 # Bricks per leaf: with 1 a node box is the brick's support, so a sample adds only bricks
 # whose support holds it; frames were 3-13 % faster than with 2 and 4 bricks per leaf
@@ -61,7 +61,7 @@ def build_brick_tree(bricks: schema.Bricks, *, leaf_size: int = LEAF_SIZE) -> Br
     lo, hi = support_boxes(bricks)
     first, count, order, _ = build_tree(lo, hi, leaf_size=leaf_size, item="brick")
     node_lo, node_hi = tree_bounds(first, count, order, lo, hi)
-    depth = int(_depths(first, count).max()) + 1
+    depth = int(tree_depths(first, count).max()) + 1
     if depth > MAX_TREE_DEPTH:
         raise ExabricksError(f"the brick tree is {depth} levels deep, more than the cell-location "
                              f"kernel's stack of {MAX_TREE_DEPTH}")

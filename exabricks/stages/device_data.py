@@ -15,7 +15,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .. import opencl, schema
+from .. import interrupt, opencl, schema
 from ..scene import RECONSTRUCTIONS
 from ..errors import ExabricksError
 
@@ -26,6 +26,10 @@ from ..errors import ExabricksError
 # program variant.
 RECONSTRUCTION_DEFINES = {"basis": (), "nearest": ("EB_RECON_NEAREST",),
                           "vertex": ("EB_RECON_VERTEX",)}
+
+
+# Points per enqueue of `DeviceScene.probe_fields`: a fraction of a second on a CPU device.
+PROBE_CHUNK = 1 << 18
 
 
 def check_reconstruction(reconstruction: str) -> None:
@@ -153,7 +157,7 @@ def gradient_scale(spacing_world, magnitude: float) -> np.ndarray:
     return inv / inv.max() / magnitude
 
 
-def _float4(xyz, w=0.0) -> np.ndarray:
+def float4(xyz, w=0.0) -> np.ndarray:
     import pyopencl.cltypes as cltypes
 
     x, y, z = (float(v) for v in xyz)
@@ -244,8 +248,8 @@ class DeviceScene:
         # The device holds these in its own layout now: mapped pages go back.
         schema.release_arrays(b.lower_lattice, b.level, b.dims, bvh.first, bvh.count)
 
-        self.origin_world4 = _float4(b.origin_world)
-        self.inv_spacing4 = _float4(1.0 / b.spacing_world)
+        self.origin_world4 = float4(b.origin_world)
+        self.inv_spacing4 = float4(1.0 / b.spacing_world)
         self.gradient_scales = np.array(
             [[*gradient_scale(b.spacing_world, scale.magnitudes[f]), 0.0]
              for f in self.fields] or [[1.0, 1.0, 1.0, 0.0]], np.float32)
@@ -297,6 +301,41 @@ class DeviceScene:
         return [*self._bvh_static, nv, *counts, *self._region_static, rv, *self.brick_args,
                 *vertices, *mips]
 
+    def probe_fields(self, points_world, *, reconstruction: str = "basis") -> np.ndarray:
+        """Values of every field of the scene at `points_world` (N, 3) world units ->
+        (F, N) float32, F = len(self.fields), with `reconstruction`.
+
+        NaN where no region contains the point or no cell has support there (no
+        containing cell, for nearest and vertex). Points travel as float32.
+        """
+        points = np.asarray(points_world)
+        if points.ndim != 2 or points.shape[1] != 3 or not np.issubdtype(points.dtype, np.number):
+            raise ExabricksError(f"points must be a numeric (N, 3) array, got shape {points.shape} "
+                                 f"and dtype {points.dtype}")
+        n = points.shape[0]
+        n_fields = max(1, len(self.fields))
+        out = np.full((n_fields, n), np.nan, np.float32)
+        if n == 0 or self.empty:
+            return out
+        q = self.queue
+        local = 64
+        kernel = opencl.kernel(self.program_for(reconstruction=reconstruction), "eb_probe")
+        args = self.scene_args(reconstruction=reconstruction)
+        # In chunks, so that a signal can stop a large probe between enqueues.
+        chunk = min(n, PROBE_CHUNK)
+        values_buf = opencl.empty_buffer(q, 4 * chunk * n_fields)
+        values = np.empty(chunk * n_fields, np.float32)
+        points = np.ascontiguousarray(points, np.float32)
+        for start in range(0, n, chunk):
+            m = min(chunk, n - start)
+            kernel(q, (-(-m // local) * local,), (local,),
+                   np.int32(m), opencl.to_device(q, points[start:start + m]),
+                   self.origin_world4, self.inv_spacing4, *args, values_buf)
+            opencl.read_back(q, values_buf, values[:m * n_fields])
+            out[:, start:start + m] = values[:m * n_fields].reshape(n_fields, m)
+            interrupt.raise_pending()
+        return out
+
     def mip_args(self) -> list:
         """The bricks' mip levels for level of detail (exabricks.stages.lod), made and
         uploaded on first use."""
@@ -312,13 +351,12 @@ class DeviceScene:
         (exabricks.stages.vertex: the basis field at the vertices, stitched at
         level boundaries), made with the device's basis probe on first use."""
         if self._vertex_args is None:
-            from .probe import probe_fields
             from .vertex import vertex_values
 
             points_world = lambda lattice: self.bricks.origin_world + \
                 self.bricks.spacing_world * lattice
             self._vertex_args = self._per_brick_args("vertex values", *vertex_values(
-                self.bricks, lambda lattice: probe_fields(self, points_world(lattice))))
+                self.bricks, lambda lattice: self.probe_fields(points_world(lattice))))
         return self._vertex_args
 
     def _per_brick_args(self, what: str, offset: np.ndarray, values: np.ndarray) -> list:

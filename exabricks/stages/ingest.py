@@ -351,7 +351,7 @@ def find_overlap(lower: np.ndarray, level: np.ndarray) -> tuple[int, int] | None
         # several times faster than np.argsort, and ties stay in index order.
         keys = _packed_morton(lower, cmin, lmin, np.uint64(index_bits))
         keys.sort()
-        a, b = _neighbour_overlap_keys(keys, np.uint64(index_bits), level, lmin)
+        a, b = neighbour_overlap_keys(keys, np.uint64(index_bits), level, lmin)
     else:
         hi, lo = _morton96(lower, cmin, lmin)
         order = np.lexsort((np.arange(n), lo, hi))
@@ -376,7 +376,7 @@ def _corner_range(lower):
 
 
 @numba.njit(cache=True, inline="always")
-def _spread3(v):
+def spread3(v):
     """Bits 0..20 of v moved to positions 0, 3, 6, ... (uint64)."""
     x = v & np.uint64(0x1FFFFF)
     x = (x | (x << np.uint64(32))) & np.uint64(0x1F00000000FFFF)
@@ -398,9 +398,9 @@ def _packed_morton(lower, cmin, lmin, index_bits):
     n = lower.shape[0]
     out = np.empty(n, np.uint64)
     for i in range(n):
-        m = (_spread3(_rel(lower, i, 0, cmin, lmin))
-             | (_spread3(_rel(lower, i, 1, cmin, lmin)) << np.uint64(1))
-             | (_spread3(_rel(lower, i, 2, cmin, lmin)) << np.uint64(2)))
+        m = (spread3(_rel(lower, i, 0, cmin, lmin))
+             | (spread3(_rel(lower, i, 1, cmin, lmin)) << np.uint64(1))
+             | (spread3(_rel(lower, i, 2, cmin, lmin)) << np.uint64(2)))
         out[i] = (m << index_bits) | np.uint64(i)
     return out
 
@@ -416,14 +416,14 @@ def _morton96(lower, cmin, lmin):
         x = _rel(lower, i, 0, cmin, lmin)
         y = _rel(lower, i, 1, cmin, lmin)
         z = _rel(lower, i, 2, cmin, lmin)
-        lo[i] = _spread3(x) | (_spread3(y) << np.uint64(1)) | (_spread3(z) << np.uint64(2))
-        hi[i] = (_spread3(x >> s) | (_spread3(y >> s) << np.uint64(1))
-                 | (_spread3(z >> s) << np.uint64(2)))
+        lo[i] = spread3(x) | (spread3(y) << np.uint64(1)) | (spread3(z) << np.uint64(2))
+        hi[i] = (spread3(x >> s) | (spread3(y >> s) << np.uint64(1))
+                 | (spread3(z >> s) << np.uint64(2)))
     return hi, lo
 
 
 @numba.njit(cache=True)
-def _neighbour_overlap_keys(keys, index_bits, level, lmin):
+def neighbour_overlap_keys(keys, index_bits, level, lmin):
     """`_neighbour_overlap` on sorted packed keys: a cell of level l spans 8**(l - lmin) codes."""
     best_a, best_b = -1, -1
     mask = (np.uint64(1) << index_bits) - np.uint64(1)

@@ -528,7 +528,7 @@ def _copy_crops(values, rows, offset, dims, first, new_dims, new_offset, out):
                 j += nx
 
 
-def eye_lattice(frame: schema._Kind, position) -> np.ndarray:
+def eye_lattice(frame: schema.Kind, position) -> np.ndarray:
     """A world point (the camera's position) in the lattice units of any exabricks
     object `frame` (its origin_world and spacing_world)."""
     return (np.asarray(position, np.float64) - frame.origin_world) / frame.spacing_world

@@ -60,7 +60,7 @@ from ..constants import MAX_SAMPLES_PER_RAY
 from ..errors import ExabricksError
 from ..scene import Lighting, Scene, Settings, VolumeLayer
 from ..transfer_function import knot_buckets
-from .device_data import DatasetScale, DeviceScene, _float4
+from .device_data import DatasetScale, DeviceScene, float4
 
 # Region walks (kernels/traversal.cl): "ordered" keeps a private min-heap of
 # BVH nodes and regions per ray (one traversal per ray); "retrace" is the
@@ -136,7 +136,7 @@ class Renderer:
         self.scene = DeviceScene(bricks, regions, bvh, field=field, fields=fields, device=device,
                                  scale=scale)
         self.piece = None if piece is None else \
-            tuple(_float4(np.asarray(b, np.float64)) for b in piece)
+            tuple(float4(np.asarray(b, np.float64)) for b in piece)
         self._use(lookup)
         # Sample packets: on CPU devices unless asked otherwise (both give the same image).
         self.packets = opencl.is_cpu(self.scene.device) if packets is None else bool(packets)
@@ -272,7 +272,7 @@ class Renderer:
         if nothing:
             stats["rows"] = n_rows
             stats.update(samples=0, ms=0.0, samples_per_second=0.0)
-            return RenderResult(_over_background(rgba, scene.background), d, stats)
+            return RenderResult(over_background(rgba, scene.background), d, stats)
         self._check_samples_per_ray(cfg.sampling_rate)
 
         q = s.queue
@@ -295,7 +295,7 @@ class Renderer:
         ao_distance = lighting.ao_distance or AO_DISTANCE_CELLS * s.finest_width_world
         fixed = [
             np.uint32(int(cfg.seed) & 0xFFFFFFFF), np.int32(bool(cfg.jitter)),
-            _float4(origin), _float4(forward), _float4(du), _float4(dv),
+            float4(origin), float4(forward), float4(du), float4(dv),
             s.origin_world4, s.inv_spacing4,
             np.float32(s.min_spacing_world / cfg.sampling_rate), np.float32(1.0 / unit),
             np.float32(cfg.max_opacity), np.int32(shading != "none"),
@@ -353,7 +353,7 @@ class Renderer:
         stats["lod"] = float(cfg.lod)
         stats.update(rows=drawn, samples=total, ms=1e3 * seconds / (spp if sample is None else 1),
                      samples_per_second=total / seconds if seconds > 0 else 0.0)
-        return RenderResult(_over_background(rgba, scene.background), d, stats)
+        return RenderResult(over_background(rgba, scene.background), d, stats)
 
     def _check_samples_per_ray(self, sampling_rate: float) -> None:
         """Refuse a sampling rate that would take more than MAX_SAMPLES_PER_RAY samples
@@ -505,12 +505,12 @@ def frame_args(scene: Scene, device_scene: DeviceScene, queue) -> list:
         np.int32(len(slices)),
         np.float32(tolerance), np.float32(scene.lighting.specular),
         np.float32(scene.lighting.shininess),
-        np.int32(clip.box is not None), _float4(box[0]), _float4(box[1]),
+        np.int32(clip.box is not None), float4(box[0]), float4(box[1]),
         up(queue, f4(planes)), np.int32(len(clip.planes)),
     ]
 
 
-def _over_background(rgba: np.ndarray, background) -> np.ndarray:
+def over_background(rgba: np.ndarray, background) -> np.ndarray:
     """`rgba` (premultiplied) composited over the RGBA `background`, in place."""
     r, g, b, a = (float(c) for c in background)
     if a > 0.0:

@@ -32,7 +32,7 @@ from ..errors import ExabricksError
 from .device_data import DatasetScale
 from .partition import (budget_partition, eye_lattice, mib, piece_data, piece_options,
                         region_blocks)
-from .render import Renderer, RenderResult, _over_background
+from .render import Renderer, RenderResult, over_background
 
 # Units of a --memory-budget: binary for K, M, G, T and KiB..TiB (as SLURM's --mem,
 # Java's -Xmx and numfmt --from=iec read them), decimal for kB, MB, GB, TB.
@@ -333,4 +333,4 @@ def _so_far(total, over, samples_done, pieces_done, n_pieces, spp, scene, rows=N
                 "pieces": [n_pieces if complete else pieces_done, n_pieces]}
     if not complete and rows is not None and 0 < rows < total.shape[0] and not samples_done:
         progress["rows"] = rows
-    return _over_background(rgba, scene.background), progress
+    return over_background(rgba, scene.background), progress

@@ -2,7 +2,7 @@
 
 `finest_grid` gives the box of the dataset's finest lattice, `resample` fills it
 with the renderer's own basis reconstruction (paper eq. 1-2, through
-`exabricks.stages.probe.probe_scene`) at every finest-cell centre, and
+`DeviceScene.probe_fields`) at every finest-cell centre, and
 `UniformGridRenderer` renders that volume with kernels/uniform_grid.cl: the
 renderer's camera, transfer function, sample placement (interval midpoints,
 paper §4.3), opacity correction, compositing and early termination, but one
@@ -20,8 +20,7 @@ import numpy as np
 
 from .. import opencl
 from ..errors import ExabricksError
-from .probe import probe_scene
-from .device_data import _float4
+from .device_data import float4
 
 # Points per probe call while resampling (float32 (N, 3) points: 24 MiB).
 PROBE_CHUNK = 1 << 21
@@ -68,7 +67,7 @@ def resample(scene, lower_lattice, dims, *, chunk: int = PROBE_CHUNK) -> np.ndar
         zs = origin[2] + spacing[2] * (lower_lattice[2] + np.arange(z0, z1) + 0.5)
         Z, Y, X = np.meshgrid(zs, ys, xs, indexing="ij")
         points = np.column_stack([X.ravel(), Y.ravel(), Z.ravel()])
-        volume[z0:z1] = probe_scene(scene, points).reshape(z1 - z0, ny, nx)
+        volume[z0:z1] = scene.probe_fields(points)[0].reshape(z1 - z0, ny, nx)
     return volume
 
 
@@ -102,9 +101,9 @@ class UniformGridRenderer:
         nz, ny, nx = volume.shape
         self.dims4 = _int4((nx, ny, nz))
         self.volume_buf = opencl.to_device(self.queue, volume)
-        self.lower_lattice4 = _float4(lower_lattice)
-        self.origin_world4 = _float4(origin_world)
-        self.inv_spacing4 = _float4(1.0 / np.asarray(spacing_world, np.float64))
+        self.lower_lattice4 = float4(lower_lattice)
+        self.origin_world4 = float4(origin_world)
+        self.inv_spacing4 = float4(1.0 / np.asarray(spacing_world, np.float64))
         self.finest_width_world = float(np.min(spacing_world))
 
     def render(self, *, camera, transfer_function, width: int, height: int,
@@ -125,7 +124,7 @@ class UniformGridRenderer:
         samples_buf = opencl.empty_buffer(q, 4 * n)
         global_size = (-(-width // TILE) * TILE, -(-height // TILE) * TILE)
         args = (np.int32(width), np.int32(height), np.uint32(seed), np.int32(bool(jitter)),
-                _float4(origin), _float4(forward), _float4(du), _float4(dv),
+                float4(origin), float4(forward), float4(du), float4(dv),
                 self.origin_world4, self.inv_spacing4, self.lower_lattice4, self.volume_buf,
                 self.dims4, np.float32(self.finest_width_world / sampling_rate),
                 np.float32(1.0 / unit), np.float32(max_opacity),

@@ -1,0 +1,64 @@
+"""The package's structure as the contributing rules state it (issue 33): no
+import cycles between its modules, function-level imports included, and no
+private name imported from another module."""
+
+from __future__ import annotations
+
+import ast
+from pathlib import Path
+
+PACKAGE = Path(__file__).resolve().parents[1] / "exabricks"
+
+
+def _modules() -> dict[str, Path]:
+    found = {}
+    for path in PACKAGE.rglob("*.py"):
+        parts = path.relative_to(PACKAGE.parent).with_suffix("").parts
+        found[".".join(parts[:-1] if parts[-1] == "__init__" else parts)] = path
+    return found
+
+
+def _imports(name: str, path: Path, modules) -> list[tuple[str, str]]:
+    """(module imported, name imported from it or '') of every import in `path`."""
+    package = name if path.name == "__init__.py" else name.rpartition(".")[0]
+    out = []
+    for node in ast.walk(ast.parse(path.read_text())):
+        if isinstance(node, ast.ImportFrom):
+            base = node.module or ""
+            if node.level:
+                parent = package.split(".")[:len(package.split(".")) - node.level + 1]
+                base = ".".join(parent + ([base] if base else []))
+            for alias in node.names:
+                full = f"{base}.{alias.name}"
+                out.append((full, "") if full in modules else (base, alias.name))
+        elif isinstance(node, ast.Import):
+            out += [(alias.name, "") for alias in node.names]
+    return [(m, n) for m, n in out if m in modules and m != name]
+
+
+def test_no_import_cycles():
+    modules = _modules()
+    graph = {m: {t for t, _ in _imports(m, p, modules)} for m, p in modules.items()}
+    state, path = {}, []
+
+    def visit(m):
+        state[m] = "open"
+        path.append(m)
+        for t in sorted(graph[m]):
+            if state.get(t) == "open":
+                raise AssertionError("import cycle: " + " -> ".join(path[path.index(t):] + [t]))
+            if t not in state:
+                visit(t)
+        path.pop()
+        state[m] = "done"
+
+    for m in sorted(graph):
+        if m not in state:
+            visit(m)
+
+
+def test_no_private_name_is_imported_from_another_module():
+    modules = _modules()
+    used = [(m, t, n) for m, p in modules.items() for t, n in _imports(m, p, modules)
+            if n.startswith("_") and not n.startswith("__")]
+    assert not used, used
