@@ -79,6 +79,7 @@ def test_finest_grid_of_two_levels_by_hand():
     assert lower.tolist() == [0, 0, 0] and dims.tolist() == [6, 2, 2]
 
 
+@pytest.mark.slow
 def test_resample_reproduces_cells_and_finest_grid(single_level):
     cells, volume = single_level
     lower, dims = uniform_grid.finest_grid(cells)

@@ -32,6 +32,27 @@ from test_packets import DATASETS, loaded, renderer, scene_for
 EB = [sys.executable, "-m", "exabricks.cli.main"]
 
 
+def _after_rewrites(args, count: int, check) -> tuple[int, str]:
+    """Run `exabricks -v ARGS`, call `check()` after each of its first `count`
+    progressive rewrites (the event: the "so far" line it logs once a rewrite is in
+    place), then send SIGTERM: (exit status, the rest of stderr)."""
+    proc = subprocess.Popen([*EB, "-v", *map(str, args)], stdout=subprocess.DEVNULL,
+                            stderr=subprocess.PIPE, text=True)
+    seen = 0
+    try:
+        for line in proc.stderr:
+            if ": so far " in line:
+                check()
+                seen += 1
+                if seen == count:
+                    break
+    finally:
+        proc.send_signal(signal.SIGTERM)
+        _, err = proc.communicate(timeout=60)
+    assert seen == count, f"{seen} rewrites before the end: {err}"
+    return proc.returncode, err
+
+
 def test_sizes_parse_like_slurm_and_numfmt():
     assert parse_size("1048576") == 1 << 20
     assert parse_size("512MiB") == parse_size("512M") == parse_size("512m") == 512 << 20
@@ -71,7 +92,8 @@ CASES = [("gerris", "emission", 2), ("gerris", "emission", 8),
 
 
 @pytest.mark.parametrize("name,mode,n", CASES)
-@pytest.mark.parametrize("max_opacity", [1.0, 0.98])
+# Without early termination every case again (make test-all; the fast suite keeps the default).
+@pytest.mark.parametrize("max_opacity", [pytest.param(1.0, marks=pytest.mark.slow), 0.98])
 def test_budgeted_frame_equals_the_in_memory_frame(name, mode, n, max_opacity):
     built = loaded(name)[0]
     scene = scene_for(name, mode)
@@ -219,25 +241,16 @@ def test_peak_memory_stays_under_budget_plus_baseline(gerris_files, tmp_path):
 
 def test_progressive_rewrites_are_whole_images_and_a_kill_leaves_one(gerris_files, tmp_path):
     out = tmp_path / "p.png"
-    args = [*EB, "render", *map(str, gerris_files), "-o", str(out), *map(str, FLAGS),
-            "--size", "128", "128", "--spp", "512", "--memory-budget", "2M",
-            "--progressive", "0.05"]
-    proc = subprocess.Popen(args, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
-    seen = 0
-    try:
-        deadline = time.time() + 120
-        while time.time() < deadline and seen < 3 and proc.poll() is None:
-            if out.exists():
-                image, meta = read_image(out)  # every rewrite is a whole image
-                assert image.shape == (128, 128, 4)
-                assert meta["settings"]["progress"]["complete"] is False
-                seen += 1
-            time.sleep(0.2)
-    finally:
-        proc.send_signal(signal.SIGTERM)
-        _, err = proc.communicate(timeout=60)
-    assert seen == 3
-    assert proc.returncode == 143 and "interrupted" in err
+    args = ["render", *gerris_files, "-o", out, *FLAGS, "--size", 128, 128, "--spp", 512,
+            "--memory-budget", "2M", "--progressive", "0.05"]
+
+    def check():  # every rewrite is a whole image
+        image, meta = read_image(out)
+        assert image.shape == (128, 128, 4)
+        assert meta["settings"]["progress"]["complete"] is False
+
+    status, err = _after_rewrites(args, 3, check)
+    assert status == 143 and "interrupted" in err
     image, meta = read_image(out)  # the last rewrite stays, whole
     assert np.isfinite(image).all() and meta["settings"]["progress"]["complete"] is False
     assert [p.name for p in tmp_path.iterdir() if p.name.startswith(".")] == []
@@ -409,25 +422,20 @@ def test_a_poster_in_tiles_stays_under_budget_plus_baseline(gerris_files, tmp_pa
 def test_tiled_progressive_rewrites_are_whole_images_and_a_kill_leaves_one(gerris_files,
                                                                            tmp_path):
     out = tmp_path / "p.exr"
-    args = [*EB, "render", *map(str, gerris_files), "-o", str(out), *map(str, FLAGS),
-            "--size", "256", "256", "--spp", "64", "--tile", "64", "8", "--progressive", "0.05"]
-    proc = subprocess.Popen(args, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    args = ["render", *gerris_files, "-o", out, *FLAGS, "--size", 256, 256, "--spp", 64,
+            "--tile", 64, 8, "--progressive", "0.05"]
     rows = []
-    try:
-        deadline = time.time() + 120
-        while time.time() < deadline and len(rows) < 3 and proc.poll() is None:
-            if out.exists():
-                image, meta = read_image(out)
-                assert image.shape == (256, 256, 4)
-                progress = meta["settings"]["progress"]
-                assert progress["complete"] is False
-                rows.append(progress["rows"][0])
-            time.sleep(0.2)
-    finally:
-        proc.send_signal(signal.SIGTERM)
-        _, err = proc.communicate(timeout=60)
-    assert len(rows) == 3 and rows == sorted(rows)
-    assert proc.returncode == 143 and "interrupted" in err
+
+    def check():
+        image, meta = read_image(out)
+        assert image.shape == (256, 256, 4)
+        progress = meta["settings"]["progress"]
+        assert progress["complete"] is False
+        rows.append(progress["rows"][0])
+
+    status, err = _after_rewrites(args, 3, check)
+    assert rows == sorted(rows)
+    assert status == 143 and "interrupted" in err
     image, meta = read_image(out)
     assert np.isfinite(image).all() and meta["settings"]["progress"]["complete"] is False
     assert [p.name for p in tmp_path.iterdir() if p.name.startswith(".")] == []

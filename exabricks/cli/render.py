@@ -173,6 +173,7 @@ def render(bricks_path, regions_path, bvh_path, output, scene_path, camera_path,
     root = comm is None or comm.Get_rank() == 0
     with progress.bar(total=len(jobs), desc="render", unit="frame", disable=not root) as bar:
         for index, cam, image in jobs:
+            log.debug("%s: rendering", image)
             frame_scene = scene if cam is None else scene.replace(camera=cam)
             def describe(stats, frame_scene=frame_scene, index=index):
                 return _metadata(frame_scene, dataset, path_file, index, stats)
