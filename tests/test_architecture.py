@@ -62,3 +62,14 @@ def test_no_private_name_is_imported_from_another_module():
     used = [(m, t, n) for m, p in modules.items() for t, n in _imports(m, p, modules)
             if n.startswith("_") and not n.startswith("__")]
     assert not used, used
+
+
+def test_command_modules_are_thin():
+    """A command parses its options and calls the library (rasterio's `rio` style):
+    every command module is at most 120 lines (main.py, the group and the one
+    place errors become exit statuses, and options.py, the shared options, are
+    not commands)."""
+    long = {p.name: n for p in (PACKAGE / "cli").glob("*.py")
+            if p.name not in ("main.py", "options.py", "__init__.py")
+            and (n := len(p.read_text().splitlines())) > 120}
+    assert not long, long

@@ -88,3 +88,40 @@ piece_option = click.option(
     "($SLURM_ARRAY_TASK_ID/$SLURM_ARRAY_TASK_COUNT); `exabricks join` puts the N pieces "
     "together into what one process builds.",
 )
+
+
+def declared(*options):
+    """A decorator adding the click options of `options` (exabricks.scene.options.Option,
+    the one declaration of each render option), in their order."""
+    def apply(command):
+        for option in reversed(options):
+            command = _click_option(option)(command)
+        return command
+    return apply
+
+
+def _click_option(o):
+    """The click option of one declared Option."""
+    kw = {"help": o.help, "metavar": o.metavar, "default": o.default, "nargs": o.nargs,
+          "multiple": o.multiple, "envvar": o.envvar}
+    bounded = o.low is not None or o.high is not None
+    if o.kind == "float":
+        kw["type"] = click.FloatRange(o.low, o.high, min_open=o.low_open,
+                                      max_open=o.high_open) if bounded else float
+        kw["callback"] = finite if o.finite else None
+    elif o.kind == "int":
+        kw["type"] = click.IntRange(o.low, o.high) if bounded else int
+    elif o.kind == "file":
+        kw["type"] = click.Path(exists=True, dir_okay=False)
+    elif o.kind == "choice":
+        kw["type"] = click.Choice(o.choices)
+        kw["show_default"] = o.default is not None
+    elif o.kind == "numbers":
+        kw["callback"] = numbers(o.counts)
+    elif o.kind == "size":
+        kw["callback"] = size
+    elif o.kind == "flag":
+        return click.option(f"{o.flag}/--no-{o.flag[2:]}", o.keyword, default=None, help=o.help)
+    elif o.kind != "text":
+        raise ValueError(f"unknown option kind {o.kind!r} of {o.name}")
+    return click.option(o.flag, o.keyword, **{k: v for k, v in kw.items() if v is not None})

@@ -1,0 +1,189 @@
+"""The scene model: camera, volume layers, iso-surfaces, slices, clipping,
+lighting, background and render settings, and the limits of one frame.
+
+`Scene` is what the renderer consumes (`exabricks.stages.render.render_scene`).
+Every colour map and transfer function here is already stretched over its data
+range; every position is in world units.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from ..camera import Camera
+from ..errors import ExabricksError
+from ..transfer_function import TransferFunction
+
+SHADING_MODES = ("headlight", "none")
+GRADIENTS = ("analytic", "central")
+# How a point's value comes from the cells (docs/design.md, "Reconstructions").
+RECONSTRUCTIONS = ("basis", "nearest", "vertex")
+
+# Limits of one frame (the kernels keep these in private arrays).
+MAX_VOLUMES = 8
+MAX_ISOSURFACES = 32
+MAX_SLICES = 8
+MAX_CLIP_PLANES = 16
+MAX_AO_SAMPLES = 256
+
+DEFAULT_COLORMAP = "viridis"
+DEFAULT_FOVY = 30.0
+
+
+@dataclass(frozen=True)
+class VolumeLayer:
+    """One field drawn as a participating medium with its own transfer function."""
+
+    field: str
+    transfer_function: TransferFunction
+
+
+@dataclass(frozen=True)
+class IsoSurface:
+    """The surface where `field` equals `value` (basis field), drawn with `opacity`.
+
+    Colour: the fixed RGB `color` (each in [0, 1]), or, when `color_field` is
+    set, `colormap` (its RGB, over its range) evaluated on `color_field` at the hit.
+    """
+
+    field: str
+    value: float
+    color: tuple[float, float, float] = (0.9, 0.9, 0.9)
+    opacity: float = 1.0
+    color_field: str | None = None
+    colormap: TransferFunction | None = None
+
+
+@dataclass(frozen=True)
+class Slice:
+    """A plane through `point` with normal `normal` (world units), showing
+    `colormap` (RGB over its range) of `field`, drawn with `opacity`."""
+
+    point: tuple[float, float, float]
+    normal: tuple[float, float, float]
+    field: str
+    colormap: TransferFunction
+    opacity: float = 1.0
+
+
+@dataclass(frozen=True)
+class Clip:
+    """What is kept: the inside of `box` ((lower xyz), (upper xyz)) and, for every
+    plane (point, normal), the half-space (p - point) . normal >= 0. World units."""
+
+    box: tuple[tuple[float, float, float], tuple[float, float, float]] | None = None
+    planes: tuple[tuple[tuple[float, float, float], tuple[float, float, float]], ...] = ()
+
+    @property
+    def active(self) -> bool:
+        return self.box is not None or bool(self.planes)
+
+
+@dataclass(frozen=True)
+class Lighting:
+    """shading: "headlight" (diffuse, plus Blinn-Phong `specular` with exponent
+    `shininess` on surfaces) or "none"; gradient: "analytic" or "central";
+    ambient occlusion of surface hits: `ao_samples` rays (0: off) of length
+    `ao_distance` world units (None: 10 finest cell widths)."""
+
+    shading: str = "headlight"
+    gradient: str = "analytic"
+    specular: float = 0.0
+    shininess: float = 32.0
+    ao_samples: int = 0
+    ao_distance: float | None = None
+
+
+@dataclass(frozen=True)
+class Settings:
+    """Render settings, by their flag names (docs/design.md)."""
+
+    width: int = 512
+    height: int = 512
+    spp: int = 1
+    sampling_rate: float = 2.0
+    max_opacity: float = 0.98
+    seed: int = 0
+    jitter: bool = True
+    unit_distance: float | None = None
+    depth: bool = False
+    reconstruction: str = "basis"
+    lod: float = 0.0
+
+
+@dataclass(frozen=True)
+class Scene:
+    camera: Camera
+    volumes: tuple[VolumeLayer, ...] = ()
+    isosurfaces: tuple[IsoSurface, ...] = ()
+    slices: tuple[Slice, ...] = ()
+    clip: Clip = Clip()
+    lighting: Lighting = Lighting()
+    background: tuple[float, float, float, float] = (0.0, 0.0, 0.0, 0.0)
+    settings: Settings = Settings()
+
+    def fields(self) -> tuple[str, ...]:
+        """Every field the frame reads, in first-use order (volumes, iso-surfaces
+        and their colour fields, slices): the only ones uploaded."""
+        names = [v.field for v in self.volumes]
+        for s in self.isosurfaces:
+            names += [s.field] + ([s.color_field] if s.color_field else [])
+        names += [s.field for s in self.slices]
+        return tuple(dict.fromkeys(names))
+
+    def replace(self, **changes) -> "Scene":
+        return replace(self, **changes)
+
+    def check(self) -> None:
+        """ExabricksError for a scene no renderer can draw (limits, unknown modes)."""
+        lim = ((self.volumes, MAX_VOLUMES, "volume layers"),
+               (self.isosurfaces, MAX_ISOSURFACES, "iso-surfaces"),
+               (self.slices, MAX_SLICES, "slices"),
+               (self.clip.planes, MAX_CLIP_PLANES, "clip planes"))
+        for items, most, what in lim:
+            if len(items) > most:
+                raise ExabricksError(f"{len(items)} {what}: at most {most} per frame")
+        if self.lighting.shading not in SHADING_MODES:
+            raise ExabricksError(f"unknown shading {self.lighting.shading!r} "
+                                 f"(one of {', '.join(SHADING_MODES)})")
+        if self.settings.reconstruction not in RECONSTRUCTIONS:
+            raise ExabricksError(f"unknown reconstruction {self.settings.reconstruction!r} "
+                                 f"(one of {', '.join(RECONSTRUCTIONS)})")
+        if not (np.isfinite(self.settings.lod) and self.settings.lod >= 0):
+            raise ExabricksError(f"--lod must be 0 (off) or a positive number of pixels, "
+                                 f"got {self.settings.lod}")
+        if self.lighting.gradient not in GRADIENTS:
+            raise ExabricksError(f"unknown gradient {self.lighting.gradient!r} "
+                                 f"(one of {', '.join(GRADIENTS)})")
+        if not 0 <= self.lighting.ao_samples <= MAX_AO_SAMPLES:
+            raise ExabricksError(f"ambient occlusion samples must lie in 0..{MAX_AO_SAMPLES}")
+        d = self.lighting.ao_distance
+        if d is not None and not (np.isfinite(d) and d > 0):
+            raise ExabricksError(f"ambient occlusion distance must be positive, got {d}")
+        for s in self.isosurfaces:
+            if not np.isfinite(s.value):
+                raise ExabricksError(f"iso-value {s.value} of field {s.field!r} is not finite")
+            if not 0.0 <= s.opacity <= 1.0:
+                raise ExabricksError(f"iso-surface opacity must lie in [0, 1], got {s.opacity}")
+            if (s.color_field is None) != (s.colormap is None):
+                raise ExabricksError("an iso-surface colour field needs a colour map and vice versa")
+        for s in self.slices:
+            n = np.asarray(s.normal, float)
+            if not (np.all(np.isfinite(s.point)) and np.all(np.isfinite(n)) and n @ n > 0):
+                raise ExabricksError(f"slice of {s.field!r} needs a finite point and a non-zero normal")
+            if not 0.0 <= s.opacity <= 1.0:
+                raise ExabricksError(f"slice opacity must lie in [0, 1], got {s.opacity}")
+        for p, n in self.clip.planes:
+            n = np.asarray(n, float)
+            if not (np.all(np.isfinite(p)) and np.all(np.isfinite(n)) and n @ n > 0):
+                raise ExabricksError("a clip plane needs a finite point and a non-zero normal")
+        if self.clip.box is not None:
+            lo, hi = (np.asarray(b, float) for b in self.clip.box)
+            if not (np.all(np.isfinite(lo)) and np.all(np.isfinite(hi)) and np.all(lo <= hi)):
+                raise ExabricksError(f"clip box {lo.tolist()} .. {hi.tolist()} must be finite "
+                                     "with lower <= upper")
+        bg = self.background
+        if len(bg) != 4 or not all(0.0 <= c <= 1.0 for c in bg):
+            raise ExabricksError(f"background must be RGBA in [0, 1], got {list(bg)}")

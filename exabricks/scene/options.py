@@ -1,0 +1,212 @@
+"""Every option of a render, declared once (docs/contributing.md, "Adding a render
+option"): the command line's flags (exabricks.cli.options.declared makes the
+click options of `render`, `probe` and the viewer from this table), the names
+`scene_from_options` takes (`FLAGS`), and the Python API's keyword arguments.
+
+An `Option` is data, not click: a name (the keyword and, with `-` for `_`, the
+flag), what it takes (`kind`, `nargs`, `multiple`, limits) and its help text.
+`SCENE_OPTIONS` describe the picture and override the scene file;
+`JOB_OPTIONS` say how a render job runs (files, frames, memory, MPI).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from ..errors import ExabricksError
+from .model import GRADIENTS, MAX_AO_SAMPLES, RECONSTRUCTIONS, SHADING_MODES
+
+
+@dataclass(frozen=True)
+class Option:
+    """One render option.
+
+    kind: "float", "int", "text", "file" (an existing file), "choice" (one of
+    `choices`), "numbers" (comma-separated numbers in [0, 1], as many as one of
+    `counts`, or any number), "flag" (--name/--no-name), "size" (bytes: 2G,
+    512MiB). `low`/`high` bound a float or int (open bounds when `low_open`,
+    `high_open`); floats must be finite unless `finite` is False (the camera
+    vectors, which the camera itself checks and names).
+    """
+
+    name: str
+    help: str
+    kind: str = "float"
+    nargs: int = 1
+    multiple: bool = False
+    metavar: str | None = None
+    choices: tuple = ()
+    counts: tuple | None = None
+    low: float | None = None
+    high: float | None = None
+    low_open: bool = False
+    high_open: bool = False
+    finite: bool = True
+    envvar: str | None = None
+    dest: str | None = None  # the keyword when it differs from `name`
+    default: object = None
+
+    @property
+    def flag(self) -> str:
+        return "--" + self.name.replace("_", "-")
+
+    @property
+    def keyword(self) -> str:
+        return self.dest or self.name
+
+
+def _vector(name, help, nargs=3, metavar="X Y Z", **kw) -> Option:
+    return Option(name, help, nargs=nargs, metavar=metavar, **kw)
+
+
+_POSITIVE = {"low": 0.0, "low_open": True}
+
+SCENE_OPTIONS = (
+    _vector("position", "Camera position (world units).", finite=False),
+    _vector("look_at", "Point the camera looks at (world units).", finite=False),
+    _vector("up", "Camera up vector.", finite=False),
+    Option("fovy", "Full vertical field of view, degrees."),
+    Option("field", "Scalar field to use (default: the first field of the file).", kind="text",
+           metavar="NAME"),
+    Option("transfer_function", "ParaView colour-map preset JSON, or a built-in name (default, "
+           "inferno-shells; built-ins are stretched over --range or the field's range).",
+           kind="text", metavar="PRESET"),
+    Option("colormap", "A matplotlib colormap over --range (default: the field's range).",
+           kind="text", metavar="NAME"),
+    Option("range", "Data range of the colormap (and rescales a preset file to it).", nargs=2,
+           metavar="LO HI"),
+    Option("opacity", "With --colormap: alpha knots spread evenly over the range (default 0,1: "
+           "a ramp).", kind="numbers", metavar="A0,A1,..."),
+    Option("volume", "Draw the volume layers (default) or none. --field, --transfer-function, "
+           "--colormap, --range, --opacity replace the scene's layers by the one they describe.",
+           kind="flag"),
+    Option("iso", "Iso-surface of --field (default: the first volume field) at VALUE; repeatable; "
+           "replaces the scene's iso-surfaces.", multiple=True, metavar="VALUE"),
+    Option("iso_color", "Colour of the iso-surfaces, in [0, 1] (default 0.9,0.9,0.9).",
+           kind="numbers", counts=(3,), metavar="R,G,B"),
+    Option("iso_opacity", "Opacity of the iso-surfaces (default 1).", low=0.0, high=1.0,
+           metavar="A"),
+    Option("iso_color_field", "Colour the iso-surfaces by this field.", kind="text", metavar="NAME"),
+    Option("iso_colormap", "Colormap of --iso-color-field (default viridis).", kind="text",
+           metavar="NAME"),
+    _vector("iso_range", "Data range of --iso-colormap (default: the colour field's range).",
+            nargs=2, metavar="LO HI"),
+    _vector("slice", "A slice of --field through point P with normal N (world units); repeatable; "
+            "replaces the scene's slices.", nargs=6, metavar="PX PY PZ NX NY NZ", multiple=True),
+    Option("slice_colormap", "Colormap of the slices (default viridis).", kind="text",
+           metavar="NAME"),
+    _vector("slice_range", "Data range of --slice-colormap (default: the slice field's range).",
+            nargs=2, metavar="LO HI"),
+    _vector("clip_box", "Keep only the inside of this box.", nargs=6, metavar="X0 Y0 Z0 X1 Y1 Z1"),
+    _vector("clip_plane", "Keep only the half-space (p - P).N >= 0; repeatable; replaces the "
+            "scene's planes.", nargs=6, metavar="PX PY PZ NX NY NZ", multiple=True),
+    Option("shading", "headlight (default): diffuse (+ --specular) light from the camera; none: "
+           "emission-absorption only.", kind="choice", choices=SHADING_MODES),
+    Option("reconstruction", "basis (default): the paper's continuous blend of cells; nearest: the "
+           "value of the containing leaf cell; vertex: trilinear in stitched vertex values.",
+           kind="choice", choices=RECONSTRUCTIONS),
+    Option("lod", "Level of detail: sample each region at the coarsest level whose cells project "
+           "to at most PIXELS pixels (default 0: full resolution).", low=0.0, metavar="PIXELS"),
+    Option("gradient", "Normals from the analytic gradient (default) or central differences.",
+           kind="choice", choices=GRADIENTS),
+    Option("specular", "Blinn-Phong specular weight on surfaces (default 0).", low=0.0),
+    Option("shininess", "Blinn-Phong exponent (default 32).", **_POSITIVE),
+    Option("ao_samples", "Ambient-occlusion rays per surface hit (default 0: off).", kind="int",
+           low=0, high=MAX_AO_SAMPLES),
+    Option("ao_distance", "Length of the ambient-occlusion rays, world units (default: 10 finest "
+           "cell widths).", **_POSITIVE),
+    Option("background", "Background colour in [0, 1] (RGB is opaque; default transparent).",
+           kind="numbers", counts=(3, 4), metavar="R,G,B[,A]"),
+    Option("unit_distance", "World thickness over which alpha is the opacity (default: the finest "
+           "cell width)."),
+    Option("size", "Image size in pixels (default 512 512).", kind="int", nargs=2, low=1,
+           high=32768, metavar="W H"),
+    Option("spp", "Samples per pixel (default 1).", kind="int", low=1, high=4096),
+    Option("seed", "Seed of the interleaved jitter and sub-pixel positions (default 0).",
+           kind="int", low=0, high=2**32 - 1),
+    Option("jitter", "--no-jitter: no interleaved jitter (rho = 0.5): fully deterministic sample "
+           "positions.", kind="flag"),
+    Option("sampling_rate", "Samples per finest cell width of each region (default 2).",
+           **_POSITIVE),
+    Option("max_opacity", "Early ray termination threshold (default 0.98; 1 turns it off).",
+           low=0.0, high=1.0, low_open=True),
+    Option("depth", "Add a depth channel Z (.exr only): distance to the first opaque surface, "
+           "else where the opacity reaches 0.5.", kind="flag"),
+)
+
+# The names `scene_from_options` takes (None, or an empty tuple, means "not given").
+FLAGS = tuple(o.name for o in SCENE_OPTIONS)
+# The flags that describe one volume layer (they replace the scene file's layers).
+VOLUME_FLAGS = ("field", "transfer_function", "colormap", "range", "opacity")
+
+JOB_OPTIONS = (
+    Option("scene", "Scene JSON (docs/scene.md): camera, volumes, iso-surfaces, slices, clipping, "
+           "lighting, background and settings. Flags override it.", kind="file",
+           dest="scene_path"),
+    Option("camera", 'Camera JSON {"position", "look_at", "up", "fovy"} (world units; default: '
+           "the scene's, else a three-quarter view of the whole dataset).", kind="file",
+           dest="camera_path"),
+    Option("camera_path", "Camera-path JSON (`exabricks camera orbit|path`): draw its frame(s) "
+           "given by --frame or --frames; -o then names frame I by a printf field, e.g. "
+           "frame_%05d.png.", kind="file", dest="path_file"),
+    Option("frame", "With --camera-path: frame I (from 0; negative counts from the end).",
+           kind="text", metavar="I"),
+    Option("frames", "With --camera-path: frames A to B-1 (Python slice; 'A:' to the end), one "
+           "upload, one image each.", kind="text", metavar="A:B"),
+    Option("mpi_mode", "Under mpiexec/srun with several ranks: data splits the dataset by space "
+           "(each rank holds a piece; sort-last compositing), image replicates it and splits the "
+           "frame (faster for data that fits every rank).", kind="choice",
+           choices=("data", "image"), default="data"),
+    Option("memory_budget", "Render within SIZE bytes of memory, host and device (e.g. 2G, "
+           "512MiB, 1500000000; K/M/G/T and KiB..TiB are powers of 1024, kB/MB/GB/TB of 1000; "
+           "also $EXABRICKS_MEMORY_BUDGET): data that does not fit is cut into pieces by space "
+           "and streamed from the files, one piece at a time, for the same image.", kind="size",
+           envvar="EXABRICKS_MEMORY_BUDGET", metavar="SIZE", dest="budget"),
+    Option("progressive", "Rewrite the output every SECONDS with the image so far (pieces front "
+           "to back, then more samples per pixel); each rewrite is a whole image.", **_POSITIVE,
+           metavar="SECONDS"),
+    Option("time_limit", "Stop refining a frame after SECONDS (the first frame counts from the "
+           "start of the command) and write the best image so far; its metadata "
+           "(settings.progress) says what it covers.", **_POSITIVE, metavar="SECONDS"),
+    Option("tile", "Draw the frame in tiles of W x H pixels, a row of tiles at a time, each "
+           "written to the output file as it is done: only a band of H rows is ever in memory "
+           "(posters far larger than memory; with --memory-budget the budget counts the band, "
+           "not the frame).", kind="int", nargs=2, low=1, high=32768, metavar="W H"),
+)
+
+
+def flag_name(name: str) -> str:
+    """The command-line flag of option `name` ("look_at" -> "--look-at")."""
+    return "--" + name.replace("_", "-")
+
+
+def normalised_flags(flags: dict | None) -> dict:
+    """`flags` with every name of FLAGS present (None: not given); TypeError for an
+    unknown name."""
+    out = dict.fromkeys(FLAGS)
+    for name, value in (flags or {}).items():
+        if name not in out:
+            raise TypeError(f"unknown flag {name!r} (one of {', '.join(FLAGS)})")
+        if isinstance(value, (tuple, list)) and len(value) == 0:
+            value = None  # click's value of a repeatable option that was not given
+        out[name] = value
+    return out
+
+
+def check_flags(flags: dict) -> None:
+    """ExabricksError for flags that contradict each other whatever the scene file
+    says (the CLI reports it as a usage error)."""
+    f = normalised_flags(flags)
+    if f["transfer_function"] is not None and f["colormap"] is not None:
+        raise ExabricksError("give --transfer-function or --colormap, not both")
+    if f["opacity"] is not None and f["colormap"] is None:
+        raise ExabricksError("--opacity goes with --colormap")
+    if f["volume"] is False:
+        for name in VOLUME_FLAGS[1:]:
+            if f[name] is not None:
+                raise ExabricksError(f"{flag_name(name)} describes a volume layer, but --no-volume draws none")
+    if f["iso_color"] is not None and f["iso_color_field"] is not None:
+        raise ExabricksError("give --iso-color or --iso-color-field, not both")
+    for name in ("iso_colormap", "iso_range"):
+        if f[name] is not None and f["iso_color"] is not None:
+            raise ExabricksError(f"{flag_name(name)} goes with --iso-color-field, not --iso-color")
