@@ -20,7 +20,7 @@ from ..transfer_function import TransferFunction
 from .file import SceneFile, shown
 from .model import (DEFAULT_COLORMAP, DEFAULT_FOVY, Clip, IsoSurface, Lighting, Scene, Settings,
                     Slice, VolumeLayer)
-from .options import VOLUME_FLAGS, check_flags, flag_name, normalised_flags
+from .options import SCENE_OPTIONS, VOLUME_FLAGS, check_flags, flag_name, normalised_flags
 
 
 def field_range(bricks, field: str | None) -> tuple[float, float]:
@@ -289,17 +289,25 @@ def _pick(f, flag: str, file: SceneFile, path, default):
     return file.get(*path, default=default)
 
 
+_CONVERT = {"float": float, "int": int, "flag": bool, "choice": str}
+
+
+def _declared(part: str, file: SceneFile, f) -> dict:
+    """The attributes of model part `part` ("lighting" or "settings") that declared
+    options set (exabricks.scene.options, `Option.target`): each from its flag,
+    else the scene file, left out (the model's default) when neither gives it."""
+    out = {}
+    for option in SCENE_OPTIONS:
+        owner, _, attribute = (option.target or "").partition(".")
+        if owner == part:
+            value = _pick(f, option.name, file, option.key, None)
+            if value is not None:
+                out[attribute] = _CONVERT[option.kind](value)
+    return out
+
+
 def _lighting(file: SceneFile, f) -> Lighting:
-    d = Lighting()
-    ao = ("lighting", "ambient_occlusion")
-    distance = _pick(f, "ao_distance", file, ao + ("distance",), d.ao_distance)
-    return Lighting(
-        shading=_pick(f, "shading", file, ("lighting", "shading"), d.shading),
-        gradient=_pick(f, "gradient", file, ("lighting", "gradient"), d.gradient),
-        specular=float(_pick(f, "specular", file, ("lighting", "specular"), d.specular)),
-        shininess=float(_pick(f, "shininess", file, ("lighting", "shininess"), d.shininess)),
-        ao_samples=int(_pick(f, "ao_samples", file, ao + ("samples",), d.ao_samples)),
-        ao_distance=None if distance is None else float(distance))
+    return Lighting(**_declared("lighting", file, f))
 
 
 def _background(file: SceneFile, f) -> tuple[float, float, float, float]:
@@ -313,18 +321,7 @@ def _background(file: SceneFile, f) -> tuple[float, float, float, float]:
 def _settings(file: SceneFile, f) -> Settings:
     d = Settings()
     width, height = _pick(f, "size", file, ("size",), (d.width, d.height))
-    unit_distance = _pick(f, "unit_distance", file, ("unit_distance",), d.unit_distance)
-    return Settings(
-        width=int(width), height=int(height),
-        spp=int(_pick(f, "spp", file, ("spp",), d.spp)),
-        sampling_rate=float(_pick(f, "sampling_rate", file, ("sampling_rate",), d.sampling_rate)),
-        max_opacity=float(_pick(f, "max_opacity", file, ("max_opacity",), d.max_opacity)),
-        seed=int(_pick(f, "seed", file, ("seed",), d.seed)),
-        jitter=bool(_pick(f, "jitter", file, ("jitter",), d.jitter)),
-        unit_distance=None if unit_distance is None else float(unit_distance),
-        depth=bool(_pick(f, "depth", file, ("depth",), d.depth)),
-        reconstruction=_pick(f, "reconstruction", file, ("reconstruction",), d.reconstruction),
-        lod=float(_pick(f, "lod", file, ("lod",), d.lod)))
+    return Settings(width=int(width), height=int(height), **_declared("settings", file, f))
 
 
 def scene_from_options(bricks, *, scene_path=None, camera_path=None, flags: dict | None = None) -> Scene:

@@ -13,11 +13,26 @@ MAX_SCHEMA_ERRORS = 500
 
 
 def scene_schema() -> dict:
-    """The JSON Schema of scene files (exabricks/data/scene.schema.json)."""
+    """The JSON Schema of scene files: exabricks/data/scene.schema.json, with the
+    node of every declared scalar option (exabricks.scene.options, `Option.target`)
+    put at its key path."""
     import json
     from importlib import resources
 
-    return json.loads((resources.files("exabricks") / "data" / "scene.schema.json").read_text("utf-8"))
+    from .options import SCENE_OPTIONS
+
+    schema = json.loads((resources.files("exabricks") / "data" / "scene.schema.json")
+                        .read_text("utf-8"))
+    for option in SCENE_OPTIONS:
+        if option.target:
+            properties = schema["properties"]
+            for key in option.key[:-1]:
+                holder = properties[key]
+                if "$ref" in holder:
+                    holder = schema["$defs"][holder["$ref"].rpartition("/")[2]]
+                properties = holder["properties"]
+            properties[option.key[-1]] = option.schema()
+    return schema
 
 
 def _key_path(path) -> str:

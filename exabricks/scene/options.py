@@ -45,6 +45,13 @@ class Option:
     envvar: str | None = None
     dest: str | None = None  # the keyword when it differs from `name`
     default: object = None
+    # A scalar setting of the model: "part.attribute" of the Scene it sets (e.g.
+    # "settings.spp"), and its key path in the scene file (default: (name,)). Such an
+    # option needs nothing else: the scene file's schema node, the builder and
+    # `scene_to_dict` all come from here.
+    target: str | None = None
+    scene_key: tuple | None = None
+    description: str | None = None  # the schema's words for a valid value (default: made)
 
     @property
     def flag(self) -> str:
@@ -54,12 +61,62 @@ class Option:
     def keyword(self) -> str:
         return self.dest or self.name
 
+    @property
+    def key(self) -> tuple:
+        """Where the option sits in a scene file."""
+        return self.scene_key or (self.name,)
+
+    def schema(self) -> dict:
+        """The JSON Schema node of the option's value in a scene file."""
+        if self.kind == "choice":
+            return {"description": self.description or _one_of(self.choices),
+                    "enum": list(self.choices)}
+        if self.kind == "flag":
+            return {"description": self.description or "true or false", "type": "boolean"}
+        node = {"type": {"float": "number", "int": "integer"}[self.kind]}
+        if self.low is not None:
+            node["exclusiveMinimum" if self.low_open else "minimum"] = self.low
+        if self.high is not None:
+            node["exclusiveMaximum" if self.high_open else "maximum"] = self.high
+        return {"description": self.description or self._words(), **node}
+
+    def _words(self) -> str:
+        lo, hi = self.low, self.high
+        if self.kind == "int":
+            return f"an integer from {lo} to {hi}"
+        if lo is not None and hi is not None:
+            return (f"a number in {'(' if self.low_open else '['}{lo:g}, {hi:g}"
+                    f"{')' if self.high_open else ']'}")
+        if lo == 0 and self.low_open:
+            return "a positive number"
+        if lo is not None:
+            return f"a number {'>' if self.low_open else '>='} {lo:g}"
+        return "a number"
+
+
+def _one_of(choices) -> str:
+    quoted = [f'"{c}"' for c in choices]
+    return " or ".join(quoted) if len(quoted) == 2 else f"one of {', '.join(quoted)}"
+
 
 def _vector(name, help, nargs=3, metavar="X Y Z", **kw) -> Option:
     return Option(name, help, nargs=nargs, metavar=metavar, **kw)
 
 
 _POSITIVE = {"low": 0.0, "low_open": True}
+_AO = ("ambient_occlusion",)  # where the ambient-occlusion settings sit in "lighting"
+
+
+def _setting(name, help, **kw) -> Option:
+    """An attribute of Settings, at the top level of the scene file."""
+    return Option(name, help, target=f"settings.{name}", **kw)
+
+
+def _light(name, help, within=(), **kw) -> Option:
+    """An attribute of Lighting, in the scene file's "lighting" object (`within` it).
+    The file's key is the attribute's name less its "ao_" prefix inside _AO."""
+    key = name[3:] if within == _AO else name
+    return Option(name, help, target=f"lighting.{name}", scene_key=("lighting", *within, key), **kw)
 
 SCENE_OPTIONS = (
     _vector("position", "Camera position (world units).", finite=False),
@@ -100,38 +157,39 @@ SCENE_OPTIONS = (
     _vector("clip_box", "Keep only the inside of this box.", nargs=6, metavar="X0 Y0 Z0 X1 Y1 Z1"),
     _vector("clip_plane", "Keep only the half-space (p - P).N >= 0; repeatable; replaces the "
             "scene's planes.", nargs=6, metavar="PX PY PZ NX NY NZ", multiple=True),
-    Option("shading", "headlight (default): diffuse (+ --specular) light from the camera; none: "
+    _light("shading", "headlight (default): diffuse (+ --specular) light from the camera; none: "
            "emission-absorption only.", kind="choice", choices=SHADING_MODES),
-    Option("reconstruction", "basis (default): the paper's continuous blend of cells; nearest: the "
-           "value of the containing leaf cell; vertex: trilinear in stitched vertex values.",
-           kind="choice", choices=RECONSTRUCTIONS),
-    Option("lod", "Level of detail: sample each region at the coarsest level whose cells project "
-           "to at most PIXELS pixels (default 0: full resolution).", low=0.0, metavar="PIXELS"),
-    Option("gradient", "Normals from the analytic gradient (default) or central differences.",
+    _setting("reconstruction", "basis (default): the paper's continuous blend of cells; nearest: "
+             "the value of the containing leaf cell; vertex: trilinear in stitched vertex values.",
+             kind="choice", choices=RECONSTRUCTIONS),
+    _setting("lod", "Level of detail: sample each region at the coarsest level whose cells "
+             "project to at most PIXELS pixels (default 0: full resolution).", low=0.0,
+             metavar="PIXELS", description="a number of pixels >= 0 (0: full resolution)"),
+    _light("gradient", "Normals from the analytic gradient (default) or central differences.",
            kind="choice", choices=GRADIENTS),
-    Option("specular", "Blinn-Phong specular weight on surfaces (default 0).", low=0.0),
-    Option("shininess", "Blinn-Phong exponent (default 32).", **_POSITIVE),
-    Option("ao_samples", "Ambient-occlusion rays per surface hit (default 0: off).", kind="int",
+    _light("specular", "Blinn-Phong specular weight on surfaces (default 0).", low=0.0),
+    _light("shininess", "Blinn-Phong exponent (default 32).", **_POSITIVE),
+    _light("ao_samples", "Ambient-occlusion rays per surface hit (default 0: off).", _AO, kind="int",
            low=0, high=MAX_AO_SAMPLES),
-    Option("ao_distance", "Length of the ambient-occlusion rays, world units (default: 10 finest "
-           "cell widths).", **_POSITIVE),
+    _light("ao_distance", "Length of the ambient-occlusion rays, world units (default: 10 finest "
+           "cell widths).", _AO, **_POSITIVE),
     Option("background", "Background colour in [0, 1] (RGB is opaque; default transparent).",
            kind="numbers", counts=(3, 4), metavar="R,G,B[,A]"),
-    Option("unit_distance", "World thickness over which alpha is the opacity (default: the finest "
-           "cell width)."),
+    _setting("unit_distance", "World thickness over which alpha is the opacity (default: the finest "
+             "cell width).", **_POSITIVE),
     Option("size", "Image size in pixels (default 512 512).", kind="int", nargs=2, low=1,
            high=32768, metavar="W H"),
-    Option("spp", "Samples per pixel (default 1).", kind="int", low=1, high=4096),
-    Option("seed", "Seed of the interleaved jitter and sub-pixel positions (default 0).",
-           kind="int", low=0, high=2**32 - 1),
-    Option("jitter", "--no-jitter: no interleaved jitter (rho = 0.5): fully deterministic sample "
-           "positions.", kind="flag"),
-    Option("sampling_rate", "Samples per finest cell width of each region (default 2).",
-           **_POSITIVE),
-    Option("max_opacity", "Early ray termination threshold (default 0.98; 1 turns it off).",
-           low=0.0, high=1.0, low_open=True),
-    Option("depth", "Add a depth channel Z (.exr only): distance to the first opaque surface, "
-           "else where the opacity reaches 0.5.", kind="flag"),
+    _setting("spp", "Samples per pixel (default 1).", kind="int", low=1, high=4096),
+    _setting("seed", "Seed of the interleaved jitter and sub-pixel positions (default 0).",
+             kind="int", low=0, high=2**32 - 1),
+    _setting("jitter", "--no-jitter: no interleaved jitter (rho = 0.5): fully deterministic sample "
+             "positions.", kind="flag"),
+    _setting("sampling_rate", "Samples per finest cell width of each region (default 2).",
+             **_POSITIVE),
+    _setting("max_opacity", "Early ray termination threshold (default 0.98; 1 turns it off).",
+             low=0.0, high=1.0, low_open=True),
+    _setting("depth", "Add a depth channel Z (.exr only): distance to the first opaque surface, "
+             "else where the opacity reaches 0.5.", kind="flag"),
 )
 
 # The names `scene_from_options` takes (None, or an empty tuple, means "not given").

@@ -3,13 +3,15 @@
 from __future__ import annotations
 
 from .model import Scene
+from .options import SCENE_OPTIONS
 
 
 def scene_to_dict(scene: Scene) -> dict:
     """The scene as a JSON-ready scene-file object (image metadata); reading it
     back as a scene file gives the same scene. Transfer functions and colour
-    maps are ParaView preset objects over their data ranges."""
-    s, light = scene.settings, scene.lighting
+    maps are ParaView preset objects over their data ranges; the declared scalar
+    options (exabricks.scene.options, `Option.target`) sit at their key paths,
+    left out where the model holds None (its default, computed at render time)."""
     isosurfaces = []
     for iso in scene.isosurfaces:
         color = ({"field": iso.color_field, "colormap": iso.colormap.to_paraview_dict()}
@@ -18,9 +20,6 @@ def scene_to_dict(scene: Scene) -> dict:
     clip = {"planes": [[*p, *n] for p, n in scene.clip.planes]}
     if scene.clip.box is not None:
         clip["box"] = [*scene.clip.box[0], *scene.clip.box[1]]
-    ao = {"samples": light.ao_samples}
-    if light.ao_distance is not None:
-        ao["distance"] = light.ao_distance
     out = {
         "camera": scene.camera.to_dict(),
         "volumes": [{"field": v.field, "transfer_function": v.transfer_function.to_paraview_dict()}
@@ -30,19 +29,17 @@ def scene_to_dict(scene: Scene) -> dict:
                     "colormap": sl.colormap.to_paraview_dict(), "opacity": sl.opacity}
                    for sl in scene.slices],
         "clip": clip,
-        "lighting": {"shading": light.shading, "gradient": light.gradient, "specular": light.specular,
-                     "shininess": light.shininess, "ambient_occlusion": ao},
+        "lighting": {},
         "background": list(scene.background),
-        "size": [s.width, s.height],
-        "spp": s.spp,
-        "sampling_rate": s.sampling_rate,
-        "max_opacity": s.max_opacity,
-        "seed": s.seed,
-        "jitter": s.jitter,
-        "depth": s.depth,
-        "reconstruction": s.reconstruction,
-        "lod": s.lod,
+        "size": [scene.settings.width, scene.settings.height],
     }
-    if s.unit_distance is not None:
-        out["unit_distance"] = s.unit_distance
+    for option in SCENE_OPTIONS:
+        if option.target:
+            part, _, attribute = option.target.partition(".")
+            value = getattr(getattr(scene, part), attribute)
+            if value is not None:
+                node = out
+                for key in option.key[:-1]:
+                    node = node.setdefault(key, {})
+                node[option.key[-1]] = value
     return out
