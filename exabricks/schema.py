@@ -585,7 +585,7 @@ def check_built_from(obj: Kind, where, source: Kind, source_where) -> None:
     records that it was built from `source` (read from `source_where`): the
     regions from the bricks, the BVH from the regions. Files that predate the
     record, or objects built in memory, carry none and are checked by their
-    counts and frames only (exabricks.stages.device_data.check_inputs)."""
+    counts and frames only (exabricks.render.device_data.check_inputs)."""
     recorded = obj.meta.get("built_from")
     recorded = recorded.get("content_sha256") if isinstance(recorded, dict) else None
     actual = source.meta.get("content_sha256")
@@ -626,7 +626,7 @@ def load(path: str | os.PathLike, kind: str | None = None, *, mapped: bool = Fal
     too, handing its pages back as it goes, so that a builder holds only what it
     uses.  Mapped and unchecked, only dtypes and shapes are checked: for a caller
     that uses a part of the data and validates that part itself
-    (exabricks.stages.partition.piece_data, whose output goes through `validate`
+    (exabricks.render.partition.piece_data, whose output goes through `validate`
     like any file).
 
     `digest`: hash the file on a background thread, from the descriptor its

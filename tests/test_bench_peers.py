@@ -1,4 +1,4 @@
-"""The uniform-grid ceiling (exabricks.stages.uniform_grid) against a float64 NumPy march
+"""The uniform-grid ceiling (workflows/uniform_grid.py) against a float64 NumPy march
 and against exabricks' own frames; the yt bridge's nested grids against hand-computed
 grids and yt's leaves; workflows/bench_peers.py's yt settings, its exabricks worker and the
 figures its report is made of, against hand-computed values."""
@@ -21,13 +21,13 @@ from exabricks import schema  # noqa: E402
 from exabricks.camera import Camera, default_camera  # noqa: E402
 from exabricks.errors import ExabricksError  # noqa: E402
 from exabricks.readers import yt_bridge  # noqa: E402
-from exabricks.stages import uniform_grid  # noqa: E402
+import uniform_grid  # noqa: E402 (workflows/, benchmark-only)
 from exabricks.stages.brick import build_bricks  # noqa: E402
 from exabricks.stages.bvh import build_bvh  # noqa: E402
 from exabricks.stages.compare import compare_images  # noqa: E402
 from exabricks.stages.regions import build_regions  # noqa: E402
-from exabricks.stages.render import Renderer  # noqa: E402
-from exabricks.stages.device_data import DeviceScene  # noqa: E402
+from exabricks.render.renderer import Renderer  # noqa: E402
+from exabricks.render.device_data import DeviceScene  # noqa: E402
 from exabricks.transfer_function import TransferFunction, default_transfer_function  # noqa: E402
 
 SIZE = 64

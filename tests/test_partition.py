@@ -1,4 +1,4 @@
-"""Data-parallel rendering (exabricks.stages.partition, issue 12): the pieces of a
+"""Data-parallel rendering (exabricks.render.partition, issue 12): the pieces of a
 k-d partition each render exactly their samples, and their images composited
 front to back in visibility order give the whole frame, in process (the MPI
 runs are tests/test_mpi.py).
@@ -16,10 +16,10 @@ import functools
 import numpy as np
 import pytest
 
-from exabricks.stages.device_data import DatasetScale
-from exabricks.stages.partition import (_meeting, composite, eye_lattice, kd_partition,
+from exabricks.render.device_data import DatasetScale
+from exabricks.render.partition import (_meeting, composite, eye_lattice, kd_partition,
                                          piece_data, piece_options, region_blocks)
-from exabricks.stages.render import Renderer, over_background
+from exabricks.render.renderer import Renderer, over_background
 
 from conftest import device_param
 from test_packets import DATASETS, loaded, renderer, scene_for

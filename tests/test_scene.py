@@ -479,9 +479,9 @@ def test_cli_usage_errors_and_depth_with_png(trio, tmp_path):
 
 
 def _render_scene_exists() -> bool:
-    from exabricks.stages import render
+    from exabricks.render import renderer
 
-    return hasattr(render, "render_scene")
+    return hasattr(renderer, "render_scene")
 
 
 @pytest.mark.skipif(not DEVICES or not _render_scene_exists(), reason="needs render_scene and an OpenCL device")

@@ -1,5 +1,5 @@
 """Rendering under a memory budget, progressively and against a time limit
-(exabricks.stages.streaming, issue 11).
+(exabricks.render.streaming, issue 11).
 
 A budgeted frame is drawn piece by piece, each piece's rays continuing from the
 image composited in front of it, so it takes the in-memory frame's samples and
@@ -20,9 +20,9 @@ import pytest
 
 from exabricks.errors import ExabricksError
 from exabricks.image_io import read_image
-from exabricks.stages.partition import _piece_plan, piece_bytes
-from exabricks.stages.render import Renderer
-from exabricks.stages.streaming import (PER_BRICK, SLACK, Budgeted, Resident, image_bytes,
+from exabricks.render.partition import _piece_plan, piece_bytes
+from exabricks.render.renderer import Renderer
+from exabricks.render.streaming import (PER_BRICK, SLACK, Budgeted, Resident, image_bytes,
                                         parse_size, render_steps, render_tiled)
 
 from conftest import GERRIS, assert_one_error_line, peak_rss

@@ -78,7 +78,7 @@ def versions_of(*dirs: Path, options=((), ())):
 
 
 def compare(name: str, versions: dict, rates, rounds: int, size: int, shading: str) -> list[str]:
-    from exabricks.stages.render import Renderer
+    from exabricks.render.renderer import Renderer
 
     if name == "shell256":
         benchdoc.ensure_shell(256)

@@ -78,7 +78,7 @@ def child(name: str, kernels: str | None) -> None:
     from exabricks.stages.brick import build_bricks
     from exabricks.stages.bvh import build_bvh
     from exabricks.stages.regions import build_regions
-    from exabricks.stages.render import Renderer
+    from exabricks.render.renderer import Renderer
     from exabricks.transfer_function import TransferFunction
 
     if kernels:

@@ -123,7 +123,7 @@ def first_touch(runs: int) -> tuple[list[float], float]:
 
 def parts(files, field: str) -> tuple[float, float, float]:
     """Seconds of load_structures, DeviceScene and one frame's visibility."""
-    from exabricks.stages.device_data import DeviceScene, load_structures
+    from exabricks.render.device_data import DeviceScene, load_structures
     from exabricks.transfer_function import default_transfer_function
 
     start = time.perf_counter()

@@ -41,7 +41,7 @@ from exabricks import schema  # noqa: E402
 from exabricks.camera import default_camera  # noqa: E402
 from exabricks.stages.bvh import build_bvh  # noqa: E402
 from exabricks.stages.regions import EXACT, Merge, build_regions  # noqa: E402
-from exabricks.stages.render import Renderer  # noqa: E402
+from exabricks.render.renderer import Renderer  # noqa: E402
 from exabricks.transfer_function import default_transfer_function  # noqa: E402
 
 SECTION = "merged regions against exact ones"

@@ -8,7 +8,7 @@ regions, bvh; cached under bench-data/gallery/<dataset>/ as by workflows/gallery
 not timed). Each mode is a list of `exabricks render` flags (MODES below, printed
 by --list), parsed by the CLI's own option parser and turned into a Scene by
 exabricks.scene.scene_from_options, exactly as `exabricks render` does; the
-frame is then drawn in-process by exabricks.stages.render.Renderer(bricks,
+frame is then drawn in-process by exabricks.render.renderer.Renderer(bricks,
 regions, bvh, fields=scene.fields()).render_scene(scene): one Renderer per set
 of fields (uploaded once), one warm-up frame per mode (it also builds the
 program variant), then --runs rounds of one timed frame of every mode (so that
@@ -42,7 +42,7 @@ import gallery  # noqa: E402
 
 from exabricks import schema  # noqa: E402
 from exabricks.scene import FLAGS, scene_from_options  # noqa: E402
-from exabricks.stages.render import Renderer  # noqa: E402
+from exabricks.render.renderer import Renderer  # noqa: E402
 
 SECTION = "render modes"
 DATASETS = ("gerris", "amrex")

@@ -19,7 +19,7 @@ field, camera, transfer function and image size:
    program, no second upload), and the uniform-grid ceiling: the dataset
    resampled at its finest resolution (lattice bounding box, capped at
    --max-voxels) by the basis reconstruction itself and rendered by
-   kernels/uniform_grid.cl (exabricks.stages.uniform_grid: `resample`,
+   kernels/uniform_grid.cl (workflows/uniform_grid.py: `resample`,
    `UniformGridRenderer`; trilinear, constant step finest cell / sampling
    rate, the same sample placement, transfer function, opacity correction,
    compositing and early termination). Frames at the default sampling rate 2
@@ -305,7 +305,7 @@ def scene_paths(spec: dict) -> dict:
 def worker_prepare(spec: dict) -> dict:
     """The offline stages (ingest, brick, regions, bvh) in memory, saved as .npz; the view."""
     from exabricks import schema
-    from exabricks.stages.device_data import finest_cell_width_world
+    from exabricks.render.device_data import finest_cell_width_world
 
     cells, bricks, regions, bvh, t_read, t_build = build_scene(Path(spec["path"]), spec["field"])
     camera, tf, bounds, value_range = view_of(cells, spec["alpha_scale"])
@@ -358,9 +358,9 @@ def worker_exabricks(spec: dict) -> dict:
 
     from exabricks import opencl
     from exabricks.camera import Camera
-    from exabricks.stages import uniform_grid
-    from exabricks.stages.cell_location import build_brick_tree
-    from exabricks.stages.render import Renderer
+    import uniform_grid
+    from exabricks.render.cell_location import build_brick_tree
+    from exabricks.render.renderer import Renderer
     from exabricks.transfer_function import TransferFunction
 
     field, size, runs, unit = spec["field"], spec["size"], spec["runs"], spec["unit_distance"]

@@ -42,7 +42,7 @@ import benchdoc  # noqa: E402
 
 from exabricks import opencl, schema  # noqa: E402
 from exabricks.camera import default_camera  # noqa: E402
-from exabricks.stages.render import TRAVERSALS, Renderer  # noqa: E402
+from exabricks.render.renderer import TRAVERSALS, Renderer  # noqa: E402
 from exabricks.transfer_function import default_transfer_function  # noqa: E402
 
 SECTIONS = {"CPU": "render (PoCL)", "GPU": "render (GPU)"}  # by the device's type

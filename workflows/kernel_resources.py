@@ -5,7 +5,7 @@ frame and spills that its compiler reports.
     .venv/bin/python workflows/kernel_resources.py [--device SPEC]
 
 Each variant is the render kernel (kernels/render.cl, eb_render) built with the
-defines that exabricks.stages.render.Renderer passes for a mode (one field, the basis
+defines that exabricks.render.renderer.Renderer passes for a mode (one field, the basis
 reconstruction unless named), or the uniform-grid marcher (kernels/uniform_grid.cl).
 Every variant is built afresh (into an empty pyopencl binary cache, so that the
 driver writes its build log), with exabricks.opencl.BUILD_OPTIONS, plus -cl-nv-verbose on
@@ -27,8 +27,8 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from exabricks import opencl  # noqa: E402
-from exabricks.stages.device_data import RECONSTRUCTION_DEFINES  # noqa: E402
-from exabricks.stages.render import PACKET_WIDTH  # noqa: E402
+from exabricks.render.device_data import RECONSTRUCTION_DEFINES  # noqa: E402
+from exabricks.render.renderer import PACKET_WIDTH  # noqa: E402
 
 # (label, source, kernel, defines)
 VARIANTS = (

@@ -4,7 +4,7 @@ piece renders, and their composite against the one-process frame.
     .venv/bin/python workflows/pieces_picture.py [--ranks 4] [--size 320]
 
 Runs the pieces in one process, exactly as `mpiexec -n N exabricks render` splits
-them (exabricks.stages.partition: the k-d pieces, each piece's cropped share,
+them (exabricks.render.partition: the k-d pieces, each piece's cropped share,
 its frame of the samples inside it), on the Athena++ blast (rho, the gallery's
 camera and transfer function, no early termination). Writes
 docs/images/workflow-pieces-K.png (piece K alone, premultiplied over the dark
@@ -37,10 +37,10 @@ def main(argv=None) -> int:
     from exabricks import schema
     from exabricks.image_io import write_image
     from exabricks.scene import scene_from_options
-    from exabricks.stages.device_data import DatasetScale
-    from exabricks.stages.partition import (composite, eye_lattice, kd_partition, piece_data,
+    from exabricks.render.device_data import DatasetScale
+    from exabricks.render.partition import (composite, eye_lattice, kd_partition, piece_data,
                                             piece_options)
-    from exabricks.stages.render import Renderer, over_background
+    from exabricks.render.renderer import Renderer, over_background
 
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--ranks", type=int, default=4)

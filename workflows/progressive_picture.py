@@ -5,7 +5,7 @@ the first sample, and the final average of every sample, as `render
 
     .venv/bin/python workflows/progressive_picture.py [--pieces 8] [--size 320]
 
-Runs exabricks.stages.streaming in one process on the Athena++ blast (rho, the
+Runs exabricks.render.streaming in one process on the Athena++ blast (rho, the
 camera and transfer function of workflows/pieces_picture.py, default early ray
 termination) with a budget that holds at most 1/--pieces of the data per piece.
 Writes docs/images/budget-progress.png (the four images side by side, over the
@@ -35,9 +35,9 @@ def main(argv=None) -> int:
     from exabricks import schema
     from exabricks.image_io import write_image
     from exabricks.scene import scene_from_options
-    from exabricks.stages.partition import _piece_plan, piece_bytes
-    from exabricks.stages.render import Renderer, over_background
-    from exabricks.stages.streaming import PER_BRICK, SLACK, Budgeted, image_bytes, render_steps
+    from exabricks.render.partition import _piece_plan, piece_bytes
+    from exabricks.render.renderer import Renderer, over_background
+    from exabricks.render.streaming import PER_BRICK, SLACK, Budgeted, image_bytes, render_steps
 
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--pieces", type=int, default=8)

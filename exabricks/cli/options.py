@@ -41,10 +41,10 @@ def finite(ctx, param, value):
 
 
 def size(ctx, param, text):
-    """Callback: a size in bytes ("2G", "512MiB"; exabricks.stages.streaming.parse_size)."""
+    """Callback: a size in bytes ("2G", "512MiB"; exabricks.render.streaming.parse_size)."""
     if text is None:
         return None
-    from ..stages.streaming import parse_size
+    from ..render.streaming import parse_size
 
     try:
         return parse_size(text)

@@ -47,7 +47,7 @@ def _load_points(path) -> np.ndarray:
 @device_option
 def probe(bricks_path, regions_path, bvh_path, points_path, field, reconstruction, output, device):
     """Reconstructed FIELD at world points (float32 .npy, NaN where no cell has support)."""
-    from ..stages.device_data import load_structures
+    from ..render.device_data import load_structures
     from ..stages.probe import probe as probe_points
 
     inputs = [bricks_path, regions_path, bvh_path, points_path]

@@ -1,7 +1,7 @@
 """`exabricks render BRICKS REGIONS BVH -o IMAGE`: one frame of volumes, iso-surfaces
 and slices (paper §4-5; docs/scene.md for the scene file and the flags). The
 options are declared once in exabricks.scene.options; the job is
-exabricks.render_job."""
+exabricks.stages.render."""
 
 from __future__ import annotations
 
@@ -25,7 +25,7 @@ from .options import declared, device_option, input_path, output_option
 def render(bricks_path, regions_path, bvh_path, output, device, **options):
     """Render BRICKS/REGIONS/BVH into an .exr (float RGBA) or .png image."""
     from ..errors import UsageError
-    from ..render_job import render_job
+    from ..stages.render import render_job
 
     started = time.perf_counter()
     flags = {name: options.pop(name) for name in FLAGS}

@@ -12,7 +12,7 @@ import numpy as np
 
 from .. import schema
 from ..errors import ExabricksError
-from .device_data import DeviceScene
+from ..render.device_data import DeviceScene
 
 
 def probe(bricks: schema.Bricks, regions: schema.Regions, bvh: schema.Bvh, points_world,

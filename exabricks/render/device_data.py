@@ -136,7 +136,7 @@ def field_magnitude(values: np.ndarray) -> float:
 class DatasetScale:
     """What a dataset's frames are scaled by: its finest cell width (the default
     unit distance) and each field's magnitude (the gradient scales). A piece of
-    a dataset (exabricks.stages.partition) renders with the whole's."""
+    a dataset (exabricks.render.partition) renders with the whole's."""
 
     finest_width_world: float
     magnitudes: dict  # field name -> magnitude
@@ -181,7 +181,7 @@ class DeviceScene:
     of `fields` (default: `field`, else the first field) only, one after the
     other (the kernels' field f is fields[f]; the program is built with
     -DEB_N_FIELDS). `scale`: the DatasetScale of the whole dataset when
-    `bricks` are a piece of it (exabricks.stages.partition; default: theirs),
+    `bricks` are a piece of it (exabricks.render.partition; default: theirs),
     so that a piece renders as the whole does."""
 
     def __init__(self, bricks: schema.Bricks, regions: schema.Regions, bvh: schema.Bvh,
@@ -337,7 +337,7 @@ class DeviceScene:
         return out
 
     def mip_args(self) -> list:
-        """The bricks' mip levels for level of detail (exabricks.stages.lod), made and
+        """The bricks' mip levels for level of detail (exabricks.render.lod), made and
         uploaded on first use."""
         if self._mip_args is None:
             from .lod import brick_mips
@@ -348,7 +348,7 @@ class DeviceScene:
 
     def vertex_args(self) -> list:
         """The vertex values of every brick for reconstruction "vertex"
-        (exabricks.stages.vertex: the basis field at the vertices, stitched at
+        (exabricks.render.vertex: the basis field at the vertices, stitched at
         level boundaries), made with the device's basis probe on first use."""
         if self._vertex_args is None:
             from .vertex import vertex_values
@@ -368,7 +368,7 @@ class DeviceScene:
 
     def location_args(self) -> list:
         """Kernel arguments EB_LOCATION_ARGS: the tree over the brick supports
-        (exabricks.stages.cell_location), built and uploaded on the first call
+        (exabricks.render.cell_location), built and uploaded on the first call
         (kept as `brick_tree`, its build time in `brick_tree_seconds`)."""
         if self._location_args is None:
             start = time.perf_counter()

@@ -19,7 +19,7 @@ import numpy as np
 from .. import schema
 from ..constants import BOUNDS_DTYPE, INDEX_DTYPE, MAX_TREE_DEPTH
 from ..errors import ExabricksError
-from .bvh import tree_depths, build_tree, tree_bounds
+from ..stages.bvh import tree_depths, build_tree, tree_bounds
 
 # Bricks per leaf: with 1 a node box is the brick's support, so a sample adds only bricks
 # whose support holds it; frames were 3-13 % faster than with 2 and 4 bricks per leaf

@@ -18,9 +18,9 @@ import time
 
 import numpy as np
 
-from .. import opencl
-from ..errors import ExabricksError
-from .device_data import float4
+from exabricks import opencl
+from exabricks.errors import ExabricksError
+from exabricks.render.device_data import float4
 
 # Points per probe call while resampling (float32 (N, 3) points: 24 MiB).
 PROBE_CHUNK = 1 << 21
@@ -50,7 +50,7 @@ def finest_grid(data) -> tuple[np.ndarray, np.ndarray]:
 def resample(scene, lower_lattice, dims, *, chunk: int = PROBE_CHUNK) -> np.ndarray:
     """The basis reconstruction of `scene` at every finest-cell centre of a box.
 
-    scene: an exabricks.stages.device_data.DeviceScene; lower_lattice (3,) and dims (3,)
+    scene: an exabricks.render.device_data.DeviceScene; lower_lattice (3,) and dims (3,)
     integers, the box as `finest_grid` gives it; chunk: points per probe call.
     Returns float32 (Z, Y, X) = (dims[2], dims[1], dims[0]), x fastest, in the
     field's units; NaN where no cell has support.

@@ -4,7 +4,7 @@ and progressive rendering, seed paper 004).
 
 A frame is drawn as steps: for each of its spp samples, each piece of the
 dataset front to back. Under a memory budget the pieces are those of a k-d
-partition of space (exabricks.stages.partition.budget_partition) whose every
+partition of space (exabricks.render.partition.budget_partition) whose every
 piece, structures and device copies together, fits the budget; one piece is
 resident at a time, read from the mapped files (only its pages), rendered and
 dropped before the next is read. Each piece's rays continue from the image
@@ -32,7 +32,7 @@ from ..errors import ExabricksError
 from .device_data import DatasetScale
 from .partition import (budget_partition, eye_lattice, mib, piece_data, piece_options,
                         region_blocks)
-from .render import Renderer, RenderResult, over_background
+from .renderer import Renderer, RenderResult, over_background
 
 # Units of a --memory-budget: binary for K, M, G, T and KiB..TiB (as SLURM's --mem,
 # Java's -Xmx and numfmt --from=iec read them), decimal for kB, MB, GB, TB.
@@ -80,7 +80,7 @@ def image_bytes(scene, tile=None) -> int:
 
 
 class Resident:
-    """The whole dataset as one resident piece (an exabricks.stages.render.Renderer)."""
+    """The whole dataset as one resident piece (an exabricks.render.renderer.Renderer)."""
 
     def __init__(self, renderer: Renderer):
         self.renderer = renderer

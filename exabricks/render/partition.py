@@ -273,7 +273,7 @@ def piece_data(bricks: schema.Bricks, regions: schema.Regions, lower, upper, *,
     The inputs may be mapped and unvalidated (schema.load(mapped=True)): the
     indices used are checked on the way (errors name `where`, the two files),
     and the piece is validated as a file would be."""
-    from .bvh import build_bvh
+    from ..stages.bvh import build_bvh
 
     keep, used, first, new_dims, boxes = _piece_plan(bricks, regions, lower, upper, halo, crop,
                                                      where, blocks)

@@ -1,0 +1,519 @@
+"""Volume rendering of bricks/regions/BVH with the OpenCL integrator (paper §4).
+
+`Renderer` uploads one dataset once and renders many frames (cameras,
+transfer functions, settings); `render` is the one-frame convenience. The
+kernels (kernels/integrator.cl) march every ray front to back through the
+Active Brick Regions in lattice space with t in world distance, sample each
+region at `sampling_rate` samples per finest cell width of that region with
+the interval-midpoint scheme of paper §4.3 (Fig. 5), reconstruct with the basis
+method from the region's brick list (eq. 1-2), and composite emission and
+absorption. Conventions the design leaves open, chosen here:
+
+* dt of a region with finest level l is ``2**l * min(spacing_world) /
+  sampling_rate`` (world units; min over axes for anisotropic spacing).
+* Interleaved sampling: the per-ray offset rho is a seeded hash of (pixel,
+  sample index, seed); with ``jitter=False`` rho = 0.5 (delimiters halfway
+  between the points k * dt).
+* ``spp = 1``: the ray goes through the pixel centre. ``spp > 1``: each of the
+  spp rays goes through a sub-pixel position drawn uniformly from the seeded
+  hash (jitter on or off) and the frame is their average.
+* ``unit_distance`` default: the finest cell width of the dataset in world
+  units, ``2**min(level) * min(spacing_world)``.
+* ``shading="headlight"``: emitted rgb *= 0.3 + 0.7 |n . v| with n the
+  normalised analytic gradient (paper §5.1.2) and v the ray direction; a zero
+  gradient is unshaded. ``"none"``: pure emission-absorption.
+* depth: world distance along the ray at which the accumulated opacity first
+  reaches 0.5 (smallest over the pixel's samples); +inf where it never does.
+* ``traversal="ordered"`` (default) walks the regions with one BVH traversal
+  per ray and a private min-heap (re-tracing if the heap fills up);
+  ``"retrace"`` re-traces from the root for every region as the paper does
+  (§4). Same regions, same image; ordered is 1.1-1.5x faster on PoCL
+  (docs/benchmarks.md, "render (PoCL)").
+* ``Renderer(..., lookup="cell-location")`` (Python API only) is the
+  comparison of paper §6.4.2 (Table 3): the regions still decide where to
+  sample, but each sample finds its bricks by descending a tree over the brick
+  supports from the root (kernels/cell_location.cl, built in memory when the
+  Renderer is made, or shared by `Renderer.with_lookup`) instead of
+  reading the region's brick list. Same samples, and the same bricks summed in
+  the same order, so the same frame; only the speed differs. ``"regions"``
+  (default) is the paper's method.
+* Sample packets: on CPU devices a ray reconstructs its next PACKET_WIDTH
+  samples at once in vector registers (kernels/packet.cl; in a volume frame
+  from up to three consecutive region visits), the
+  transfer function and opacity of one volume layer too; compositing stays in
+  order, so the image equals the one-sample path's up to float rounding.
+  ``Renderer(..., packets=False)`` (or `with_packets`) forces the one-sample
+  path, the one GPUs take.
+"""
+
+from __future__ import annotations
+
+import copy
+import math
+import time
+from dataclasses import dataclass, field as dataclass_field
+
+import numpy as np
+
+from .. import interrupt, opencl, schema
+from ..constants import MAX_SAMPLES_PER_RAY
+from ..errors import ExabricksError
+from ..scene import Lighting, Scene, Settings, VolumeLayer
+from ..transfer_function import knot_buckets
+from .device_data import DatasetScale, DeviceScene, float4
+
+# Region walks (kernels/traversal.cl): "ordered" keeps a private min-heap of
+# BVH nodes and regions per ray (one traversal per ray); "retrace" is the
+# paper's §4 closest-hit traversal from the root for every region.
+TRAVERSALS = ("ordered", "retrace")
+
+# Where a sample finds the bricks it reconstructs from: the region's list (paper
+# §3.2) or a per-sample descent of a tree over the brick supports (§6.4.2).
+LOOKUPS = ("regions", "cell-location")
+
+# Samples a ray reconstructs at once on CPU devices (kernels/packet.cl): one
+# lane of an 8-wide vector each (docs/design.md, "Sample packets"); GPUs run one
+# sample at a time, their lanes being the work-items.
+PACKET_WIDTH = 8
+
+# Pixels per work-group side: 8 x 8 tiles keep neighbouring rays (which walk the
+# same regions and bricks) together on one core.
+TILE = 8
+
+
+@dataclass(frozen=True)
+class RenderResult:
+    """One frame.
+
+    rgba:  float32 (H, W, 4), premultiplied colour and opacity, row 0 at the top.
+    depth: float32 (H, W) world distance where opacity reached 0.5 (inf: never), or None.
+    stats: samples (reconstructions), ms (kernel wall time per frame),
+           samples_per_second, visible_regions, and the settings used
+           (reconstruction included).
+    """
+
+    rgba: np.ndarray
+    depth: np.ndarray | None
+    stats: dict = dataclass_field(default_factory=dict)
+
+
+def _check_settings(settings: Settings, traversal: str) -> None:
+    w, h = settings.width, settings.height
+    if int(w) < 1 or int(h) < 1:
+        raise ExabricksError(f"image size must be positive, got {w}x{h}")
+    rate = settings.sampling_rate
+    if not (math.isfinite(rate) and rate > 0):
+        raise ExabricksError(f"sampling rate must be positive, got {rate:g}")
+    if int(settings.spp) < 1:
+        raise ExabricksError(f"samples per pixel must be at least 1, got {settings.spp}")
+    if not (0.0 < settings.max_opacity <= 1.0):
+        raise ExabricksError(f"max opacity must be in (0, 1], got {settings.max_opacity:g}")
+    unit = settings.unit_distance
+    if unit is not None and not (math.isfinite(unit) and unit > 0):
+        raise ExabricksError(f"unit distance must be positive, got {unit:g}")
+    if traversal not in TRAVERSALS:
+        raise ExabricksError(f"unknown traversal {traversal!r} (one of {', '.join(TRAVERSALS)})")
+
+
+def _check_lookup(lookup):
+    if lookup not in LOOKUPS:
+        raise ExabricksError(f"unknown brick lookup {lookup!r} (one of {', '.join(LOOKUPS)})")
+
+
+class Renderer:
+    """A dataset on an OpenCL device, ready to render frames of the uploaded fields
+    (`fields`, default: `field`, else the first field of the bricks)."""
+
+    def __init__(self, bricks: schema.Bricks, regions: schema.Regions, bvh: schema.Bvh,
+                 *, field: str | None = None, fields=None, device=None,
+                 lookup: str = "regions", packets: bool | None = None,
+                 piece=None, scale: DatasetScale | None = None):
+        """`piece`: (lower, upper) lattice bounds of the half-open box of a piece of
+        a k-d partition (exabricks.render.partition) that these structures are
+        the share of, `scale` the whole dataset's; frames then hold exactly the
+        samples inside the box (docs/design.md, "Data-parallel rendering")."""
+        _check_lookup(lookup)
+        self.scene = DeviceScene(bricks, regions, bvh, field=field, fields=fields, device=device,
+                                 scale=scale)
+        self.piece = None if piece is None else \
+            tuple(float4(np.asarray(b, np.float64)) for b in piece)
+        self._use(lookup)
+        # Sample packets: on CPU devices unless asked otherwise (both give the same image).
+        self.packets = opencl.is_cpu(self.scene.device) if packets is None else bool(packets)
+
+    def _use(self, lookup: str) -> None:
+        _check_lookup(lookup)
+        self.lookup = lookup
+        self.location_args = []
+        if lookup == "cell-location":
+            self.location_args = self.scene.location_args()
+
+    def _kernel(self, surfaces: bool, reconstruction: str, lod: bool, extra=()):
+        """eb_render built for this renderer and frame, with `extra` defines (tests)."""
+        if self.lookup == "cell-location" and (reconstruction != "basis" or lod):
+            raise ExabricksError("the cell-location lookup exists for the basis reconstruction "
+                                 "without level of detail only")
+        if lod and reconstruction != "basis":
+            raise ExabricksError(f"level of detail (--lod) works with the basis reconstruction, "
+                                 f"not with {reconstruction}")
+        defines = (("EB_CELL_LOCATION",) if self.lookup == "cell-location" else ()) \
+            + (("EB_SURFACES",) if surfaces else ()) + (("EB_LOD",) if lod else ()) \
+            + ((f"EB_PACKET={PACKET_WIDTH}",) if self._packet_width(reconstruction) > 1 else ()) \
+            + (("EB_PIECE",) if self.piece is not None else ()) + tuple(extra)
+        return opencl.kernel(self.scene.program_for(defines, reconstruction), "eb_render")
+
+    def _packet_width(self, reconstruction: str) -> int:
+        """Samples reconstructed at once: PACKET_WIDTH for the basis reconstruction from
+        the regions' lists on a renderer with packets, else 1."""
+        use = self.packets and self.lookup == "regions" and reconstruction == "basis"
+        return PACKET_WIDTH if use else 1
+
+    def with_lookup(self, lookup: str) -> "Renderer":
+        """A Renderer of the same uploaded scene (no second upload) whose samples
+        find their bricks another way (LOOKUPS)."""
+        other = copy.copy(self)
+        other._use(lookup)
+        return other
+
+    def with_packets(self, packets: bool) -> "Renderer":
+        """A Renderer of the same uploaded scene that reconstructs samples by packets
+        (kernels/packet.cl) or one at a time; the image is the same."""
+        other = copy.copy(self)
+        other.packets = bool(packets)
+        return other
+
+    @property
+    def field(self) -> str:
+        return self.scene.field
+
+    @property
+    def device_name(self) -> str:
+        return self.scene.device.name.strip()
+
+    def render(self, *, camera, transfer_function, width: int = 512, height: int = 512,
+               sampling_rate: float = 2.0, spp: int = 1, seed: int = 0, jitter: bool = True,
+               max_opacity: float = 0.98, unit_distance: float | None = None,
+               shading: str = "headlight", depth: bool = False,
+               traversal: str = "ordered", reconstruction: str = "basis") -> RenderResult:
+        """One frame of one volume layer (the first uploaded field); see the module
+        docstring for the conventions and `render_scene` for everything else."""
+        scene = Scene(
+            camera=camera, volumes=(VolumeLayer(self.field, transfer_function),),
+            lighting=Lighting(shading=shading),
+            settings=Settings(width=int(width), height=int(height), spp=int(spp),
+                              sampling_rate=float(sampling_rate), max_opacity=float(max_opacity),
+                              seed=int(seed), jitter=bool(jitter), unit_distance=unit_distance,
+                              depth=bool(depth), reconstruction=reconstruction))
+        return self.render_scene(scene, traversal=traversal)
+
+    def render_scene(self, scene: Scene, *, traversal: str = "ordered", rows=None,
+                     window=None, sample: int | None = None, front: np.ndarray | None = None,
+                     deadline: float | None = None) -> RenderResult:
+        """Render `scene` (exabricks.scene.Scene; its fields must be uploaded).
+
+        `traversal` picks the region walk (TRAVERSALS); both give the same
+        image up to float rounding, only the speed differs. `rows`: the spans
+        (first row, count) to render (default: all rows; the others stay 0).
+        `window`: (first column, first row, columns, rows) of a tile of the
+        frame: the result (and `front`, `rows`) is that tile alone, the very
+        pixels the whole frame has there.
+        `sample`: only sample `sample` of the frame's spp rays per pixel,
+        unaveraged (data-parallel frames composite each sample on its own).
+        `front` (a piece's renderer only): float32 (H, W, 4), the premultiplied
+        image of this sample in front of the piece; the rays continue from it
+        (early ray termination included) and the result is the composite.
+        `deadline` (time.perf_counter() seconds): stop after the band that
+        passes it; stats["rows"] then says how many rows from the top were
+        drawn (the rest are `front`, else empty)."""
+        scene.check()
+        cfg = scene.settings
+        _check_settings(cfg, traversal)
+        width, height, spp = int(cfg.width), int(cfg.height), int(cfg.spp)
+        col0, tile_row0, cols, n_rows = _window(window, width, height)
+        if window is not None and rows is not None:
+            raise ExabricksError("a tile is rendered whole: no spans of rows in it")
+        if front is not None and (self.piece is None or front.shape != (n_rows, cols, 4)):
+            raise ExabricksError("an image in front is for a piece's frame or tile of the same size")
+        missing = [f for f in scene.fields() if f not in self.scene.fields]
+        if missing:
+            raise ExabricksError(f"field(s) {', '.join(missing)} are not on the device "
+                                 f"(uploaded: {', '.join(self.scene.fields)})")
+        s = self.scene
+        unit = s.finest_width_world if cfg.unit_distance is None else float(cfg.unit_distance)
+        origin, forward, du, dv = scene.camera.frame(width, height)
+        node_vis, region_vis = s.visibility(
+            [(v.field, v.transfer_function) for v in scene.volumes],
+            [(i.field, i.value) for i in scene.isosurfaces])
+        shading = scene.lighting.shading
+        stats = {
+            "fields": list(scene.fields()), "width": width, "height": height, "spp": spp,
+            "sampling_rate": float(cfg.sampling_rate), "seed": int(cfg.seed),
+            "jitter": bool(cfg.jitter), "max_opacity": float(cfg.max_opacity),
+            "unit_distance": unit, "shading": shading, "gradient": scene.lighting.gradient,
+            "volumes": len(scene.volumes), "isosurfaces": len(scene.isosurfaces),
+            "slices": len(scene.slices), "clip": scene.clip.active,
+            "ao_samples": scene.lighting.ao_samples,
+            "traversal": traversal, "lookup": self.lookup,
+            "packet_width": self._packet_width(cfg.reconstruction),
+            "reconstruction": cfg.reconstruction,
+            "device": self.device_name,
+            "visible_regions": int(region_vis.sum()), "regions": s.regions.n_regions,
+        }
+        if scene.volumes:
+            stats["field"] = scene.volumes[0].field
+        rgba = _host_image(cols, n_rows, 4, "the image")
+        d = _host_image(cols, n_rows, 1, "the depth image")[..., 0] if cfg.depth else None
+        spans = [(0, n_rows)] if rows is None else [(int(a), int(n)) for a, n in rows]
+        nothing = s.empty or not (node_vis[0] or scene.slices)
+        if rows is not None or nothing or deadline is not None:  # rows not rendered
+            rgba[:] = 0.0 if front is None else front
+            if d is not None:
+                d[:] = np.inf
+        if nothing:
+            stats["rows"] = n_rows
+            stats.update(samples=0, ms=0.0, samples_per_second=0.0)
+            return RenderResult(over_background(rgba, scene.background), d, stats)
+        self._check_samples_per_ray(cfg.sampling_rate)
+
+        q = s.queue
+        up = opencl.to_device
+        band_rows = _band_rows(s.device, cols, n_rows)
+        band_pixels = cols * band_rows
+        rgba_buf = opencl.empty_buffer(q, band_pixels * 16)
+        front_buf = opencl.empty_buffer(q, band_pixels * 16 if front is not None else 16)
+        depth_buf = opencl.empty_buffer(q, band_pixels * 4)
+        samples_buf = opencl.empty_buffer(q, band_pixels * 4)
+        samples = np.empty(band_pixels, np.uint32)
+        lod = cfg.lod > 0
+        kernel = self._kernel(bool(scene.isosurfaces or scene.slices), cfg.reconstruction, lod)
+        level_samples = np.zeros(LOD_LEVELS, np.uint32)
+        level_buf = opencl.to_device(q, level_samples, writable=True)
+        # Pixels of a cell of width w at distance t: w / (t * 2 tan(fovy / 2) / H).
+        pixel_angle = 2.0 * math.tan(math.radians(scene.camera.fovy) / 2.0) / height
+        lod_scale = cfg.lod * pixel_angle / s.min_spacing_world if lod else 0.0
+        lighting = scene.lighting
+        ao_distance = lighting.ao_distance or AO_DISTANCE_CELLS * s.finest_width_world
+        fixed = [
+            np.uint32(int(cfg.seed) & 0xFFFFFFFF), np.int32(bool(cfg.jitter)),
+            float4(origin), float4(forward), float4(du), float4(dv),
+            s.origin_world4, s.inv_spacing4,
+            np.float32(s.min_spacing_world / cfg.sampling_rate), np.float32(1.0 / unit),
+            np.float32(cfg.max_opacity), np.int32(shading != "none"),
+            np.int32(traversal == "ordered"),
+            # nearest is piecewise constant: its normals come from central differences
+            np.int32(lighting.gradient == "central" or cfg.reconstruction == "nearest"),
+            np.int32(lighting.ao_samples), np.float32(ao_distance), np.float32(lod_scale),
+            *s.scene_args(up(q, node_vis), up(q, region_vis), cfg.reconstruction, lod),
+            *self.location_args,
+            *frame_args(scene, s, q),
+            *((*self.piece, front_buf, np.int32(front is not None)) if self.piece else ()),
+            rgba_buf, depth_buf, samples_buf, level_buf,
+        ]
+        q.finish()
+        start = time.perf_counter()
+        total = 0
+        rows = FIRST_BAND
+        drawn = n_rows
+        for span0, span_rows in spans:
+            row0, end = span0, min(span0 + span_rows, n_rows)
+            while row0 < end:
+                if deadline is not None and time.perf_counter() > deadline:
+                    drawn = row0
+                    break
+                rows = min(rows, band_rows, end - row0)
+                band_start = time.perf_counter()
+                global_size = (-(-cols // TILE) * TILE, -(-rows // TILE) * TILE)
+                n = cols * rows
+                if front is not None:
+                    opencl.write_to(q, front_buf, front[row0:row0 + rows].reshape(n, 4))
+                if sample:  # the kernel adds samples after the first: start from 0
+                    for buf, size in ((rgba_buf, 16), (samples_buf, 4)):
+                        opencl.fill_zero(q, buf, n * size)
+                for index in (range(spp) if sample is None else (sample,)):
+                    kernel(q, global_size, (TILE, TILE),
+                           np.int32(width), np.int32(height), np.int32(tile_row0 + row0),
+                           np.int32(rows), np.int32(col0), np.int32(cols),
+                           np.int32(index), np.int32(spp), *fixed)
+                opencl.read_back(q, rgba_buf, rgba[row0:row0 + rows].reshape(n, 4))
+                opencl.read_back(q, samples_buf, samples[:n])
+                if d is not None:
+                    opencl.read_back(q, depth_buf, d[row0:row0 + rows].reshape(n))
+                total += int(samples[:n].sum(dtype=np.int64))
+                row0 += rows
+                rows = _next_band(rows, time.perf_counter() - band_start)
+                interrupt.raise_pending()
+            if drawn < n_rows:
+                break
+        if sample is not None and spp > 1:
+            rgba[:drawn] *= np.float32(spp)  # the kernel averages: this sample alone
+        seconds = time.perf_counter() - start
+        if lod:
+            opencl.read_back(q, level_buf, level_samples)
+            stats["samples_per_level"] = {str(l): int(c) for l, c in enumerate(level_samples) if c}
+        stats["lod"] = float(cfg.lod)
+        stats.update(rows=drawn, samples=total, ms=1e3 * seconds / (spp if sample is None else 1),
+                     samples_per_second=total / seconds if seconds > 0 else 0.0)
+        return RenderResult(over_background(rgba, scene.background), d, stats)
+
+    def _check_samples_per_ray(self, sampling_rate: float) -> None:
+        """Refuse a sampling rate that would take more than MAX_SAMPLES_PER_RAY samples
+        on a ray through the whole dataset (its bounding box's world diagonal at the
+        finest step)."""
+        s = self.scene
+        extent = (s.bvh.upper_lattice[0].astype(np.float64) - s.bvh.lower_lattice[0])
+        diagonal = float(np.linalg.norm(extent * s.bricks.spacing_world))
+        finest = int(s.regions.finest_level.min())
+        step = s.min_spacing_world * 2.0 ** finest / sampling_rate
+        bound = diagonal / step
+        if not bound <= MAX_SAMPLES_PER_RAY:
+            raise ExabricksError(
+                f"a sampling rate of {sampling_rate:g} takes up to {bound:,.0f} samples on a ray "
+                f"through the data, more than the {MAX_SAMPLES_PER_RAY:,} allowed: lower it")
+
+
+# A frame is rendered in bands of whole rows, each enqueue sized to take about
+# BAND_SECONDS (measured band after band, from a first band of FIRST_BAND rows),
+# so that SIGINT/SIGTERM end a run within a second and the device buffers stay
+# small; bands never exceed BAND_BYTES of device output buffers. Every band
+# boundary idles a core while the other finishes (2-5 % of a frame at 0.1 s).
+BAND_SECONDS = 0.25
+FIRST_BAND = 4 * TILE
+BAND_BYTES = 64 << 20
+
+
+def _band_rows(device, width: int, height: int) -> int:
+    """Most rows of one band (a multiple of TILE), from the buffer limits."""
+    largest = min(int(device.max_mem_alloc_size), BAND_BYTES)
+    rows = max(TILE, largest // (16 * width) // TILE * TILE)
+    return min(rows, -(-height // TILE) * TILE)
+
+
+def _next_band(rows: int, seconds: float) -> int:
+    """Rows of the next band: scaled towards BAND_SECONDS, at most 4x larger."""
+    scale = 4.0 if seconds <= 0 else min(4.0, BAND_SECONDS / seconds)
+    return max(TILE, int(rows * scale) // TILE * TILE)
+
+
+def _window(window, width: int, height: int) -> tuple[int, int, int, int]:
+    """(first column, first row, columns, rows) of a tile of a width x height frame
+    (default: the whole frame)."""
+    if window is None:
+        return 0, 0, width, height
+    col0, row0, cols, rows = (int(v) for v in window)
+    if not (0 <= col0 and 0 <= row0 and cols >= 1 and rows >= 1 and col0 + cols <= width
+            and row0 + rows <= height):
+        raise ExabricksError(f"tile {cols}x{rows} at ({col0}, {row0}) is not inside the "
+                             f"{width}x{height} frame")
+    return col0, row0, cols, rows
+
+
+def _host_image(width: int, height: int, channels: int, what: str) -> np.ndarray:
+    """A float32 (height, width, channels) array, or one clear error if it cannot fit."""
+    nbytes = width * height * channels * 4
+    limit = schema.memory_limit()
+    if limit is not None and nbytes > limit:
+        raise ExabricksError(f"{what} of {width}x{height} needs {nbytes / 2**30:.1f} GiB, more "
+                             f"than the {limit / 2**30:.1f} GiB of memory available")
+    return np.empty((height, width, channels), np.float32)
+
+
+def render(bricks: schema.Bricks, regions: schema.Regions, bvh: schema.Bvh, *, camera,
+           transfer_function, field: str | None = None, width: int = 512, height: int = 512,
+           sampling_rate: float = 2.0, spp: int = 1, seed: int = 0, jitter: bool = True,
+           max_opacity: float = 0.98, unit_distance: float | None = None,
+           shading: str = "headlight", depth: bool = False, device=None,
+           traversal: str = "ordered", lookup: str = "regions",
+           reconstruction: str = "basis") -> RenderResult:
+    """Render one frame of one volume layer of `field` (default: the first); see
+    `Renderer.render`."""
+    return Renderer(bricks, regions, bvh, field=field, device=device, lookup=lookup).render(
+        camera=camera, transfer_function=transfer_function, width=width, height=height,
+        sampling_rate=sampling_rate, spp=spp, seed=seed, jitter=jitter,
+        max_opacity=max_opacity, unit_distance=unit_distance, shading=shading, depth=depth,
+        traversal=traversal, reconstruction=reconstruction)
+
+
+def render_scene(bricks: schema.Bricks, regions: schema.Regions, bvh: schema.Bvh,
+                 scene: Scene, *, device=None, traversal: str = "ordered",
+                 lookup: str = "regions") -> RenderResult:
+    """Render `scene` (exabricks.scene.Scene), uploading only the fields it uses."""
+    return Renderer(bricks, regions, bvh, fields=scene.fields(), device=device,
+                    lookup=lookup).render_scene(scene, traversal=traversal)
+
+
+# Levels whose samples a --lod frame counts (kernels/scene.cl EB_LOD_LEVELS).
+LOD_LEVELS = 16
+
+# Default ambient-occlusion distance, in finest cell widths of the dataset.
+AO_DISTANCE_CELLS = 10.0
+# Iso-hit refinement tolerance, in finest cell widths (docs/design.md).
+ISO_TOLERANCE_CELLS = 1e-3
+
+
+def frame_args(scene: Scene, device_scene: DeviceScene, queue) -> list:
+    """Kernel arguments EB_FRAME_ARGS (kernels/render.cl) of `scene`: every transfer
+    function and colour map as merged knots one after the other (and each volume
+    layer's knot index, transfer_function.knot_buckets), the volume layers,
+    iso-surfaces and slices by field index on the device, and clipping."""
+    up = opencl.to_device
+    index = {name: i for i, name in enumerate(device_scene.fields)}
+    xs, rgba = [], []
+
+    def knots(tf) -> tuple[int, int]:
+        x, c = tf.merged_knots()
+        first = sum(len(k) for k in xs)
+        xs.append(np.asarray(x, np.float32))
+        rgba.append(np.asarray(c, np.float32))
+        return first, len(x)
+
+    buckets = []  # each volume layer's knot index (knot_buckets), its offset in layer.w
+
+    def layer(volume) -> tuple[int, int, int, int]:
+        first, n = knots(volume.transfer_function)
+        offset = sum(len(b) for b in buckets)
+        buckets.append(knot_buckets(xs[-1]))
+        return index[volume.field], first, n, offset
+
+    layers = [layer(v) for v in scene.volumes]
+    iso, iso_value, iso_color = [], [], []
+    for surface in scene.isosurfaces:
+        first, n = knots(surface.colormap) if surface.colormap is not None else (0, 0)
+        color_field = index[surface.color_field] if surface.color_field else -1
+        iso.append((index[surface.field], color_field, first, n))
+        iso_value.append((surface.value, surface.opacity, 0.0, 0.0))
+        iso_color.append((*surface.color, 0.0))
+    slices, slice_point, slice_normal = [], [], []
+    for plane in scene.slices:
+        slices.append((index[plane.field], *knots(plane.colormap), 0))
+        normal = np.asarray(plane.normal, np.float64)
+        slice_point.append((*plane.point, plane.opacity))
+        slice_normal.append((*(normal / np.linalg.norm(normal)), 0.0))
+    clip = scene.clip
+    box = clip.box or ((0.0, 0.0, 0.0), (0.0, 0.0, 0.0))
+    planes = [(*p, 0.0) for point, normal in clip.planes
+              for p in (point, np.asarray(normal, np.float64) / np.linalg.norm(normal))]
+    cat = lambda parts, shape: np.concatenate(parts) if parts else np.zeros(shape, np.float32)
+    i4 = lambda rows: np.asarray(rows or [(0, 0, 0, 0)], np.int32).reshape(-1, 4)
+    f4 = lambda rows: np.asarray(rows or [(0.0,) * 4], np.float32).reshape(-1, 4)
+    tolerance = ISO_TOLERANCE_CELLS * device_scene.finest_width_world
+    return [
+        up(queue, cat(xs, (1,))), up(queue, cat(rgba, (1, 4))),
+        up(queue, np.concatenate(buckets) if buckets else np.zeros(1, np.int32)),
+        up(queue, i4(layers)), np.int32(len(layers)), up(queue, device_scene.gradient_scales),
+        up(queue, i4(iso)), up(queue, f4(iso_value)), up(queue, f4(iso_color)), np.int32(len(iso)),
+        up(queue, i4(slices)), up(queue, f4(slice_point)), up(queue, f4(slice_normal)),
+        np.int32(len(slices)),
+        np.float32(tolerance), np.float32(scene.lighting.specular),
+        np.float32(scene.lighting.shininess),
+        np.int32(clip.box is not None), float4(box[0]), float4(box[1]),
+        up(queue, f4(planes)), np.int32(len(clip.planes)),
+    ]
+
+
+def over_background(rgba: np.ndarray, background) -> np.ndarray:
+    """`rgba` (premultiplied) composited over the RGBA `background`, in place."""
+    r, g, b, a = (float(c) for c in background)
+    if a > 0.0:
+        behind = 1.0 - rgba[..., 3:4]
+        rgba += behind * np.array([r * a, g * a, b * a, a], np.float32)
+    return rgba
