@@ -52,9 +52,10 @@ $(OUT)/plume.png: $(OUT)/bvh.npz
 demo: setup $(OUT)/plume.png
 	@echo "image: $(OUT)/plume.png"
 
-# ruff (its rules in pyproject.toml) over the package, the tests and the workflows.
+# ruff (its rules in pyproject.toml) over the package, the tests, the benchmarks,
+# the users' workflows and the picture scripts.
 lint: setup
-	$(VENV)/bin/ruff check exabricks tests workflows
+	$(VENV)/bin/ruff check exabricks tests benchmarks workflows docs/pictures
 
 # The fast suite (minutes): everything but the `slow` tests; each fuzzer runs a
 # few examples (EXABRICKS_FUZZ_EXAMPLES, default in tests/conftest.py).
@@ -85,42 +86,42 @@ test-all: lint test test-slow fuzz test-slurm
 # made on first use by the scripts.
 bench: setup
 	@# ingest: cells/s of the 23 M-cell ExaJet and AMReX inputs and plt00020
-	$(PY) workflows/bench_ingest.py --write-docs
+	$(PY) -m benchmarks.bench_ingest --write-docs
 	@# preprocessing: the four stage commands per dataset (time, peak memory, Table 1, bytes)
-	$(PY) workflows/bench_preprocess.py --write-docs
+	$(PY) -m benchmarks.bench_preprocess --write-docs
 	@# merged regions against the paper's exact ones, bytes per cell and frames
-	$(PY) workflows/bench_merge.py --write-docs
+	$(PY) -m benchmarks.bench_merge --write-docs
 	@# render: the OpenCL renderer on the four real datasets and the thin shells, both walks, both sample paths
-	$(PY) workflows/bench_render.py --write-docs
+	$(PY) -m benchmarks.bench_render --write-docs
 	@# loading: a render command's cost before its first sample, against reading its files
-	$(PY) workflows/bench_load.py --write-docs
+	$(PY) -m benchmarks.bench_load --write-docs
 	@# kernel builds: the first frame of each program variant with empty PoCL caches
-	$(PY) workflows/bench_compile.py --write-docs
+	$(PY) -m benchmarks.bench_compile --write-docs
 	@# where a frame's time goes: perf samples by kernel function (skipped without perf)
-	@if command -v perf >/dev/null; then $(PY) workflows/profile_render.py --write-docs; fi
+	@if command -v perf >/dev/null; then $(PY) -m benchmarks.profile_render --write-docs; fi
 	@# the same for bench_peers' frame (shading none), on which the targets are measured
-	@if command -v perf >/dev/null; then $(PY) workflows/profile_render.py --only amrex,athena,gerris --view peers --write-docs; fi
+	@if command -v perf >/dev/null; then $(PY) -m benchmarks.profile_render --only amrex,athena,gerris --view peers --write-docs; fi
 	@# peers: exabricks vs yt, VTK, per-sample cell location and the uniform-grid ceiling (1024², all datasets)
-	$(PY) workflows/bench_peers.py --json bench-data/peers.json
+	$(PY) -m benchmarks.bench_peers --json bench-data/peers.json
 	@# render modes: iso-surfaces, slices, clipping, AO, layers, gradients (Gerris, AMReX)
-	$(PY) workflows/bench_modes.py --write-docs
+	$(PY) -m benchmarks.bench_modes --write-docs
 	@# reconstructions (basis, nearest, vertex) and level of detail (speed vs error)
-	$(PY) workflows/bench_reconstructions.py --write-docs
+	$(PY) -m benchmarks.bench_reconstructions --write-docs
 	@# rendering under a memory budget: thin shells (whole frames, bands), Gerris posters
-	$(PY) workflows/bench_budget.py --write-docs
+	$(PY) -m benchmarks.bench_budget --write-docs
 
 # The thin shells at 204 M cells: every stage and budgeted renders, builders by
 # pieces, and MPI renders with 1, 2 and 4 ranks beside the 20.6 M-cell shells and
 # the 512³ volume (about 60 min, 25 GB of disk under bench-data/; the MPI orbit
 # runs when a SLURM cluster answers, workflows/slurm/up.sh).
 bench-large: setup
-	$(PY) workflows/bench_large.py --write-docs
-	$(PY) workflows/bench_pieces.py --pieces 4 --only shell --cells bench-data/large/shell2944/cells.npz --write-docs
-	$(PY) workflows/bench_mpi.py --only big,shell --ranks 1,2,4 --large bench-data/large/shell2944 --write-docs
+	$(PY) -m benchmarks.bench_large --write-docs
+	$(PY) -m benchmarks.bench_pieces --pieces 4 --only shell --cells bench-data/large/shell2944/cells.npz --write-docs
+	$(PY) -m benchmarks.bench_mpi --only big,shell --ranks 1,2,4 --large bench-data/large/shell2944 --write-docs
 
 # Every image of docs/gallery.md, with the commands that make them.
 gallery: setup
-	$(PY) workflows/gallery.py
+	$(PY) -m benchmarks.gallery
 
 clean:
 	rm -rf $(OUT)

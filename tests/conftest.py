@@ -13,8 +13,6 @@ import numpy as np
 import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
-# The workflow scripts (plotfile writer, benchmarks) are importable by the tests.
-sys.path.insert(0, str(ROOT / "workflows"))
 PACKAGE_DATA = ROOT / "exabricks" / "data"
 
 

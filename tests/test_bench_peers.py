@@ -1,6 +1,6 @@
-"""The uniform-grid ceiling (workflows/uniform_grid.py) against a float64 NumPy march
+"""The uniform-grid ceiling (benchmarks/uniform_grid.py) against a float64 NumPy march
 and against exabricks' own frames; the yt bridge's nested grids against hand-computed
-grids and yt's leaves; workflows/bench_peers.py's yt settings, its exabricks worker and the
+grids and yt's leaves; benchmarks/bench_peers.py's yt settings, its exabricks worker and the
 figures its report is made of, against hand-computed values."""
 
 from __future__ import annotations
@@ -13,15 +13,15 @@ import pytest
 from conftest import DEVICES, GERRIS
 
 
-import bench_peers  # noqa: E402
-import kernel_resources  # noqa: E402
-import make_big  # noqa: E402
+from benchmarks import bench_peers
+from benchmarks import kernel_resources
+from benchmarks import make_big
 
 from exabricks import schema  # noqa: E402
 from exabricks.camera import Camera, default_camera  # noqa: E402
 from exabricks.errors import ExabricksError  # noqa: E402
 from exabricks.readers import yt_bridge  # noqa: E402
-import uniform_grid  # noqa: E402 (workflows/, benchmark-only)
+from benchmarks import uniform_grid
 from exabricks.stages.brick import build_bricks  # noqa: E402
 from exabricks.stages.bvh import build_bvh  # noqa: E402
 from exabricks.stages.compare import compare_images  # noqa: E402
@@ -522,8 +522,7 @@ def test_vtk_renders_a_cube_where_our_projection_does(tmp_path):
     script = textwrap.dedent("""
         import json, os, sys
         import numpy as np
-        sys.path.insert(0, sys.argv[1])
-        import bench_peers
+        from benchmarks import bench_peers
         os.environ["VTK_DEFAULT_OPENGL_WINDOW"] = bench_peers.VTK_WINDOW
         os.environ["LP_NUM_THREADS"] = "1"
         import vtkmodules.vtkRenderingOpenGL2, vtkmodules.vtkRenderingVolumeOpenGL2
@@ -570,13 +569,13 @@ def test_vtk_renders_a_cube_where_our_projection_does(tmp_path):
         pixels = vtkFloatArray()
         window.GetRGBAPixelData(0, 0, size - 1, size - 1, 0, pixels, 0)
         rgba = bench_peers.vtk_image_to_ours(vtk_to_numpy(pixels), size, size)
-        np.save(sys.argv[2], rgba)
-        json.dump(camera.to_dict(), open(sys.argv[3], "w"))
+        np.save(sys.argv[1], rgba)
+        json.dump(camera.to_dict(), open(sys.argv[2], "w"))
         """)
     # In its own process: VTK reads VTK_DEFAULT_OPENGL_WINDOW and Mesa LP_NUM_THREADS once.
     out, cam_path = tmp_path / "vtk.npy", tmp_path / "camera.json"
-    proc = subprocess.run([sys.executable, "-c", script, str(bench_peers.ROOT / "workflows"),
-                           str(out), str(cam_path)], capture_output=True, text=True, timeout=120)
+    proc = subprocess.run([sys.executable, "-c", script, str(out), str(cam_path)], capture_output=True,
+                          text=True, timeout=120)
     if proc.returncode != 0 and "EGL" in proc.stderr:
         pytest.skip(f"no offscreen EGL rendering here: {proc.stderr.strip()[-300:]}")
     assert proc.returncode == 0, proc.stderr
@@ -796,13 +795,13 @@ def test_to_amr_grids_fill_holes():
 
 
 def test_ab_kernels_alternates_two_kernel_directories(tmp_path):
-    """workflows/ab_kernels.py: a revision's kernels/ files land in a directory of their
+    """benchmarks/ab_kernels.py: a revision's kernels/ files land in a directory of their
     own, and two versions (here both the working tree's kernels, built and cached apart,
     the second with a two-entry walk heap given as a build option, so that every ray
     falls back to the re-trace walk) render the same Gerris frames in turn with the same
     samples and image; exabricks' program caches, kernel directory and build options
     are its own again afterwards."""
-    import ab_kernels
+    from benchmarks import ab_kernels
     from exabricks import opencl
 
     base = ab_kernels.base_kernels("HEAD", tmp_path)

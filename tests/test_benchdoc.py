@@ -1,4 +1,4 @@
-"""workflows/benchdoc.py and the pure helpers of the bench_*.py scripts: one section of
+"""benchmarks/benchdoc.py and the pure helpers of the bench_*.py scripts: one section of
 docs/benchmarks.md replaced, the rest byte for byte the same; flag and format helpers; the
 notes around the tables computed from the results."""
 
@@ -9,10 +9,10 @@ import numpy as np
 import pytest
 
 
-import bench_ingest  # noqa: E402
-import bench_preprocess  # noqa: E402
-import bench_render  # noqa: E402
-import benchdoc  # noqa: E402
+from benchmarks import bench_ingest
+from benchmarks import bench_preprocess
+from benchmarks import bench_render
+from benchmarks import benchdoc
 
 from exabricks import schema  # noqa: E402
 
@@ -127,7 +127,7 @@ def test_report_notes_are_computed_from_the_results():
 def test_merge_rows_and_stale_regions(tmp_path):
     """bench_merge's table rows come from the results; a cached regions file built
     with another merge setting (or older than its bricks) is rebuilt."""
-    import bench_merge
+    from benchmarks import bench_merge
 
     from exabricks.stages.regions import EXACT, Merge, build_regions
     from exabricks.stages.brick import build_bricks

@@ -20,7 +20,7 @@ from exabricks.errors import ExabricksError
 from exabricks.stages.brick import build_bricks, merge_bricks
 
 from amr_strategies import amr_cells, make_cells, refine_octree
-from conftest import (AMREX, ATHENA, ENZO, GERRIS, LEAF_COUNTS, ROOT, assert_one_error_line, peak_rss,
+from conftest import (AMREX, ATHENA, ENZO, GERRIS, LEAF_COUNTS, assert_one_error_line, peak_rss,
                       run_cli)
 
 HYPOTHESIS_EXAMPLES = int(os.environ.get("EXABRICKS_HYPOTHESIS_EXAMPLES", "200"))
@@ -406,10 +406,7 @@ def test_builders_hold_at_most_twice_their_files(tmp_path):
     many one-cell bricks, 4.8 M cells): each command's peak resident memory, less
     that of the same command on 64 cells, stays within twice the bytes of its
     input and output files."""
-    import sys
-
-    sys.path.insert(0, str(ROOT / "workflows"))
-    from make_big import thin_shell_cells
+    from benchmarks.make_big import thin_shell_cells
 
     g = np.stack(np.meshgrid(*[np.arange(4)] * 3, indexing="ij"), -1).reshape(-1, 3)
     tiny = schema.Cells(fields=("rho",), origin_world=np.zeros(3), spacing_world=np.ones(3),

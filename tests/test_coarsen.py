@@ -18,7 +18,7 @@ from exabricks.readers import read
 from exabricks.stages.coarsen import coarsen_cells, coarsen_plotfile
 from exabricks.stages.ingest import validate_cells
 
-import amrex_plotfile
+from benchmarks import amrex_plotfile
 from amr_strategies import amr_cells
 from conftest import AMREX, GERRIS, assert_one_error_line, run_cli
 

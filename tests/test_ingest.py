@@ -27,7 +27,7 @@ from exabricks.readers.exajet import scalar_files
 from exabricks.stages.ingest import amr_from_uniform, find_overlap, ingest, validate_cells
 
 
-import amrex_plotfile  # noqa: E402
+from benchmarks import amrex_plotfile
 
 GERRIS_FIELDS = ("P", "T", "U", "V", "W")
 

@@ -84,14 +84,16 @@ def both(tmp_path_factory):
     schema.save(tmp / "cells.npz", cells)
     np.save(tmp / "volume.npy", volume)
     script = (
-        "import sys, numpy as np; sys.path.insert(0, sys.argv[1]);"
+        "import sys, numpy as np;"
         "import numba.core.config as c; assert c.DISABLE_JIT;"
         "from exabricks import schema; from test_nojit import stage_outputs;"
-        "np.savez(sys.argv[4], **stage_outputs(schema.load(sys.argv[2], 'cells'), np.load(sys.argv[3])))"
+        "np.savez(sys.argv[3], **stage_outputs(schema.load(sys.argv[1], 'cells'), np.load(sys.argv[2])))"
     )
-    subprocess.run([sys.executable, "-c", script, str(HERE), str(tmp / "cells.npz"),
+    # This module is found through PYTHONPATH, as pytest finds it.
+    path = os.pathsep.join(filter(None, (str(HERE), os.environ.get("PYTHONPATH"))))
+    subprocess.run([sys.executable, "-c", script, str(tmp / "cells.npz"),
                     str(tmp / "volume.npy"), str(tmp / "python.npz")],
-                   check=True, env={**os.environ, "NUMBA_DISABLE_JIT": "1"})
+                   check=True, env={**os.environ, "NUMBA_DISABLE_JIT": "1", "PYTHONPATH": path})
     with np.load(tmp / "python.npz") as z:
         python = {name: z[name] for name in z.files}
     return python, stage_outputs(cells, volume), (cells, volume)

@@ -28,7 +28,7 @@ STAGES = ((build_bricks, join_bricks), (build_regions, join_regions), (build_bvh
 @functools.lru_cache(maxsize=None)
 def dataset_cells(name):
     if name == "shell":  # 1.1 M cells, 131 K bricks: every builder splits into 64 subtrees
-        from make_big import thin_shell_cells
+        from benchmarks.make_big import thin_shell_cells
 
         return thin_shell_cells(256)
     return read({"amrex": AMREX, "athena": ATHENA, "enzo": ENZO, "gerris": GERRIS}[name])

@@ -26,7 +26,7 @@ from exabricks.stages.ingest import validate_cells
 from conftest import AMREX, ATHENA, ENZO, LEAF_COUNTS
 
 
-import amrex_plotfile  # noqa: E402
+from benchmarks import amrex_plotfile
 
 
 # ---------------------------------------------------------------------------
@@ -224,9 +224,9 @@ def test_amrex_synthetic_matches_yt(tmp_path, rng):
 
 
 def test_make_big_amrex_plotfile(tmp_path):
-    """workflows/make_big.py --amrex (on 64^3, 8^3 boxes): a properly nested 3-level plotfile
+    """benchmarks/make_big.py --amrex (on 64^3, 8^3 boxes): a properly nested 3-level plotfile
     whose leaves tile the domain and hold the field averaged to their level."""
-    import make_big
+    from benchmarks import make_big
 
     n, box = 64, 8
     make_big.generate(tmp_path / "v.raw", n, 7)

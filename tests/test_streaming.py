@@ -13,7 +13,6 @@ import signal
 import subprocess
 import sys
 import time
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -224,8 +223,7 @@ def test_cli_time_limit_writes_the_best_image_so_far(gerris_files, cli, tmp_path
 def test_peak_memory_stays_under_budget_plus_baseline(gerris_files, tmp_path):
     """The baseline: the same budgeted command on a dataset of 64 cells; the
     Gerris structures are several times the budget's share for data."""
-    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "workflows"))
-    from bench_budget import tiny_scene
+    from benchmarks.bench_budget import tiny_scene
 
     tiny = tiny_scene(tmp_path, "T")
     flags = ["--size", 128, 128, "--field", "T", "--range", 0, 1, "--max-opacity", 1]
@@ -402,8 +400,7 @@ def test_a_poster_in_tiles_stays_under_budget_plus_baseline(gerris_files, tmp_pa
     """A frame whose float image alone is 20x the budget. The baseline is the
     issue's: the same command on a dataset of 64 cells at the same image size
     (and tiles); tiles keep that baseline itself far below a whole frame."""
-    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "workflows"))
-    from bench_budget import tiny_scene
+    from benchmarks.bench_budget import tiny_scene
 
     tiny = tiny_scene(tmp_path, "T")
     flags = ["--field", "T", "--range", 0, 1, "--max-opacity", 1, "--memory-budget", 4 << 20]

@@ -216,7 +216,7 @@ def test_slurm_build_by_pieces(tmp_path):
     """build_pieces.sh: brick, regions and bvh each as a 3-task array and a join,
     chained by dependencies, on the thin-shell layout (every stage really splits);
     the three files equal the one-process build array for array."""
-    from make_big import thin_shell_cells
+    from benchmarks.make_big import thin_shell_cells
 
     from exabricks import schema
 

@@ -16,7 +16,7 @@ in seconds on a laptop or in CI, and shaped like a real run:
   8 cells (AMReX's blocking factor) and properly nested (at least 8 cells of the
   level below around each box where the domain allows);
 - step numbers 0, 10, 20, ... (`plt%05d`, as AMReX names them), time = step / 100;
-- double precision, written by workflows/amrex_plotfile.py as AMReX writes it:
+- double precision, written by benchmarks/amrex_plotfile.py as AMReX writes it:
   3 x SIZE^3 x 8 bytes per plotfile (786 KB at SIZE 32).
 
 Each plotfile is written under a temporary name in OUTDIR and renamed into place, so
@@ -34,11 +34,10 @@ import time
 from pathlib import Path
 
 import numpy as np
+from benchmarks.amrex_plotfile import write_plotfile
 
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT / "workflows"))
 
-from amrex_plotfile import write_plotfile  # noqa: E402
 
 SIGMA = 0.08      # blob width, world units
 ORBIT = 0.25      # radius of the blob's circle around the domain's centre

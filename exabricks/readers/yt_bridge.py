@@ -170,7 +170,7 @@ def to_amr_grids(cells: schema.Cells, *, source: str = "cells",
     coarsest level is cut into bricks (exabricks.stages.brick) of its cells,
     every finer level into bricks of the refined parent cells, grouped by the
     parent's grid. The data must be octree-complete (every refined cell has all
-    8 children, as in Gerris and workflows/make_big.py's merge); ExabricksError
+    8 children, as in Gerris and benchmarks/make_big.py's merge); ExabricksError
     naming `source` otherwise, unless `fill` is given: then every missing child
     and every missing cell of the coarsest level over the cells' bounding box (a
     hole in the data, as in make_big.py's thin shells) is added as a leaf of

@@ -1,7 +1,7 @@
 """Pictures of a data-parallel frame (docs/workflows.md, "MPI"): what each rank's
 piece renders, and their composite against the one-process frame.
 
-    .venv/bin/python workflows/pieces_picture.py [--ranks 4] [--size 320]
+    .venv/bin/python docs/pictures/pieces_picture.py [--ranks 4] [--size 320]
 
 Runs the pieces in one process, exactly as `mpiexec -n N exabricks render` splits
 them (exabricks.render.partition: the k-d pieces, each piece's cropped share,
@@ -16,16 +16,15 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import sys
 from pathlib import Path
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT / "workflows"))
+from benchmarks import benchdoc
+from benchmarks.bench_render import ensure_scene
 
-import benchdoc  # noqa: E402
-from bench_render import ensure_scene  # noqa: E402
+ROOT = Path(__file__).resolve().parents[1]
+
 
 CAMERA = dict(position=(0.66, 0.46, 0.8), look_at=(0.0, 0.0, 0.0), up=(0.0, 1.0, 0.0), fovy=30.0)
 FLAGS = dict(field="rho", colormap="viridis", range=(1.0, 2.7), opacity=(0.0, 0.02, 0.2, 0.5),

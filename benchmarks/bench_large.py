@@ -1,7 +1,7 @@
 """The thin shells at the largest size: every stage's time and peak memory, and the
 render in memory and under budgets (issue 11).
 
-    .venv/bin/python workflows/bench_large.py [--size 2944] [--image 512] [--write-docs]
+    .venv/bin/python -m benchmarks.bench_large [--size 2944] [--image 512] [--write-docs]
 
 make_big.py's octree-like thin-shell layout at --size (204 M cells at 2944, written
 a slab at a time, bench-data/shellSIZE.cells, made when missing) goes through the
@@ -9,7 +9,7 @@ real commands, `exabricks ingest|brick|regions|bvh`, each once in its own child
 process (wall and CPU time, peak resident memory from wait4; files in --work).
 Then one --image² frame with `--max-opacity 1`: in memory, and under
 `--memory-budget` of 1/2, 1/4 and 1/16 of the three structure files (the last
-also in bands of 128 rows), as workflows/bench_budget.py measures them (baseline:
+also in bands of 128 rows), as benchmarks/bench_budget.py measures them (baseline:
 the same command on 64 cells; RMSE against the in-memory image). Rows are printed
 as they come; --write-docs replaces the section "Thin shells at the largest size"
 of docs/benchmarks.md.
@@ -23,9 +23,8 @@ import sys
 import tempfile
 from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-import benchdoc  # noqa: E402
-from bench_budget import TABLE_HEAD, bench_dataset  # noqa: E402
+from benchmarks import benchdoc
+from benchmarks.bench_budget import TABLE_HEAD, bench_dataset
 
 SECTION = "Thin shells at the largest size"
 STAGES = (("ingest", "cells"), ("brick", "bricks"), ("regions", "regions"), ("bvh", "bvh"))
@@ -40,7 +39,7 @@ def main(argv=None) -> int:
     args = p.parse_args(argv)
     source = benchdoc.BENCH / f"shell{args.size}.cells"
     if not source.with_name(f"shell{args.size}.rho.scalars").is_file():
-        subprocess.run([sys.executable, str(benchdoc.ROOT / "workflows" / "make_big.py"),
+        subprocess.run([sys.executable, str(benchdoc.ROOT / "benchmarks" / "make_big.py"),
                         "--thin-shell", "--size", str(args.size), "--out", str(source)],
                        check=True, stdout=subprocess.DEVNULL)
     n_cells = source.stat().st_size // 16
@@ -65,7 +64,7 @@ def main(argv=None) -> int:
                                 runs=[(2, ()), (4, ()), (16, ()),
                                       (16, ("--tile", args.image, 128))])
     body = (
-        f"Command: `.venv/bin/python workflows/bench_large.py --size {args.size} --image "
+        f"Command: `.venv/bin/python -m benchmarks.bench_large --size {args.size} --image "
         f"{args.image} --write-docs`\n\n- machine: {benchdoc.machine(opencl=True)}\n"
         f"- make_big.py --thin-shell --size {args.size}: {n_cells:,} cells on 4 levels; each "
         "stage one whole command (interpreter, load and checks, the work, sha256, fsync'ed "

@@ -1,9 +1,9 @@
 """Render the gallery of render modes (docs/gallery.md) on the shared real datasets.
 
-    .venv/bin/python workflows/gallery.py [--only gerris,athena-iso,...] [--list]
+    .venv/bin/python -m benchmarks.gallery [--only gerris,athena-iso,...] [--list]
                                           [--size N] [--out DIR] [--no-docs]
 
-Each dataset (workflows/benchdoc.py: the embedded Gerris plume, the AMReX
+Each dataset (benchmarks/benchdoc.py: the embedded Gerris plume, the AMReX
 plotfile, the Athena++ blast, the Enzo moving7 run through yt, and make_big.py's
 generated thin shells, 20.6 M octree-like cells) goes through the
 `exabricks` stage commands once (ingest, brick, regions, bvh; cached under
@@ -27,11 +27,10 @@ import sys
 import time
 from dataclasses import dataclass
 from pathlib import Path
+from benchmarks import benchdoc
 
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT / "workflows"))
 
-import benchdoc  # noqa: E402
 
 WORK = ROOT / "bench-data" / "gallery"
 IMAGES = ROOT / "docs" / "images"
@@ -374,7 +373,7 @@ ORDER = ("gerris", "athena", "amrex", "enzo", "shell")
 
 def write_doc(all_shots: list[Shot], sets: dict) -> None:
     out = ["# Gallery: every render mode on the real datasets", "",
-           "Made by `.venv/bin/python workflows/gallery.py` (it runs every command below; "
+           "Made by `.venv/bin/python -m benchmarks.gallery` (it runs every command below; "
            "`--only KEY` re-renders some). `exabricks` is `.venv/bin/exabricks`; every path "
            "is relative to the repository root. Each dataset first goes through the four "
            "stage commands into `bench-data/gallery/<dataset>/` (git-ignored). Images are "

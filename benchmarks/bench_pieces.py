@@ -1,8 +1,8 @@
 """Builders by pieces: each stage in one process against N pieces and a join.
 
-    .venv/bin/python workflows/bench_pieces.py [--pieces 4] [--only shell,big] [--write-docs]
+    .venv/bin/python -m benchmarks.bench_pieces [--pieces 4] [--only shell,big] [--write-docs]
 
-For each dataset (the cells file of workflows/bench_preprocess.py's work
+For each dataset (the cells file of benchmarks/bench_preprocess.py's work
 directory, bench-data/preprocess/KEY/cells.npz, or --cells), `brick`, `regions`
 and `bvh` run as one command and then as --pieces commands with --piece K/N,
 one after another, and `exabricks join` (each its own child process: wall
@@ -23,8 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-import benchdoc  # noqa: E402
+from benchmarks import benchdoc
 
 from exabricks import schema  # noqa: E402
 
@@ -101,17 +100,17 @@ def main(argv=None) -> int:
                   (c.parent.name if c.stem == "cells" else c.stem, c) for c in args.cells]
     with tempfile.TemporaryDirectory() as tmp:
         # numba's caches are filled by a first run (after an edit they are recompiled)
-        from make_big import thin_shell_cells
+        from benchmarks.make_big import thin_shell_cells
 
         schema.save(Path(tmp) / "cells.npz", thin_shell_cells(32))
         bench("warm-up", Path(tmp) / "cells.npz", 2, Path(tmp))
     rows = []
     sets = benchdoc.datasets()
     for label, cells in inputs:
-        if not cells.is_file() and label in sets:  # as workflows/bench_preprocess.py makes it
+        if not cells.is_file() and label in sets:  # as benchmarks/bench_preprocess.py makes it
             import subprocess
 
-            from bench_preprocess import commands
+            from benchmarks.bench_preprocess import commands
 
             cells.parent.mkdir(parents=True, exist_ok=True)
             subprocess.run(commands(sets[label], cells.parent)[0][1], check=True)
@@ -121,7 +120,7 @@ def main(argv=None) -> int:
         with tempfile.TemporaryDirectory(dir=cells.parent) as tmp:
             rows += bench(f"{label}, {n_cells / 1e6:.1f} M cells", cells, args.pieces, Path(tmp))
     body = (
-        f"Command: `.venv/bin/python workflows/bench_pieces.py --pieces {args.pieces} --only "
+        f"Command: `.venv/bin/python -m benchmarks.bench_pieces --pieces {args.pieces} --only "
         f"{args.only}{''.join(f' --cells {c}' for c in args.cells)} --write-docs`\n\n"
         f"- machine: {benchdoc.machine()}\n"
         f"- each stage as one command, then as {args.pieces} commands `--piece K/{args.pieces}` "

@@ -1,6 +1,6 @@
 """Benchmark the OpenCL renderer (paper §4) on the shared datasets: region walks, sample paths.
 
-    .venv/bin/python workflows/bench_render.py [--runs 5] [--size 512] [--only gerris,...]
+    .venv/bin/python -m benchmarks.bench_render [--runs 5] [--size 512] [--only gerris,...]
                                                [--work bench-data/render] [--write-docs]
 
 Each dataset is run through ingest, brick, regions and bvh (the `exabricks`
@@ -18,7 +18,7 @@ reconstructed samples, samples per second (samples / median time), and the
 process CPU time per frame (median; all PoCL threads, less sensitive to other
 jobs on a shared machine than wall time). All variants must give the same
 image up to float rounding (checked: the largest difference is printed).
-The datasets are the four shared real ones (workflows/benchdoc.py; `--only big`
+The datasets are the four shared real ones (benchmarks/benchdoc.py; `--only big`
 renders the generated 23.6 M-cell one instead).
 --write-docs replaces the "## render (PoCL)" section of docs/benchmarks.md (on a
 GPU, the "## render (GPU)" section).
@@ -34,16 +34,15 @@ from pathlib import Path
 
 import numpy as np
 
+from benchmarks import benchdoc
+
+from exabricks import opencl, schema
+from exabricks.camera import default_camera
+from exabricks.render.renderer import TRAVERSALS, Renderer
+from exabricks.transfer_function import default_transfer_function
+
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
-sys.path.insert(0, str(ROOT / "workflows"))
 
-import benchdoc  # noqa: E402
-
-from exabricks import opencl, schema  # noqa: E402
-from exabricks.camera import default_camera  # noqa: E402
-from exabricks.render.renderer import TRAVERSALS, Renderer  # noqa: E402
-from exabricks.transfer_function import default_transfer_function  # noqa: E402
 
 SECTIONS = {"CPU": "render (PoCL)", "GPU": "render (GPU)"}  # by the device's type
 DEFAULT = ("gerris", "amrex", "athena", "enzo", "shell")
@@ -62,7 +61,7 @@ GPU_NOTES = """
 On a GPU the default path runs one ray per work-item and one sample at a time; the
 packet rows run the CPU's path on the GPU, for comparison. What each variant asks of
 the GPU (registers, the stack frame that holds the region walk's heap) is printed
-by workflows/kernel_resources.py, and docs/benchmarks.md "On a GPU" says what it
+by benchmarks/kernel_resources.py, and docs/benchmarks.md "On a GPU" says what it
 means for these figures.
 """
 
@@ -86,7 +85,7 @@ def time_notes(region_stats: dict) -> str:
         "shades the next eight samples of a ray (up to three region visits) in vector "
         "registers. The profile of both "
         "paths is in the section \"Where a frame's time goes (perf)\" "
-        "(workflows/profile_render.py). The uniform-grid marcher (same transfer function, "
+        "(benchmarks/profile_render.py). The uniform-grid marcher (same transfer function, "
         "opacity and compositing code, one trilinear lookup per sample, one sample at a "
         "time) is measured in the same run as ours in the section "
         "\"exabricks vs yt, cell location and the uniform-grid ceiling\".")
@@ -190,7 +189,7 @@ def main(argv=None) -> int:
         print(f"  {name}: packets / one sample {speedup:.2f}x; largest difference between "
               f"the images of the variants {diff:.2e}", flush=True)
 
-    command = "`.venv/bin/python workflows/bench_render.py" + (
+    command = "`.venv/bin/python -m benchmarks.bench_render" + (
         f" --only {','.join(keys)}" if args.only else "") + f" --runs {args.runs}" + (
         f" --size {args.size}" if args.size != 512 else "") + " --write-docs`"
     section = (f"Command: {command}\n\n"

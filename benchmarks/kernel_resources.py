@@ -2,7 +2,7 @@
 local memory, the largest work-group and, on NVIDIA's driver, the registers, stack
 frame and spills that its compiler reports.
 
-    .venv/bin/python workflows/kernel_resources.py [--device SPEC]
+    .venv/bin/python -m benchmarks.kernel_resources [--device SPEC]
 
 Each variant is the render kernel (kernels/render.cl, eb_render) built with the
 defines that exabricks.render.renderer.Renderer passes for a mode (one field, the basis
@@ -23,12 +23,12 @@ import sys
 import tempfile
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
+from exabricks import opencl
+from exabricks.render.device_data import RECONSTRUCTION_DEFINES
+from exabricks.render.renderer import PACKET_WIDTH
 
-from exabricks import opencl  # noqa: E402
-from exabricks.render.device_data import RECONSTRUCTION_DEFINES  # noqa: E402
-from exabricks.render.renderer import PACKET_WIDTH  # noqa: E402
+ROOT = Path(__file__).resolve().parents[1]
+
 
 # (label, source, kernel, defines)
 VARIANTS = (

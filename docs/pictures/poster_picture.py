@@ -1,10 +1,10 @@
 """A poster drawn tile by tile (docs/workflows.md, "Data larger than memory"):
 the whole frame scaled down beside a crop of it at full resolution.
 
-    .venv/bin/python workflows/poster_picture.py [--size 2048] [--crop 512]
+    .venv/bin/python docs/pictures/poster_picture.py [--size 2048] [--crop 512]
 
 Renders the Athena++ blast (rho, the camera and transfer function of
-workflows/progressive_picture.py) as one `exabricks render --tile 512 64
+docs/pictures/progressive_picture.py) as one `exabricks render --tile 512 64
 --memory-budget 12MiB` command of --size² pixels, over the pictures' dark
 background, then writes docs/images/poster.png: the frame scaled down to
 --crop² by averaging, and the --crop² pixels around its centre as drawn.
@@ -14,19 +14,17 @@ Prints the command's pieces, bands and peak memory.
 from __future__ import annotations
 
 import argparse
-import sys
 import tempfile
 from pathlib import Path
 
 import numpy as np
+from benchmarks import benchdoc
+from benchmarks.bench_render import ensure_scene
+from pieces_picture import BACKGROUND, CAMERA
+from progressive_picture import FLAGS
 
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT / "workflows"))
 
-import benchdoc  # noqa: E402
-from bench_render import ensure_scene  # noqa: E402
-from pieces_picture import BACKGROUND, CAMERA  # noqa: E402
-from progressive_picture import FLAGS  # noqa: E402
 
 
 def main(argv=None) -> int:

@@ -1,6 +1,6 @@
 """exabricks against yt, VTK, per-sample cell location and the uniform-grid ceiling.
 
-    .venv/bin/python workflows/bench_peers.py [--datasets amrex,athena,gerris,enzo,shell256,big]
+    .venv/bin/python -m benchmarks.bench_peers [--datasets amrex,athena,gerris,enzo,shell256,big]
         [--size 1024] [--runs 5] [--no-yt] [--yt-max-cells 10000000]
         [--no-vtk] [--vtk-threads CORES]
         [--docs docs/benchmarks.md] [--images docs/images]
@@ -19,7 +19,7 @@ field, camera, transfer function and image size:
    program, no second upload), and the uniform-grid ceiling: the dataset
    resampled at its finest resolution (lattice bounding box, capped at
    --max-voxels) by the basis reconstruction itself and rendered by
-   kernels/uniform_grid.cl (workflows/uniform_grid.py: `resample`,
+   kernels/uniform_grid.cl (benchmarks/uniform_grid.py: `resample`,
    `UniformGridRenderer`; trilinear, constant step finest cell / sampling
    rate, the same sample placement, transfer function, opacity correction,
    compositing and early termination). Frames at the default sampling rate 2
@@ -154,7 +154,7 @@ one step). Enzo renders x-velocity: every other Enzo field spans 3-7 decades,
 which a transfer function linear in the value shows as almost nothing.
 
 Results: the tables on stdout and as the section "## exabricks vs yt, cell
-location and the uniform-grid ceiling" of --docs (workflows/benchdoc.py
+location and the uniform-grid ceiling" of --docs (benchmarks/benchdoc.py
 replace_section; the other sections stay), and docs/images/peers-NAME.png
 (ours | yt | VTK resample + fixed point | vtkAMRVolumeMapper | uniform grid,
 un-premultiplied over black). All timings are
@@ -174,10 +174,10 @@ from pathlib import Path
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT / "workflows"))
+from benchmarks import benchdoc
 
-import benchdoc  # noqa: E402
+ROOT = Path(__file__).resolve().parents[1]
+
 DATA = ROOT / "tests" / "data"
 if not (DATA / "amrex-advection3d").is_dir():
     DATA = ROOT.parent / "shared" / "data"
@@ -191,10 +191,10 @@ DATASETS = {
     # Every other Enzo field spans 3-7 decades: under a transfer function linear in
     # the value (ours) almost all of the volume would be transparent.
     "enzo": (DATA / "enzo-moving7" / "moving7_0010", "x-velocity", "native"),
-    # workflows/make_big.py's 512^3 volume merged to 23.6 M cells on 6 levels
-    # (made by workflows/bench_ingest.py when missing).
+    # benchmarks/make_big.py's 512^3 volume merged to 23.6 M cells on 6 levels
+    # (made by benchmarks/bench_ingest.py when missing).
     "big": (ROOT / "bench-data" / "big512.cells", "value", "grids"),
-    # workflows/make_big.py's octree-like thin shells at --size 256: 1.1 M cells on 4
+    # benchmarks/make_big.py's octree-like thin shells at --size 256: 1.1 M cells on 4
     # levels, small enough for yt (the 20.6 M-cell size of the other benchmarks is
     # not); made by benchdoc.ensure_shell(256) when missing.
     "shell256": (ROOT / "bench-data" / "shell256.cells", "rho", "grids"),
@@ -358,7 +358,7 @@ def worker_exabricks(spec: dict) -> dict:
 
     from exabricks import opencl
     from exabricks.camera import Camera
-    import uniform_grid
+    from benchmarks import uniform_grid
     from exabricks.render.cell_location import build_brick_tree
     from exabricks.render.renderer import Renderer
     from exabricks.transfer_function import TransferFunction
@@ -1069,7 +1069,7 @@ def yt_skip_reason(cells: int, cap: int) -> str | None:
 def bench_dataset(name: str, args, workdir: Path) -> dict:
     path, field, yt_mode = DATASETS[name]
     if name == "big" and not Path(path).exists():
-        path = benchdoc.ensure_exajet()  # the big AMR in ExaJet form, from workflows/make_big.py
+        path = benchdoc.ensure_exajet()  # the big AMR in ExaJet form, from benchmarks/make_big.py
     if name == "shell256":
         path = benchdoc.ensure_shell(256)
     if not Path(path).exists():
@@ -1419,7 +1419,7 @@ def report(rows, machine_line: str, args) -> list[str]:
     """The markdown body of the docs section (module docstring)."""
     low, high = RATE_KEYS
     rl, rh = float(low), float(high)
-    command = (f".venv/bin/python workflows/bench_peers.py --datasets {args.datasets} "
+    command = (f".venv/bin/python -m benchmarks.bench_peers --datasets {args.datasets} "
                f"--size {args.size} --runs {args.runs}")
     if args.no_yt:
         command += " --no-yt"
@@ -1567,12 +1567,12 @@ def report(rows, machine_line: str, args) -> list[str]:
         + "The uniform grid is resampled with exabricks' own basis "
         "reconstruction at every finest-cell centre (probe) and marched trilinearly with a "
         "constant step (kernels/uniform_grid.cl), with the same transfer function lookup, "
-        "opacity correction and compositing code as ours. See workflows/bench_peers.py for "
+        "opacity correction and compositing code as ours. See benchmarks/bench_peers.py for "
         "how the yt camera and transfer function were matched and what still differs.",
         "",
         *gaps(rows, machine_line),
         "",
-        "How yt was matched (details and the yt source lines in workflows/bench_peers.py):",
+        "How yt was matched (details and the yt source lines in benchmarks/bench_peers.py):",
         "",
         "- Camera: `cam.focus = look_at`, `cam.set_position(position, north_vector=up)`, "
         "`lens_type=\"perspective\"`, `cam.width = [w0, w0, w2]` with "
@@ -1603,7 +1603,7 @@ def report(rows, machine_line: str, args) -> list[str]:
     ]
     if not no_vtk:
         lines += [
-            "How VTK was matched (workflows/bench_peers.py, `worker_vtk`):",
+            "How VTK was matched (benchmarks/bench_peers.py, `worker_vtk`):",
             "",
             "- Camera: a vtkCamera with our position, focal point = look_at, view up = our up' "
             "(orthogonal to the view), view angle = fovy (vertical) and a clipping range "

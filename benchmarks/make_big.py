@@ -1,9 +1,9 @@
 """Write a smooth multi-scale raw volume for scale tests and print the command that ingests it.
 
-    .venv/bin/python workflows/make_big.py [--size 512] [--out bench-data/big512.raw] [--check]
-    .venv/bin/python workflows/make_big.py --amrex [--check]   # also bench-data/plt_big512
-    .venv/bin/python workflows/make_big.py --thin-shell [--size 1024]   # bench-data/shell1024.cells
-    .venv/bin/python workflows/make_big.py --thin-shell --size 2944     # 204 M cells
+    .venv/bin/python -m benchmarks.make_big [--size 512] [--out bench-data/big512.raw] [--check]
+    .venv/bin/python -m benchmarks.make_big --amrex [--check]   # also bench-data/plt_big512
+    .venv/bin/python -m benchmarks.make_big --thin-shell [--size 1024]   # bench-data/shell1024.cells
+    .venv/bin/python -m benchmarks.make_big --thin-shell --size 2944     # 204 M cells
 
 The field is a sum of separable terms (Gaussian blobs of widths from 1/4 to 1/100
 of the domain, and a few sinusoids): one big smooth blob where 2x2x2 groups merge
@@ -15,7 +15,7 @@ Values are float32, x fastest, little-endian, origin 0, spacing 1.
 With --amrex the 512^3 volume also becomes a block-structured AMReX plotfile (see
 `amrex_hierarchy`): 3 levels, refinement ratio 2, 32^3 boxes (AMReX's
 max_grid_size), properly nested, 23.3 M leaf cells, written by
-workflows/amrex_plotfile.py in double precision as AMReX does by default.
+benchmarks/amrex_plotfile.py in double precision as AMReX does by default.
 
 With --thin-shell it writes instead octree-like leaf cells directly, in ExaJet form
 (bench-data/shellSIZE.cells and shellSIZE.rho.scalars; see `thin_shell_cells`): the
@@ -38,7 +38,6 @@ from pathlib import Path
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT / "workflows"))
 
 # Threshold and coarsest level for the printed ingest command: with them the 512^3
 # volume becomes 23.6 M cells over 6 levels (checked with --check; numbers in
@@ -139,7 +138,7 @@ def write_amrex(volume: np.ndarray, out: Path, t1: float = AMREX_T1, t2: float =
     Each box holds the field averaged to its level: level 2 the voxels, level 1 means
     of 2^3 voxels, level 0 means of 4^3 voxels (float64, as AMReX's averageDown).
     """
-    import amrex_plotfile
+    from benchmarks import amrex_plotfile
 
     n = volume.shape[0]
     hierarchy = amrex_hierarchy(volume, t1, t2, box)

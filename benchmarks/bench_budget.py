@@ -1,7 +1,7 @@
 """Rendering under a memory budget: time and peak memory against the in-memory
 render (issue 11).
 
-    .venv/bin/python workflows/bench_budget.py [--only shell,big] [--size 512] [--poster 16384]
+    .venv/bin/python -m benchmarks.bench_budget [--only shell,big] [--size 512] [--poster 16384]
         [--write-docs]
 
 For each dataset (default make_big.py's 20.6 M-cell thin shells, made on first
@@ -29,9 +29,8 @@ from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-import benchdoc  # noqa: E402
-from bench_render import ensure_scene  # noqa: E402
+from benchmarks import benchdoc
+from benchmarks.bench_render import ensure_scene
 
 ROOT = benchdoc.ROOT
 SECTION = "Rendering under a memory budget"
@@ -165,7 +164,7 @@ def main(argv=None) -> int:
             d = ensure_scene(args.work, sets[key])
             rows += bench_dataset(sets[key].name, d, sets[key].field, args.size, Path(tmp))
         posters = bench_poster(args.poster, Path(tmp)) if args.poster else []
-    command = (f"`.venv/bin/python workflows/bench_budget.py --only {','.join(keys)} "
+    command = (f"`.venv/bin/python -m benchmarks.bench_budget --only {','.join(keys)} "
                f"--poster {args.poster} --write-docs`")
     section = (
         f"Command: {command}\n\n- machine: {benchdoc.machine(opencl=True)}\n"

@@ -1,6 +1,6 @@
 """The kernels of a git revision against the working tree's, on bench_peers' frames.
 
-    .venv/bin/python workflows/ab_kernels.py [--base HEAD | --base-dir DIR]
+    .venv/bin/python -m benchmarks.ab_kernels [--base HEAD | --base-dir DIR]
         [--base-options=...] [--options=...] [--datasets gerris,shell256]
         [--rates 2] [--rounds 5] [--size 1024] [--shading none]
 
@@ -33,12 +33,10 @@ import tempfile
 from pathlib import Path
 
 import numpy as np
+from benchmarks import bench_peers
+from benchmarks import benchdoc
 
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-import bench_peers  # noqa: E402
-import benchdoc  # noqa: E402
 
 
 def base_kernels(rev: str, into: Path) -> Path:

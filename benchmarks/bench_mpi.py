@@ -1,6 +1,6 @@
 """MPI rendering and SLURM job arrays: time and per-rank peak memory (issue 12).
 
-    .venv/bin/python workflows/bench_mpi.py [--only shell,big] [--ranks 1,2,4] [--write-docs]
+    .venv/bin/python -m benchmarks.bench_mpi [--only shell,big] [--ranks 1,2,4] [--write-docs]
 
 For each dataset (default: the two largest, make_big.py's 20.6 M-cell thin shells
 and its 23.6 M-cell 512^3 AMR volume, made on first use) one 1024^2 frame with
@@ -33,9 +33,8 @@ from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-import benchdoc  # noqa: E402
-from bench_render import ensure_scene  # noqa: E402
+from benchmarks import benchdoc
+from benchmarks.bench_render import ensure_scene
 
 ROOT = benchdoc.ROOT
 SECTION = "MPI rendering and SLURM job arrays"
@@ -90,7 +89,7 @@ def run_ranks(n: int, args: list, tmp: Path) -> tuple[float, list[int]]:
 
 def baselines(ranks: list[int], size: int, tmp: Path) -> dict[int, int]:
     """Each rank count's largest rank peak in data mode on a 64-cell dataset."""
-    from bench_budget import tiny_scene
+    from benchmarks.bench_budget import tiny_scene
 
     files = tiny_scene(tmp, "rho")
     out = {}
@@ -189,7 +188,7 @@ def main(argv=None) -> int:
                                   modes=("data",), name=f"{args.large.name} (204 M cells)"
                                   if args.large.name == "shell2944" else None)
         orbit = bench_orbit(ensure_scene(args.work, sets["gerris"]), "T", args.frames, 512, Path(tmp))
-    command = (f"`.venv/bin/python workflows/bench_mpi.py --only {','.join(keys)} --ranks "
+    command = (f"`.venv/bin/python -m benchmarks.bench_mpi --only {','.join(keys)} --ranks "
                f"{args.ranks}{f' --large {args.large}' if args.large else ''} --write-docs`")
     section = (
         f"Command: {command}\n\n- machine: {benchdoc.machine()}; ranks beyond 2 are "

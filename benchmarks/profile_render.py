@@ -1,11 +1,11 @@
 """Where a frame's time goes: perf samples of the render kernel, by source function.
 
-    .venv/bin/python workflows/profile_render.py [--only amrex,athena,...] [--size 1024]
+    .venv/bin/python -m benchmarks.profile_render [--only amrex,athena,...] [--size 1024]
                                                  [--frames 6] [--view render|peers]
                                                  [--rate 2] [--write-docs]
 
 For each dataset (bench_render's inputs, bench-data/render/<name>/, made by
-workflows/bench_render.py) and for each path (one sample at a time, the GPU's;
+benchmarks/bench_render.py) and for each path (one sample at a time, the GPU's;
 sample packets, the CPU default: kernels/packet.cl), a child process builds the
 kernel with ``-g -DEB_PROFILE`` (line tables, and the region walk and the
 sampling of a region kept out of line so that lines survive), renders a
@@ -38,11 +38,10 @@ import tempfile
 from collections import Counter
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
-sys.path.insert(0, str(ROOT / "workflows"))
+from benchmarks import benchdoc
 
-import benchdoc  # noqa: E402
+ROOT = Path(__file__).resolve().parents[1]
+
 
 SECTION = "Where a frame's time goes (perf)"
 PEERS_SECTION = "Where bench_peers' frame goes (perf)"
@@ -160,7 +159,7 @@ def child(name: str, packets: bool, size: int, frames: int, view: str, rate: flo
     settings = {"camera": default_camera(lo, hi), "width": size, "height": size,
                 "sampling_rate": rate}
     if view == "peers":  # bench_peers' frame: its opacity ramp, unit and no shading
-        import bench_peers
+        from benchmarks import bench_peers
 
         tf = bench_peers.transfer_function(value_range)
         settings.update(shading="none", unit_distance=bench_peers.opacity_unit((lo, hi)),
@@ -209,7 +208,7 @@ def main(argv=None) -> int:
     rows = {}
     for name in names:
         if not (ROOT / "bench-data" / "render" / name / "bvh.npz").is_file():
-            print(f"error: bench-data/render/{name} missing: run workflows/bench_render.py "
+            print(f"error: bench-data/render/{name} missing: run benchmarks/bench_render.py "
                   f"--only {name} first", file=sys.stderr)
             return 1
         for packets in (False, True):
@@ -227,7 +226,7 @@ def main(argv=None) -> int:
         lines.append(f"| {name} | {'packets' if packets else 'one sample'} | {kernel:.0f}% | "
                      + " | ".join(f"{parts.get(p, 0.0):.0f}%" for p in order) + " |")
     body = "\n".join([
-        f"`.venv/bin/python workflows/profile_render.py --size {args.size} --frames {args.frames}"
+        f"`.venv/bin/python -m benchmarks.profile_render --size {args.size} --frames {args.frames}"
         f" --only {','.join(names)}{view} --write-docs`",
         "",
         f"- machine: {benchdoc.machine(opencl=True)}",

@@ -1,6 +1,6 @@
 """Kernel builds: what the first frame of each program variant costs (cold caches).
 
-    .venv/bin/python workflows/bench_compile.py [--only volume,surfaces,...] [--runs 1]
+    .venv/bin/python -m benchmarks.bench_compile [--only volume,surfaces,...] [--runs 1]
                                                 [--before DIR] [--write-docs]
 
 The renderer builds one OpenCL program per variant of a frame (kernels/render.cl
@@ -30,11 +30,10 @@ import tempfile
 import time
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
-sys.path.insert(0, str(ROOT / "workflows"))
+from benchmarks import benchdoc
 
-import benchdoc  # noqa: E402
+ROOT = Path(__file__).resolve().parents[1]
+
 
 SECTION = "Kernel builds"
 
@@ -147,7 +146,7 @@ def main(argv=None) -> int:
         print(rows[-1], flush=True)
     before_head = f"before s ({args.before}) | before / now | " if args.before else ""
     body = "\n".join([
-        f"`.venv/bin/python workflows/bench_compile.py --runs {args.runs}"
+        f"`.venv/bin/python -m benchmarks.bench_compile --runs {args.runs}"
         + (f" --only {','.join(names)}" if args.only else "")
         + (f" --before {args.before}" if args.before else "") + " --write-docs`",
         "",

@@ -3,10 +3,10 @@ memory budget"): the image so far after a quarter, half and all of the pieces of
 the first sample, and the final average of every sample, as `render
 --progressive` rewrites it.
 
-    .venv/bin/python workflows/progressive_picture.py [--pieces 8] [--size 320]
+    .venv/bin/python docs/pictures/progressive_picture.py [--pieces 8] [--size 320]
 
 Runs exabricks.render.streaming in one process on the Athena++ blast (rho, the
-camera and transfer function of workflows/pieces_picture.py, default early ray
+camera and transfer function of docs/pictures/pieces_picture.py, default early ray
 termination) with a budget that holds at most 1/--pieces of the data per piece.
 Writes docs/images/budget-progress.png (the four images side by side, over the
 dark background) and prints the pieces, what each image covers, and the RMSE of
@@ -16,17 +16,15 @@ the final image against the in-memory frame.
 from __future__ import annotations
 
 import argparse
-import sys
 from pathlib import Path
 
 import numpy as np
+from benchmarks import benchdoc
+from benchmarks.bench_render import ensure_scene
+from pieces_picture import BACKGROUND, CAMERA
 
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT / "workflows"))
 
-import benchdoc  # noqa: E402
-from bench_render import ensure_scene  # noqa: E402
-from pieces_picture import BACKGROUND, CAMERA  # noqa: E402
 
 FLAGS = dict(field="rho", colormap="viridis", range=(1.0, 2.7), opacity=(0.0, 0.02, 0.2, 0.5))
 

@@ -1,8 +1,8 @@
 """Merged regions against the paper's exact Active Brick Regions, per dataset.
 
-    .venv/bin/python workflows/bench_merge.py [--runs 3] [--only gerris,...] [--write-docs]
+    .venv/bin/python -m benchmarks.bench_merge [--runs 3] [--only gerris,...] [--write-docs]
 
-For every dataset of workflows/benchdoc.py (the four shared real ones, the 23.6 M-cell
+For every dataset of benchmarks/benchdoc.py (the four shared real ones, the 23.6 M-cell
 big input and the 20.6 M-cell thin shells) the bricks of bench_preprocess.py's work
 folder (bench-data/preprocess/<key>/bricks.npz, made by the stage commands when
 missing) are turned into regions and a BVH twice, in this process: with
@@ -30,19 +30,18 @@ from pathlib import Path
 
 import numpy as np
 
+from benchmarks import benchdoc
+from benchmarks import bench_preprocess
+
+from exabricks import schema
+from exabricks.camera import default_camera
+from exabricks.stages.bvh import build_bvh
+from exabricks.stages.regions import EXACT, Merge, build_regions
+from exabricks.render.renderer import Renderer
+from exabricks.transfer_function import default_transfer_function
+
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
-sys.path.insert(0, str(ROOT / "workflows"))
 
-import benchdoc  # noqa: E402
-import bench_preprocess  # noqa: E402
-
-from exabricks import schema  # noqa: E402
-from exabricks.camera import default_camera  # noqa: E402
-from exabricks.stages.bvh import build_bvh  # noqa: E402
-from exabricks.stages.regions import EXACT, Merge, build_regions  # noqa: E402
-from exabricks.render.renderer import Renderer  # noqa: E402
-from exabricks.transfer_function import default_transfer_function  # noqa: E402
 
 SECTION = "merged regions against exact ones"
 SIZE = 512
@@ -164,7 +163,7 @@ def main(argv=None) -> int:
         results.append(measure(sets[key], args.runs))
         for line in rows(results[-1]):
             print(line, flush=True)
-    command = (".venv/bin/python workflows/bench_merge.py"
+    command = (".venv/bin/python -m benchmarks.bench_merge"
                + (f" --only {','.join(keys)}" if args.only else "")
                + f" --runs {args.runs} --write-docs")
     benchdoc.publish(SECTION, section(results, args.runs, command), args.write_docs)

@@ -265,17 +265,16 @@ BIG_AMREX = BENCH / "plt_big512"
 
 
 def _make_big():
-    sys.path.insert(0, str(ROOT / "workflows"))
-    import make_big
+    from benchmarks import make_big
 
     return make_big
 
 
 def ensure_raw() -> Path:
-    """bench-data/big512.raw: workflows/make_big.py's 512^3 float32 volume (made when missing)."""
+    """bench-data/big512.raw: benchmarks/make_big.py's 512^3 float32 volume (made when missing)."""
     if not BIG_RAW.is_file():
         BENCH.mkdir(exist_ok=True)
-        print(f"making {BIG_RAW} (workflows/make_big.py)", flush=True)
+        print(f"making {BIG_RAW} (benchmarks/make_big.py)", flush=True)
         _make_big().generate(BIG_RAW, 512, 7)
     return BIG_RAW
 

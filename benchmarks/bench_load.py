@@ -1,6 +1,6 @@
 """Loading the structures: what `render` costs before its first sample (issue 10).
 
-    .venv/bin/python workflows/bench_load.py [--only shell,gerris] [--runs 3] [--write-docs]
+    .venv/bin/python -m benchmarks.bench_load [--only shell,gerris] [--runs 3] [--write-docs]
 
 For each dataset (bench_render's stage outputs, built on first use) this measures
 the bytes of its three structure files (bricks, regions, bvh) and reading them
@@ -28,10 +28,9 @@ from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-import benchdoc  # noqa: E402
-from bench_budget import tiny_scene  # noqa: E402
-from bench_render import ensure_scene  # noqa: E402
+from benchmarks import benchdoc
+from benchmarks.bench_budget import tiny_scene
+from benchmarks.bench_render import ensure_scene
 
 SECTION = "Loading the structures"
 DEFAULT = ("shell", "gerris", "amrex")
@@ -183,7 +182,7 @@ def main(argv=None) -> int:
     touch, again = first_touch(max(args.runs, 5))
     temperature = "cold / warm" if can_drop else "warm"
     body = "\n".join([
-        f"`.venv/bin/python workflows/bench_load.py --runs {args.runs}"
+        f"`.venv/bin/python -m benchmarks.bench_load --runs {args.runs}"
         + (f" --only {','.join(keys)}" if args.only else "") + " --write-docs`",
         "",
         f"- machine: {benchdoc.machine(opencl=True)}",

@@ -1,7 +1,7 @@
 """Hostile inputs at the caps: what the one reader of small inputs and the build
 chain cost (issue 32).
 
-    .venv/bin/python workflows/bench_inputs.py [--runs 5] [--write-docs]
+    .venv/bin/python -m benchmarks.bench_inputs [--runs 5] [--write-docs]
 
 Each case is a whole `exabricks` command on the embedded Gerris plume's
 structures (built on first use under bench-data/inputs/), timed as a child
@@ -15,13 +15,11 @@ from __future__ import annotations
 import argparse
 import json
 import subprocess
-import sys
 import tempfile
 import time
 from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-import benchdoc  # noqa: E402
+from benchmarks import benchdoc
 
 SECTION = "Hostile inputs at the caps"
 CAMERA = {"position": [0.5, 0.5, 3.0], "look_at": [0.5, 0.5, 0.5], "up": [0, 1, 0], "fovy": 30}
@@ -112,7 +110,7 @@ def main() -> None:
     digests = _digest_rows(args.runs)
     print("\n".join(digests))
     body = "\n".join([
-        f"Command: `.venv/bin/python workflows/bench_inputs.py --runs {args.runs} --write-docs`. "
+        f"Command: `.venv/bin/python -m benchmarks.bench_inputs --runs {args.runs} --write-docs`. "
         f"{benchdoc.machine(opencl=True)}.",
         "",
         "Each row is one whole `exabricks render` command on the Gerris plume (32² frame), "

@@ -1,8 +1,8 @@
 """Ingest throughput: cells per second for >= 20 M-cell ExaJet and AMReX inputs.
 
-    .venv/bin/python workflows/bench_ingest.py [--runs 5] [--only exajet,amrex,...] [--write-docs]
+    .venv/bin/python -m benchmarks.bench_ingest [--runs 5] [--only exajet,amrex,...] [--write-docs]
 
-(a) exajet: the 512^3 volume of workflows/make_big.py merged to AMR (23.6 M cells,
+(a) exajet: the 512^3 volume of benchmarks/make_big.py merged to AMR (23.6 M cells,
     6 levels) as bench-data/big512.cells + big512.value.scalars; timed in process
     (`readers.read` + `validate_cells`: read, level and alignment checks,
     non-finite check, O(N log N) overlap check) and end to end (`exabricks ingest`
@@ -15,7 +15,7 @@
 (c) raw: the raw 512^3 volume itself through the numba 2x2x2 merge (134 M voxels
     in, 23.6 M cells out; cells/s counts output cells).
 
-The generated inputs are made under bench-data/ on first use (workflows/benchdoc.py).
+The generated inputs are made under bench-data/ on first use (benchmarks/benchdoc.py).
 Each figure is the median of --runs runs after one warm-up run (which also fills
 the numba cache and the page cache), with min and max as the spread.
 --write-docs replaces the "## ingest" section of docs/benchmarks.md.
@@ -30,14 +30,14 @@ from pathlib import Path
 
 import numpy as np
 
+from benchmarks import benchdoc
+from benchmarks.benchdoc import BENCH, ensure_amrex, ensure_exajet, ensure_raw, fmt_bytes
+
+from exabricks import readers
+from exabricks.stages.ingest import validate_cells
+
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT / "workflows"))
 
-import benchdoc  # noqa: E402
-from benchdoc import BENCH, ensure_amrex, ensure_exajet, ensure_raw, fmt_bytes  # noqa: E402
-
-from exabricks import readers  # noqa: E402
-from exabricks.stages.ingest import validate_cells  # noqa: E402
 
 SECTION = "ingest"
 CASES = ("exajet", "amrex", "amrex-small", "raw")
@@ -110,7 +110,7 @@ def section(rows: list[str], runs: int, command: str, levels: list[str] = (),
     """The body of the "## ingest" section of docs/benchmarks.md around the table rows,
     the inputs' `levels_note` lines and the end-to-end `rates` (`target_note`)."""
     return "\n".join([
-        f"Command: `{command}` (it makes the inputs with `workflows/make_big.py` on first "
+        f"Command: `{command}` (it makes the inputs with `benchmarks/make_big.py` on first "
         f"use). {target_note(rates or {})}",
         "",
         f"- machine: {benchdoc.machine()}, load average {benchdoc.load_average()} at the end",
@@ -161,7 +161,7 @@ def main(argv=None) -> int:
         rates[name] = n / statistics.median(walls)
         print(rows[-1], flush=True)
     out.unlink(missing_ok=True)
-    command = (".venv/bin/python workflows/bench_ingest.py"
+    command = (".venv/bin/python -m benchmarks.bench_ingest"
                + (f" --only {','.join(chosen)}" if args.only or args.case else "")
                + f" --runs {args.runs} --write-docs")
     body = section(rows, args.runs, command, levels, rates)

@@ -2,7 +2,7 @@
 preprocessed in pieces"): which piece built each brick, beside the plume
 rendered from the joined files.
 
-    .venv/bin/python workflows/build_pieces_picture.py [--pieces 4] [--size 480 360]
+    .venv/bin/python docs/pictures/build_pieces_picture.py [--pieces 4] [--size 480 360]
 
 Runs `exabricks brick --piece K/N` for every K on the embedded Gerris plume,
 `exabricks join`, then `regions` and `bvh`, all as commands, and checks that the
@@ -22,12 +22,11 @@ import tempfile
 from pathlib import Path
 
 import numpy as np
+from benchmarks import benchdoc
+from benchmarks.gallery import G_CAM, G_TF, _f
 
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT / "workflows"))
 
-import benchdoc  # noqa: E402
-from gallery import G_CAM, G_TF, _f  # noqa: E402
 
 GERRIS = ROOT / "exabricks" / "data" / "gerris-plume" / "plume7-1.cells"
 IMAGES = ROOT / "docs" / "images"

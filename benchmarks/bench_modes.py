@@ -1,10 +1,10 @@
 """Benchmark every render mode (docs/scene.md) on the Gerris plume and the AMReX plotfile.
 
-    .venv/bin/python workflows/bench_modes.py [--runs 5] [--size 512] [--only gerris,amrex]
+    .venv/bin/python -m benchmarks.bench_modes [--runs 5] [--size 512] [--only gerris,amrex]
                                               [--mode volume,iso,...] [--list] [--write-docs]
 
 Each dataset goes through the `exabricks` stage commands once (ingest, brick,
-regions, bvh; cached under bench-data/gallery/<dataset>/ as by workflows/gallery.py,
+regions, bvh; cached under bench-data/gallery/<dataset>/ as by benchmarks/gallery.py,
 not timed). Each mode is a list of `exabricks render` flags (MODES below, printed
 by --list), parsed by the CLI's own option parser and turned into a Scene by
 exabricks.scene.scene_from_options, exactly as `exabricks render` does; the
@@ -33,23 +33,22 @@ from pathlib import Path
 
 import numpy as np
 
+from benchmarks import benchdoc
+from benchmarks import gallery
+
+from exabricks import schema
+from exabricks.scene import FLAGS, scene_from_options
+from exabricks.render.renderer import Renderer
+
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
-sys.path.insert(0, str(ROOT / "workflows"))
 
-import benchdoc  # noqa: E402
-import gallery  # noqa: E402
-
-from exabricks import schema  # noqa: E402
-from exabricks.scene import FLAGS, scene_from_options  # noqa: E402
-from exabricks.render.renderer import Renderer  # noqa: E402
 
 SECTION = "render modes"
 DATASETS = ("gerris", "amrex")
 
 # Per dataset: the camera, the volume (field and transfer function), and the values
 # the modes use (iso-values, a second field, clip box and plane, slices): the
-# choices of docs/gallery.md (workflows/gallery.py), from `exabricks info`.
+# choices of docs/gallery.md (benchmarks/gallery.py), from `exabricks info`.
 SETUP = {
     "gerris": dict(
         cam=gallery.G_CAM, field="T", tf=gallery.G_TF,
@@ -221,7 +220,7 @@ def main(argv=None) -> int:
                       f"{samples:,}"]
         rows.append("| " + " | ".join(cells) + " |")
 
-    command = "`.venv/bin/python workflows/bench_modes.py" + (
+    command = "`.venv/bin/python -m benchmarks.bench_modes" + (
         f" --only {','.join(keys)}" if args.only else "") + (
         f" --mode {','.join(modes)}" if args.mode else "") + f" --runs {args.runs}" + (
         f" --size {args.size}" if args.size != 512 else "") + " --write-docs`"
@@ -230,7 +229,7 @@ def main(argv=None) -> int:
         f"- machine: {benchdoc.machine()}, load average {benchdoc.load_average()} at the end "
         f"({time.perf_counter() - t0:.0f} s in all)\n- OpenCL device: {device}\n"
         f"- frames: {args.size}x{args.size}, 1 sample per pixel, one camera and volume "
-        "transfer function per dataset (the gallery's first shot, workflows/gallery.py) and "
+        "transfer function per dataset (the gallery's first shot, benchmarks/gallery.py) and "
         "the iso-values, fields, clip and slice placements of `--list`; one warm-up frame "
         f"per mode, then {args.runs} rounds of one frame of every mode; median (min-max in "
         "brackets)\n\n"

@@ -1,12 +1,12 @@
 """Preprocessing per dataset: time, cells/s, peak memory and the paper's statistics.
 
-    .venv/bin/python workflows/bench_preprocess.py [--runs 5] [--only gerris,amrex,athena,enzo,big,shell]
+    .venv/bin/python -m benchmarks.bench_preprocess [--runs 5] [--only gerris,amrex,athena,enzo,big,shell]
                                                    [--work bench-data/preprocess] [--write-docs]
 
 For each dataset (the four shared real ones, make_big.py's 512^3 volume merged
 to 23.6 M AMR cells, bench-data/big512.cells, and its octree-like thin-shell layout
 of 20.6 M cells, bench-data/shell1024.cells, both made on first use;
-workflows/benchdoc.py)
+benchmarks/benchdoc.py)
 the four stages run as the real commands, `exabricks -q ingest|brick|regions|bvh`,
 each in its own child process, chained through --work/<key>/*.npz with the
 default parameters (brick width 32, BVH leaf size 4).  One warm-up chain, then
@@ -35,18 +35,17 @@ import sys
 import time
 from pathlib import Path
 
+from benchmarks import benchdoc
+from benchmarks.benchdoc import fmt_bytes, fmt_seconds
+
+from exabricks import readers, schema
+from exabricks.stages.brick import build_bricks
+from exabricks.stages.bvh import build_bvh
+from exabricks.stages.ingest import validate_cells
+from exabricks.stages.regions import build_regions
+
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
-sys.path.insert(0, str(ROOT / "workflows"))
 
-import benchdoc  # noqa: E402
-from benchdoc import fmt_bytes, fmt_seconds  # noqa: E402
-
-from exabricks import readers, schema  # noqa: E402
-from exabricks.stages.brick import build_bricks  # noqa: E402
-from exabricks.stages.bvh import build_bvh  # noqa: E402
-from exabricks.stages.ingest import validate_cells  # noqa: E402
-from exabricks.stages.regions import build_regions  # noqa: E402
 
 SECTION = "preprocessing per dataset"
 STAGES = ("ingest", "brick", "regions", "bvh")
@@ -249,7 +248,7 @@ def section(results: list[dict], runs: int, command: str) -> str:
     generated = [r for r in results if r["dataset"].key in TARGETS]
     return "\n".join([
         f"Command: `{command}` (it makes bench-data/big512.cells and shell1024.cells with "
-        "`workflows/make_big.py` on first use)",
+        "`benchmarks/make_big.py` on first use)",
         "",
         f"- machine: {benchdoc.machine()}, numba {numba.__version__} with "
         f"{numba.get_num_threads()} threads, load average {benchdoc.load_average()} at the end",
@@ -303,7 +302,7 @@ def main(argv=None) -> int:
         for row in time_rows(results[-1]):
             print(row, flush=True)
         print(f"  {key}: {time.perf_counter() - t:.0f} s", flush=True)
-    command = (".venv/bin/python workflows/bench_preprocess.py"
+    command = (".venv/bin/python -m benchmarks.bench_preprocess"
                + (f" --only {','.join(keys)}" if args.only else "")
                + f" --runs {args.runs} --write-docs")
     body = section(results, args.runs, command)

@@ -1,16 +1,16 @@
 """Benchmark the reconstructions (basis, nearest, vertex) and level of detail (`--lod`)
 on the four shared datasets, and render the pictures of docs/reconstructions.md.
 
-    .venv/bin/python workflows/bench_reconstructions.py [--runs 3] [--size 512]
+    .venv/bin/python -m benchmarks.bench_reconstructions [--runs 3] [--size 512]
         [--lod-sizes 256,1024] [--lod-pixels 0,1,2,4,8,16] [--lod-shading none]
         [--only gerris,amrex,athena,enzo] [--no-images] [--write-docs]
 
 Each dataset goes through the `exabricks` stage commands once (ingest, brick,
 regions, bvh; cached under bench-data/gallery/<dataset>/ as by
-workflows/gallery.py, not timed): the same bricks, regions and BVH that
+benchmarks/gallery.py, not timed): the same bricks, regions and BVH that
 tests/conftest.py `built_scene` builds in memory. Every frame is a Scene made by
 `exabricks.scene.scene_from_options` from `exabricks render` flags (the CLI's own
-parser, as in workflows/bench_modes.py), so each figure and picture is exactly
+parser, as in benchmarks/bench_modes.py), so each figure and picture is exactly
 what the printed command draws: with no camera or transfer-function flags that
 is the default camera on the data bounds and the default transfer function over
 the field's range (what `built_scene` uses; checked).
@@ -54,19 +54,18 @@ from pathlib import Path
 
 import numpy as np
 
+from benchmarks import benchdoc
+from benchmarks import gallery
+
+from exabricks import schema
+from exabricks.camera import default_camera
+from exabricks.scene import FLAGS, RECONSTRUCTIONS, scene_from_options, scene_to_dict
+from exabricks.stages.compare import compare_images
+from exabricks.render.renderer import Renderer
+from exabricks.transfer_function import default_transfer_function
+
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
-sys.path.insert(0, str(ROOT / "workflows"))
 
-import benchdoc  # noqa: E402
-import gallery  # noqa: E402
-
-from exabricks import schema  # noqa: E402
-from exabricks.camera import default_camera  # noqa: E402
-from exabricks.scene import FLAGS, RECONSTRUCTIONS, scene_from_options, scene_to_dict  # noqa: E402
-from exabricks.stages.compare import compare_images  # noqa: E402
-from exabricks.render.renderer import Renderer  # noqa: E402
-from exabricks.transfer_function import default_transfer_function  # noqa: E402
 
 SECTION = "reconstructions and level of detail"
 DATASETS = ("gerris", "amrex", "athena", "enzo")
@@ -87,7 +86,7 @@ NAMES = {"gerris": "Gerris plume", "amrex": "AMReX advection", "athena": "Athena
 # level 3/4 boundary where the cube's faces touch it.
 SHOTS = (
     # The volume of each dataset with the camera and transfer function of docs/gallery.md
-    # (workflows/gallery.py, copied here so that docs/reconstructions.md's commands stay put)
+    # (benchmarks/gallery.py, copied here so that docs/reconstructions.md's commands stay put)
     # (the default view of the benchmark shows the Athena++ blast as an opaque cube and
     # the Enzo clump as a few faint pixels): docs/images/reconstruction-<dataset>-<recon>.png.
     ("gerris", None, "--position 129 63 148 --look-at 64 33 64 --up 0 1 0 --fovy 30 --field T "
@@ -397,7 +396,7 @@ def fmt_levels(per_level) -> str:
 
 def section(args, rec: dict, lod: dict, finest: dict, device: str, seconds: float,
             keys) -> str:
-    command = "`.venv/bin/python workflows/bench_reconstructions.py" + (
+    command = "`.venv/bin/python -m benchmarks.bench_reconstructions" + (
         f" --only {','.join(keys)}" if args.only else "") + f" --runs {args.runs}" + (
         f" --size {args.size}" if args.size != 512 else "") + (
         f" --lod-sizes {','.join(map(str, args.lod_sizes))}"

@@ -8,7 +8,7 @@ renderer's camera, transfer function, sample placement (interval midpoints,
 paper §4.3), opacity correction, compositing and early termination, but one
 trilinear lookup per sample and no traversal (no BVH, no regions, no space
 skipping, one constant step of finest cell width / sampling rate). It is the
-bound workflows/bench_peers.py measures the renderer against; on one region of
+bound benchmarks/bench_peers.py measures the renderer against; on one region of
 a single-level dataset both take the same samples and give the same frame.
 """
 
