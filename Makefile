@@ -57,14 +57,18 @@ demo: setup $(OUT)/plume.png
 lint: setup
 	$(VENV)/bin/ruff check exabricks tests benchmarks workflows docs/pictures
 
+# Test processes (pytest-xdist), a file's tests in one of them: PoCL's kernel
+# builds and numba's compiles of a fresh checkout spread over the cores.
+WORKERS ?= 2
+
 # The fast suite (minutes): everything but the `slow` tests; each fuzzer runs a
 # few examples (EXABRICKS_FUZZ_EXAMPLES, default in tests/conftest.py).
 test: setup
-	$(PY) -m pytest -q -m "not slow and not slurm"
+	$(PY) -m pytest -q -n $(WORKERS) --dist loadfile -m "not slow and not slurm"
 
 # The slow tests (real datasets end to end, random layouts, no-JIT runs).
 test-slow: setup
-	$(PY) -m pytest -q -m "slow"
+	$(PY) -m pytest -q -n $(WORKERS) --dist loadfile -m "slow"
 
 # The fuzzers with many examples each.
 fuzz: setup
