@@ -144,7 +144,7 @@ def rng():
 
 
 # Examples per fuzzer (tests marked `fuzz`): a few in `make test`, many in `make fuzz`.
-FUZZ_EXAMPLES = int(os.environ.get("EXABRICKS_FUZZ_EXAMPLES", "8"))
+FUZZ_EXAMPLES = int(os.environ.get("EXABRICKS_FUZZ_EXAMPLES", "5"))
 
 
 @pytest.fixture(scope="session")
