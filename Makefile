@@ -72,7 +72,7 @@ test-slow: setup
 
 # The fuzzers with many examples each.
 fuzz: setup
-	EXABRICKS_FUZZ_EXAMPLES=150 $(PY) -m pytest -q -m "fuzz"
+	EXABRICKS_FUZZ_EXAMPLES=150 $(PY) -m pytest -q -n $(WORKERS) -m "fuzz"
 
 # The SLURM workflows on a one-node cluster on this machine (workflows/slurm/up.sh:
 # Debian's slurm-wlm and munge, started by hand; root, or sudo).
