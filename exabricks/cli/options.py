@@ -7,16 +7,13 @@ import math
 import click
 
 from ..errors import ExabricksError
+from ..scene.options import SCENE_OPTIONS
 
 output_option = click.option(
     "-o", "--output", "output", required=True, type=click.Path(dir_okay=False),
     help="Output file (written atomically: a failed run leaves nothing behind).",
 )
 
-field_option = click.option(
-    "--field", "field", default=None, metavar="NAME",
-    help="Scalar field to use (default: the first field of the file).",
-)
 
 device_option = click.option(
     "--device", "device", default=None, envvar="EXABRICKS_DEVICE", metavar="SPEC",
@@ -125,3 +122,7 @@ def _click_option(o):
     elif o.kind != "text":
         raise ValueError(f"unknown option kind {o.kind!r} of {o.name}")
     return click.option(o.flag, o.keyword, **{k: v for k, v in kw.items() if v is not None})
+
+
+# --field of render, probe and the viewer: the render option's one declaration.
+field_option = declared(*(o for o in SCENE_OPTIONS if o.name == "field"))
