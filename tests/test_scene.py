@@ -305,6 +305,11 @@ def test_the_schema_is_valid_and_matches_the_limits():
     ao = s["$defs"]["lighting"]["properties"]["ambient_occlusion"]["properties"]["samples"]
     assert ao["maximum"] == MAX_AO_SAMPLES
     assert s["$defs"]["lighting"]["properties"]["shading"]["enum"] == ["headlight", "none"]
+    from exabricks.constants import MAX_KNOTS
+
+    preset = s["$defs"]["preset"]["properties"]
+    assert preset["RGBPoints"]["maxItems"] == preset["Points"]["maxItems"] == 4 * MAX_KNOTS
+    assert s["$defs"]["colormap_function"]["properties"]["opacity"]["maxItems"] == MAX_KNOTS
 
 
 # ---------------------------------------------------------------------------
