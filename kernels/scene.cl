@@ -212,50 +212,5 @@ EB_INLINE float4 eb_medium_step(eb_frame *fr, eb_basis_sums *s, float3 p, int le
     return (float4)(rgb / s_sum, a);
 }
 
-/* Levels whose samples --lod counts (level 0 .. EB_LOD_LEVELS - 1). */
-#define EB_LOD_LEVELS 16
-
-/* One ray: in lattice space with t in world distance (dir_world unit length),
- * and what seeds its random numbers. */
-typedef struct {
-    float3 org, dir, inv_dir;      /* lattice space */
-    float3 org_world, dir_world;
-    float rho;                     /* interleaved-sampling offset */
-    uint pixel, sample, seed;
-} eb_ray;
-
-/* What a ray has accumulated so far. */
-typedef struct {
-    float3 color;
-    float transmittance;
-    float t_depth;                 /* where the accumulated opacity first reached EB_DEPTH_OPACITY */
-    float t_opaque;                /* the first opaque surface hit */
-    uint samples;
-#ifdef EB_LOD
-    uint level_samples[EB_LOD_LEVELS];  /* reconstructions per level used */
-#endif
-    /* iso crossings: the previous sample (field values at prev_t) */
-    int prev_valid;
-    float prev_t;
-    float prev[EB_N_FIELDS];
-    float last_exit;               /* where the last region ended (a gap resets prev) */
-    /* slices the ray crosses inside its clip interval, by distance */
-    float slice_t[EB_MAX_SLICES];
-    int slice_k[EB_MAX_SLICES];
-    int n_slices, next_slice;
-} eb_ray_state;
-
-/* Accumulated opacity at which the depth output records the distance. */
-#define EB_DEPTH_OPACITY 0.5f
-
-/* Composite one step of opacity a and colour rgb at distance tm into `st`
- * (front to back, premultiplied: C += T a rgb, T *= 1 - a); returns 1 once
- * the ray is opaque enough to stop (early ray termination). */
-EB_INLINE int eb_composite(eb_ray_state *st, float a, float3 rgb, float tm, float max_opacity)
-{
-    st->color += (st->transmittance * a) * rgb;
-    st->transmittance *= 1.0f - a;
-    if (st->t_depth == EB_INF && 1.0f - st->transmittance >= EB_DEPTH_OPACITY)
-        st->t_depth = tm;
-    return 1.0f - st->transmittance >= max_opacity;
-}
+#include "ray.cl"
+#include "compositing.cl"

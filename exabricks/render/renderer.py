@@ -441,7 +441,7 @@ def render_scene(bricks: schema.Bricks, regions: schema.Regions, bvh: schema.Bvh
                     lookup=lookup).render_scene(scene, traversal=traversal)
 
 
-# Levels whose samples a --lod frame counts (kernels/scene.cl EB_LOD_LEVELS).
+# Levels whose samples a --lod frame counts (kernels/ray.cl EB_LOD_LEVELS).
 LOD_LEVELS = 16
 
 # Default ambient-occlusion distance, in finest cell widths of the dataset.

@@ -1,0 +1,37 @@
+/* One ray and what it has accumulated so far (the integrator's state). Included
+ * by scene.cl after EB_MAX_SLICES; EB_N_FIELDS and EB_LOD are build defines. */
+#pragma once
+#include "common.h"
+
+/* Levels whose samples --lod counts (level 0 .. EB_LOD_LEVELS - 1). */
+#define EB_LOD_LEVELS 16
+
+/* One ray: in lattice space with t in world distance (dir_world unit length),
+ * and what seeds its random numbers. */
+typedef struct {
+    float3 org, dir, inv_dir;      /* lattice space */
+    float3 org_world, dir_world;
+    float rho;                     /* interleaved-sampling offset */
+    uint pixel, sample, seed;
+} eb_ray;
+
+/* What a ray has accumulated so far. */
+typedef struct {
+    float3 color;
+    float transmittance;
+    float t_depth;                 /* where the accumulated opacity first reached EB_DEPTH_OPACITY */
+    float t_opaque;                /* the first opaque surface hit */
+    uint samples;
+#ifdef EB_LOD
+    uint level_samples[EB_LOD_LEVELS];  /* reconstructions per level used */
+#endif
+    /* iso crossings: the previous sample (field values at prev_t) */
+    int prev_valid;
+    float prev_t;
+    float prev[EB_N_FIELDS];
+    float last_exit;               /* where the last region ended (a gap resets prev) */
+    /* slices the ray crosses inside its clip interval, by distance */
+    float slice_t[EB_MAX_SLICES];
+    int slice_k[EB_MAX_SLICES];
+    int n_slices, next_slice;
+} eb_ray_state;
