@@ -99,6 +99,16 @@ def descriptor(path) -> int | None:
     raise ExabricksError(f"{path}: cannot resolve the output path (too many symbolic links)")
 
 
+# What check_output returns for a descriptor (a resolved path never starts so:
+# realpath turns /proc/self into /proc/PID).
+_FD_DIR = Path("/proc/self/fd")
+
+
+def _target_descriptor(target: Path) -> int | None:
+    """The descriptor a `check_output` result stands for, else None."""
+    return int(target.name) if target.parent == _FD_DIR else None
+
+
 def _check_descriptor(path, fd: int, inputs: Iterable) -> None:
     """Refuse descriptor `fd` (named by `path`) unless it is open for writing on
     something other than a directory or one of the `inputs`."""
@@ -136,7 +146,7 @@ def check_output(path, inputs: Iterable = ()) -> Path:
     fd = descriptor(path)
     if fd is not None:
         _check_descriptor(path, fd, inputs)
-        return Path(f"/proc/self/fd/{fd}")
+        return _FD_DIR / str(fd)
     target = _resolved(path)
     for inp in inputs:
         if inp is not None and _same_file(path, Path(inp)):
@@ -163,7 +173,7 @@ def check_output(path, inputs: Iterable = ()) -> Path:
 def write_output(path, write: Callable[[str], None], *, inputs: Iterable = ()) -> None:
     """Have `write(tmp)` write a file, then put it at `path` (module docstring)."""
     target = check_output(path, inputs)
-    fd = descriptor(path)
+    fd = _target_descriptor(target)
     if fd is None:
         try:
             mode = os.stat(target).st_mode
@@ -246,7 +256,7 @@ def scratch(path):
     FIFO); deleted on leaving, and by the signal handlers like every temporary."""
     target = check_output(path)
     try:
-        regular = descriptor(path) is None and stat.S_ISREG(os.stat(target).st_mode)
+        regular = _target_descriptor(target) is None and stat.S_ISREG(os.stat(target).st_mode)
     except FileNotFoundError:
         regular = True
     tmp = _temporary(path, target.parent if regular else None)

@@ -55,7 +55,7 @@ class Option:
 
     @property
     def flag(self) -> str:
-        return "--" + self.name.replace("_", "-")
+        return flag_name(self.name)
 
     @property
     def keyword(self) -> str:
