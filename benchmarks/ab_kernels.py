@@ -1,140 +1,239 @@
-"""The kernels of a git revision against the working tree's, on bench_peers' frames.
+"""Two versions of exabricks, host code and kernels, on the same frames in one process.
 
     .venv/bin/python -m benchmarks.ab_kernels [--base HEAD | --base-dir DIR]
-        [--base-options=...] [--options=...] [--datasets gerris,shell256]
-        [--rates 2] [--rounds 5] [--size 1024] [--shading none]
+        [--base-options=...] [--options=...] [--datasets gerris,amrex,athena,enzo]
+        [--variants all] [--rounds 5] [--size 512] [--timed volume]
 
-A kernel change is measured here before it is kept (docs/design.md quotes these
-ratios): both versions render the same frames (bench_peers' camera, transfer
-function, opacity unit, seed and early termination) with the same uploaded scene,
-alternating frame by frame in one process, so that the load of this machine hits
-both alike (bench_peers.interleaved); after one warm-up frame each, the median kernel time of --rounds frames
-(min-max) and base / this is printed, with the sample counts and the largest
-difference between the two images. The base kernels are `git show REV:kernels/...`
-in a temporary directory, or the kernels/ folder --base-dir names (a copy of an
-older tree, where git is not at hand); each version's programs are kept apart by
-swapping exabricks.opencl's program and kernel caches (keyed by context and defines,
-not by directory), its kernel directory and its build options. --options (and
---base-options) add OpenCL build options to this (the base) version, so that one
-kernel tree can be measured against itself with and without them: a define
-(`--options=-DEB_QUEUE_SIZE=16`, the walk's heap) or a driver's option
-(`--options=-cl-nv-maxrregcount=64` on NVIDIA's; the `=` keeps argparse from
-reading the value as a flag).
+A change to the renderer is measured here before it is kept. The base version is
+the `exabricks` package and `kernels/` of git revision --base (extracted into a
+temporary folder), or of the checkout at --base-dir, imported under the name
+`exabricks_base` beside the working tree's `exabricks`. Each version reads and
+builds the dataset with its own code and renders with its own Renderer, so a
+new kernel signature or new host code is compared as a whole.
+
+For every dataset and every variant (VARIANTS: one scene for each kernel
+program a frame can reach), both versions render the same frame and the largest
+absolute difference of the two images is printed (0: the arithmetic did not
+change), and the same for probed values. The --timed variants' frames then
+alternate for --rounds rounds after a warm-up frame each (bench_peers.interleaved),
+so that the load of this machine hits both alike, and the median kernel time
+(min-max) of each and base / this are printed.
+
+--options (and --base-options) add OpenCL build options to this (the base)
+version: a define (`--options=-DEB_QUEUE_SIZE=16`) or a driver's option
+(`--options=-cl-nv-maxrregcount=64`; the `=` keeps argparse from reading the
+value as a flag), so that `--base-dir .` measures the tree against itself.
 """
 from __future__ import annotations
 
 import argparse
 import contextlib
+import importlib
+import importlib.util
 import shlex
 import statistics
 import subprocess
 import sys
+import tarfile
 import tempfile
 from pathlib import Path
 
 import numpy as np
-from benchmarks import bench_peers
-from benchmarks import benchdoc
+from benchmarks import bench_peers, benchdoc
 
 ROOT = Path(__file__).resolve().parents[1]
+BASE_NAME = "exabricks_base"
+
+# A second field per dataset, for the variants that need two (none: the variant is
+# skipped there).
+SECOND_FIELD = {"gerris": "U", "athena": "press", "enzo": "Density"}
 
 
-def base_kernels(rev: str, into: Path) -> Path:
-    """The kernels/ files of git revision `rev`, written under `into`."""
-    names = subprocess.run(["git", "-C", str(ROOT), "ls-tree", "--name-only", rev, "kernels/"],
-                           check=True, capture_output=True, text=True).stdout.split()
-    for name in names:
-        data = subprocess.run(["git", "-C", str(ROOT), "show", f"{rev}:{name}"], check=True,
-                              capture_output=True).stdout
-        (into / Path(name).name).write_bytes(data)
+def _volume(field, alpha=0.1):
+    return {"field": field, "transfer_function": {"colormap": "viridis", "opacity": [0, alpha]}}
+
+
+def _surfaces(field, second, lo, hi, value):
+    mid = [(a + b) / 2 for a, b in zip(lo, hi)]
+    return {"volumes": [_volume(field, 0.05)],
+            "isosurfaces": [{"field": field, "value": value, "color": [1, 0.5, 0.2],
+                             "opacity": 0.7}],
+            "slices": [{"point": mid, "normal": [0, 0, 1], "field": field, "opacity": 0.6}],
+            "clip": {"box": [*lo, *hi[:2], mid[2] + (hi[2] - mid[2]) / 2],
+                     "planes": [[*mid, 1, 0.2, 0]]},
+            "lighting": {"specular": 0.3, "ambient_occlusion": {"samples": 4}}}
+
+
+# name: (scene file of (field, second field, world lower, upper, a mid value), Renderer
+# keyword arguments, needs a second field)
+# volume: one volume layer, unshaded; shaded-single: shaded, one sample at a time
+# (no packets); surfaces: iso-surface, slice, clip box and plane, specular, AO;
+# lod-central: level of detail with central-difference gradients; two-fields:
+# two volume layers and an iso-surface coloured by the second field.
+VARIANTS = {
+    "volume": (lambda f, s, lo, hi, v: {"volumes": [_volume(f)], "lighting": {"shading": "none"}},
+               {}, False),
+    "shaded-single": (lambda f, s, lo, hi, v: {"volumes": [_volume(f)]},
+                                     {"packets": False}, False),
+    "nearest": (lambda f, s, lo, hi, v: {"volumes": [_volume(f)], "reconstruction": "nearest"},
+                {}, False),
+    "vertex": (lambda f, s, lo, hi, v: {"volumes": [_volume(f)], "reconstruction": "vertex"},
+               {}, False),
+    "surfaces": (_surfaces, {}, False),
+    "lod-central": (
+        lambda f, s, lo, hi, v: {"volumes": [_volume(f)], "lod": 1.0,
+                                 "lighting": {"gradient": "central"}}, {}, False),
+    "cell-location": (lambda f, s, lo, hi, v: {"volumes": [_volume(f)]},
+                      {"lookup": "cell-location"}, False),
+    "two-fields": (lambda f, s, lo, hi, v: {
+        "volumes": [_volume(f), _volume(s, 0.05)],
+        "isosurfaces": [{"field": f, "value": v, "color": {"field": s}}]}, {}, True),
+}
+
+
+def base_package(rev: str, into: Path) -> Path:
+    """The exabricks/ and kernels/ folders of git revision `rev`, extracted under `into`."""
+    archive = into / "base.tar"
+    subprocess.run(["git", "-C", str(ROOT), "archive", "-o", str(archive), rev,
+                    "exabricks", "kernels"], check=True)
+    with tarfile.open(archive) as tar:
+        tar.extractall(into, filter="data")
     return into
 
 
-def use(version: dict) -> None:
-    """Make exabricks.opencl build and cache programs from `version`'s kernel directory,
-    with its build options."""
-    from exabricks import opencl
-    opencl._PROGRAMS = version["programs"]
-    opencl._KERNELS = version["kernels"]
-    opencl.kernel_dir = lambda: version["dir"]
-    opencl.BUILD_OPTIONS = version["options"]
+def import_version(root: Path, name: str):
+    """The exabricks package of checkout `root` imported as `name` (its imports
+    within the package are relative, so it runs beside the working tree's)."""
+    if name == "exabricks":
+        return importlib.import_module(name)
+    package = root / "exabricks"
+    spec = importlib.util.spec_from_file_location(
+        name, package / "__init__.py", submodule_search_locations=[str(package)])
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[name] = module
+    spec.loader.exec_module(module)
+    return module
+
+
+class Version:
+    """One version's package and the dataset built with it."""
+
+    def __init__(self, package: str, options):
+        self.name = package
+        self.opencl = importlib.import_module(f"{package}.opencl")
+        self.opencl.BUILD_OPTIONS = (*self.opencl.BUILD_OPTIONS, *options)
+        self.module = lambda name: importlib.import_module(f"{package}.{name}")
+
+    def build(self, path: Path, fields):
+        cells = self.module("readers").read(path, fields=list(fields))
+        bricks = self.module("stages.brick").build_bricks(cells)
+        regions = self.module("stages.regions").build_regions(bricks)
+        bvh = self.module("stages.bvh").build_bvh(regions)
+        self.structures = bricks, regions, bvh
+        return cells
+
+    def renderer(self, fields, **kw):
+        return self.module("render.renderer").Renderer(*self.structures, fields=fields, **kw)
+
+    def scene(self, scene_file: Path, size: int):
+        return self.module("scene").scene_from_options(
+            self.structures[0], scene_path=scene_file, flags={"size": (size, size)})
 
 
 @contextlib.contextmanager
-def versions_of(*dirs: Path, options=((), ())):
-    """{"base": ..., "this": ...} versions of the kernel directories `dirs`, each with
-    program and kernel caches of its own and exabricks.opencl.BUILD_OPTIONS plus its
-    entry of `options`; exabricks.opencl's own come back afterwards."""
+def versions_of(base_root: Path, base_options=(), options=()):
+    """{"base": Version, "this": Version}: the package of checkout `base_root` and the
+    working tree's, with their build options extended; exabricks.opencl's options
+    come back, and the base package leaves sys.modules, afterwards."""
     from exabricks import opencl
-    saved = opencl._PROGRAMS, opencl._KERNELS, opencl.kernel_dir, opencl.BUILD_OPTIONS
+
+    saved = opencl.BUILD_OPTIONS
+    import_version(base_root, BASE_NAME)
     try:
-        yield {v: {"dir": d, "programs": {}, "kernels": {},
-                   "options": (*opencl.BUILD_OPTIONS, *extra)}
-               for v, d, extra in zip(("base", "this"), dirs, options)}
+        yield {"base": Version(BASE_NAME, base_options), "this": Version("exabricks", options)}
     finally:
-        opencl._PROGRAMS, opencl._KERNELS, opencl.kernel_dir, opencl.BUILD_OPTIONS = saved
+        opencl.BUILD_OPTIONS = saved
+        for name in [m for m in sys.modules if m == BASE_NAME or m.startswith(BASE_NAME + ".")]:
+            del sys.modules[name]
 
 
-def compare(name: str, versions: dict, rates, rounds: int, size: int, shading: str) -> list[str]:
-    from exabricks.render.renderer import Renderer
+def compare(name: str, versions: dict, variants, timed, rounds: int, size: int,
+            workdir: Path) -> list[str]:
+    import json
 
     if name == "shell256":
         benchdoc.ensure_shell(256)
     path, field, _ = bench_peers.DATASETS[name]
-    cells, bricks, regions, bvh, _, _ = bench_peers.build_scene(path, field)
-    camera, tf, bounds, _ = bench_peers.view_of(cells, bench_peers.ALPHA_SCALE)
-    unit = bench_peers.opacity_unit(bounds)
-    renderer = Renderer(bricks, regions, bvh)
-
-    def frame(version, rate):
-        def render():
-            use(version)
-            result = renderer.render(camera=camera, transfer_function=tf, width=size,
-                                     height=size, sampling_rate=rate, seed=bench_peers.SEED,
-                                     jitter=True, max_opacity=bench_peers.MAX_OPACITY,
-                                     unit_distance=unit, shading=shading)
-            return result.stats["ms"] / 1e3, result.stats["samples"], result.rgba
-        return render
-
+    second = SECOND_FIELD.get(name)
+    fields = (field, second) if second else (field,)
+    for v in versions.values():
+        cells = v.build(path, fields)
+    lo, hi = (np.asarray(b, np.float64) for b in versions["this"].module("schema").world_bounds(cells))
+    values = cells.values[0][np.isfinite(cells.values[0])]
+    mid_value = float(np.quantile(values, 0.7))
+    unit = bench_peers.opacity_unit((lo, hi))
+    points = lo + (hi - lo) * np.random.default_rng(0).random((4096, 3))
     lines = []
-    for rate in rates:
-        measured, images = bench_peers.interleaved(
-            {v: frame(version, rate) for v, version in versions.items()}, rounds)
-        ms = {v: [1e3 * t for t in measured[v]["kernel_s"]] for v in versions}
-        base, this = (statistics.median(ms[v]) for v in versions)
+    for variant in variants:
+        make, options, needs_second = VARIANTS[variant]
+        if needs_second and not second:
+            continue
+        doc = make(field, second, lo.tolist(), hi.tolist(), mid_value)
+        doc.setdefault("unit_distance", unit)
+        scene_file = workdir / f"{name}-{len(lines)}.json"
+        scene_file.write_text(json.dumps(doc))
+        used = tuple(dict.fromkeys([field] + ([second] if needs_second else [])))
+        renderers = {k: v.renderer(used, **options) for k, v in versions.items()}
+        scenes = {k: v.scene(scene_file, size) for k, v in versions.items()}
+
+        def frame(k, renderers=renderers, scenes=scenes):
+            def render():
+                result = renderers[k].render_scene(scenes[k])
+                return result.stats["ms"] / 1e3, result.stats["samples"], result.rgba
+            return render
+
+        if variant in timed:
+            measured, images = bench_peers.interleaved({k: frame(k) for k in versions}, rounds)
+        else:
+            images = {k: frame(k)()[2] for k in versions}
         diff = float(np.abs(images["base"] - images["this"]).max())
-        lines.append(f"{name} rate {rate:g} {shading}: base {base:.0f} ms "
-                     f"({min(ms['base']):.0f}-{max(ms['base']):.0f}), this {this:.0f} ms "
-                     f"({min(ms['this']):.0f}-{max(ms['this']):.0f}), base / this "
-                     f"{base / this:.3f}; samples {measured['base']['samples']:,} / "
-                     f"{measured['this']['samples']:,}; max abs diff {diff:.2e}")
-        print(lines[-1], flush=True)
+        probed = {k: r.scene.probe_fields(points) for k, r in renderers.items()}
+        probe_diff = float(np.nanmax(np.abs(probed["base"] - probed["this"]), initial=0.0))
+        line = (f"{name} {variant}: mean alpha {float(images['this'][..., 3].mean()):.3f}, "
+                f"max abs diff image {diff:.2e}, probe {probe_diff:.2e}")
+        if variant in timed:
+            ms = {k: [1e3 * t for t in measured[k]["kernel_s"]] for k in versions}
+            base, this = (statistics.median(ms[k]) for k in versions)
+            line += (f"; base {base:.0f} ms ({min(ms['base']):.0f}-{max(ms['base']):.0f}), "
+                     f"this {this:.0f} ms ({min(ms['this']):.0f}-{max(ms['this']):.0f}), "
+                     f"base / this {base / this:.3f}")
+        lines.append(line)
+        print(line, flush=True)
     return lines
 
 
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    p.add_argument("--base", default="HEAD", help="git revision of the base kernels")
-    p.add_argument("--base-dir", type=Path, help="the base kernels from this folder instead")
+    p.add_argument("--base", default="HEAD", help="git revision of the base version")
+    p.add_argument("--base-dir", type=Path, help="the base from this checkout instead")
     p.add_argument("--base-options", default="", help="OpenCL build options added to the base")
     p.add_argument("--options", default="", help="OpenCL build options added to this version")
-    p.add_argument("--datasets", default="gerris,shell256")
-    p.add_argument("--rates", default="2", help="samples per finest cell, comma-separated")
+    p.add_argument("--datasets", default="gerris,amrex,athena,enzo")
+    p.add_argument("--variants", default="all", help=f"of: {', '.join(VARIANTS)}")
+    p.add_argument("--timed", default="volume", help="variants whose frame times are compared")
     p.add_argument("--rounds", type=int, default=5)
-    p.add_argument("--size", type=int, default=1024)
-    p.add_argument("--shading", default="none", choices=("none", "headlight"))
+    p.add_argument("--size", type=int, default=512)
     args = p.parse_args(argv)
-    from exabricks import opencl
-
-    rates = [float(r) for r in args.rates.split(",")]
-    options = (tuple(shlex.split(args.base_options)), tuple(shlex.split(args.options)))
+    variants = benchdoc.chosen([] if args.variants == "all" else [args.variants], list(VARIANTS))
+    timed = benchdoc.chosen([args.timed], list(VARIANTS))
     with tempfile.TemporaryDirectory(prefix="ab-kernels-") as tmp:
-        base = args.base_dir or base_kernels(args.base, Path(tmp))
-        if not (Path(base) / opencl.ENTRY_SOURCE).is_file():
-            p.error(f"{base}: no {opencl.ENTRY_SOURCE} there")
-        with versions_of(Path(base), opencl.kernel_dir(), options=options) as versions:
+        base_root = args.base_dir or base_package(args.base, Path(tmp))
+        if not (Path(base_root) / "exabricks" / "__init__.py").is_file():
+            p.error(f"{base_root}: no exabricks package there")
+        with versions_of(Path(base_root), shlex.split(args.base_options),
+                         shlex.split(args.options)) as versions:
             for name in benchdoc.chosen([args.datasets], list(bench_peers.DATASETS)):
-                compare(name, versions, rates, args.rounds, args.size, args.shading)
+                compare(name, versions, variants, timed, args.rounds, args.size, Path(tmp))
     return 0
 
 

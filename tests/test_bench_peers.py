@@ -8,6 +8,8 @@ from __future__ import annotations
 import argparse
 import math
 
+import sys
+
 import numpy as np
 import pytest
 from conftest import DEVICES, GERRIS
@@ -794,27 +796,31 @@ def test_to_amr_grids_fill_holes():
     np.testing.assert_array_equal(child["v"][0], expect)
 
 
-def test_ab_kernels_alternates_two_kernel_directories(tmp_path):
-    """benchmarks/ab_kernels.py: a revision's kernels/ files land in a directory of their
-    own, and two versions (here both the working tree's kernels, built and cached apart,
-    the second with a two-entry walk heap given as a build option, so that every ray
-    falls back to the re-trace walk) render the same Gerris frames in turn with the same
-    samples and image; exabricks' program caches, kernel directory and build options
-    are its own again afterwards."""
+@pytest.mark.slow
+def test_ab_kernels_renders_two_versions_in_one_process(tmp_path):
+    """benchmarks/ab_kernels.py: a revision's exabricks/ and kernels/ land in a folder
+    of their own and import beside the working tree's; both versions (the second
+    with a two-entry walk heap given as a build option, so that every ray falls back
+    to the re-trace walk) build and render the same Gerris frames, volume timed and
+    surfaces once, to the same non-empty images; each built its own programs, and
+    exabricks' build options are its own again afterwards."""
     from benchmarks import ab_kernels
     from exabricks import opencl
 
-    base = ab_kernels.base_kernels("HEAD", tmp_path)
-    assert {p.name for p in base.iterdir()} >= {"render.cl", "packet.cl", "integrator.cl"}
-    here, options = opencl.kernel_dir(), opencl.BUILD_OPTIONS
-    with ab_kernels.versions_of(here, here, options=((), ("-DEB_QUEUE_SIZE=2",))) as versions:
-        (line,) = ab_kernels.compare("gerris", versions, [2.0], 1, 24, "none")
-    samples = line.split("samples ")[1].split(";")[0].split(" / ")
-    assert samples[0] == samples[1] and int(samples[0].replace(",", "")) > 0
-    assert line.endswith("max abs diff 0.00e+00")
-    assert all(versions[v]["programs"] for v in versions)  # each built its own program
-    assert versions["this"]["options"] == (*options, "-DEB_QUEUE_SIZE=2")
-    assert opencl.kernel_dir() == here and opencl.BUILD_OPTIONS == options
+    root = ab_kernels.base_package("HEAD", tmp_path)
+    assert (root / "exabricks" / "__init__.py").is_file() and (root / "kernels" / "render.cl").is_file()
+    options = opencl.BUILD_OPTIONS
+    with ab_kernels.versions_of(root, options=("-DEB_QUEUE_SIZE=2",)) as versions:
+        lines = ab_kernels.compare("gerris", versions, ["volume", "surfaces"], ["volume"], 1, 24,
+                                   tmp_path)
+        assert all(v.opencl._PROGRAMS for v in versions.values())
+        assert versions["base"].opencl is not opencl
+        assert opencl.BUILD_OPTIONS == (*options, "-DEB_QUEUE_SIZE=2")
+    assert len(lines) == 2 and "base / this" in lines[0]
+    for line in lines:
+        assert "max abs diff image 0.00e+00, probe 0.00e+00" in line
+        assert float(line.split("mean alpha ")[1].split(",")[0]) > 0
+    assert opencl.BUILD_OPTIONS == options and ab_kernels.BASE_NAME not in sys.modules
 
 
 # ptxas's report through -cl-nv-verbose, as NVIDIA's OpenCL driver (580.159.04) wrote
