@@ -2,7 +2,7 @@
 
     .venv/bin/python -m benchmarks.ab_kernels [--base HEAD | --base-dir DIR]
         [--base-options=...] [--options=...] [--datasets gerris,amrex,athena,enzo]
-        [--variants all] [--rounds 5] [--size 512] [--timed volume]
+        [--variants all] [--rounds 5] [--size 512] [--rate 2] [--timed volume]
 
 A change to the renderer is measured here before it is kept. The base version is
 the `exabricks` package and `kernels/` of git revision --base (extracted into a
@@ -158,7 +158,7 @@ def versions_of(base_root: Path, base_options=(), options=()):
 
 
 def compare(name: str, versions: dict, variants, timed, rounds: int, size: int,
-            workdir: Path) -> list[str]:
+            workdir: Path, rate: float = 2.0) -> list[str]:
     import json
 
     if name == "shell256":
@@ -180,6 +180,7 @@ def compare(name: str, versions: dict, variants, timed, rounds: int, size: int,
             continue
         doc = make(field, second, lo.tolist(), hi.tolist(), mid_value)
         doc.setdefault("unit_distance", unit)
+        doc.setdefault("sampling_rate", rate)
         scene_file = workdir / f"{name}-{len(lines)}.json"
         scene_file.write_text(json.dumps(doc))
         used = tuple(dict.fromkeys([field] + ([second] if needs_second else [])))
@@ -223,6 +224,7 @@ def main(argv=None) -> int:
     p.add_argument("--timed", default="volume", help="variants whose frame times are compared")
     p.add_argument("--rounds", type=int, default=5)
     p.add_argument("--size", type=int, default=512)
+    p.add_argument("--rate", type=float, default=2.0, help="samples per finest cell")
     args = p.parse_args(argv)
     variants = benchdoc.chosen([] if args.variants == "all" else [args.variants], list(VARIANTS))
     timed = benchdoc.chosen([args.timed], list(VARIANTS))
@@ -233,7 +235,8 @@ def main(argv=None) -> int:
         with versions_of(Path(base_root), shlex.split(args.base_options),
                          shlex.split(args.options)) as versions:
             for name in benchdoc.chosen([args.datasets], list(bench_peers.DATASETS)):
-                compare(name, versions, variants, timed, args.rounds, args.size, Path(tmp))
+                compare(name, versions, variants, timed, args.rounds, args.size, Path(tmp),
+                        args.rate)
     return 0
 
 
