@@ -23,23 +23,20 @@ import sys
 import tempfile
 from pathlib import Path
 
-from exabricks import opencl
-from exabricks.render.device_data import RECONSTRUCTION_DEFINES
-from exabricks.render.renderer import PACKET_WIDTH
+from exabricks import kernel_abi, opencl
 
 ROOT = Path(__file__).resolve().parents[1]
 
 
-# (label, source, kernel, defines)
+# (label, source, kernel, kernel_abi.variant_defines arguments)
 VARIANTS = (
-    ("volume, one sample (GPU default)", "render.cl", "eb_render", ()),
-    ("volume, sample packets (CPU default)", "render.cl", "eb_render",
-     (f"EB_PACKET={PACKET_WIDTH}",)),
-    ("surfaces, slices, clipping, AO", "render.cl", "eb_render", ("EB_SURFACES",)),
-    ("level of detail", "render.cl", "eb_render", ("EB_LOD",)),
-    ("cell location", "render.cl", "eb_render", ("EB_CELL_LOCATION",)),
-    ("vertex reconstruction", "render.cl", "eb_render", RECONSTRUCTION_DEFINES["vertex"]),
-    ("uniform-grid marcher", "uniform_grid.cl", "eb_uniform_render", None),
+    ("volume, one sample (GPU default)", "render.cl", "eb_render", {}),
+    ("volume, sample packets (CPU default)", "render.cl", "eb_render", {"packets": True}),
+    ("surfaces, slices, clipping, AO", "render.cl", "eb_render", {"surfaces": True}),
+    ("level of detail", "render.cl", "eb_render", {"lod": True}),
+    ("cell location", "render.cl", "eb_render", {"cell_location": True}),
+    ("vertex reconstruction", "render.cl", "eb_render", {"reconstruction": "vertex"}),
+    ("uniform-grid marcher", "uniform_grid.cl", "eb_uniform_render", {}),
 )
 ENTRY = re.compile(r"(?:entry function|Function properties for) '?(\w+)'?")
 
@@ -61,10 +58,11 @@ def report_of(log: str, name: str) -> list[str]:
 def build(context, device, source: str, defines, verbose: bool, cache_dir: str):
     import pyopencl as cl
 
-    options = opencl.build_options(() if defines is None else ("EB_N_FIELDS=1", *defines))
+    options = opencl.build_options(kernel_abi.variant_defines(**defines))
     if verbose:
         options.append("-cl-nv-verbose")
-    program = cl.Program(context, (opencl.kernel_dir() / source).read_text()).build(
+    text = kernel_abi.header() + (opencl.kernel_dir() / source).read_text()
+    program = cl.Program(context, text).build(
         options=options, cache_dir=cache_dir)
     log = program.get_build_info(device, cl.program_build_info.LOG) or ""
     return program, log

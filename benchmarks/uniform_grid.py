@@ -18,9 +18,8 @@ import time
 
 import numpy as np
 
-from exabricks import opencl
+from exabricks import kernel_abi, opencl
 from exabricks.errors import ExabricksError
-from exabricks.render.device_data import float4
 
 # Points per probe call while resampling (float32 (N, 3) points: 24 MiB).
 PROBE_CHUNK = 1 << 21
@@ -96,14 +95,15 @@ class UniformGridRenderer:
         self.device = device if device is not None and not isinstance(device, str) \
             else opencl.choose_device(device)
         self.context, self.queue = opencl.context_for(self.device)
-        self.kernel = opencl.kernel(opencl.program_for(self.context, source_name=SOURCE),
+        self.kernel = opencl.kernel(opencl.program_for(self.context, kernel_abi.variant_defines(),
+                                                       source_name=SOURCE),
                                     "eb_uniform_render")
         nz, ny, nx = volume.shape
         self.dims4 = _int4((nx, ny, nz))
         self.volume_buf = opencl.to_device(self.queue, volume)
-        self.lower_lattice4 = float4(lower_lattice)
-        self.origin_world4 = float4(origin_world)
-        self.inv_spacing4 = float4(1.0 / np.asarray(spacing_world, np.float64))
+        self.lower_lattice4 = opencl.float4(lower_lattice)
+        self.origin_world4 = opencl.float4(origin_world)
+        self.inv_spacing4 = opencl.float4(1.0 / np.asarray(spacing_world, np.float64))
         self.finest_width_world = float(np.min(spacing_world))
 
     def render(self, *, camera, transfer_function, width: int, height: int,
@@ -124,7 +124,7 @@ class UniformGridRenderer:
         samples_buf = opencl.empty_buffer(q, 4 * n)
         global_size = (-(-width // TILE) * TILE, -(-height // TILE) * TILE)
         args = (np.int32(width), np.int32(height), np.uint32(seed), np.int32(bool(jitter)),
-                float4(origin), float4(forward), float4(du), float4(dv),
+                opencl.float4(origin), opencl.float4(forward), opencl.float4(du), opencl.float4(dv),
                 self.origin_world4, self.inv_spacing4, self.lower_lattice4, self.volume_buf,
                 self.dims4, np.float32(self.finest_width_world / sampling_rate),
                 np.float32(1.0 / unit), np.float32(max_opacity),

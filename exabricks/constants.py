@@ -20,7 +20,7 @@ BOUNDS_DTYPE = np.dtype(np.float32)
 WORLD_DTYPE = np.dtype(np.float64)
 # Depth of every tree a kernel descends (BVH over regions, tree over brick
 # supports): the kernels' private stacks hold this many deferred nodes
-# (passed as -DEB_STACK_SIZE), and every tree is checked against it on load.
+# (kernel_abi EB_STACK_SIZE), and every tree is checked against it on load.
 MAX_TREE_DEPTH = 64
 # Samples one ray may take (per pixel sample): a sampling rate that would need
 # more is refused before rendering (and bounds every kernel loop).

@@ -23,7 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .constants import MAX_SAMPLES_PER_RAY, MAX_TREE_DEPTH
+from . import kernel_abi
 from .errors import ExabricksError
 
 # The source file holding the __kernel entry points; it #includes the rest.
@@ -33,10 +33,10 @@ ENTRY_SOURCE = "render.cl"
 # IEEE infinities (ray slabs) and NaN (probe outside the data). Flushing
 # denormals and ignoring the sign of zero keep both (the slab test takes
 # fmin/fmax of both planes, so the sign of an infinite 1/dir does not matter)
-# and make frames about 5 % faster on PoCL (docs/benchmarks.md, "render (PoCL)").
-# The limits every kernel loop and stack obeys are defined once, in constants.py.
-BUILD_OPTIONS = ("-cl-mad-enable", "-cl-no-signed-zeros", "-cl-denorms-are-zero",
-                 f"-DEB_STACK_SIZE={MAX_TREE_DEPTH}", f"-DEB_MAX_SAMPLES={MAX_SAMPLES_PER_RAY}")
+# and make frames faster on PoCL (docs/benchmarks.md, "render (PoCL)").
+# The limits every kernel loop and stack obeys, and the frame's parameters, come
+# from exabricks.kernel_abi, whose header() starts every program.
+BUILD_OPTIONS = ("-cl-mad-enable", "-cl-no-signed-zeros", "-cl-denorms-are-zero")
 
 _NO_PLATFORM = (
     "no OpenCL platform found; install an OpenCL driver "
@@ -188,7 +188,7 @@ def program_for(context, defines=(), source_name: str = ENTRY_SOURCE):
     key = (context.int_ptr, defines, source_name)
     if key not in _PROGRAMS:
         directory = kernel_dir()
-        source = (directory / source_name).read_text(encoding="utf-8")
+        source = kernel_abi.header() + (directory / source_name).read_text(encoding="utf-8")
         try:
             _PROGRAMS[key] = cl.Program(context, source).build(options=build_options(defines))
         except cl.RuntimeError as e:
@@ -227,6 +227,21 @@ def to_device(queue, array, dtype=None, writable: bool = False, share: bool = Fa
     if share and not writable and queue.device.type & cl.device_type.CPU:
         placement = cl.mem_flags.USE_HOST_PTR
     return cl.Buffer(queue.context, access | placement, hostbuf=host)
+
+
+def int4(a: int, b: int, c: int, d: int):
+    """An OpenCL int4 kernel argument."""
+    import pyopencl.cltypes as cltypes
+
+    return cltypes.make_int4(int(a), int(b), int(c), int(d))
+
+
+def float4(xyz, w=0.0):
+    """An OpenCL float4 kernel argument (x, y, z, w)."""
+    import pyopencl.cltypes as cltypes
+
+    x, y, z = (float(v) for v in xyz)
+    return cltypes.make_float4(x, y, z, float(w))
 
 
 def empty_buffer(queue, nbytes: int):

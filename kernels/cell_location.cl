@@ -9,9 +9,9 @@
 #include "reconstruction.cl"
 #include "traversal.cl"
 
-/* Bricks a sample sorts before summing; any beyond are summed unsorted (still
- * correct, only no longer in the regions' order). */
-#define EB_LOCATE_MAX 64
+/* EB_LOCATE_MAX (exabricks.kernel_abi): bricks a sample sorts before summing;
+ * any beyond are summed unsorted (still correct, only no longer in the
+ * regions' order). */
 
 /* exabricks.stages.cell_location.BrickTree on the device. */
 typedef struct {

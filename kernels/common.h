@@ -6,20 +6,21 @@
  * in world units (docs/design.md, "Integration and images"). */
 #pragma once
 
-/* Capacity of the private tree-descent stacks, from the host
- * (exabricks.constants.MAX_TREE_DEPTH, passed by exabricks.opencl as
- * -DEB_STACK_SIZE): every tree is checked on load to be at most this many
- * levels deep, and a descent that pushes both children of a node and pops one
- * never holds more entries than the tree has levels, so no push is dropped. */
-#ifndef EB_STACK_SIZE
-#error "build with -DEB_STACK_SIZE=n (exabricks.opencl.BUILD_OPTIONS)"
+/* Every array bound (EB_STACK_SIZE, EB_MAX_SAMPLES, EB_MAX_ISO, ...) and the
+ * frame's parameters (eb_params) come from the host's one declaration,
+ * exabricks.kernel_abi, whose header() exabricks.opencl.program_for puts in
+ * front of every program; the variant defines (EB_N_FIELDS, EB_SURFACES, ...)
+ * come from kernel_abi.variant_defines. The host keeps its inputs within the
+ * bounds: every tree is checked on load to be at most EB_STACK_SIZE levels deep
+ * (a descent that pushes both children of a node and pops one never holds more
+ * entries than the tree has levels), and a sampling rate that would need more
+ * than EB_MAX_SAMPLES samples on a ray is refused, so no input makes a kernel
+ * loop forever. */
+#ifndef EB_ABI
+#error "build through exabricks.opencl.program_for (it prepends exabricks.kernel_abi.header())"
 #endif
-
-/* Most samples one ray takes (exabricks.constants.MAX_SAMPLES_PER_RAY, passed
- * as -DEB_MAX_SAMPLES): the host refuses settings that would need more, and
- * every sampling loop stops there, so no input makes a kernel loop forever. */
-#ifndef EB_MAX_SAMPLES
-#error "build with -DEB_MAX_SAMPLES=n (exabricks.opencl.BUILD_OPTIONS)"
+#ifndef EB_N_FIELDS
+#error "build with the defines of exabricks.kernel_abi.variant_defines (EB_N_FIELDS)"
 #endif
 
 #define EB_INF INFINITY

@@ -21,10 +21,10 @@
 #include "common.h"
 #include "scene.cl"
 
-/* Eight lanes: sixteen ran no faster on PoCL (its LLVM prefers 256-bit vectors
- * here) and waste more lanes at region ends (docs/design.md). */
+/* EB_PACKET lanes: exabricks.kernel_abi.PACKET_WIDTH, eight (the vector types
+ * below). */
 #if EB_PACKET != 8
-#error "build with -DEB_PACKET=8"
+#error "build with the defines of exabricks.kernel_abi.variant_defines (EB_PACKET=8)"
 #endif
 typedef float8 eb_vf;
 typedef int8 eb_vi;

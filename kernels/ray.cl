@@ -1,10 +1,7 @@
-/* One ray and what it has accumulated so far (the integrator's state). Included
- * by scene.cl after EB_MAX_SLICES; EB_N_FIELDS and EB_LOD are build defines. */
+/* One ray and what it has accumulated so far (the integrator's state). EB_N_FIELDS,
+ * EB_MAX_SLICES and EB_LOD_LEVELS: exabricks.kernel_abi. */
 #pragma once
 #include "common.h"
-
-/* Levels whose samples --lod counts (level 0 .. EB_LOD_LEVELS - 1). */
-#define EB_LOD_LEVELS 16
 
 /* One ray: in lattice space with t in world distance (dir_world unit length),
  * and what seeds its random numbers. */

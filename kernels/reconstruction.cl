@@ -17,11 +17,8 @@
 #pragma once
 #include "common.h"
 
-/* Fields reconstructed together: the frame's fields (exabricks.scene.Scene.fields),
- * passed by the host as -DEB_N_FIELDS (one program per count). */
-#ifndef EB_N_FIELDS
-#define EB_N_FIELDS 1
-#endif
+/* Fields reconstructed together: EB_N_FIELDS, the frame's fields
+ * (exabricks.scene.Scene.fields; one program per count). */
 
 /* The bricks on the device (exabricks.schema.Bricks, the frame's fields):
  *   box[b]    = (L.x, L.y, L.z, 1 / w), lattice units
@@ -132,9 +129,6 @@ EB_INLINE void eb_add_brick(eb_bricks bricks, int b, float3 p, eb_basis_sums *s,
  * EB_MAX_MIP): cells 2**m times wider anchored at the brick's lower corner,
  * ceil(N / 2**m) per axis, each the mean of the brick's cells inside it
  * (exabricks.stages.lod). */
-#ifndef EB_MAX_MIP
-#define EB_MAX_MIP 6
-#endif
 EB_INLINE void eb_add_brick_lod(eb_bricks bricks, int b, float3 p, int level, eb_basis_sums *s,
                                 const int want_gradient)
 {

@@ -19,13 +19,6 @@ typedef eb_located_bricks eb_sample_bricks;
 typedef eb_bricks eb_sample_bricks;
 #endif
 
-#ifndef EB_MAX_ISO
-#define EB_MAX_ISO 32
-#endif
-#ifndef EB_MAX_SLICES
-#define EB_MAX_SLICES 8
-#endif
-
 /* Iso-surfaces and slices (exabricks.scene.IsoSurface, Slice). */
 typedef struct {
     __global const int4 *iso;          /* (field, colour field or -1, first knot, knot count) */

@@ -119,12 +119,10 @@ inline int eb_next_region(eb_bvh bvh, eb_regions regions, float3 org, float3 inv
     return best;
 }
 
-/* Capacity of the ordered walk's heap: the queued nodes and regions lie ahead
- * of the ray front on disjoint subtrees, a few tens for any BVH seen so far.
- * A build option -DEB_QUEUE_SIZE=n overrides it (tests force overflow with 2). */
-#ifndef EB_QUEUE_SIZE
-#define EB_QUEUE_SIZE 64
-#endif
+/* EB_QUEUE_SIZE (exabricks.kernel_abi.TUNABLES): the capacity of the ordered
+ * walk's heap. The queued nodes and regions lie ahead of the ray front on
+ * disjoint subtrees, a few tens for any BVH seen so far. A build option
+ * -DEB_QUEUE_SIZE=n overrides it (tests force overflow with 2). */
 
 /* A binary min-heap of (key, item) pairs in private arrays. */
 typedef struct {

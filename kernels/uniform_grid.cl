@@ -1,4 +1,4 @@
-/* The uniform-grid ceiling of workflows/bench_peers.py: a minimal trilinear ray
+/* The uniform-grid ceiling of benchmarks/bench_peers.py: a minimal trilinear ray
  * marcher over one float volume (the dataset resampled at its finest
  * resolution), with the renderer's camera, transfer function, sample placement,
  * opacity correction, compositing and early termination, and none of its
@@ -20,14 +20,15 @@
  * eb_render.
  *
  * Like render.cl this is a program's main file (built on its own by
- * exabricks.stages.uniform_grid), so it has no #pragma once; what it includes
- * does. The sub-intervals (sampler.cl) and the compositing (integrator.cl) are
+ * benchmarks/uniform_grid.py), so it has no #pragma once; what it includes
+ * does. The sub-intervals (sampler.cl), the transfer function and opacity
+ * correction (transfer_function.cl) and the compositing (compositing.cl) are
  * the renderer's own functions. */
 #include "common.h"
 #include "sampler.cl"
 #include "camera.cl"
 #include "transfer_function.cl"
-#include "integrator.cl"
+#include "compositing.cl"
 
 /* Trilinear value of `volume` (dims n) at voxel coordinate x (voxel centres at
  * integers), clamped to the edge voxels. */

@@ -17,7 +17,7 @@ from dataclasses import dataclass
 import numpy as np
 import pytest
 
-from exabricks import opencl, schema
+from exabricks import kernel_abi, opencl, schema
 from exabricks.camera import Camera, default_camera
 from exabricks.readers import read
 from exabricks.render.renderer import Renderer
@@ -301,7 +301,8 @@ def test_opacity_correction_matches_float64(device):
     import pyopencl as cl
 
     context, queue = opencl.context_for(opencl.choose_device(device))
-    program = cl.Program(context, OPACITY_TEST_SOURCE).build(options=opencl.build_options())
+    program = cl.Program(context, kernel_abi.header() + OPACITY_TEST_SOURCE).build(
+        options=opencl.build_options(kernel_abi.variant_defines()))
     alphas = np.concatenate([np.geomspace(1e-7, 1, 400), np.linspace(0, 1, 401)[1:],
                              1 - np.geomspace(1e-7, 0.5, 200)])
     ks = np.concatenate([np.geomspace(1e-4, 1e3, 120), [0.5, 1.0, 2.0]])

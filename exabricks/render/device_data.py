@@ -2,9 +2,9 @@
 
 `check_inputs` is the consistency test shared by render and probe;
 `DeviceScene` holds one dataset's buffers on one device (uploaded once, reused
-for every frame or probe) and lays out kernel arguments in the order of the
-EB_BVH_ARGS / EB_REGION_ARGS / EB_BRICK_ARGS (and, for the cell-location
-variant, EB_LOCATION_ARGS) macros of kernels/render.cl.
+for every frame or probe), grouped as the EB_DATASET_ARGS of kernels/dataset.cl
+take them, and where each array starts in them (`layout`, members of
+exabricks.kernel_abi.PARAMS).
 """
 
 from __future__ import annotations
@@ -15,17 +15,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .. import interrupt, opencl, schema
+from .. import interrupt, kernel_abi, opencl, schema
 from ..scene import RECONSTRUCTIONS
 from ..errors import ExabricksError
-
-
-# Reconstructions (exabricks.scene.RECONSTRUCTIONS, docs/design.md): the basis
-# method (paper eq. 1-2), the containing leaf cell's value (Kähler & Abel), or
-# trilinear interpolation of stitched vertex values (Kähler & Hege), each a
-# program variant.
-RECONSTRUCTION_DEFINES = {"basis": (), "nearest": ("EB_RECON_NEAREST",),
-                          "vertex": ("EB_RECON_VERTEX",)}
+from .grouped import Grouped
 
 
 # Points per enqueue of `DeviceScene.probe_fields`: a fraction of a second on a CPU device.
@@ -157,13 +150,6 @@ def gradient_scale(spacing_world, magnitude: float) -> np.ndarray:
     return inv / inv.max() / magnitude
 
 
-def float4(xyz, w=0.0) -> np.ndarray:
-    import pyopencl.cltypes as cltypes
-
-    x, y, z = (float(v) for v in xyz)
-    return cltypes.make_float4(x, y, z, float(w))
-
-
 def _packed(dtype, *parts) -> np.ndarray:
     """Parts ((n,) or (n, k) arrays) side by side as the columns of one (n, width)
     `dtype` array, written in place: the rows of OpenCL's int2, int4 or float4."""
@@ -216,40 +202,44 @@ class DeviceScene:
         def up(queue, array, dtype=None):  # resident for the scene's life: shared on CPUs
             return opencl.to_device(queue, array, dtype, share=True)
 
-        b = bricks
+        b, r = bricks, regions
+        # The boxes of the BVH and of the regions, (n, 3) corners (traversal.cl,
+        # EB_CORNER), and the BVH's links and leaf-order region ids, grouped.
+        geometry, links, layout = Grouped(np.float32), Grouped(np.int32), {}
+        for name, array in (("node_lower_at", bvh.lower_lattice), ("node_upper_at", bvh.upper_lattice),
+                            ("region_lower_at", r.lower_lattice),
+                            ("region_upper_at", r.upper_lattice)):
+            layout[name] = geometry.add(array)
+        layout["node_link_at"] = links.add(_packed(np.int32, bvh.first, bvh.count), align=2)
+        layout["node_region_at"] = links.add(bvh.region_index)
+        # Per brick its box (lower corner, 1 / width), then its dims (N, level) as int4.
         inv_width = np.ldexp(np.float32(1), -b.level.astype(np.int32))
-        box = _packed(np.float32, b.lower_lattice, inv_width)
-        dims = _packed(np.int32, b.dims, b.level)
+        grid = np.concatenate([_packed(np.float32, b.lower_lattice, inv_width),
+                               _packed(np.int32, b.dims, b.level).view(np.float32)])
         # A run of consecutive fields is a view (no copy of the values on the host).
         first = self.field_indices[0] if self.fields else 0
         consecutive = self.field_indices == list(range(first, first + len(self.field_indices)))
         values = b.values[first:first + max(1, len(self.field_indices))] if consecutive \
             else b.values[self.field_indices]
-        self.brick_args = [up(q, box, np.float32), up(q, dims, np.int32),
-                           up(q, b.offset, np.int64), up(q, values, np.float32),
-                           np.int64(b.values.shape[1])]
-        # Vertex values (reconstruction "vertex") and mip levels (--lod): made and
-        # uploaded on first use; these dummies stand in until then.
-        self._no_per_brick = [up(q, np.zeros(1, np.int64)), up(q, np.zeros(1, np.float32)),
-                             np.int64(0)]
+        self._geometry = [up(q, geometry.array()), up(q, links.array())]
+        self._lists = [up(q, r.brick_start, np.int64), up(q, r.brick_ids, np.int32),
+                       up(q, grid, np.float32), up(q, b.offset, np.int64),
+                       up(q, values, np.float32)]
+        # node visibility | region visibility | region finest level (flags_for)
+        self._finest_level = np.ascontiguousarray(r.finest_level, np.int8).view(np.uint8)
+        self._all_visible = up(q, self.flags_for(None, None))
+        self.layout = {**layout, "node_visible_at": 0, "region_visible_at": max(bvh.n_nodes, 1),
+                       "region_level_at": max(bvh.n_nodes, 1) + max(r.n_regions, 1),
+                       "n_nodes": bvh.n_nodes, "n_regions": r.n_regions,
+                       "n_bricks": b.n_bricks, "field_stride": b.values.shape[1]}
+        # Vertex values (reconstruction "vertex"), mip levels (--lod) and the
+        # cell-location tree: made and uploaded on first use; these dummies stand in.
+        self._no_per_brick = [up(q, np.zeros(1, np.int64)), up(q, np.zeros(1, np.float32))]
+        self._no_tree = up(q, np.zeros(1, np.float32))
         self._vertex_args = self._mip_args = None
-
-        # Region and node boxes as the files hold them, (n, 3) float32 (traversal.cl, EB_CORNER).
-        r = regions
-        self._region_static = [up(q, r.lower_lattice, np.float32), up(q, r.upper_lattice, np.float32),
-                               up(q, r.brick_start, np.int64), up(q, r.brick_ids, np.int32),
-                               up(q, r.finest_level, np.int8)]
-        link = _packed(np.int32, bvh.first, bvh.count)
-        self._bvh_static = [up(q, bvh.lower_lattice, np.float32),
-                            up(q, bvh.upper_lattice, np.float32), up(q, link),
-                            up(q, bvh.region_index, np.int32)]
-        self._all_visible = (up(q, np.ones(max(bvh.n_nodes, 1), np.uint8)),
-                             up(q, np.ones(max(r.n_regions, 1), np.uint8)))
         # The device holds these in its own layout now: mapped pages go back.
         schema.release_arrays(b.lower_lattice, b.level, b.dims, bvh.first, bvh.count)
 
-        self.origin_world4 = float4(b.origin_world)
-        self.inv_spacing4 = float4(1.0 / b.spacing_world)
         self.gradient_scales = np.array(
             [[*gradient_scale(b.spacing_world, scale.magnitudes[f]), 0.0]
              for f in self.fields] or [[1.0, 1.0, 1.0, 0.0]], np.float32)
@@ -258,13 +248,13 @@ class DeviceScene:
         self._location_args = None
         self.brick_tree = self.brick_tree_seconds = None
 
-    def program_for(self, defines=(), reconstruction: str = "basis"):
-        """The kernel program for this scene's field count and `reconstruction`
-        (RECONSTRUCTIONS), with extra `defines`."""
-        check_reconstruction(reconstruction)
-        return opencl.program_for(self.context, (f"EB_N_FIELDS={max(1, len(self.fields))}",
-                                                 *RECONSTRUCTION_DEFINES[reconstruction],
-                                                 *defines))
+    def program_for(self, extra=(), **variant):
+        """The kernel program of this scene's field count and the `variant`
+        (kernel_abi.variant_defines: reconstruction, surfaces, ...), with `extra`
+        defines."""
+        check_reconstruction(variant.get("reconstruction", "basis"))
+        return opencl.program_for(self.context, (*kernel_abi.variant_defines(
+            n_fields=len(self.fields), **variant), *extra))
 
     @property
     def empty(self) -> bool:
@@ -289,17 +279,40 @@ class DeviceScene:
             out.append(seen)
         return tuple(out)
 
-    def scene_args(self, node_visible=None, region_visible=None,
-                   reconstruction: str = "basis", lod: bool = False) -> list:
-        """Kernel arguments EB_BVH_ARGS, EB_REGION_ARGS, EB_BRICK_ARGS (visibility buffers
-        given, or all visible) for `reconstruction` (and level of detail)."""
-        nv = self._all_visible[0] if node_visible is None else node_visible
-        rv = self._all_visible[1] if region_visible is None else region_visible
-        counts = [np.int32(self.bvh.n_nodes), np.int32(self.regions.n_regions)]
-        vertices = self.vertex_args() if reconstruction == "vertex" else self._no_per_brick
-        mips = self.mip_args() if lod else self._no_per_brick
-        return [*self._bvh_static, nv, *counts, *self._region_static, rv, *self.brick_args,
-                *vertices, *mips]
+    def flags_for(self, node_visible, region_visible) -> np.ndarray:
+        """The flags buffer's contents: node visibility, region visibility (uint8,
+        each given, or all visible) and the regions' finest levels."""
+        n_nodes, n_regions = max(self.bvh.n_nodes, 1), max(self.regions.n_regions, 1)
+        out = np.ones(n_nodes + 2 * n_regions, np.uint8)
+        if node_visible is not None:
+            out[:self.bvh.n_nodes] = node_visible
+        if region_visible is not None:
+            out[n_nodes:n_nodes + self.regions.n_regions] = region_visible
+        out[n_nodes + n_regions:n_nodes + n_regions + self.regions.n_regions] = self._finest_level
+        return out
+
+    def dataset_args(self, flags=None, reconstruction: str = "basis", lod: bool = False,
+                     cell_location: bool = False) -> tuple[list, dict]:
+        """The kernel arguments EB_DATASET_ARGS (kernels/dataset.cl) with the `flags`
+        buffer (default: all visible) for `reconstruction`, level of detail and
+        the cell-location tree, and their eb_params members (layout)."""
+        layout = dict(self.layout)
+        vertex, mip = self._no_per_brick, self._no_per_brick
+        if reconstruction == "vertex":
+            vertex, layout["vertex_stride"] = self.vertex_args()
+        if lod:
+            mip, layout["mip_stride"] = self.mip_args()
+        tree = self._no_tree
+        if cell_location:
+            tree, tree_layout = self.location_args()
+            layout.update(tree_layout)
+        flags = self._all_visible if flags is None else flags
+        return [*self._geometry, flags, *self._lists, *vertex, *mip, tree], layout
+
+    def params(self, **values) -> np.ndarray:
+        """eb_params with this scene's world frame and `values` (kernel_abi.params)."""
+        return kernel_abi.params(origin_world=(*self.bricks.origin_world, 0.0),
+                                 inv_spacing=(*(1.0 / self.bricks.spacing_world), 0.0), **values)
 
     def probe_fields(self, points_world, *, reconstruction: str = "basis") -> np.ndarray:
         """Values of every field of the scene at `points_world` (N, 3) world units ->
@@ -320,7 +333,8 @@ class DeviceScene:
         q = self.queue
         local = 64
         kernel = opencl.kernel(self.program_for(reconstruction=reconstruction), "eb_probe")
-        args = self.scene_args(reconstruction=reconstruction)
+        args, layout = self.dataset_args(reconstruction=reconstruction)
+        params = opencl.to_device(q, self.params(**layout))
         # In chunks, so that a signal can stop a large probe between enqueues.
         chunk = min(n, PROBE_CHUNK)
         values_buf = opencl.empty_buffer(q, 4 * chunk * n_fields)
@@ -329,8 +343,8 @@ class DeviceScene:
         for start in range(0, n, chunk):
             m = min(chunk, n - start)
             kernel(q, (-(-m // local) * local,), (local,),
-                   np.int32(m), opencl.to_device(q, points[start:start + m]),
-                   self.origin_world4, self.inv_spacing4, *args, values_buf)
+                   np.int32(m), opencl.to_device(q, points[start:start + m]), params,
+                   *args, values_buf)
             opencl.read_back(q, values_buf, values[:m * n_fields])
             out[:, start:start + m] = values[:m * n_fields].reshape(n_fields, m)
             interrupt.raise_pending()
@@ -359,25 +373,28 @@ class DeviceScene:
                 self.bricks, lambda lattice: self.probe_fields(points_world(lattice))))
         return self._vertex_args
 
-    def _per_brick_args(self, what: str, offset: np.ndarray, values: np.ndarray) -> list:
-        """Kernel arguments of extra per-brick data: offsets (int64), values
-        (float32 (F, n)) and the stride between fields, checked against the device."""
+    def _per_brick_args(self, what: str, offset: np.ndarray, values: np.ndarray) -> tuple:
+        """([offsets (int64), values (float32 (F, n))] buffers, the stride between
+        fields) of extra per-brick data, checked against the device."""
         check_device_memory(self.device, {what: values.nbytes})
         q, up = self.queue, opencl.to_device
-        return [up(q, offset, np.int64), up(q, values, np.float32), np.int64(values.shape[1])]
+        return [up(q, offset, np.int64), up(q, values, np.float32)], values.shape[1]
 
-    def location_args(self) -> list:
-        """Kernel arguments EB_LOCATION_ARGS: the tree over the brick supports
-        (exabricks.render.cell_location), built and uploaded on the first call
-        (kept as `brick_tree`, its build time in `brick_tree_seconds`)."""
+    def location_args(self) -> tuple:
+        """The tree over the brick supports (exabricks.render.cell_location) as one
+        buffer of 4-byte words (kernels/dataset.cl) and its eb_params members,
+        built and uploaded on the first call (kept as `brick_tree`, its build time
+        in `brick_tree_seconds`)."""
         if self._location_args is None:
             start = time.perf_counter()
             from .cell_location import build_brick_tree  # numba: only for this lookup
 
             tree = self.brick_tree = build_brick_tree(self.bricks)
             self.brick_tree_seconds = time.perf_counter() - start
-            q, up = self.queue, opencl.to_device
-            self._location_args = [up(q, tree.lower, np.float32), up(q, tree.upper, np.float32),
-                                   up(q, _packed(np.int32, tree.first, tree.count)),
-                                   up(q, tree.brick_index, np.int32), np.int32(tree.first.shape[0])]
+            words = Grouped(np.float32)
+            layout = {"tree_lower_at": words.add(tree.lower), "tree_upper_at": words.add(tree.upper),
+                      "tree_link_at": words.add(_packed(np.int32, tree.first, tree.count), align=2),
+                      "tree_brick_at": words.add(np.asarray(tree.brick_index, np.int32)),
+                      "n_tree_nodes": tree.first.shape[0]}
+            self._location_args = opencl.to_device(self.queue, words.array()), layout
         return self._location_args

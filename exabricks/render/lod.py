@@ -16,9 +16,8 @@ import numba
 import numpy as np
 
 from .. import schema
+from ..kernel_abi import MAX_MIP
 
-# Mip levels per brick (kernels/reconstruction.cl EB_MAX_MIP).
-MAX_MIP = 6
 
 
 def mip_layout(dims: np.ndarray) -> tuple[np.ndarray, int]:

@@ -57,10 +57,12 @@ import numpy as np
 
 from .. import interrupt, opencl, schema
 from ..constants import MAX_SAMPLES_PER_RAY
+from ..kernel_abi import LOD_LEVELS, PACKET_WIDTH
 from ..errors import ExabricksError
 from ..scene import Lighting, Scene, Settings, VolumeLayer
 from ..transfer_function import knot_buckets
-from .device_data import DatasetScale, DeviceScene, float4
+from .device_data import DatasetScale, DeviceScene
+from .grouped import Grouped
 
 # Region walks (kernels/traversal.cl): "ordered" keeps a private min-heap of
 # BVH nodes and regions per ray (one traversal per ray); "retrace" is the
@@ -70,11 +72,6 @@ TRAVERSALS = ("ordered", "retrace")
 # Where a sample finds the bricks it reconstructs from: the region's list (paper
 # §3.2) or a per-sample descent of a tree over the brick supports (§6.4.2).
 LOOKUPS = ("regions", "cell-location")
-
-# Samples a ray reconstructs at once on CPU devices (kernels/packet.cl): one
-# lane of an 8-wide vector each (docs/design.md, "Sample packets"); GPUs run one
-# sample at a time, their lanes being the work-items.
-PACKET_WIDTH = 8
 
 # Pixels per work-group side: 8 x 8 tiles keep neighbouring rays (which walk the
 # same regions and bricks) together on one core.
@@ -136,7 +133,7 @@ class Renderer:
         self.scene = DeviceScene(bricks, regions, bvh, field=field, fields=fields, device=device,
                                  scale=scale)
         self.piece = None if piece is None else \
-            tuple(float4(np.asarray(b, np.float64)) for b in piece)
+            tuple((*np.asarray(b, np.float64), 0.0) for b in piece)
         self._use(lookup)
         # Sample packets: on CPU devices unless asked otherwise (both give the same image).
         self.packets = opencl.is_cpu(self.scene.device) if packets is None else bool(packets)
@@ -144,9 +141,8 @@ class Renderer:
     def _use(self, lookup: str) -> None:
         _check_lookup(lookup)
         self.lookup = lookup
-        self.location_args = []
         if lookup == "cell-location":
-            self.location_args = self.scene.location_args()
+            self.scene.location_args()  # built now: its time is not a frame's
 
     def _kernel(self, surfaces: bool, reconstruction: str, lod: bool, extra=()):
         """eb_render built for this renderer and frame, with `extra` defines (tests)."""
@@ -156,11 +152,11 @@ class Renderer:
         if lod and reconstruction != "basis":
             raise ExabricksError(f"level of detail (--lod) works with the basis reconstruction, "
                                  f"not with {reconstruction}")
-        defines = (("EB_CELL_LOCATION",) if self.lookup == "cell-location" else ()) \
-            + (("EB_SURFACES",) if surfaces else ()) + (("EB_LOD",) if lod else ()) \
-            + ((f"EB_PACKET={PACKET_WIDTH}",) if self._packet_width(reconstruction) > 1 else ()) \
-            + (("EB_PIECE",) if self.piece is not None else ()) + tuple(extra)
-        return opencl.kernel(self.scene.program_for(defines, reconstruction), "eb_render")
+        program = self.scene.program_for(
+            extra, reconstruction=reconstruction, surfaces=surfaces, lod=lod,
+            packets=self._packet_width(reconstruction) > 1, piece=self.piece is not None,
+            cell_location=self.lookup == "cell-location")
+        return opencl.kernel(program, "eb_render")
 
     def _packet_width(self, reconstruction: str) -> int:
         """Samples reconstructed at once: PACKET_WIDTH for the basis reconstruction from
@@ -293,22 +289,22 @@ class Renderer:
         lod_scale = cfg.lod * pixel_angle / s.min_spacing_world if lod else 0.0
         lighting = scene.lighting
         ao_distance = lighting.ao_distance or AO_DISTANCE_CELLS * s.finest_width_world
-        fixed = [
-            np.uint32(int(cfg.seed) & 0xFFFFFFFF), np.int32(bool(cfg.jitter)),
-            float4(origin), float4(forward), float4(du), float4(dv),
-            s.origin_world4, s.inv_spacing4,
-            np.float32(s.min_spacing_world / cfg.sampling_rate), np.float32(1.0 / unit),
-            np.float32(cfg.max_opacity), np.int32(shading != "none"),
-            np.int32(traversal == "ordered"),
+        args, layout = s.dataset_args(up(q, s.flags_for(node_vis, region_vis)), cfg.reconstruction,
+                                      lod, self.lookup == "cell-location")
+        look, look_params = frame_arrays(scene, s)
+        params = up(q, s.params(
+            **layout, **look_params, width=width, height=height, spp=spp,
+            seed=int(cfg.seed) & 0xFFFFFFFF, jitter=bool(cfg.jitter),
+            cam_origin=(*origin, 0), cam_forward=(*forward, 0), cam_du=(*du, 0), cam_dv=(*dv, 0),
+            step_base=s.min_spacing_world / cfg.sampling_rate, inv_unit_distance=1.0 / unit,
+            max_opacity=cfg.max_opacity, shading=shading != "none", ordered=traversal == "ordered",
             # nearest is piecewise constant: its normals come from central differences
-            np.int32(lighting.gradient == "central" or cfg.reconstruction == "nearest"),
-            np.int32(lighting.ao_samples), np.float32(ao_distance), np.float32(lod_scale),
-            *s.scene_args(up(q, node_vis), up(q, region_vis), cfg.reconstruction, lod),
-            *self.location_args,
-            *frame_args(scene, s, q),
-            *((*self.piece, front_buf, np.int32(front is not None)) if self.piece else ()),
-            rgba_buf, depth_buf, samples_buf, level_buf,
-        ]
+            central=lighting.gradient == "central" or cfg.reconstruction == "nearest",
+            ao_samples=lighting.ao_samples, ao_distance=ao_distance, lod_scale=lod_scale,
+            **(dict(piece_lower=self.piece[0], piece_upper=self.piece[1],
+                    use_front=front is not None) if self.piece else {})))
+        fixed = [*args, *(up(q, a) for a in look),
+                 *((front_buf,) if self.piece else ()), rgba_buf, depth_buf, samples_buf, level_buf]
         q.finish()
         start = time.perf_counter()
         total = 0
@@ -330,10 +326,9 @@ class Renderer:
                     for buf, size in ((rgba_buf, 16), (samples_buf, 4)):
                         opencl.fill_zero(q, buf, n * size)
                 for index in (range(spp) if sample is None else (sample,)):
-                    kernel(q, global_size, (TILE, TILE),
-                           np.int32(width), np.int32(height), np.int32(tile_row0 + row0),
-                           np.int32(rows), np.int32(col0), np.int32(cols),
-                           np.int32(index), np.int32(spp), *fixed)
+                    kernel(q, global_size, (TILE, TILE), params,
+                           opencl.int4(tile_row0 + row0, rows, col0, cols),
+                           np.int32(index), *fixed)
                 opencl.read_back(q, rgba_buf, rgba[row0:row0 + rows].reshape(n, 4))
                 opencl.read_back(q, samples_buf, samples[:n])
                 if d is not None:
@@ -441,21 +436,18 @@ def render_scene(bricks: schema.Bricks, regions: schema.Regions, bvh: schema.Bvh
                     lookup=lookup).render_scene(scene, traversal=traversal)
 
 
-# Levels whose samples a --lod frame counts (kernels/ray.cl EB_LOD_LEVELS).
-LOD_LEVELS = 16
-
 # Default ambient-occlusion distance, in finest cell widths of the dataset.
 AO_DISTANCE_CELLS = 10.0
 # Iso-hit refinement tolerance, in finest cell widths (docs/design.md).
 ISO_TOLERANCE_CELLS = 1e-3
 
 
-def frame_args(scene: Scene, device_scene: DeviceScene, queue) -> list:
-    """Kernel arguments EB_FRAME_ARGS (kernels/render.cl) of `scene`: every transfer
-    function and colour map as merged knots one after the other (and each volume
-    layer's knot index, transfer_function.knot_buckets), the volume layers,
-    iso-surfaces and slices by field index on the device, and clipping."""
-    up = opencl.to_device
+def frame_arrays(scene: Scene, device_scene: DeviceScene) -> tuple[tuple, dict]:
+    """The look of `scene` as the render kernel takes it: its float and int arrays
+    (look_f, look_i of kernels/render.cl) and their eb_params members. Every
+    transfer function and colour map as merged knots one after the other (and
+    each volume layer's knot index, transfer_function.knot_buckets), the volume
+    layers, iso-surfaces and slices by field index on the device, and clipping."""
     index = {name: i for i, name in enumerate(device_scene.fields)}
     xs, rgba = [], []
 
@@ -493,21 +485,26 @@ def frame_args(scene: Scene, device_scene: DeviceScene, queue) -> list:
     planes = [(*p, 0.0) for point, normal in clip.planes
               for p in (point, np.asarray(normal, np.float64) / np.linalg.norm(normal))]
     cat = lambda parts, shape: np.concatenate(parts) if parts else np.zeros(shape, np.float32)
-    i4 = lambda rows: np.asarray(rows or [(0, 0, 0, 0)], np.int32).reshape(-1, 4)
-    f4 = lambda rows: np.asarray(rows or [(0.0,) * 4], np.float32).reshape(-1, 4)
-    tolerance = ISO_TOLERANCE_CELLS * device_scene.finest_width_world
-    return [
-        up(queue, cat(xs, (1,))), up(queue, cat(rgba, (1, 4))),
-        up(queue, np.concatenate(buckets) if buckets else np.zeros(1, np.int32)),
-        up(queue, i4(layers)), np.int32(len(layers)), up(queue, device_scene.gradient_scales),
-        up(queue, i4(iso)), up(queue, f4(iso_value)), up(queue, f4(iso_color)), np.int32(len(iso)),
-        up(queue, i4(slices)), up(queue, f4(slice_point)), up(queue, f4(slice_normal)),
-        np.int32(len(slices)),
-        np.float32(tolerance), np.float32(scene.lighting.specular),
-        np.float32(scene.lighting.shininess),
-        np.int32(clip.box is not None), float4(box[0]), float4(box[1]),
-        up(queue, f4(planes)), np.int32(len(clip.planes)),
-    ]
+    rows = lambda r, dtype: np.asarray(r, dtype).reshape(-1, 4)
+    floats, ints = Grouped(np.float32), Grouped(np.int32)
+    params = {
+        "tf_xs_at": floats.add(cat(xs, (1,))), "tf_rgba_at": floats.add(cat(rgba, (1, 4)), 4),
+        "gradient_scale_at": floats.add(device_scene.gradient_scales, 4),
+        "iso_value_at": floats.add(rows(iso_value, np.float32), 4),
+        "iso_color_at": floats.add(rows(iso_color, np.float32), 4),
+        "slice_point_at": floats.add(rows(slice_point, np.float32), 4),
+        "slice_normal_at": floats.add(rows(slice_normal, np.float32), 4),
+        "clip_planes_at": floats.add(rows(planes, np.float32), 4),
+        "layers_at": ints.add(rows(layers or [(0, 0, 0, 0)], np.int32), 4),
+        "iso_at": ints.add(rows(iso, np.int32), 4), "slices_at": ints.add(rows(slices, np.int32), 4),
+        "buckets_at": ints.add(np.concatenate(buckets) if buckets else np.zeros(0, np.int32)),
+        "n_layers": len(layers), "n_iso": len(iso), "n_slices": len(slices),
+        "iso_tolerance": ISO_TOLERANCE_CELLS * device_scene.finest_width_world,
+        "specular": scene.lighting.specular, "shininess": scene.lighting.shininess,
+        "clip_box": clip.box is not None, "clip_lower": (*box[0], 0.0),
+        "clip_upper": (*box[1], 0.0), "n_clip_planes": len(clip.planes),
+    }
+    return (floats.array(), ints.array()), params
 
 
 def over_background(rgba: np.ndarray, background) -> np.ndarray:

@@ -1,0 +1,136 @@
+"""The contract between the host and the kernels, declared once.
+
+* `LIMITS` and `TUNABLES`: every array bound of the kernels. The host keeps its
+  inputs within the limits (scene lists, tree depths, samples per ray); a
+  tunable may be overridden by a build option (-DEB_QUEUE_SIZE=16).
+* `PARAMS`: the scalars of one frame (or probe) and where each of the dataset's
+  and the frame's arrays starts in the buffer that groups it, as one C struct
+  `eb_params` that the kernels read from one constant buffer (`params`).
+* `variant_defines`: the build defines of a kernel program.
+
+exabricks.opencl.program_for puts `header()` in front of every program it
+builds; kernels/common.h refuses to build without it (#error).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .constants import MAX_SAMPLES_PER_RAY, MAX_TREE_DEPTH
+from .scene.model import MAX_ISOSURFACES, MAX_SLICES
+
+# Samples a ray reconstructs at once on CPU devices (kernels/packet.cl): sixteen
+# ran no faster on PoCL and waste more lanes at region ends (docs/design.md).
+PACKET_WIDTH = 8
+# Levels whose samples a --lod frame counts.
+LOD_LEVELS = 16
+# Mip levels kept per brick for level of detail (exabricks.render.lod).
+MAX_MIP = 6
+
+LIMITS = {
+    "EB_STACK_SIZE": MAX_TREE_DEPTH,       # tree-descent stacks: every tree is checked on load
+    "EB_MAX_SAMPLES": MAX_SAMPLES_PER_RAY,  # samples of one ray: larger rates are refused
+    "EB_MAX_ISO": MAX_ISOSURFACES,          # iso-surfaces of a frame
+    "EB_MAX_SLICES": MAX_SLICES,            # slices of a frame
+    "EB_LOD_LEVELS": LOD_LEVELS,
+    "EB_MAX_MIP": MAX_MIP,
+}
+TUNABLES = {
+    "EB_QUEUE_SIZE": 64,   # the ordered walk's heap (traversal.cl); fuller walks re-trace
+    "EB_LOCATE_MAX": 64,   # bricks a cell-location sample sorts (cell_location.cl)
+}
+
+# (name, C type): the members of eb_params in order, each naturally aligned.
+# Offsets ("*_at") count elements of the buffer they index: see DeviceScene and
+# frame_arrays in exabricks.render.
+PARAMS = (
+    # camera (world) and the world -> lattice map
+    ("cam_origin", "float4"), ("cam_forward", "float4"), ("cam_du", "float4"),
+    ("cam_dv", "float4"), ("origin_world", "float4"), ("inv_spacing", "float4"),
+    # clipping box (world) and a piece's half-open box (lattice)
+    ("clip_lower", "float4"), ("clip_upper", "float4"),
+    ("piece_lower", "float4"), ("piece_upper", "float4"),
+    # distance between fields in the brick, vertex and mip values
+    ("field_stride", "long"), ("vertex_stride", "long"), ("mip_stride", "long"),
+    # the image and its samples
+    ("width", "int"), ("height", "int"), ("spp", "int"), ("seed", "uint"), ("jitter", "int"),
+    # integration
+    ("step_base", "float"), ("inv_unit_distance", "float"), ("max_opacity", "float"),
+    ("lod_scale", "float"), ("ordered", "int"),
+    # lighting
+    ("shading", "int"), ("central", "int"), ("ao_samples", "int"), ("ao_distance", "float"),
+    ("specular", "float"), ("shininess", "float"),
+    # what the frame holds
+    ("n_layers", "int"), ("n_iso", "int"), ("n_slices", "int"), ("iso_tolerance", "float"),
+    ("clip_box", "int"), ("n_clip_planes", "int"), ("use_front", "int"),
+    # the dataset: counts, and offsets into its grouped buffers
+    ("n_nodes", "int"), ("n_regions", "int"), ("n_bricks", "int"), ("n_tree_nodes", "int"),
+    ("node_lower_at", "int"), ("node_upper_at", "int"),        # geometry (float)
+    ("region_lower_at", "int"), ("region_upper_at", "int"),
+    ("node_link_at", "int"), ("node_region_at", "int"),        # links (int)
+    ("node_visible_at", "int"), ("region_visible_at", "int"),  # flags (uchar)
+    ("region_level_at", "int"),
+    ("tree_lower_at", "int"), ("tree_upper_at", "int"),        # tree (4-byte words)
+    ("tree_link_at", "int"), ("tree_brick_at", "int"),
+    # the frame's look: offsets into its float and int buffers
+    ("tf_xs_at", "int"), ("tf_rgba_at", "int"), ("gradient_scale_at", "int"),
+    ("iso_value_at", "int"), ("iso_color_at", "int"), ("slice_point_at", "int"),
+    ("slice_normal_at", "int"), ("clip_planes_at", "int"),
+    ("layers_at", "int"), ("iso_at", "int"), ("slices_at", "int"), ("buckets_at", "int"),
+)
+
+_C_TYPES = {"float4": (np.float32, (4,)), "long": np.int64, "int": np.int32,
+            "uint": np.uint32, "float": np.float32}
+
+
+def _dtype() -> np.dtype:
+    """PARAMS as a numpy dtype laid out as C lays out eb_params: each member at the
+    next multiple of its size, the whole a multiple of 16 bytes."""
+    names, formats, offsets, at = [], [], [], 0
+    for name, ctype in PARAMS:
+        dtype = np.dtype(_C_TYPES[ctype])
+        at = -(-at // dtype.itemsize) * dtype.itemsize if ctype != "float4" else -(-at // 16) * 16
+        names.append(name)
+        formats.append(dtype)
+        offsets.append(at)
+        at += dtype.itemsize
+    return np.dtype({"names": names, "formats": formats, "offsets": offsets,
+                     "itemsize": -(-at // 16) * 16})
+
+
+PARAMS_DTYPE = _dtype()
+
+
+def params(**values) -> np.ndarray:
+    """One eb_params (zero where not given), members by name."""
+    out = np.zeros(1, PARAMS_DTYPE)
+    for name, value in values.items():
+        out[name] = value
+    return out
+
+
+def header() -> str:
+    """The C text that every program starts with: EB_ABI, LIMITS, TUNABLES (unless
+    defined by a build option) and the eb_params struct."""
+    lines = ["/* exabricks.kernel_abi.header() */", "#define EB_ABI 1"]
+    lines += [f"#define {name} {value}" for name, value in LIMITS.items()]
+    for name, value in TUNABLES.items():
+        lines += [f"#ifndef {name}", f"#define {name} {value}", "#endif"]
+    lines.append("typedef struct {")
+    lines += [f"    {ctype} {name};" for name, ctype in PARAMS]
+    lines.append("} eb_params;")
+    return "\n".join(lines) + "\n"
+
+
+def variant_defines(*, n_fields: int = 1, reconstruction: str = "basis", surfaces: bool = False,
+                    lod: bool = False, packets: bool = False, piece: bool = False,
+                    cell_location: bool = False) -> tuple[str, ...]:
+    """The build defines of the render program for these choices (each a program
+    of its own; the host checks which combinations exist before building)."""
+    return ((f"EB_N_FIELDS={max(1, int(n_fields))}",)
+            + {"basis": (), "nearest": ("EB_RECON_NEAREST",),
+               "vertex": ("EB_RECON_VERTEX",)}[reconstruction]
+            + (("EB_CELL_LOCATION",) if cell_location else ())
+            + (("EB_SURFACES",) if surfaces else ()) + (("EB_LOD",) if lod else ())
+            + ((f"EB_PACKET={PACKET_WIDTH}",) if packets else ())
+            + (("EB_PIECE",) if piece else ()))
