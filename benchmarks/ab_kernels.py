@@ -15,7 +15,7 @@ For every dataset and every variant (VARIANTS: one scene for each kernel
 program a frame can reach), both versions render the same frame and the largest
 absolute difference of the two images is printed (0: the arithmetic did not
 change), and the same for probed values. The --timed variants' frames then
-alternate for --rounds rounds after a warm-up frame each (bench_peers.interleaved),
+alternate for --rounds rounds after a warm-up frame each (benchmarks.peers.common.interleaved),
 so that the load of this machine hits both alike, and the median kernel time
 (min-max) of each and base / this are printed.
 
@@ -39,7 +39,8 @@ import tempfile
 from pathlib import Path
 
 import numpy as np
-from benchmarks import bench_peers, benchdoc
+from benchmarks import benchdoc
+from benchmarks.peers import common as peers
 
 ROOT = Path(__file__).resolve().parents[1]
 BASE_NAME = "exabricks_base"
@@ -163,7 +164,7 @@ def compare(name: str, versions: dict, variants, timed, rounds: int, size: int,
 
     if name == "shell256":
         benchdoc.ensure_shell(256)
-    path, field, _ = bench_peers.DATASETS[name]
+    path, field, _ = peers.DATASETS[name]
     second = SECOND_FIELD.get(name)
     fields = (field, second) if second else (field,)
     for v in versions.values():
@@ -171,7 +172,7 @@ def compare(name: str, versions: dict, variants, timed, rounds: int, size: int,
     lo, hi = (np.asarray(b, np.float64) for b in versions["this"].module("schema").world_bounds(cells))
     values = cells.values[0][np.isfinite(cells.values[0])]
     mid_value = float(np.quantile(values, 0.7))
-    unit = bench_peers.opacity_unit((lo, hi))
+    unit = peers.opacity_unit((lo, hi))
     points = lo + (hi - lo) * np.random.default_rng(0).random((4096, 3))
     lines = []
     for variant in variants:
@@ -194,7 +195,7 @@ def compare(name: str, versions: dict, variants, timed, rounds: int, size: int,
             return render
 
         if variant in timed:
-            measured, images = bench_peers.interleaved({k: frame(k) for k in versions}, rounds)
+            measured, images = peers.interleaved({k: frame(k) for k in versions}, rounds)
         else:
             images = {k: frame(k)()[2] for k in versions}
         diff = float(np.abs(images["base"] - images["this"]).max())
@@ -234,7 +235,7 @@ def main(argv=None) -> int:
             p.error(f"{base_root}: no exabricks package there")
         with versions_of(Path(base_root), shlex.split(args.base_options),
                          shlex.split(args.options)) as versions:
-            for name in benchdoc.chosen([args.datasets], list(bench_peers.DATASETS)):
+            for name in benchdoc.chosen([args.datasets], list(peers.DATASETS)):
                 compare(name, versions, variants, timed, args.rounds, args.size, Path(tmp),
                         args.rate)
     return 0

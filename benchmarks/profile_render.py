@@ -159,11 +159,11 @@ def child(name: str, packets: bool, size: int, frames: int, view: str, rate: flo
     settings = {"camera": default_camera(lo, hi), "width": size, "height": size,
                 "sampling_rate": rate}
     if view == "peers":  # bench_peers' frame: its opacity ramp, unit and no shading
-        from benchmarks import bench_peers
+        from benchmarks.peers import common as peers
 
-        tf = bench_peers.transfer_function(value_range)
-        settings.update(shading="none", unit_distance=bench_peers.opacity_unit((lo, hi)),
-                        max_opacity=bench_peers.MAX_OPACITY, seed=bench_peers.SEED)
+        tf = peers.transfer_function(value_range)
+        settings.update(shading="none", unit_distance=peers.opacity_unit((lo, hi)),
+                        max_opacity=peers.MAX_OPACITY, seed=peers.SEED)
     renderer.render(transfer_function=tf, **settings)
     for _ in range(frames):
         renderer.render(transfer_function=tf, **settings)

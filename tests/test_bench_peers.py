@@ -1,7 +1,8 @@
 """The uniform-grid ceiling (benchmarks/uniform_grid.py) against a float64 NumPy march
 and against exabricks' own frames; the yt bridge's nested grids against hand-computed
-grids and yt's leaves; benchmarks/bench_peers.py's yt settings, its exabricks worker and the
-figures its report is made of, against hand-computed values."""
+grids and yt's leaves; benchmarks/bench_peers.py's yt and VTK settings (benchmarks/peers/yt.py,
+vtk.py), its exabricks worker (ours.py) and the figures its report (report.py) is made of,
+against hand-computed values."""
 
 from __future__ import annotations
 
@@ -15,9 +16,13 @@ import pytest
 from conftest import DEVICES, GERRIS
 
 
-from benchmarks import bench_peers
 from benchmarks import kernel_resources
 from benchmarks import make_big
+from benchmarks.peers import common
+from benchmarks.peers import ours as peer_ours
+from benchmarks.peers import report as peer_report
+from benchmarks.peers import vtk as peer_vtk
+from benchmarks.peers import yt as peer_yt
 
 from exabricks import schema  # noqa: E402
 from exabricks.camera import Camera, default_camera  # noqa: E402
@@ -301,21 +306,21 @@ def test_to_amr_grids_refuses_incomplete_octree():
 def test_yt_helpers_by_hand():
     # Extinction per unit ray parameter: -ln(1 - alpha) L / unit, alpha clipped below 1.
     np.testing.assert_allclose(
-        bench_peers.yt_extinction([0.0, 0.5, 1.0], ray_length=7.0, unit_distance=0.5),
+        peer_yt.yt_extinction([0.0, 0.5, 1.0], ray_length=7.0, unit_distance=0.5),
         [0.0, 14.0 * math.log(2.0), 14.0 * 6.0 * math.log(10.0)], rtol=1e-9)
     # Bounds widened by 1e-3 of the range (of max(1, |value|) for a constant field).
-    assert bench_peers.yt_bounds((0.0, 3.0)) == pytest.approx((-0.003, 3.003), rel=1e-12)
-    assert bench_peers.yt_bounds((2.0, 2.0)) == pytest.approx((1.998, 2.002), rel=1e-12)
-    assert bench_peers.yt_bounds((-0.25, -0.25)) == pytest.approx((-0.251, -0.249), rel=1e-12)
+    assert peer_yt.yt_bounds((0.0, 3.0)) == pytest.approx((-0.003, 3.003), rel=1e-12)
+    assert peer_yt.yt_bounds((2.0, 2.0)) == pytest.approx((1.998, 2.002), rel=1e-12)
+    assert peer_yt.yt_bounds((-0.25, -0.25)) == pytest.approx((-0.251, -0.249), rel=1e-12)
     # fovy 90: tan 45 = 1, so w0 = 2 depth (N - 1) / N.
     camera = Camera((0.0, 0.0, 5.0), (0.0, 0.0, 0.0), (0.0, 1.0, 0.0), 90.0)
-    assert bench_peers.yt_camera_width(camera, 17, 17, 9.0) == pytest.approx(
+    assert peer_yt.yt_camera_width(camera, 17, 17, 9.0) == pytest.approx(
         [18.0 * 16 / 17, 18.0 * 16 / 17, 9.0], rel=1e-12)
     with pytest.raises(ValueError, match="square"):
-        bench_peers.yt_camera_width(camera, 20, 10, 1.0)
+        peer_yt.yt_camera_width(camera, 20, 10, 1.0)
     # yt's image [i, j] is our pixel (row j, col i).
     image = np.arange(3 * 3 * 4, dtype=np.float64).reshape(3, 3, 4)
-    ours = bench_peers.yt_image_to_ours(image)
+    ours = peer_yt.yt_image_to_ours(image)
     assert ours.dtype == np.float32 and ours.flags.c_contiguous
     np.testing.assert_array_equal(ours[1, 2], image[2, 1])
 
@@ -324,15 +329,15 @@ def test_yt_transfer_function_reproduces_ours_at_its_nodes():
     pytest.importorskip("yt")
     tf = TransferFunction([[0.0, 0.1, 0.2, 0.9], [2.0, 1.0, 0.5, 0.0], [3.0, 0.3, 0.3, 0.3]],
                           [[0.5, 0.0], [1.5, 0.8], [3.0, 1.0]])
-    bounds = bench_peers.yt_bounds((0.0, 3.0))
-    ytf = bench_peers.yt_transfer_function(tf, bounds, ray_length=7.0, unit_distance=0.5)
+    bounds = peer_yt.yt_bounds((0.0, 3.0))
+    ytf = peer_yt.yt_transfer_function(tf, bounds, ray_length=7.0, unit_distance=0.5)
     assert ytf.grey_opacity
     x = ytf.funcs[0].x
-    assert len(x) == bench_peers.YT_NBINS
+    assert len(x) == peer_yt.YT_NBINS
     ref = tf.evaluate(x)
     for c in range(3):
         np.testing.assert_array_equal(ytf.funcs[c].y, ref[:, c])
-    alpha = np.minimum(ref[:, 3], bench_peers.ALPHA_CLIP)
+    alpha = np.minimum(ref[:, 3], peer_yt.ALPHA_CLIP)
     np.testing.assert_allclose(ytf.funcs[3].y, -np.log(1.0 - alpha) * 7.0 / 0.5, rtol=1e-12)
     # yt's step opacity dt * sigma is the linearisation of ours, 1 - (1 - alpha)^(dt / unit).
     dt_t = 1e-6
@@ -356,7 +361,7 @@ def test_yt_perspective_rays_are_our_pixel_centres():
     cam.resolution = (n, n)
     cam.focus = ds.arr(camera.look_at, "code_length")
     cam.set_position(ds.arr(camera.position, "code_length"), north_vector=np.asarray(camera.up))
-    cam.width = ds.arr(bench_peers.yt_camera_width(camera, n, n, 9.0), "code_length")
+    cam.width = ds.arr(peer_yt.yt_camera_width(camera, n, n, 9.0), "code_length")
     params = cam.lens._get_sampler_params(cam, source)
     yt_dirs = np.asarray(params["vp_dir"], np.float64)
     yt_dirs /= np.linalg.norm(yt_dirs, axis=-1, keepdims=True)
@@ -393,8 +398,8 @@ def test_yt_image_as_ours_puts_a_cube_where_our_projection_does():
     cam.resolution = (n, n)
     cam.focus = ds.arr(camera.look_at, "code_length")
     cam.set_position(ds.arr(camera.position, "code_length"), north_vector=np.asarray(camera.up))
-    cam.width = ds.arr(bench_peers.yt_camera_width(camera, n, n, 10.0), "code_length")
-    alpha = bench_peers.yt_image_to_ours(np.asarray(sc.render()))[..., 3]
+    cam.width = ds.arr(peer_yt.yt_camera_width(camera, n, n, 10.0), "code_length")
+    alpha = peer_yt.yt_image_to_ours(np.asarray(sc.render()))[..., 3]
     origin, forward, du, dv = camera.frame(n, n)
     d = centre - origin
     u = (d @ du) / (du @ du) / (d @ forward)
@@ -405,9 +410,9 @@ def test_yt_image_as_ours_puts_a_cube_where_our_projection_does():
 
 
 def test_yt_is_skipped_only_above_the_cell_cap():
-    assert bench_peers.yt_skip_reason(1000, 1000) is None
-    assert bench_peers.yt_skip_reason(999, 1000) is None
-    assert bench_peers.yt_skip_reason(1001, 1000) is not None
+    assert peer_yt.yt_skip_reason(1000, 1000) is None
+    assert peer_yt.yt_skip_reason(999, 1000) is None
+    assert peer_yt.yt_skip_reason(1001, 1000) is not None
 
 
 # ---------------------------------------------------------------------------
@@ -416,29 +421,29 @@ def test_yt_is_skipped_only_above_the_cell_cap():
 
 def test_vtk_finest_grid_by_hand():
     # [0, 1]^3 with 1/128 cells: 128 centres from 1/256 to 1 - 1/256.
-    dims, sampling = bench_peers.vtk_finest_grid([0, 1, 0, 1, 0, 1], [1 / 128] * 3)
+    dims, sampling = peer_vtk.vtk_finest_grid([0, 1, 0, 1, 0, 1], [1 / 128] * 3)
     assert dims == [128, 128, 128]
     assert sampling == pytest.approx([1 / 256, 1 - 1 / 256] * 3)
     # A ragged box: [-1, 4) x [0, 2) x [0.5, 1.25) with 0.25 cells.
-    dims, sampling = bench_peers.vtk_finest_grid([-1, 4, 0, 2, 0.5, 1.25], [0.25, 0.25, 0.25])
+    dims, sampling = peer_vtk.vtk_finest_grid([-1, 4, 0, 2, 0.5, 1.25], [0.25, 0.25, 0.25])
     assert dims == [20, 8, 3]
     assert sampling == pytest.approx([-0.875, 3.875, 0.125, 1.875, 0.625, 1.125])
     with pytest.raises(ValueError):
-        bench_peers.vtk_finest_grid([0, 1, 0, 1, 0, 1], [0.0, 0.1, 0.1])
+        peer_vtk.vtk_finest_grid([0, 1, 0, 1, 0, 1], [0.0, 0.1, 0.1])
     with pytest.raises(ValueError):
-        bench_peers.vtk_finest_grid([0, 0.01, 0, 1, 0, 1], [0.1, 0.1, 0.1])
+        peer_vtk.vtk_finest_grid([0, 0.01, 0, 1, 0, 1], [0.1, 0.1, 0.1])
 
 
 def test_vtk_readers_and_skips(tmp_path):
     for name in ("gerris", "big"):
-        assert bench_peers.vtk_skip_reason(name, tmp_path / "x.cells") == "no VTK reader"
-    assert bench_peers.vtk_source("amrex", tmp_path) == tmp_path
-    assert bench_peers.vtk_skip_reason("amrex", tmp_path) is None
+        assert peer_vtk.vtk_skip_reason(name, tmp_path / "x.cells") == "no VTK reader"
+    assert peer_vtk.vtk_source("amrex", tmp_path) == tmp_path
+    assert peer_vtk.vtk_skip_reason("amrex", tmp_path) is None
     # Enzo opens the .hierarchy, Athena++ the .athdf.xdmf sidecar.
-    assert bench_peers.vtk_source("enzo", tmp_path / "run_0010") == tmp_path / "run_0010.hierarchy"
+    assert peer_vtk.vtk_source("enzo", tmp_path / "run_0010") == tmp_path / "run_0010.hierarchy"
     athdf = tmp_path / "nowhere" / "Blast.athdf"
-    assert bench_peers.vtk_source("athena", athdf) == athdf.parent / "Blast.athdf.xdmf"
-    assert "Blast.athdf.xdmf missing" in bench_peers.vtk_skip_reason("athena", athdf)
+    assert peer_vtk.vtk_source("athena", athdf) == athdf.parent / "Blast.athdf.xdmf"
+    assert "Blast.athdf.xdmf missing" in peer_vtk.vtk_skip_reason("athena", athdf)
 
 
 def test_parse_amr_resampler_log():
@@ -447,16 +452,16 @@ def test_parse_amr_resampler_log():
             "Computed Grid Dim: 48, 58, 46\nAdjusted Grid Dim: 48, 58, 46\n"
             "Requested Max Level = 1\n********* Resample Stats *************\n"
             "Average Level: 0.803879\nNumber Of Failed Points: 0\n")
-    assert bench_peers.parse_amr_resampler_log(text) == {
+    assert peer_vtk.parse_amr_resampler_log(text) == {
         "requested_dims": [128, 128, 128], "computed_dims": [48, 58, 46],
         "adjusted_dims": [48, 58, 46], "requested_max_level": 1,
         "average_level": pytest.approx(0.803879), "failed_points": 0}
-    assert bench_peers.parse_amr_resampler_log("") == {}
+    assert peer_vtk.parse_amr_resampler_log("") == {}
 
 
 def test_vtk_image_to_ours_flips_rows():
     pixels = np.arange(2 * 3 * 4, dtype=np.float64)  # VTK: bottom row first
-    image = bench_peers.vtk_image_to_ours(pixels, 3, 2)
+    image = peer_vtk.vtk_image_to_ours(pixels, 3, 2)
     assert image.shape == (2, 3, 4) and image.dtype == np.float32
     assert image[1, 0].tolist() == [0, 1, 2, 3]      # VTK's first pixel: bottom left
     assert image[0, 2].tolist() == [20, 21, 22, 23]  # its last: top right
@@ -466,9 +471,9 @@ def test_vtk_volume_property_reproduces_ours_at_and_between_knots():
     pytest.importorskip("vtk")
     tf = default_transfer_function((0.5, 2.0))
     alpha = tf.alpha_points.copy()
-    alpha[:, 1] *= bench_peers.ALPHA_SCALE
+    alpha[:, 1] *= common.ALPHA_SCALE
     tf = TransferFunction(tf.rgb_points[::16], alpha, tf.name)  # every 16th colour knot
-    prop = bench_peers.vtk_volume_property(tf, 0.125)
+    prop = peer_vtk.vtk_volume_property(tf, 0.125)
     colour, opacity = prop.GetRGBTransferFunction(), prop.GetScalarOpacity()
     knots = np.union1d(tf.rgb_points[:, 0], tf.alpha_points[:, 0])
     xs = np.concatenate([knots, 0.5 * (knots[1:] + knots[:-1]), [0.0, 3.0]])  # and outside
@@ -488,9 +493,9 @@ def test_vtk_camera_sees_our_pixel_centres():
                     fovy=40.0)
     width, height = 8, 6
     bounds = [[-1.0, -0.5, -1.0], [1.0, 1.5, 0.5]]
-    params = bench_peers.vtk_camera_parameters(camera, bounds)
+    params = peer_vtk.vtk_camera_parameters(camera, bounds)
     cam = vtkCamera()
-    bench_peers.apply_vtk_camera(cam, params)
+    peer_vtk.apply_vtk_camera(cam, params)
     _, forward, _, _ = camera.frame(width, height)
     np.testing.assert_allclose(cam.GetDirectionOfProjection(), forward, atol=1e-12)
     # Every pixel's ray, projected by VTK's camera, lands on that pixel's centre in VTK's
@@ -524,8 +529,8 @@ def test_vtk_renders_a_cube_where_our_projection_does(tmp_path):
     script = textwrap.dedent("""
         import json, os, sys
         import numpy as np
-        from benchmarks import bench_peers
-        os.environ["VTK_DEFAULT_OPENGL_WINDOW"] = bench_peers.VTK_WINDOW
+        from benchmarks.peers import vtk as peer_vtk
+        os.environ["VTK_DEFAULT_OPENGL_WINDOW"] = peer_vtk.VTK_WINDOW
         os.environ["LP_NUM_THREADS"] = "1"
         import vtkmodules.vtkRenderingOpenGL2, vtkmodules.vtkRenderingVolumeOpenGL2
         from vtkmodules.vtkCommonCore import vtkFloatArray
@@ -553,7 +558,7 @@ def test_vtk_renders_a_cube_where_our_projection_does(tmp_path):
         mapper.SetSampleDistance(0.25 / n)
         actor = vtkVolume()
         actor.SetMapper(mapper)
-        actor.SetProperty(bench_peers.vtk_volume_property(tf, 1.0 / n))
+        actor.SetProperty(peer_vtk.vtk_volume_property(tf, 1.0 / n))
         window = vtkRenderWindow()
         window.SetOffScreenRendering(True)
         window.SetAlphaBitPlanes(True)
@@ -562,7 +567,7 @@ def test_vtk_renders_a_cube_where_our_projection_does(tmp_path):
         ren = vtkRenderer()
         ren.SetBackgroundAlpha(0.0)
         cam = vtkCamera()
-        bench_peers.apply_vtk_camera(cam, bench_peers.vtk_camera_parameters(
+        peer_vtk.apply_vtk_camera(cam, peer_vtk.vtk_camera_parameters(
             camera, [[0, 0, 0], [1, 1, 1]]))
         ren.SetActiveCamera(cam)
         ren.AddVolume(actor)
@@ -570,7 +575,7 @@ def test_vtk_renders_a_cube_where_our_projection_does(tmp_path):
         window.Render()
         pixels = vtkFloatArray()
         window.GetRGBAPixelData(0, 0, size - 1, size - 1, 0, pixels, 0)
-        rgba = bench_peers.vtk_image_to_ours(vtk_to_numpy(pixels), size, size)
+        rgba = peer_vtk.vtk_image_to_ours(vtk_to_numpy(pixels), size, size)
         np.save(sys.argv[1], rgba)
         json.dump(camera.to_dict(), open(sys.argv[2], "w"))
         """)
@@ -607,25 +612,25 @@ def test_vtk_renders_a_cube_where_our_projection_does(tmp_path):
 def gerris_row(tmp_path_factory):
     """bench_peers' prepare and exabricks workers run in this process on the Gerris plume
     (16 x 16 frames, 2 rounds): a row as bench_dataset makes it."""
-    path, field, _ = bench_peers.DATASETS["gerris"]
+    path, field, _ = common.DATASETS["gerris"]
     tmp = tmp_path_factory.mktemp("peers-gerris")
     base = {"name": "gerris", "path": str(path), "field": field, "size": 16, "runs": 2,
-            "image_prefix": str(tmp / "gerris"), "max_voxels": bench_peers.MAX_VOXELS,
-            "alpha_scale": bench_peers.ALPHA_SCALE}
-    prep = bench_peers.worker_prepare(base)
-    ours = bench_peers.worker_exabricks({**base, **{k: prep[k] for k in (
+            "image_prefix": str(tmp / "gerris"), "max_voxels": common.MAX_VOXELS,
+            "alpha_scale": common.ALPHA_SCALE}
+    prep = peer_ours.worker_prepare(base)
+    ours = peer_ours.worker_exabricks({**base, **{k: prep[k] for k in (
         "camera", "transfer_function", "value_range", "unit_distance")}})
     return {"name": "gerris", "field": field, "prep": prep, "ours": ours,
             "uniform": ours.pop("uniform"), "cell_location": ours.pop("cell_location"),
-            "yt": {"error": bench_peers.yt_skip_reason(prep["cells"], 1000)},
-            "vtk": {"error": bench_peers.vtk_skip_reason("gerris", path)}}
+            "yt": {"error": peer_yt.yt_skip_reason(prep["cells"], 1000)},
+            "vtk": {"error": peer_vtk.vtk_skip_reason("gerris", path)}}
 
 
 def test_worker_interleaves_regions_cell_location_and_uniform(gerris_row):
     ours, located, uniform = gerris_row["ours"], gerris_row["cell_location"], gerris_row["uniform"]
     prep = gerris_row["prep"]
     assert located["tree_nodes"] == 2 * prep["bricks"] - 1  # one brick per leaf
-    for rate in bench_peers.RATE_KEYS:
+    for rate in common.RATE_KEYS:
         a, b, u = ours["rates"][rate], located["rates"][rate], uniform["rates"][rate]
         assert len(a["kernel_s"]) == len(b["kernel_s"]) == len(u["kernel_s"]) == 2
         # The same samples and sums: the same frame, up to the order in which a packet
@@ -633,7 +638,7 @@ def test_worker_interleaves_regions_cell_location_and_uniform(gerris_row):
         # eb_packet_composite) where cell location adds them one at a time.
         assert b["samples"] == a["samples"] > 0 and b["max_abs_vs_regions"] <= 1e-5
         assert u["samples"] > 0
-    low, high = bench_peers.RATE_KEYS
+    low, high = common.RATE_KEYS
     assert ours["rates"][high]["samples"] > ours["rates"][low]["samples"]
     # The Gerris plume is 128^3 finest cells: the uniform grid is that box, and the opacity
     # unit (largest extent / 128) its finest cell.
@@ -648,9 +653,9 @@ def toy_row(name: str = "toy") -> dict:
     def rates(regions, uniform):
         return {key: {"first_frame_s": 1.0, "frame_s": frame, "kernel_s": kernel,
                       "samples": samples}
-                for key, (frame, kernel, samples) in zip(bench_peers.RATE_KEYS, regions)} \
+                for key, (frame, kernel, samples) in zip(common.RATE_KEYS, regions)} \
             if uniform is None else {key: {"kernel_s": kernel, "samples": samples}
-                                     for key, (kernel, samples) in zip(bench_peers.RATE_KEYS, uniform)}
+                                     for key, (kernel, samples) in zip(common.RATE_KEYS, uniform)}
 
     return {
         "name": name, "field": "v",
@@ -687,17 +692,17 @@ def toy_row(name: str = "toy") -> dict:
 
 
 def test_report_figures_by_hand():
-    low, high = bench_peers.RATE_KEYS
+    low, high = common.RATE_KEYS
     rows = [toy_row(), {"name": "broken", "error": "missing"},
             {**toy_row("no-yt"), "yt": {"error": "skipped"}}]
     # yt / ours frame medians: 6 / 2 and 6 / 4; the row without yt has none.
-    assert bench_peers.yt_ratios(rows, low) == {"toy": pytest.approx(3.0)}
-    assert bench_peers.yt_ratios(rows, high) == {"toy": pytest.approx(1.5)}
+    assert peer_report.yt_ratios(rows, low) == {"toy": pytest.approx(3.0)}
+    assert peer_report.yt_ratios(rows, high) == {"toy": pytest.approx(1.5)}
     # ours / uniform samples per second: (1000 / 0.2) / (800 / 0.1), (5000 / 0.6) / (4000 / 0.4).
-    ceiling = bench_peers.ceiling_ratios(rows[:1])
+    ceiling = peer_report.ceiling_ratios(rows[:1])
     assert ceiling == {("toy", low): pytest.approx(0.625), ("toy", high): pytest.approx(5 / 6)}
-    figures = bench_peers.target_figures(rows[:1])
-    rl, rh = (f"{float(k):g}" for k in bench_peers.RATE_KEYS)
+    figures = peer_report.target_figures(rows[:1])
+    rl, rh = (f"{float(k):g}" for k in common.RATE_KEYS)
     # cell location / regions kernel medians: 0.6 / 0.2 and 1.2 / 0.6.
     assert figures["cell_location"] == {f"toy rate {rl}": pytest.approx(3.0),
                                         f"toy rate {rh}": pytest.approx(2.0)}
@@ -707,8 +712,8 @@ def test_report_figures_by_hand():
     # u = v = (N - 1) / N of the half-extent tan 15 deg, 1 / cos = |(1, u t, v t)|.
     # VTK / ours: frame medians 4 / 2 and (AMR mapper) 1 / 2; first images 4 and 1 against
     # ours read 0.5 + build 0.25 + program 0.2 + upload 0.3 + first frame 1.0 = 2.25.
-    assert bench_peers.ours_first_image_s(rows[0]) == pytest.approx(2.25)
-    assert bench_peers.vtk_ratios(rows) == {
+    assert peer_report.ours_first_image_s(rows[0]) == pytest.approx(2.25)
+    assert peer_report.vtk_ratios(rows) == {
         "toy": {"frame": pytest.approx(2.0), "first_image": pytest.approx(4 / 2.25),
                 "amr_frame": pytest.approx(0.5), "amr_first_image": pytest.approx(1 / 2.25)},
         "no-yt": {"frame": pytest.approx(2.0), "first_image": pytest.approx(4 / 2.25),
@@ -716,14 +721,14 @@ def test_report_figures_by_hand():
     # The finest grid resampled, VTK's one failed and a dataset VTK cannot read: no ratio.
     enzo_like = toy_row("enzo-like")
     enzo_like["vtk"]["resample"] = {"read_s": 0.1, "error": "finest grid too big"}
-    assert bench_peers.vtk_ratios([enzo_like, {**toy_row("gerris"), "vtk": {
+    assert peer_report.vtk_ratios([enzo_like, {**toy_row("gerris"), "vtk": {
         "error": "no VTK reader"}}]) == {"enzo-like": {
             "amr_frame": pytest.approx(0.5), "amr_first_image": pytest.approx(1 / 2.25)}}
-    assert bench_peers._amr_grid(rows[0]["vtk"]["amr_mapper"], [0.125] * 3) == \
+    assert peer_report._amr_grid(rows[0]["vtk"]["amr_mapper"], [0.125] * 3) == \
         "4x4x4 points, 2.0-4.0 finest cells apart"
     n = 16
     t = math.tan(math.radians(15.0)) * (n - 1) / n
-    assert bench_peers._off_axis_stretch(rows[0]["prep"]["camera"], n) == pytest.approx(
+    assert peer_report._off_axis_stretch(rows[0]["prep"]["camera"], n) == pytest.approx(
         math.sqrt(1.0 + 2.0 * t * t) - 1.0, rel=1e-9)
 
 
@@ -758,9 +763,9 @@ def test_report_tables_are_whole(which, no_vtk, request, tmp_path):
         if which == "toy" else [request.getfixturevalue("gerris_row")]
     args = argparse.Namespace(
         datasets="x", size=16, runs=2, no_yt=False, yt_max_cells=1000, no_vtk=no_vtk,
-        vtk_threads=2, alpha_scale=bench_peers.ALPHA_SCALE, max_voxels=bench_peers.MAX_VOXELS,
+        vtk_threads=2, alpha_scale=common.ALPHA_SCALE, max_voxels=common.MAX_VOXELS,
         images=str(tmp_path / "images"), docs=str(tmp_path / "benchmarks.md"))
-    lines = bench_peers.report(rows, "test machine", args)
+    lines = peer_report.report(rows, "test machine", args)
     tables = _tables(lines)
     # exabricks vs yt, [VTK resample + fixed point, vtkAMRVolumeMapper,] cell location, ceiling
     assert len(tables) == (3 if no_vtk else 5)
