@@ -5,7 +5,9 @@
   tunable may be overridden by a build option (-DEB_QUEUE_SIZE=16).
 * `PARAMS`: the scalars of one frame (or probe) and where each of the dataset's
   and the frame's arrays starts in the buffer that groups it, as one C struct
-  `eb_params` that the kernels read from one constant buffer (`params`).
+  `eb_params` that the kernels read from one constant buffer (`params`). The
+  render options declared with `kernel=True` (exabricks.scene.options) are
+  members too, filled from the scene by `option_params`.
 * `variant_defines`: the build defines of a kernel program.
 
 exabricks.opencl.program_for puts `header()` in front of every program it
@@ -18,6 +20,7 @@ import numpy as np
 
 from .constants import MAX_SAMPLES_PER_RAY, MAX_TREE_DEPTH
 from .scene.model import MAX_ISOSURFACES, MAX_SLICES
+from .scene.options import SCENE_OPTIONS
 
 # Samples a ray reconstructs at once on CPU devices (kernels/packet.cl): sixteen
 # ran no faster on PoCL and waste more lanes at region ends (docs/design.md).
@@ -59,7 +62,6 @@ PARAMS = (
     ("lod_scale", "float"), ("ordered", "int"),
     # lighting
     ("shading", "int"), ("central", "int"), ("ao_samples", "int"), ("ao_distance", "float"),
-    ("specular", "float"), ("shininess", "float"),
     # what the frame holds
     ("n_layers", "int"), ("n_iso", "int"), ("n_slices", "int"), ("iso_tolerance", "float"),
     ("clip_box", "int"), ("n_clip_planes", "int"), ("use_front", "int"),
@@ -77,7 +79,7 @@ PARAMS = (
     ("iso_value_at", "int"), ("iso_color_at", "int"), ("slice_point_at", "int"),
     ("slice_normal_at", "int"), ("clip_planes_at", "int"),
     ("layers_at", "int"), ("iso_at", "int"), ("slices_at", "int"), ("buckets_at", "int"),
-)
+) + tuple((o.name, "float" if o.kind == "float" else "int") for o in SCENE_OPTIONS if o.kernel)
 
 _C_TYPES = {"float4": (np.float32, (4,)), "long": np.int64, "int": np.int32,
             "uint": np.uint32, "float": np.float32}
@@ -109,13 +111,30 @@ def params(**values) -> np.ndarray:
     return out
 
 
+def option_params(scene) -> dict:
+    """The eb_params members of the render options the kernels read (`kernel=True`),
+    from `scene` (exabricks.scene.Scene)."""
+    out = {}
+    for option in SCENE_OPTIONS:
+        if option.kernel:
+            part, _, attribute = option.target.partition(".")
+            value = getattr(getattr(scene, part), attribute)
+            out[option.name] = option.choices.index(value) if option.kind == "choice" else value
+    return out
+
+
 def header() -> str:
     """The C text that every program starts with: EB_ABI, LIMITS, TUNABLES (unless
-    defined by a build option) and the eb_params struct."""
+    defined by a build option), the values of the kernel-read choices
+    (EB_ISO_GRADIENT_CENTRAL) and the eb_params struct."""
     lines = ["/* exabricks.kernel_abi.header() */", "#define EB_ABI 1"]
     lines += [f"#define {name} {value}" for name, value in LIMITS.items()]
     for name, value in TUNABLES.items():
         lines += [f"#ifndef {name}", f"#define {name} {value}", "#endif"]
+    for option in SCENE_OPTIONS:  # a kernel-read choice's values: EB_NAME_CHOICE
+        if option.kernel and option.kind == "choice":
+            lines += [f"#define EB_{option.name.upper()}_{choice.upper().replace('-', '_')} {i}"
+                      for i, choice in enumerate(option.choices)]
     lines.append("typedef struct {")
     lines += [f"    {ctype} {name};" for name, ctype in PARAMS]
     lines.append("} eb_params;")

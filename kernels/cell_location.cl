@@ -13,7 +13,7 @@
  * any beyond are summed unsorted (still correct, only no longer in the
  * regions' order). */
 
-/* exabricks.stages.cell_location.BrickTree on the device. */
+/* exabricks.render.cell_location.BrickTree on the device. */
 typedef struct {
     __global const float *lower;    /* node boxes: union of the supports below, lattice units */
     __global const float *upper;    /* (n, 3) corners: traversal.cl, EB_CORNER */
@@ -34,7 +34,7 @@ typedef struct {
  * The bricks are summed in ascending id, the order of a region's list, so
  * both reconstructions round alike and give the same frame bit for bit: in a
  * locally constant field the normalised gradient is rounding noise, which any
- * other order would change (the sort costs 0-6 % of a frame). */
+ * other order would change. */
 EB_INLINE eb_basis_sums eb_locate_reconstruct(eb_located_bricks located, float3 p,
                                               const int want_gradient)
 {

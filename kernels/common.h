@@ -33,11 +33,11 @@
 /* Rare, heavy paths kept out of line (an iso crossing's refinement, a surface
  * hit): inlined into every copy of the ray loop they made the kernel so large
  * that LLVM's compile time went superlinear (minutes per program variant with
- * surfaces on 2 cores; docs/design.md "Kernel builds"). */
+ * surfaces on 2 cores; docs/design.md "Kernel builds and the host–kernel contract"). */
 #define EB_COLD __attribute__((noinline))
 
 /* The few functions that are kept out of line in a profiling build
- * (-DEB_PROFILE, workflows/profile_render.py), so that a sampling profiler
+ * (-DEB_PROFILE, benchmarks.profile_render), so that a sampling profiler
  * sees the walk and the sampling as separate symbols. */
 #ifdef EB_PROFILE
 #define EB_PROFILED __attribute__((noinline))

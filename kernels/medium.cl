@@ -1,51 +1,59 @@
 /* The participating medium: any number of volume layers, each a field with its
- * own transfer function, mixed per step (docs/design.md, "Several volume
- * layers"). Layer i has slab opacity alpha_i per unit_distance, extinction
+ * own transfer function, mixed per step (docs/design.md, "Transfer
+ * functions and volume layers"). Layer i has slab opacity alpha_i per unit_distance, extinction
  * sigma_i = -ln(1 - alpha_i) / unit_distance; a step of length dt has opacity
  * 1 - exp(-sum_i sigma_i dt) and colour sum_i sigma_i rgb_i / sum_i sigma_i.
  * Computed in base 2 (s_i = -log2(1 - alpha_i), the factor ln 2 cancels) with
  * the inlined polynomials of transfer_function.cl; one layer takes exactly the
  * single-field path 1 - (1 - alpha)^(dt / unit_distance) (paper §4.3).
- * The step itself is eb_medium_step (scene.cl), which computes a field's
- * gradient only when a layer of it is visible and shaded. */
+ * eb_medium_step computes a field's gradient only when a layer of it is
+ * visible and shaded. */
 #pragma once
 #include "common.h"
-#include "reconstruction.cl"
-#include "transfer_function.cl"
+#include "scene.cl"
 
-/* Headlight shading: emitted rgb *= AMBIENT + DIFFUSE |n . v|, with n the
- * normalised gradient and v the view direction; a zero gradient leaves the
- * colour unshaded (factor 1). */
-#define EB_AMBIENT 0.3f
-#define EB_DIFFUSE 0.7f
-
-/* The frame's look: every transfer function and colour map as merged knots
- * (exabricks.transfer_function.TransferFunction.merged_knots) one after the
- * other, each volume layer's knot index (knot_buckets, for the packet
- * lookup of packet.cl), and the volume layers (field, first knot, knot count,
- * offset of the knot index). */
-typedef struct {
-    __global const float *xs;
-    __global const float4 *rgba;
-    __global const int *buckets;
-    __global const int4 *layers;
-    int n_layers;
-    /* Private copies of what every sample reads (kept out of global memory):
-     * the first layer, and per field the lattice -> world gradient factor. */
-    int4 layer0;
-    float3 gradient_scale[EB_N_FIELDS];
-} eb_look;
-
-/* Colour map (knots first .. first + n - 1) at `value`. */
-EB_INLINE float4 eb_lookup(eb_look look, int first, int n, float value)
+/* Opacity (w) and colour (xyz) of a step of length len at lattice point p
+ * (sums s, field values `value`, finest level `level`), the mixture of the
+ * volume layers (medium.cl); shaded layers use their field's gradient. */
+EB_INLINE float4 eb_medium_step(eb_frame *fr, eb_basis_sums *s, float3 p, int level,
+                                const float *value, float len, float3 dir_world, const int shade)
 {
-    return eb_transfer_function(value, look.xs + first, look.rgba + first, n);
-}
-
-/* Headlight factor of a world-direction gradient g (any scale) seen along dir. */
-EB_INLINE float eb_headlight(float3 g, float3 dir_world)
-{
-    float g2 = dot(g, g);
-    /* rsqrt is cheaper than length() and a division. */
-    return g2 > 0.0f ? EB_AMBIENT + EB_DIFFUSE * fabs(dot(g, dir_world)) * rsqrt(g2) : 1.0f;
+    eb_look look = fr->look;
+    if (look.n_layers == 1) {
+        int4 layer = look.layer0;
+        float4 c = eb_lookup(look, layer.y, layer.z, value[layer.x]);
+        if (!(c.w > 0.0f))
+            return (float4)(0.0f);
+        float a = eb_opacity_correct(c.w, len, fr->inv_unit_distance);
+        float3 rgb = c.xyz;
+        if (shade)
+            rgb *= eb_headlight(eb_field_gradient(fr, s, p, level, layer.x), dir_world);
+        return (float4)(rgb, a);
+    }
+    float s_sum = 0.0f;
+    float3 rgb = (float3)(0.0f), rgb_opaque = (float3)(0.0f);
+    int opaque = 0;
+    for (int i = 0; i < look.n_layers; ++i) {
+        int4 layer = look.layers[i];
+        float4 c = eb_lookup(look, layer.y, layer.z, value[layer.x]);
+        if (!(c.w > 0.0f))
+            continue;
+        float3 ci = c.xyz;
+        if (shade)
+            ci *= eb_headlight(eb_field_gradient(fr, s, p, level, layer.x), dir_world);
+        if (c.w >= 1.0f) {  /* infinite extinction: these layers alone give the colour */
+            rgb_opaque += ci;
+            ++opaque;
+            continue;
+        }
+        float sl = -eb_log2_positive(1.0f - c.w);
+        s_sum += sl;
+        rgb += sl * ci;
+    }
+    if (opaque)
+        return (float4)(rgb_opaque / (float)opaque, 1.0f);
+    if (!(s_sum > 0.0f))
+        return (float4)(0.0f);
+    float a = 1.0f - eb_exp2_nonpositive(fmax(-s_sum * (len * fr->inv_unit_distance), -126.0f));
+    return (float4)(rgb / s_sum, a);
 }

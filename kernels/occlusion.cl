@@ -9,6 +9,7 @@
 #include "common.h"
 #include "sampler.cl"
 #include "scene.cl"
+#include "medium.cl"
 
 /* Below this visibility a ray counts as blocked. */
 #define EB_AO_CUTOFF 1e-3f

@@ -1,4 +1,4 @@
-/* Sample packets for CPU devices (docs/design.md, "Sample packets"): built
+/* Sample packets for CPU devices (docs/design.md, "Sample packets on CPU devices"): built
  * with -DEB_PACKET=8, a ray reconstructs its next eight samples at once with
  * OpenCL vector types, one lane per sample, from up to EB_PACKET_REGIONS
  * consecutive region visits (integrator.cl, eb_sample_batch). The lanes
@@ -38,13 +38,13 @@ typedef int8 eb_vi;
                                     (v)[(i).s4], (v)[(i).s5], (v)[(i).s6], (v)[(i).s7]))
 
 /* A region's samples go by packets while at least this many are left; a last
- * single one takes the one-sample path, which is cheaper for it (measured with
- * 1 to 5: docs/design.md, "Sample packets on CPU devices"). */
+ * single one takes the one-sample path, which is cheaper for it
+ * (docs/design.md, "Sample packets on CPU devices"). */
 #define EB_PACKET_MIN_LANES 2
 
-/* The most consecutive region visits one packet spans (integrator.cl): more
- * lists make a longer merge for few more full lanes (3 and 8 measured alike,
- * docs/design.md "Sample packets"). */
+/* The most consecutive region visits one packet spans (packet_batch.cl): more
+ * lists make a longer merge for few more full lanes (docs/design.md, "Sample
+ * packets on CPU devices"). */
 #define EB_PACKET_REGIONS 3
 
 /* The sum of a vector's lanes, as a tree of halves. */
@@ -294,7 +294,7 @@ EB_INLINE eb_vf eb_packet_exp2_nonpositive(eb_vf y)
 
 /* Opacity (*a, 0 where a lane is invalid or transparent) and colour of W
  * steps of lengths len through the medium of one volume layer with analytic
- * gradients: eb_medium_step's single-layer path (scene.cl) at W samples. */
+ * gradients: eb_medium_step's single-layer path (medium.cl) at W samples. */
 EB_INLINE void eb_packet_medium(eb_frame *fr, eb_packet_sums *s, eb_vf len, float3 dir_world,
                                 const int shade, eb_vf *a, eb_vf *r, eb_vf *g, eb_vf *b)
 {

@@ -32,3 +32,29 @@ typedef struct {
     int slice_k[EB_MAX_SLICES];
     int n_slices, next_slice;
 } eb_ray_state;
+
+/* The samples per level of a --lod frame (-DEB_LOD; nothing otherwise):
+ * cleared, counted per region, and added to the frame's counts at the end. */
+EB_INLINE void eb_level_samples_clear(eb_ray_state *st)
+{
+#ifdef EB_LOD
+    for (int l = 0; l < EB_LOD_LEVELS; ++l)
+        st->level_samples[l] = 0u;
+#endif
+}
+
+EB_INLINE void eb_level_samples_add(eb_ray_state *st, int level, uint n)
+{
+#ifdef EB_LOD
+    st->level_samples[min(level, EB_LOD_LEVELS - 1)] += n;
+#endif
+}
+
+EB_INLINE void eb_level_samples_flush(eb_ray_state *st, __global uint *level_samples)
+{
+#ifdef EB_LOD
+    for (int l = 0; l < EB_LOD_LEVELS; ++l)
+        if (st->level_samples[l])
+            atomic_add(&level_samples[l], st->level_samples[l]);
+#endif
+}

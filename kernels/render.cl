@@ -46,7 +46,7 @@ __kernel void eb_render(__constant eb_params *P, int4 band, int sample_index,
     __global const float4 *look_f4 = (__global const float4 *)look_f;
     __global const int4 *layers = (__global const int4 *)(look_i + P->layers_at);
     eb_frame fr = {
-        eb_bvh_of(P, EB_DATASET), eb_regions_of(P, EB_DATASET),
+        P, eb_bvh_of(P, EB_DATASET), eb_regions_of(P, EB_DATASET),
 #ifdef EB_CELL_LOCATION
         {eb_bricks_of(P, EB_DATASET), eb_tree_of(P, EB_DATASET)},
 #else
@@ -57,7 +57,7 @@ __kernel void eb_render(__constant eb_params *P, int4 band, int sample_index,
         {(__global const int4 *)(look_i + P->iso_at), look_f4 + P->iso_value_at / 4,
          look_f4 + P->iso_color_at / 4, P->n_iso, (__global const int4 *)(look_i + P->slices_at),
          look_f4 + P->slice_point_at / 4, look_f4 + P->slice_normal_at / 4, P->n_slices,
-         P->iso_tolerance, P->specular, P->shininess},
+         P->iso_tolerance},
         {P->clip_box, P->clip_lower, P->clip_upper, look_f4 + P->clip_planes_at / 4,
          P->n_clip_planes},
         P->step_base, P->inv_unit_distance, P->max_opacity, P->shading, P->central,

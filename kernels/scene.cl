@@ -1,12 +1,12 @@
-/* One frame's scene on the device (exabricks.stages.device_data + the
- * per-frame arguments of render.cl): the BVH, regions and bricks, the medium,
- * surfaces, clipping and lighting, and what every part of the integrator
- * needs from them: the fields (and gradients) at any point. */
+/* One frame on the device (the dataset of dataset.cl and the parameters and
+ * look of render.cl): the BVH, regions and bricks, the look, surfaces,
+ * clipping and lighting, and what every part of the integrator needs from
+ * them: the fields (and gradients) at any point. */
 #pragma once
 #include "common.h"
 #include "traversal.cl"
 #include "reconstruction.cl"
-#include "medium.cl"
+#include "look.cl"
 #include "clipping.cl"
 
 /* What a sample reconstructs from: the region's brick list (paper §3.2) or,
@@ -30,10 +30,10 @@ typedef struct {
     __global const float4 *slice_normal;  /* world unit normal */
     int n_slices;
     float tolerance;                   /* iso-hit refinement, world units */
-    float specular, shininess;         /* Blinn-Phong term of surfaces (headlight) */
 } eb_surfaces;
 
 typedef struct {
+    __constant eb_params *P;  /* every scalar of the frame (exabricks.kernel_abi.PARAMS) */
     eb_bvh bvh;
     eb_regions regions;
     eb_sample_bricks bricks;
@@ -55,7 +55,7 @@ typedef struct {
 } eb_frame;
 
 #ifdef EB_PIECE
-/* Data-parallel rendering (exabricks/stages/partition.py): a frame of one piece of a
+/* Data-parallel rendering (exabricks.render.partition): a frame of one piece of a
  * k-d partition of space takes exactly the samples (and slice hits) at lattice
  * points inside the piece's half-open box, so that the pieces' images,
  * composited in visibility order, hold every sample of the whole frame once. */
@@ -77,7 +77,7 @@ EB_INLINE eb_basis_sums eb_sample_region(eb_frame *fr, int r, float3 p, const in
 }
 
 /* The sums at lattice point p in region r with the bricks seen at `level`
- * (level of detail: exabricks.stages.lod; the finest level otherwise). */
+ * (level of detail: exabricks.render.lod; the finest level otherwise). */
 EB_INLINE eb_basis_sums eb_sample_region_at(eb_frame *fr, int r, float3 p, int level,
                                             const int grad)
 {
@@ -140,10 +140,11 @@ EB_INLINE void eb_fields(eb_basis_sums s, float *value)
  * cell of that level along each lattice axis (the analytic one where a
  * neighbour has no data). Scaled per field (gradient_scale): only its
  * direction matters. */
-EB_INLINE float3 eb_field_gradient(eb_frame *fr, eb_basis_sums *s, float3 p, int level, int f)
+EB_INLINE float3 eb_field_gradient_by(eb_frame *fr, eb_basis_sums *s, float3 p, int level, int f,
+                                      int central)
 {
     float3 g = eb_basis_gradient(*s, f);
-    if (fr->central) {
+    if (central) {
         float h = ldexp(0.5f, level);
         float d[3];
         int ok = 1;
@@ -159,50 +160,10 @@ EB_INLINE float3 eb_field_gradient(eb_frame *fr, eb_basis_sums *s, float3 p, int
     return g * fr->look.gradient_scale[f];
 }
 
-/* Opacity (w) and colour (xyz) of a step of length len at lattice point p
- * (sums s, field values `value`, finest level `level`), the mixture of the
- * volume layers (medium.cl); shaded layers use their field's gradient. */
-EB_INLINE float4 eb_medium_step(eb_frame *fr, eb_basis_sums *s, float3 p, int level,
-                                const float *value, float len, float3 dir_world, const int shade)
+/* The gradient of field f as the frame's `gradient` setting says. */
+EB_INLINE float3 eb_field_gradient(eb_frame *fr, eb_basis_sums *s, float3 p, int level, int f)
 {
-    eb_look look = fr->look;
-    if (look.n_layers == 1) {
-        int4 layer = look.layer0;
-        float4 c = eb_lookup(look, layer.y, layer.z, value[layer.x]);
-        if (!(c.w > 0.0f))
-            return (float4)(0.0f);
-        float a = eb_opacity_correct(c.w, len, fr->inv_unit_distance);
-        float3 rgb = c.xyz;
-        if (shade)
-            rgb *= eb_headlight(eb_field_gradient(fr, s, p, level, layer.x), dir_world);
-        return (float4)(rgb, a);
-    }
-    float s_sum = 0.0f;
-    float3 rgb = (float3)(0.0f), rgb_opaque = (float3)(0.0f);
-    int opaque = 0;
-    for (int i = 0; i < look.n_layers; ++i) {
-        int4 layer = look.layers[i];
-        float4 c = eb_lookup(look, layer.y, layer.z, value[layer.x]);
-        if (!(c.w > 0.0f))
-            continue;
-        float3 ci = c.xyz;
-        if (shade)
-            ci *= eb_headlight(eb_field_gradient(fr, s, p, level, layer.x), dir_world);
-        if (c.w >= 1.0f) {  /* infinite extinction: these layers alone give the colour */
-            rgb_opaque += ci;
-            ++opaque;
-            continue;
-        }
-        float sl = -eb_log2_positive(1.0f - c.w);
-        s_sum += sl;
-        rgb += sl * ci;
-    }
-    if (opaque)
-        return (float4)(rgb_opaque / (float)opaque, 1.0f);
-    if (!(s_sum > 0.0f))
-        return (float4)(0.0f);
-    float a = 1.0f - eb_exp2_nonpositive(fmax(-s_sum * (len * fr->inv_unit_distance), -126.0f));
-    return (float4)(rgb / s_sum, a);
+    return eb_field_gradient_by(fr, s, p, level, f, fr->central);
 }
 
 #include "ray.cl"

@@ -1,4 +1,4 @@
-/* Iso-surfaces and slices along a ray (docs/design.md, "Surfaces").
+/* Iso-surfaces and slices along a ray (docs/design.md, "Surfaces, slices and clipping").
  *
  * Iso-surfaces live on the basis field. A crossing of iso-value v on field f
  * is detected between consecutive samples of the adaptive sampling (values on
@@ -25,6 +25,8 @@
 #pragma once
 #include "common.h"
 #include "scene.cl"
+
+#ifdef EB_SURFACES
 #include "occlusion.cl"
 
 /* Bisection steps at most: from any sample step down to the tolerance. */
@@ -116,8 +118,8 @@ EB_COLD int eb_surface_hit(eb_frame *fr, eb_ray *ray, eb_ray_state *st, float t,
     if (fr->shade) {
         float c = -dot(n, ray->dir_world);
         rgb = rgb * (EB_AMBIENT + EB_DIFFUSE * c);
-        if (fr->surf.specular > 0.0f)
-            rgb += fr->surf.specular * pow(c, fr->surf.shininess);
+        if (fr->P->specular > 0.0f)
+            rgb += fr->P->specular * pow(c, fr->P->shininess);
     }
     if (fr->ao_samples > 0)
         rgb *= eb_ambient_occlusion(fr, ray->org_world + t * ray->dir_world, n, ray->pixel,
@@ -193,3 +195,46 @@ EB_COLD int eb_close_bracket(eb_frame *fr, eb_ray *ray, eb_ray_state *st)
         eb_fields(s, value);
     return eb_surfaces_until(fr, ray, st, st->last_exit, value, valid);
 }
+
+/* At the entry of region r ([t_in, t_out]): close the open bracket after a gap,
+ * and start the crossing test at the region's entry (after a gap, or the first
+ * region). Returns 1 once the ray is opaque enough to stop. */
+EB_INLINE int eb_surfaces_enter_region(eb_frame *fr, eb_ray *ray, int r, float t_in, float t_out,
+                                       eb_ray_state *st)
+{
+    if (t_in > st->last_exit && eb_close_bracket(fr, ray, st))
+        return 1;
+    if (fr->surf.n_iso > 0 && (!st->prev_valid || t_in > st->last_exit)) {
+        eb_basis_sums s0 = eb_sample_region(fr, r, ray->org + t_in * ray->dir, 0);
+        st->prev_valid = s0.weight > 0.0f;
+        st->prev_t = t_in;
+        for (int f = 0; f < EB_N_FIELDS; ++f)
+            st->prev[f] = eb_basis_value(s0, f);
+    }
+    st->last_exit = t_out;
+    return 0;
+}
+#else
+/* A frame without iso-surfaces or slices (no -DEB_SURFACES): nothing to do, and
+ * the compiler drops the calls. */
+EB_INLINE void eb_slices_start(eb_frame *fr, eb_ray *ray, float t0, float t1, eb_ray_state *st)
+{
+}
+
+EB_INLINE int eb_surfaces_until(eb_frame *fr, eb_ray *ray, eb_ray_state *st, float t_limit,
+                                const float *value, int valid)
+{
+    return 0;
+}
+
+EB_INLINE int eb_close_bracket(eb_frame *fr, eb_ray *ray, eb_ray_state *st)
+{
+    return 0;
+}
+
+EB_INLINE int eb_surfaces_enter_region(eb_frame *fr, eb_ray *ray, int r, float t_in, float t_out,
+                                       eb_ray_state *st)
+{
+    return 0;
+}
+#endif

@@ -22,9 +22,8 @@
 #include "common.h"
 
 /* Box i's corner from an (n, 3) float32 array of corners: the boxes of the
- * BVH, the regions and the cell-location tree are read as their files hold
- * them (on CPU devices the very pages of the mapped files, with no converted
- * copy: exabricks.stages.device_data). */
+ * BVH, the regions and the cell-location tree are read in the layout their
+ * files hold them (grouped by exabricks.render.device_data, dataset.cl). */
 #define EB_CORNER(corners, i) vload3((i), (corners))
 
 /* exabricks.schema.Bvh on the device: node boxes, (first, count) links, the

@@ -238,7 +238,9 @@ class DeviceScene:
         self._no_tree = up(q, np.zeros(1, np.float32))
         self._vertex_args = self._mip_args = None
         # The device holds these in its own layout now: mapped pages go back.
-        schema.release_arrays(b.lower_lattice, b.level, b.dims, bvh.first, bvh.count)
+        schema.release_arrays(b.lower_lattice, b.level, b.dims, bvh.first, bvh.count,
+                              bvh.lower_lattice, bvh.upper_lattice, bvh.region_index,
+                              r.lower_lattice, r.upper_lattice)
 
         self.gradient_scales = np.array(
             [[*gradient_scale(b.spacing_world, scale.magnitudes[f]), 0.0]

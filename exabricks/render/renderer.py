@@ -27,7 +27,7 @@ absorption. Conventions the design leaves open, chosen here:
 * ``traversal="ordered"`` (default) walks the regions with one BVH traversal
   per ray and a private min-heap (re-tracing if the heap fills up);
   ``"retrace"`` re-traces from the root for every region as the paper does
-  (§4). Same regions, same image; ordered is 1.1-1.5x faster on PoCL
+  (§4). Same regions, same image; ordered is faster on PoCL
   (docs/benchmarks.md, "render (PoCL)").
 * ``Renderer(..., lookup="cell-location")`` (Python API only) is the
   comparison of paper §6.4.2 (Table 3): the regions still decide where to
@@ -55,7 +55,7 @@ from dataclasses import dataclass, field as dataclass_field
 
 import numpy as np
 
-from .. import interrupt, opencl, schema
+from .. import interrupt, kernel_abi, opencl, schema
 from ..constants import MAX_SAMPLES_PER_RAY
 from ..kernel_abi import LOD_LEVELS, PACKET_WIDTH
 from ..errors import ExabricksError
@@ -128,7 +128,7 @@ class Renderer:
         """`piece`: (lower, upper) lattice bounds of the half-open box of a piece of
         a k-d partition (exabricks.render.partition) that these structures are
         the share of, `scale` the whole dataset's; frames then hold exactly the
-        samples inside the box (docs/design.md, "Data-parallel rendering")."""
+        samples inside the box (docs/design.md, "Data-parallel rendering and MPI")."""
         _check_lookup(lookup)
         self.scene = DeviceScene(bricks, regions, bvh, field=field, fields=fields, device=device,
                                  scale=scale)
@@ -293,7 +293,7 @@ class Renderer:
                                       lod, self.lookup == "cell-location")
         look, look_params = frame_arrays(scene, s)
         params = up(q, s.params(
-            **layout, **look_params, width=width, height=height, spp=spp,
+            **layout, **look_params, **kernel_abi.option_params(scene), width=width, height=height, spp=spp,
             seed=int(cfg.seed) & 0xFFFFFFFF, jitter=bool(cfg.jitter),
             cam_origin=(*origin, 0), cam_forward=(*forward, 0), cam_du=(*du, 0), cam_dv=(*dv, 0),
             step_base=s.min_spacing_world / cfg.sampling_rate, inv_unit_distance=1.0 / unit,
@@ -370,7 +370,7 @@ class Renderer:
 # BAND_SECONDS (measured band after band, from a first band of FIRST_BAND rows),
 # so that SIGINT/SIGTERM end a run within a second and the device buffers stay
 # small; bands never exceed BAND_BYTES of device output buffers. Every band
-# boundary idles a core while the other finishes (2-5 % of a frame at 0.1 s).
+# boundary idles a core while the other finishes.
 BAND_SECONDS = 0.25
 FIRST_BAND = 4 * TILE
 BAND_BYTES = 64 << 20
@@ -500,7 +500,6 @@ def frame_arrays(scene: Scene, device_scene: DeviceScene) -> tuple[tuple, dict]:
         "buckets_at": ints.add(np.concatenate(buckets) if buckets else np.zeros(0, np.int32)),
         "n_layers": len(layers), "n_iso": len(iso), "n_slices": len(slices),
         "iso_tolerance": ISO_TOLERANCE_CELLS * device_scene.finest_width_world,
-        "specular": scene.lighting.specular, "shininess": scene.lighting.shininess,
         "clip_box": clip.box is not None, "clip_lower": (*box[0], 0.0),
         "clip_upper": (*box[1], 0.0), "n_clip_planes": len(clip.planes),
     }

@@ -52,6 +52,10 @@ class Option:
     target: str | None = None
     scene_key: tuple | None = None
     description: str | None = None  # the schema's words for a valid value (default: made)
+    # A target the kernels read: the eb_params member of this name
+    # (exabricks.kernel_abi.PARAMS; a choice as its index in `choices`, a flag as 0/1),
+    # filled from the scene for every frame; kernel code reads it as fr->P->NAME.
+    kernel: bool = False
 
     @property
     def flag(self) -> str:
@@ -167,8 +171,9 @@ SCENE_OPTIONS = (
              metavar="PIXELS", description="a number of pixels >= 0 (0: full resolution)"),
     _light("gradient", "Normals from the analytic gradient (default) or central differences.",
            kind="choice", choices=GRADIENTS),
-    _light("specular", "Blinn-Phong specular weight on surfaces (default 0).", low=0.0),
-    _light("shininess", "Blinn-Phong exponent (default 32).", **_POSITIVE),
+    _light("specular", "Blinn-Phong specular weight on surfaces (default 0).", low=0.0,
+           kernel=True),
+    _light("shininess", "Blinn-Phong exponent (default 32).", **_POSITIVE, kernel=True),
     _light("ao_samples", "Ambient-occlusion rays per surface hit (default 0: off).", _AO, kind="int",
            low=0, high=MAX_AO_SAMPLES),
     _light("ao_distance", "Length of the ambient-occlusion rays, world units (default: 10 finest "

@@ -1,0 +1,44 @@
+/* The frame's look: every transfer function and colour map as merged knots,
+ * the volume layers, the per-field gradient scale, and headlight shading
+ * (docs/design.md, "Integration and images"). The medium they make is
+ * medium.cl. */
+#pragma once
+#include "common.h"
+#include "transfer_function.cl"
+
+/* Headlight shading: emitted rgb *= AMBIENT + DIFFUSE |n . v|, with n the
+ * normalised gradient and v the view direction; a zero gradient leaves the
+ * colour unshaded (factor 1). */
+#define EB_AMBIENT 0.3f
+#define EB_DIFFUSE 0.7f
+
+/* The frame's look: every transfer function and colour map as merged knots
+ * (exabricks.transfer_function.TransferFunction.merged_knots) one after the
+ * other, each volume layer's knot index (knot_buckets, for the packet
+ * lookup of packet.cl), and the volume layers (field, first knot, knot count,
+ * offset of the knot index). */
+typedef struct {
+    __global const float *xs;
+    __global const float4 *rgba;
+    __global const int *buckets;
+    __global const int4 *layers;
+    int n_layers;
+    /* Private copies of what every sample reads (kept out of global memory):
+     * the first layer, and per field the lattice -> world gradient factor. */
+    int4 layer0;
+    float3 gradient_scale[EB_N_FIELDS];
+} eb_look;
+
+/* Colour map (knots first .. first + n - 1) at `value`. */
+EB_INLINE float4 eb_lookup(eb_look look, int first, int n, float value)
+{
+    return eb_transfer_function(value, look.xs + first, look.rgba + first, n);
+}
+
+/* Headlight factor of a world-direction gradient g (any scale) seen along dir. */
+EB_INLINE float eb_headlight(float3 g, float3 dir_world)
+{
+    float g2 = dot(g, g);
+    /* rsqrt is cheaper than length() and a division. */
+    return g2 > 0.0f ? EB_AMBIENT + EB_DIFFUSE * fabs(dot(g, dir_world)) * rsqrt(g2) : 1.0f;
+}
