@@ -74,7 +74,7 @@ M): 1.17 s above the baseline instead of 1.46 s (0.87 s to read the files cold),
 peak 390 MiB instead of 504 (1.00 of the files above the baseline; the aim is
 about 1.2), parts 0.48 / 0.16 / 0.11 s instead of 0.67 / 0.22 / 0.12 s (this table
 against the one of 2026-12-03 22:54 on the same AMD EPYC). What the 0.75 s of
-parts are, per step, is in docs/design.md ("Loading"): every index the kernels
+parts are, per step, is in docs/design.md ("Intermediate files"): every index the kernels
 follow is checked, vectorised, and the CRC of every array is computed once.
 """
 

@@ -156,7 +156,7 @@ def shots() -> list[Shot]:
         "--ao-samples 16 --spp 4")
     add("gerris", "gradient-analytic", "Analytic gradient",
         "A close-up of the iso-surface T = 0.3 with specular highlights and the default "
-        "analytic gradient: the faint terraces at cell faces (docs/design.md, Shading).",
+        "analytic gradient: the faint terraces at cell faces (docs/design.md, \"Integration and images\").",
         f"{G_CLOSE} --field T --no-volume --iso 0.3 --iso-color 0.9,0.9,1 --specular 0.5 "
         "--gradient analytic")
     add("gerris", "gradient-central", "Central-difference gradient",
@@ -302,7 +302,7 @@ def shots() -> list[Shot]:
     add("shell", "clip-iso", "Iso-surface and clip plane on octree-like data",
         "The iso-surface rho = 0.4 on the same data, cut open by a plane through the centre: "
         "the fronts' shells and where they cross; the rings on the surfaces are the terraces "
-        "of the analytic gradient at cell faces (docs/design.md, Shading).",
+        "of the analytic gradient at cell faces (docs/design.md, \"Integration and images\").",
         f"{S_CAM} --field rho --no-volume --iso 0.4 --iso-color 0.9,0.7,0.4 "
         "--clip-plane 512 512 512 -1 0 -1")
     return s
@@ -382,7 +382,7 @@ def write_doc(all_shots: list[Shot], sets: dict) -> None:
            "otherwise. The flags and the scene file are described in [scene.md](scene.md); "
            "render times of every mode are in [benchmarks.md](benchmarks.md#render-modes). "
            "The faint terraces on shaded iso-surfaces and volumes are the analytic "
-           "gradient's jumps at cell faces ([design.md](design.md), Shading; compare the "
+           "gradient's jumps at cell faces ([design.md](design.md), \"Integration and images\"; compare the "
            "two gradient shots).", ""]
     out += ["Contents: " + ", ".join(f"[{NAMES[k].split(' (')[0]}](#{k})" for k in ORDER), ""]
     for key in ORDER:

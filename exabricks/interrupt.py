@@ -1,4 +1,4 @@
-"""SIGTERM, SIGHUP and SIGINT end a command cleanly (docs/design.md, "Errors").
+"""SIGTERM, SIGHUP and SIGINT end a command cleanly (docs/design.md, "Errors, hostile input, outputs and signals").
 
 `install()` (called once by the CLI) makes each of these signals raise
 `Interrupted` in the main thread, after deleting the temporary file of any

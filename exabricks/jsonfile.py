@@ -7,7 +7,7 @@ one ExabricksError naming the file; `read_small` reads at most its cap (a
 device such as /dev/zero reports a size of 0 and would never end); `read_json`
 parses what it read and bounds the nesting, the length of every list and the
 number of values, so that the work after parsing is linear in the file and
-small (docs/design.md, "Hostile inputs").
+small (docs/design.md, "Errors, hostile input, outputs and signals").
 """
 
 from __future__ import annotations

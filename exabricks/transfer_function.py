@@ -2,7 +2,7 @@
 
 A `TransferFunction` holds RGB knots ``[x, r, g, b]`` and opacity knots
 ``[x, alpha]``; each is piecewise linear in the data value ``x`` and clamps to
-its first/last knot outside its range (docs/design.md, "Transfer function").
+its first/last knot outside its range (docs/design.md, "Transfer functions and volume layers").
 `evaluate` is the float64 reference; `merged_knots` is the exact representation
 the OpenCL kernel interpolates; `any_alpha` says where opacity is above zero over
 value intervals, so the renderer can skip transparent BVH nodes and regions (the

@@ -125,7 +125,7 @@ def gaps(rows, machine_line: str) -> list[str]:
         "octree-like data the reconstruction from long lists and the region walk, which packets "
         "do not touch, weigh most, although `brick` now joins the small bricks the k-d "
         "partition leaves and packets pass over listed bricks that reach none of their lanes "
-        "(docs/design.md \"Larger bricks\", \"Sample packets\"): a cheaper "
+        "(docs/design.md \"Bricks\", \"Sample packets on CPU devices\"): a cheaper "
         "step from one region to the next would help there; packets of rays that share a walk "
         "would fill the lanes better on block-structured data. On a GPU the kernels run one "
         "ray per lane, one sample at a time.",

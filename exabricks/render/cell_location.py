@@ -22,8 +22,8 @@ from ..errors import ExabricksError
 from ..stages.bvh import tree_depths, build_tree, tree_bounds
 
 # Bricks per leaf: with 1 a node box is the brick's support, so a sample adds only bricks
-# whose support holds it; frames were 3-13 % faster than with 2 and 4 bricks per leaf
-# (PoCL, Gerris, AMReX and Enzo at 256^2, shading none).
+# whose support holds it; frames were faster than with 2 and 4 bricks per leaf
+# (measured: docs/benchmarks.md, "Measurements behind design choices").
 LEAF_SIZE = 1
 
 

@@ -1,5 +1,5 @@
 """A k-d partition of space into convex pieces, and the share of a dataset each
-piece needs (docs/design.md, "Data-parallel rendering").
+piece needs (docs/design.md, "Data-parallel rendering and MPI").
 
 `kd_partition` cuts the lattice space of a dataset into `n` boxes by planes at
 lattice integers, each cut placed so that both sides hold their share of the

@@ -43,8 +43,7 @@ for _i, _p in enumerate("kmgt", start=1):
 # A piece's bytes (partition.piece_bytes) times this must fit the budget left
 # after the images: while a piece is made, its copies from the files, its
 # validation, the BVH builder and the upload take about as much again
-# (measured on the thin shells: a peak 2.1x the piece's bytes above the
-# baseline).
+# (measured: docs/benchmarks.md, "Measurements behind design choices").
 SLACK = 2.5
 # Bytes per brick of the whole dataset that making a piece holds whatever its
 # size (partition.piece_data: a mask of the bricks listed and their renumbering).

@@ -18,7 +18,8 @@ from ..transfer_function import TransferFunction
 
 SHADING_MODES = ("headlight", "none")
 GRADIENTS = ("analytic", "central")
-# How a point's value comes from the cells (docs/design.md, "Reconstructions").
+# How a point's value comes from the cells (docs/design.md, "Reconstructions: basis, nearest,
+# vertex").
 RECONSTRUCTIONS = ("basis", "nearest", "vertex")
 
 # Limits of one frame (the kernels keep these in private arrays).

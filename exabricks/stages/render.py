@@ -1,6 +1,6 @@
 """A render job: the frames of one `exabricks render` (or `eb.render`) from three
 structure files to image files, by the strategy the options choose (docs/design.md,
-"Render jobs"):
+"Render jobs and render options"):
 
 - resident: the dataset uploaded once, each frame drawn whole (`Renderer`);
 - memory-budgeted: the dataset cut into pieces by space and streamed
