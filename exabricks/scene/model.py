@@ -85,9 +85,11 @@ class Clip:
 @dataclass(frozen=True)
 class Lighting:
     """shading: "headlight" (diffuse, plus Blinn-Phong `specular` with exponent
-    `shininess` on surfaces) or "none"; gradient: "analytic" or "central";
-    ambient occlusion of surface hits: `ao_samples` rays (0: off) of length
-    `ao_distance` world units (None: 10 finest cell widths)."""
+    `shininess` on surfaces) or "none"; gradient: the normals of volume samples
+    (and of everything with "central"), "analytic" or "central"; ambient
+    occlusion of surface hits: `ao_samples` rays (0: off) of length
+    `ao_distance` world units (None: 10 finest cell widths); iso_gradient: the
+    normals of iso-surfaces, "analytic" or "central"."""
 
     shading: str = "headlight"
     gradient: str = "analytic"
@@ -95,6 +97,7 @@ class Lighting:
     shininess: float = 32.0
     ao_samples: int = 0
     ao_distance: float | None = None
+    iso_gradient: str = "analytic"
 
 
 @dataclass(frozen=True)
@@ -155,9 +158,9 @@ class Scene:
         if not (np.isfinite(self.settings.lod) and self.settings.lod >= 0):
             raise ExabricksError(f"--lod must be 0 (off) or a positive number of pixels, "
                                  f"got {self.settings.lod}")
-        if self.lighting.gradient not in GRADIENTS:
-            raise ExabricksError(f"unknown gradient {self.lighting.gradient!r} "
-                                 f"(one of {', '.join(GRADIENTS)})")
+        for gradient in (self.lighting.gradient, self.lighting.iso_gradient):
+            if gradient not in GRADIENTS:
+                raise ExabricksError(f"unknown gradient {gradient!r} (one of {', '.join(GRADIENTS)})")
         if not 0 <= self.lighting.ao_samples <= MAX_AO_SAMPLES:
             raise ExabricksError(f"ambient occlusion samples must lie in 0..{MAX_AO_SAMPLES}")
         d = self.lighting.ao_distance
