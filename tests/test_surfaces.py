@@ -26,6 +26,7 @@ end of an ambient-occlusion ray.
 from __future__ import annotations
 
 import functools
+import json
 from dataclasses import dataclass
 
 import numpy as np
@@ -298,7 +299,7 @@ def linear_field() -> Built:
 
 
 @device_param
-@pytest.mark.parametrize("gradient", ["analytic", "central"])
+@pytest.mark.parametrize("gradient", ["analytic", "central", "iso-central"])
 @pytest.mark.parametrize("specular", [0.0, 0.4])
 def test_headlight_shading_of_a_plane(gradient, specular, device):
     """Iso f = f(centre) of a linear f is the plane through the centre with normal
@@ -314,8 +315,9 @@ def test_headlight_shading_of_a_plane(gradient, specular, device):
     rgb = np.array([0.8, 0.6, 0.3])
     size = 32
     scene = Scene(camera=camera, isosurfaces=(IsoSurface("f", value, tuple(rgb), 1.0),),
-                  lighting=Lighting(shading="headlight", gradient=gradient, specular=specular,
-                                    shininess=7.0),
+                  lighting=Lighting(shading="headlight", specular=specular, shininess=7.0,
+                                    **({"iso_gradient": "central"} if gradient == "iso-central"
+                                       else {"gradient": gradient})),
                   settings=settings(size, depth=True))
     result = Renderer(built.bricks, built.regions, built.bvh, device=device).render_scene(scene)
     o, d = (x.reshape(-1, 3) for x in camera.rays(size, size))
@@ -332,6 +334,44 @@ def test_headlight_shading_of_a_plane(gradient, specular, device):
     got = result.rgba.reshape(-1, 4)
     np.testing.assert_allclose(got[inside, :3], want[inside], rtol=0, atol=1e-5)
     assert (got[inside, 3] == 1.0).all() and not got[outside].any()
+
+
+@device_param
+def test_iso_gradient_central_is_the_central_gradient_at_iso_hits(device):
+    """lighting.iso_gradient = "central" shades iso-surfaces (only) with central
+    differences: on Gerris an iso-only frame is then bit for bit the frame of
+    gradient = "central" and differs from the analytic one, and the option reaches
+    the renderer from a flag and back into scene_to_dict."""
+    from exabricks.scene import scene_from_options, scene_to_dict
+
+    built = load("gerris")
+    camera, _ = view("gerris")
+    iso = (IsoSurface("T", 0.3, (0.9, 0.9, 0.9), 1.0),)
+    renderer = Renderer(built.bricks, built.regions, built.bvh, field="T", device=device)
+    frames = {name: renderer.render_scene(Scene(camera=camera, isosurfaces=iso,
+                                                lighting=Lighting(**lighting),
+                                                settings=settings(48))).rgba
+              for name, lighting in (("analytic", {}), ("central", {"gradient": "central"}),
+                                     ("iso", {"iso_gradient": "central"}))}
+    assert frames["analytic"][..., 3].mean() > 0.05
+    np.testing.assert_array_equal(frames["iso"], frames["central"])
+    assert np.abs(frames["iso"] - frames["analytic"]).max() > 0.01
+    flagged = scene_from_options(built.bricks, flags={"iso_gradient": "central"})
+    assert flagged.lighting.iso_gradient == "central" and flagged.lighting.gradient == "analytic"
+    assert scene_to_dict(flagged)["lighting"]["iso_gradient"] == "central"
+
+
+def test_iso_gradient_in_a_scene_file(tmp_path):
+    from exabricks.errors import ExabricksError
+    from exabricks.scene import scene_from_options
+
+    built = load("gerris")
+    path = tmp_path / "scene.json"
+    path.write_text(json.dumps({"lighting": {"iso_gradient": "central"}}))
+    assert scene_from_options(built.bricks, scene_path=path).lighting.iso_gradient == "central"
+    path.write_text(json.dumps({"lighting": {"iso_gradient": "sobel"}}))
+    with pytest.raises(ExabricksError, match=r"lighting.iso_gradient.*\"analytic\" or \"central\""):
+        scene_from_options(built.bricks, scene_path=path)
 
 
 @device_param
