@@ -38,7 +38,7 @@ FRACTIONS = (2, 4, 8, 16)
 # Rows of a tile of the tiled runs, and the poster's tiles.
 TILE_ROWS = 32
 POSTER_TILE = (4096, 64)
-TABLE_HEAD = ("| dataset | budget | budget bytes | files | pieces | command s | peak | "
+TABLE_HEAD = ("| dataset | budget | budget bytes | files | domains | command s | peak | "
               "above baseline | RMSE |\n|---|---|---:|---:|---:|---:|---:|---:|---:|\n")
 
 

@@ -41,13 +41,13 @@ SECTION = "MPI rendering and SLURM job arrays"
 READING = """
 Reading the figures. On this machine every rank's PoCL already uses both cores,
 so more ranks only share them: the MPI frame is not faster here (data mode pays
-the partition, each piece's BVH and the compositing on top; image mode is a
+the partition, each domain's BVH and the compositing on top; image mode is a
 wash), and neither is a job array, whose tasks each pay the start-up of Python,
 the OpenCL runtime and the upload (about 1 s): with one frame per task the array
 is about 4 times slower than one process, with 30 frames per task 0.6-1.0
 times as fast from run to run (four tasks share two cores). What MPI buys on one machine is memory.
 One process uses the files' pages in place (the device shares the values and
-brick lists with the page cache); a data-mode rank copies its piece (the bricks
+brick lists with the page cache); a data-mode rank copies its domain (the bricks
 cropped to it, its regions and lists, a BVH of its own), so above the baseline
 it holds about 1.35-1.5/N of what one process holds on the thin shells (× N /
 one), and about 2/N on the 512³ volume, whose big bricks cross the cuts and are

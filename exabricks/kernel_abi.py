@@ -50,9 +50,9 @@ PARAMS = (
     # camera (world) and the world -> lattice map
     ("cam_origin", "float4"), ("cam_forward", "float4"), ("cam_du", "float4"),
     ("cam_dv", "float4"), ("origin_world", "float4"), ("inv_spacing", "float4"),
-    # clipping box (world) and a piece's half-open box (lattice)
+    # clipping box (world) and a domain's half-open box (lattice)
     ("clip_lower", "float4"), ("clip_upper", "float4"),
-    ("piece_lower", "float4"), ("piece_upper", "float4"),
+    ("domain_lower", "float4"), ("domain_upper", "float4"),
     # distance between fields in the brick, vertex and mip values
     ("field_stride", "long"), ("vertex_stride", "long"), ("mip_stride", "long"),
     # the image and its samples
@@ -142,7 +142,7 @@ def header() -> str:
 
 
 def variant_defines(*, n_fields: int = 1, reconstruction: str = "basis", surfaces: bool = False,
-                    lod: bool = False, packets: bool = False, piece: bool = False,
+                    lod: bool = False, packets: bool = False, domain: bool = False,
                     cell_location: bool = False) -> tuple[str, ...]:
     """The build defines of the render program for these choices (each a program
     of its own; the host checks which combinations exist before building)."""
@@ -152,4 +152,4 @@ def variant_defines(*, n_fields: int = 1, reconstruction: str = "basis", surface
             + (("EB_CELL_LOCATION",) if cell_location else ())
             + (("EB_SURFACES",) if surfaces else ()) + (("EB_LOD",) if lod else ())
             + ((f"EB_PACKET={PACKET_WIDTH}",) if packets else ())
-            + (("EB_PIECE",) if piece else ()))
+            + (("EB_DOMAIN",) if domain else ()))

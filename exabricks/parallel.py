@@ -1,21 +1,21 @@
 """MPI rendering: `mpiexec -n N exabricks render …` (or `srun --mpi=pmi2`) draws
 one frame with N processes (docs/design.md, "Data-parallel rendering and MPI").
 
-* ``data`` mode (the default for N > 1): the space is cut into N pieces by a
+* ``data`` mode (the default for N > 1): the space is cut into N domains by a
   k-d partition (exabricks.render.partition), each rank keeps the structures of
-  its piece only and renders exactly the samples inside it; the pieces' images
+  its domain only and renders exactly the samples inside it; the domains' images
   are composited sort-last in visibility order by direct send (IceT's simplest
   strategy, and yt's `reduce_tree_images` does the same front-to-back "over"):
-  every rank owns a band of rows, receives that band of every piece's image,
+  every rank owns a band of rows, receives that band of every domain's image,
   composites them front to back and sends the result to rank 0, which writes
   the file. Frames of several spp composite each sample on its own, then
   average. Iso-surfaces, ambient occlusion, depth output and the vertex
-  reconstruction need data beyond a piece: those frames take ``image`` mode.
+  reconstruction need data beyond a domain: those frames take ``image`` mode.
 * ``image`` mode: every rank holds the whole dataset and renders interleaved
   bands of rows; rank 0 gathers them.
 
 Either way the image equals the one-process image up to float rounding (with
-early ray termination off, `--max-opacity 1`: a piece cannot know the opacity
+early ray termination off, `--max-opacity 1`: a domain cannot know the opacity
 in front of it). Errors: `agree` runs a step on every rank and, if any rank
 failed, raises the lowest failing rank's error on all of them, which rank 0
 alone prints (exabricks.cli.main); an error outside such a step aborts the MPI
@@ -143,8 +143,8 @@ def _interleaved_spans(height: int, n: int, rank: int, rows: int = 16) -> list[t
 
 def load_for(mode: str, bricks_path, regions_path, bvh_path):
     """The three structure files for a run in `mode`: in data mode the bricks and
-    regions mapped (a rank reads the pages of its piece only; exabricks.stages.
-    partition.piece_data checks what it takes) and the bvh only checked to be
+    regions mapped (a rank reads the pages of its domain only; exabricks.stages.
+    partition.domain_data checks what it takes) and the bvh only checked to be
     one of the same regions; else loaded as for one process (load_structures)."""
     from . import schema
     from .render.device_data import check_chain, load_structures
@@ -185,7 +185,7 @@ class ParallelRenderer:
     it inside `agree`; each rank's own rendering runs inside `agree`, so that
     the collective steps are only reached when every rank got there. In data
     mode `bricks` and `regions` may be mapped (`load_for`) and `bvh` is not used:
-    each piece gets its own."""
+    each domain gets its own."""
 
     def __init__(self, comm, bricks, regions, bvh, scene, *, device=None, mode: str = "data",
                  where=("the bricks", "the regions")):
@@ -206,18 +206,18 @@ class ParallelRenderer:
         if self.mode == "image":
             self.renderer = Renderer(bricks, regions, bvh, fields=fields, device=device)
             return
-        from .render.partition import kd_partition, piece_data, piece_options
+        from .render.partition import kd_partition, domain_data, domain_options
 
         self.partition = kd_partition(bricks, regions, self.size)
-        for whole in (bricks, regions):  # the partition read them all: only the piece now
+        for whole in (bricks, regions):  # the partition read them all: only the domain now
             schema.release(whole)
         box = (self.partition.lower[self.rank], self.partition.upper[self.rank])
-        piece = piece_data(bricks, regions, *box, **piece_options(bricks, scene), fields=fields,
+        domain = domain_data(bricks, regions, *box, **domain_options(bricks, scene), fields=fields,
                            where=where)
         for whole in (bricks, regions):
             schema.release(whole)
         schema.trim_heap()
-        self.renderer = Renderer(*piece, fields=fields, device=device, piece=box,
+        self.renderer = Renderer(*domain, fields=fields, device=device, domain=box,
                                  scale=DatasetScale.of(bricks, fields))
 
     def render_scene(self, scene):
@@ -273,18 +273,18 @@ class ParallelRenderer:
                            sample=sample if spp > 1 else None)
             samples += result.stats["samples"]
             stats = dict(result.stats)
-            # direct send: band r of this piece's image to rank r
+            # direct send: band r of this domain's image to rank r
             bands = [np.ascontiguousarray(result.rgba[a:b]) for a, b in slabs]
             received = self.comm.alltoall(bands)
             over = received[order[0]].copy()
-            for piece in order[1:]:
-                composite(over, received[piece])
+            for domain in order[1:]:
+                composite(over, received[domain])
             own += over
         if spp > 1:
             own /= np.float32(spp)
         gathered = self.comm.gather(own, root=0)
         stats["samples"] = samples
-        for key in ("regions", "visible_regions"):  # rank 0's piece's: not the frame's
+        for key in ("regions", "visible_regions"):  # rank 0's domain's: not the frame's
             stats.pop(key, None)
         if self.rank != 0:
             return None, None, stats

@@ -6,15 +6,15 @@
 #include "integrator.cl"
 #include "dataset.cl"
 
-/* eb_render's piece arguments (-DEB_PIECE, a piece of a frame split by space:
- * scene.cl eb_in_piece): where use_front, the premultiplied RGBA of this sample
- * composited so far in front of the piece (one per pixel of the band), which
- * the piece's rays continue from (so that early ray termination carries
- * across pieces; exabricks.render.streaming). */
-#ifdef EB_PIECE
-#define EB_PIECE_ARGS , __global const float4 *front
+/* eb_render's domain arguments (-DEB_DOMAIN, a domain of a frame split by space:
+ * scene.cl eb_in_domain): where use_front, the premultiplied RGBA of this sample
+ * composited so far in front of the domain (one per pixel of the band), which
+ * the domain's rays continue from (so that early ray termination carries
+ * across domains; exabricks.render.streaming). */
+#ifdef EB_DOMAIN
+#define EB_DOMAIN_ARGS , __global const float4 *front
 #else
-#define EB_PIECE_ARGS
+#define EB_DOMAIN_ARGS
 #endif
 
 /* Sample `sample_index` of P->spp of every pixel in rows row0 .. row0 + rows - 1
@@ -31,7 +31,7 @@
  * smallest depth over the pixel's samples. */
 __kernel void eb_render(__constant eb_params *P, int4 band, int sample_index,
                         EB_DATASET_ARGS, __global const float *look_f, __global const int *look_i
-                        EB_PIECE_ARGS, __global float4 *rgba, __global float *depth,
+                        EB_DOMAIN_ARGS, __global float4 *rgba, __global float *depth,
                         __global uint *samples, __global uint *level_samples)
 {
     int band_col = get_global_id(0), band_row = get_global_id(1);
@@ -62,8 +62,8 @@ __kernel void eb_render(__constant eb_params *P, int4 band, int sample_index,
          P->n_clip_planes},
         P->step_base, P->inv_unit_distance, P->max_opacity, P->shading, P->central,
         P->ao_samples, P->ao_distance, P->origin_world, P->inv_spacing, P->lod_scale,
-#ifdef EB_PIECE
-        P->piece_lower, P->piece_upper,
+#ifdef EB_DOMAIN
+        P->domain_lower, P->domain_upper,
 #endif
     };
 
@@ -90,7 +90,7 @@ __kernel void eb_render(__constant eb_params *P, int4 band, int sample_index,
     float t_depth;
     float4 c;
     float4 before = (float4)(0.0f);
-#ifdef EB_PIECE
+#ifdef EB_DOMAIN
     if (P->use_front)
         before = front[slot];
 #endif

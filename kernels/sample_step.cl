@@ -1,5 +1,5 @@
-/* One sample of a ray: where the next one lies (in a piece's frame, only those
- * inside the piece), and what it does: the surfaces crossed since the
+/* One sample of a ray: where the next one lies (in a domain's frame, only those
+ * inside the domain), and what it does: the surfaces crossed since the
  * previous sample (surfaces.cl; nothing in a volume-only build), then the
  * medium (medium.cl), composited front to back (compositing.cl). */
 #pragma once
@@ -10,12 +10,12 @@
 #include "surfaces.cl"
 
 /* The next sub-interval of `it` (eb_intervals_next) whose sample this frame
- * takes: every one, or in a piece's frame those at points inside the piece. */
+ * takes: every one, or in a domain's frame those at points inside the domain. */
 EB_INLINE int eb_next_sample(eb_frame *fr, eb_ray *ray, eb_intervals *it, float *tm, float *len)
 {
-#ifdef EB_PIECE
+#ifdef EB_DOMAIN
     while (eb_intervals_next(it, tm, len))
-        if (eb_in_piece(fr, ray->org + *tm * ray->dir))
+        if (eb_in_domain(fr, ray->org + *tm * ray->dir))
             return 1;
     return 0;
 #else

@@ -49,19 +49,19 @@ typedef struct {
     float ao_distance;        /* their length, world units                             */
     float4 origin_world, inv_spacing;
     float lod_scale;          /* --lod: pixels * pixel angle / min(spacing), 0 when off */
-#ifdef EB_PIECE
-    float4 piece_lower, piece_upper;  /* this piece's half-open box, lattice space */
+#ifdef EB_DOMAIN
+    float4 domain_lower, domain_upper;  /* this domain's half-open box, lattice space */
 #endif
 } eb_frame;
 
-#ifdef EB_PIECE
-/* Data-parallel rendering (exabricks.render.partition): a frame of one piece of a
+#ifdef EB_DOMAIN
+/* Data-parallel rendering (exabricks.render.partition): a frame of one domain of a
  * k-d partition of space takes exactly the samples (and slice hits) at lattice
- * points inside the piece's half-open box, so that the pieces' images,
+ * points inside the domain's half-open box, so that the domains' images,
  * composited in visibility order, hold every sample of the whole frame once. */
-EB_INLINE int eb_in_piece(eb_frame *fr, float3 p)
+EB_INLINE int eb_in_domain(eb_frame *fr, float3 p)
 {
-    return all(p >= fr->piece_lower.xyz) && all(p < fr->piece_upper.xyz);
+    return all(p >= fr->domain_lower.xyz) && all(p < fr->domain_upper.xyz);
 }
 #endif
 

@@ -45,9 +45,9 @@ EB_INLINE void eb_slices_start(eb_frame *fr, eb_ray *ray, float t0, float t1, eb
         float t = dot(fr->surf.slice_point[k].xyz - ray->org_world, n) / along;
         if (!(t >= t0 && t <= t1))
             continue;
-#ifdef EB_PIECE
-        if (!eb_in_piece(fr, ray->org + t * ray->dir))
-            continue;  /* another piece's hit */
+#ifdef EB_DOMAIN
+        if (!eb_in_domain(fr, ray->org + t * ray->dir))
+            continue;  /* another domain's hit */
 #endif
         int i = st->n_slices++;
         for (; i > 0 && st->slice_t[i - 1] > t; --i) {

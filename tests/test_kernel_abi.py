@@ -11,9 +11,9 @@ from exabricks import kernel_abi, opencl
 
 # Every program a frame or probe can reach (the host refuses the other combinations).
 VARIANTS = [dict(), dict(packets=True), dict(surfaces=True, n_fields=3), dict(lod=True),
-            dict(cell_location=True, piece=True, surfaces=True), dict(reconstruction="vertex"),
-            dict(reconstruction="nearest", piece=True, surfaces=True, lod=False),
-            dict(packets=True, piece=True, surfaces=True, lod=True)]
+            dict(cell_location=True, domain=True, surfaces=True), dict(reconstruction="vertex"),
+            dict(reconstruction="nearest", domain=True, surfaces=True, lod=False),
+            dict(packets=True, domain=True, surfaces=True, lod=True)]
 
 
 @pytest.mark.parametrize("device", DEVICES)

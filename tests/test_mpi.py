@@ -146,7 +146,7 @@ def test_srun_without_mpi_is_refused(gerris, tmp_path):
     ("brick_start", -5, "out of order"),
 ])
 def test_crafted_regions_under_data_parallel_mpi(gerris, tmp_path, array, value, needle):
-    """A rank maps the files and checks only what its piece takes: a corrupt list
+    """A rank maps the files and checks only what its domain takes: a corrupt list
     is still caught before any kernel reads it, with one error line."""
     with np.load(gerris[1]) as z:
         arrays = {k: z[k].copy() for k in z.files}

@@ -1,12 +1,12 @@
-"""Data-parallel rendering (exabricks.render.partition, issue 12): the pieces of a
+"""Data-parallel rendering (exabricks.render.partition, issue 12): the domains of a
 k-d partition each render exactly their samples, and their images composited
 front to back in visibility order give the whole frame, in process (the MPI
 runs are tests/test_mpi.py).
 
 The same samples are taken at the same positions from the same bricks, so the
-composite differs from the one-piece frame by float rounding only; the bound
+composite differs from the one-domain frame by float rounding only; the bound
 is the issue's, RMSE at most 1e-5 of the maximum, with early ray termination
-off (a piece cannot know the opacity in front of it)."""
+off (a domain cannot know the opacity in front of it)."""
 
 from __future__ import annotations
 
@@ -18,19 +18,19 @@ import pytest
 
 from exabricks.render.device_data import DatasetScale
 from exabricks.render.partition import (_meeting, composite, eye_lattice, kd_partition,
-                                         piece_data, piece_options, region_blocks)
+                                         domain_data, domain_options, region_blocks)
 from exabricks.render.renderer import Renderer, over_background
 
 from conftest import device_param
 from test_packets import DATASETS, loaded, renderer, scene_for
 
-# What a piece can render alone (exabricks.parallel.needs_image_mode: iso-surfaces,
+# What a domain can render alone (exabricks.parallel.needs_image_mode: iso-surfaces,
 # AO, depth and the vertex reconstruction take image mode).
 MODES = ("emission", "central", "two-layers", "clip-slice", "lod", "spp", "nearest")
 
 
 @functools.lru_cache(maxsize=None)
-def pieces(name: str, n: int, device, options: tuple):
+def domains(name: str, n: int, device, options: tuple):
     built = loaded(name)[0]
     part = kd_partition(built.bricks, built.regions, n)
     fields = DATASETS[name][1]
@@ -38,17 +38,17 @@ def pieces(name: str, n: int, device, options: tuple):
     renderers = []
     for k in range(n):
         box = (part.lower[k], part.upper[k])
-        renderers.append(Renderer(*piece_data(built.bricks, built.regions, *box, **dict(options)),
-                                  fields=fields, device=device, piece=box, scale=scale))
+        renderers.append(Renderer(*domain_data(built.bricks, built.regions, *box, **dict(options)),
+                                  fields=fields, device=device, domain=box, scale=scale))
     return part, renderers
 
 
 def composited(name: str, n: int, device, scene):
-    """The frame as data-parallel ranks make it: every sample index of every piece,
+    """The frame as data-parallel ranks make it: every sample index of every domain,
     composited in visibility order, averaged, then over the background."""
     built = loaded(name)[0]
-    part, renderers = pieces(name, n, device,
-                                tuple(piece_options(built.bricks, scene).items()))
+    part, renderers = domains(name, n, device,
+                                tuple(domain_options(built.bricks, scene).items()))
     plain = scene.replace(background=(0.0, 0.0, 0.0, 0.0))
     order = part.visibility_order(eye_lattice(built.bricks, scene.camera.position))
     spp = scene.settings.spp
@@ -80,7 +80,7 @@ def test_pieces_composite_to_the_whole_frame(name, mode, device):
         rmse = float(np.sqrt(np.mean((image - b) ** 2)))
         assert rmse <= 1e-5 * float(np.abs(b).max()), (n, rmse)
         # every sample of the whole frame (and those behind a fully opaque point,
-        # where even max opacity 1 ends a ray, which a piece behind cannot know)
+        # where even max opacity 1 ends a ray, which a domain behind cannot know)
         assert samples >= whole.stats["samples"], (n, samples, whole.stats["samples"])
 
 
@@ -89,7 +89,7 @@ def test_pieces_composite_to_the_whole_frame(name, mode, device):
 def test_pieces_tile_space_and_share_the_bytes(name, n, rng):
     built = loaded(name)[0]
     part = kd_partition(built.bricks, built.regions, n)
-    assert part.n_pieces == n
+    assert part.n_domains == n
     lo = built.regions.lower_lattice.min(axis=0)
     hi = built.regions.upper_lattice.max(axis=0)
     points = rng.uniform(lo - 5, hi + 5, (4000, 3))
@@ -98,7 +98,7 @@ def test_pieces_tile_space_and_share_the_bytes(name, n, rng):
     np.testing.assert_array_equal(inside.all(axis=2).sum(axis=1), 1)
     sizes = []
     for k in range(n):
-        b, r, v = piece_data(built.bricks, built.regions, part.lower[k], part.upper[k])
+        b, r, v = domain_data(built.bricks, built.regions, part.lower[k], part.upper[k])
         sizes.append(b.values.nbytes + r.brick_ids.nbytes + 34 * r.n_regions)
     total = built.bricks.values.nbytes + built.regions.brick_ids.nbytes + 34 * built.regions.n_regions
     # about 1/n each: balanced, and little held twice (the regions across a cut go
@@ -110,7 +110,7 @@ def test_pieces_tile_space_and_share_the_bytes(name, n, rng):
 @pytest.mark.parametrize("name", sorted(DATASETS))
 def test_region_blocks_find_the_same_regions_as_a_pass_over_all(name, rng):
     """The block index (`region_blocks`) that spares a budgeted render a pass over
-    every region per piece finds exactly the regions a full pass finds."""
+    every region per domain finds exactly the regions a full pass finds."""
     regions = loaded(name)[0].regions
     blocks = region_blocks(regions)
     lo = regions.lower_lattice.min(axis=0).astype(np.float64)
@@ -136,7 +136,7 @@ def test_visibility_order_is_front_to_back_on_every_ray(n, rng):
         t = np.linspace(0, 1, 2000)[:, None]
         points = eye + t * (target - eye)
         inside = ((points[:, None, :] >= part.lower[None]) & (points[:, None, :] < part.upper[None]))
-        along = inside.all(axis=2).argmax(axis=1)  # the piece of each point, eye to target
+        along = inside.all(axis=2).argmax(axis=1)  # the domain of each point, eye to target
         seen = [rank[int(p)] for p in along]
         assert seen == sorted(seen)
 
@@ -147,12 +147,12 @@ def _brick_cells(bricks, b):
 
 
 @pytest.mark.parametrize("crop", [False, True])
-def test_piece_data_keeps_every_region_that_meets_the_piece(crop):
+def test_domain_data_keeps_every_region_that_meets_the_domain(crop):
     built = loaded("amrex")[0]
     whole_b, whole_r = built.bricks, built.regions
     part = kd_partition(whole_b, whole_r, 4)
     for k in range(4):
-        b, r, _ = piece_data(whole_b, whole_r, part.lower[k], part.upper[k], crop=crop)
+        b, r, _ = domain_data(whole_b, whole_r, part.lower[k], part.upper[k], crop=crop)
         meets = (np.all(whole_r.lower_lattice < part.upper[k], axis=1)
                  & np.all(whole_r.upper_lattice > part.lower[k], axis=1))
         assert r.n_regions == int(meets.sum())

@@ -127,7 +127,7 @@ def check_regions_brute_force(bricks, regions, which=None, exact=True):
         overlap = np.all((s_lo < r_hi[r]) & (s_hi > r_lo[r]), axis=1)
         listed = regions.brick_ids[regions.brick_start[r]:regions.brick_start[r + 1]]
         np.testing.assert_array_equal(listed, np.flatnonzero(overlap))
-        if exact:  # every listed support covers the whole region (it lies in one ABR piece)
+        if exact:  # every listed support covers the whole region (it lies in one ABR)
             assert np.all(s_lo[listed] <= r_lo[r]) and np.all(s_hi[listed] >= r_hi[r])
         cells = np.all((c_lo < r_hi[r]) & (c_hi > r_lo[r]), axis=1)
         assert cells.any()
@@ -282,7 +282,7 @@ def test_bvh_one_region_is_a_leaf_root():
 # properties on random layouts
 
 # Merge settings every property must hold for: exact regions, the default, merging
-# that keeps small pieces only, and merging nearly everything (big lists, empty space).
+# that keeps small boxes only, and merging nearly everything (big lists, empty space).
 MERGES = (EXACT, Merge(), Merge(visit_cost=1.0, brick_cost=0.3, max_bricks=8),
           Merge(visit_cost=1e6, brick_cost=0.0, max_bricks=1 << 20, max_brick_cells=1 << 31))
 

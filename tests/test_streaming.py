@@ -1,7 +1,7 @@
 """Rendering under a memory budget, progressively and against a time limit
 (exabricks.render.streaming, issue 11).
 
-A budgeted frame is drawn piece by piece, each piece's rays continuing from the
+A budgeted frame is drawn domain by domain, each domain's rays continuing from the
 image composited in front of it, so it takes the in-memory frame's samples and
 equals it up to float rounding (the issue's bound: RMSE at most 1e-5 of the
 maximum), early ray termination included."""
@@ -19,7 +19,7 @@ import pytest
 
 from exabricks.errors import ExabricksError
 from exabricks.image_io import read_image
-from exabricks.render.partition import _piece_plan, piece_bytes
+from exabricks.render.partition import domain_plan, domain_bytes
 from exabricks.render.renderer import Renderer
 from exabricks.render.streaming import (PER_BRICK, SLACK, Budgeted, Resident, image_bytes,
                                         parse_size, render_steps, render_tiled)
@@ -65,16 +65,16 @@ def test_sizes_parse_like_slurm_and_numfmt():
 
 def whole_bytes(name, scene) -> int:
     built = loaded(name)[0]
-    plan = _piece_plan(built.bricks, built.regions, [-np.inf] * 3, [np.inf] * 3, 0.0, True,
+    plan = domain_plan(built.bricks, built.regions, [-np.inf] * 3, [np.inf] * 3, 0.0, True,
                        ("b", "r"))
-    return piece_bytes(built.bricks, built.regions, plan, scene.fields())
+    return domain_bytes(built.bricks, built.regions, plan, scene.fields())
 
 
-def budget_for(name, scene, pieces: int) -> int:
-    """A budget whose pieces each hold at most 1/`pieces` of the whole: at least
-    that many pieces."""
+def budget_for(name, scene, domains: int) -> int:
+    """A budget whose domains each hold at most 1/`domains` of the whole: at least
+    that many domains."""
     n_bricks = loaded(name)[0].bricks.n_bricks
-    return int(image_bytes(scene) + PER_BRICK * n_bricks + SLACK * whole_bytes(name, scene) / pieces) + 1
+    return int(image_bytes(scene) + PER_BRICK * n_bricks + SLACK * whole_bytes(name, scene) / domains) + 1
 
 
 def same(a, b):
@@ -100,45 +100,45 @@ def test_budgeted_frame_equals_the_in_memory_frame(name, mode, n, max_opacity):
     scene = scene.replace(settings=dataclasses.replace(scene.settings, max_opacity=max_opacity))
     whole = Renderer(built.bricks, built.regions, built.bvh, fields=DATASETS[name][1])
     reference = whole.render_scene(scene)
-    pieces = Budgeted(built.bricks, built.regions, scene, budget_for(name, scene, n))
-    assert pieces.n_pieces >= n
-    result = render_steps(pieces, scene)
+    domains = Budgeted(built.bricks, built.regions, scene, budget_for(name, scene, n))
+    assert domains.n_domains >= n
+    result = render_steps(domains, scene)
     same(result.rgba, reference.rgba)
     # The same samples, but where a ray's opacity comes within float rounding of 1
-    # at a piece's boundary: the front image stores 1 - T, which rounds to 1 and
-    # stops the next piece, where the whole frame's T stays above 0 (and at
+    # at a domain's boundary: the front image stores 1 - T, which rounds to 1 and
+    # stops the next domain, where the whole frame's T stays above 0 (and at
     # max_opacity < 1 rounding can move a stop the same way). Those samples
     # weigh under 1e-7 each.
     assert abs(result.stats["samples"] - reference.stats["samples"]) \
         <= 1e-3 * reference.stats["samples"]
-    assert result.stats["pieces"] == pieces.n_pieces
+    assert result.stats["pieces"] == domains.n_domains
     assert result.stats["progress"] == {"complete": True, "samples": [scene.settings.spp] * 2,
-                                        "pieces": [pieces.n_pieces] * 2}
+                                        "pieces": [domains.n_domains] * 2}
 
 
-def test_early_termination_carries_across_pieces():
-    """An opaque front piece stops the rays: the pieces behind take no samples."""
+def test_early_termination_carries_across_domains():
+    """An opaque front domain stops the rays: the domains behind take no samples."""
     name = "gerris"
     built = loaded(name)[0]
     scene = scene_for(name, "emission")
     opaque = scene.replace(settings=dataclasses.replace(scene.settings, max_opacity=0.5))
-    pieces = Budgeted(built.bricks, built.regions, opaque, budget_for(name, opaque, 8))
-    full = render_steps(pieces, opaque.replace(
+    domains = Budgeted(built.bricks, built.regions, opaque, budget_for(name, opaque, 8))
+    full = render_steps(domains, opaque.replace(
         settings=dataclasses.replace(opaque.settings, max_opacity=1.0)))
-    stopped = render_steps(pieces, opaque)
+    stopped = render_steps(domains, opaque)
     assert stopped.stats["samples"] < full.stats["samples"]
     whole = Renderer(built.bricks, built.regions, built.bvh, fields=DATASETS[name][1])
     same(stopped.rgba, whole.render_scene(opaque).rgba)
 
 
-def test_surfaces_and_depth_need_one_piece():
+def test_surfaces_and_depth_need_one_domain():
     name = "amrex"
     built = loaded(name)[0]
     scene = scene_for(name, "iso")
     with pytest.raises(ExabricksError, match="iso-surfaces need the whole dataset"):
         Budgeted(built.bricks, built.regions, scene, budget_for(name, scene, 4))
     one = Budgeted(built.bricks, built.regions, scene, budget_for(name, scene, 1) * 2)
-    assert one.n_pieces == 1
+    assert one.n_domains == 1
     whole = Renderer(built.bricks, built.regions, built.bvh, fields=DATASETS[name][1])
     same(render_steps(one, scene).rgba, whole.render_scene(scene).rgba)
 
@@ -149,7 +149,7 @@ def test_a_budget_too_small_says_what_it_needs():
     scene = scene_for(name, "emission")
     with pytest.raises(ExabricksError, match="leaves nothing for the data"):
         Budgeted(built.bricks, built.regions, scene, image_bytes(scene))
-    with pytest.raises(ExabricksError, match="too small for this dataset: the smallest piece"):
+    with pytest.raises(ExabricksError, match="too small for this dataset: the smallest domain"):
         Budgeted(built.bricks, built.regions, scene,
                  image_bytes(scene) + PER_BRICK * built.bricks.n_bricks + 200)
 
@@ -159,17 +159,17 @@ def test_steps_offer_every_image_so_far_and_stop_at_the_deadline():
     built = loaded(name)[0]
     scene = scene_for(name, "spp")
     spp = scene.settings.spp
-    pieces = Budgeted(built.bricks, built.regions, scene, budget_for(name, scene, 3))
+    domains = Budgeted(built.bricks, built.regions, scene, budget_for(name, scene, 3))
     seen = []
-    result = render_steps(pieces, scene, on_image=lambda rgba, p: seen.append((rgba.copy(), p)))
-    assert len(seen) == spp * pieces.n_pieces - 1
-    assert seen[0][1] == {"complete": False, "samples": [0, spp], "pieces": [1, pieces.n_pieces]}
+    result = render_steps(domains, scene, on_image=lambda rgba, p: seen.append((rgba.copy(), p)))
+    assert len(seen) == spp * domains.n_domains - 1
+    assert seen[0][1] == {"complete": False, "samples": [0, spp], "pieces": [1, domains.n_domains]}
     assert seen[-1][1]["samples"] == [spp - 1, spp]
     assert all(np.isfinite(r).all() for r, _ in seen)
     one = render_steps(Resident(Renderer(built.bricks, built.regions, built.bvh,
                                          fields=DATASETS[name][1])), scene)
     same(result.rgba, one.rgba)
-    late = render_steps(pieces, scene, deadline=time.perf_counter())
+    late = render_steps(domains, scene, deadline=time.perf_counter())
     assert late.stats["progress"]["complete"] is False
     assert late.stats["progress"]["samples"][0] < spp
 
@@ -265,7 +265,7 @@ def test_budget_progressive_and_time_limit_are_refused_under_mpi(gerris_files, t
 
 # -- frames tile by tile (--tile) ------------------------------------------------------------
 
-def tiled(pieces, scene, tile):
+def tiled(domains, scene, tile):
     """render_tiled into one array: (rgba, depth or None, stats)."""
     s = scene.settings
     rgba = np.full((s.height, s.width, 4), np.nan, np.float32)
@@ -276,7 +276,7 @@ def tiled(pieces, scene, tile):
         if depth is not None:
             depth[row0:row0 + len(band)] = band_depth
 
-    stats = render_tiled(pieces, scene, tile, put)
+    stats = render_tiled(domains, scene, tile, put)
     return rgba, depth, stats
 
 
@@ -296,14 +296,14 @@ def test_tiles_are_the_very_pixels_of_the_whole_frame(name, mode):
 
 
 class Counted(Budgeted):
-    """Budgeted, counting the pieces it reads."""
+    """Budgeted, counting the domains it reads."""
 
     reads = 0
 
-    def piece(self, index, scene):
+    def domain(self, index, scene):
         if self._current[0] != index:
             self.reads += 1
-        return super().piece(index, scene)
+        return super().domain(index, scene)
 
 
 @pytest.mark.parametrize("name,mode", [("gerris", "emission"), ("amrex", "central")])
@@ -312,35 +312,35 @@ def test_tiled_budgeted_frame_equals_the_in_memory_frame(name, mode):
     scene = scene_for(name, mode)
     scene = scene.replace(settings=dataclasses.replace(scene.settings, max_opacity=1.0))
     tile = (24, 16)
-    pieces = Counted(built.bricks, built.regions, scene,
+    domains = Counted(built.bricks, built.regions, scene,
                      budget_for(name, scene, 8) - image_bytes(scene) + image_bytes(scene, tile),
                      tile=tile)
-    assert pieces.n_pieces >= 8
-    rgba, _, stats = tiled(pieces, scene, tile)
+    assert domains.n_domains >= 8
+    rgba, _, stats = tiled(domains, scene, tile)
     same(rgba, renderer(name, None).render_scene(scene).rgba)
-    assert stats["pieces"] == pieces.n_pieces and stats["progress"]["complete"]
-    # each band reads the pieces that meet it once, not once per tile
+    assert stats["pieces"] == domains.n_domains and stats["progress"]["complete"]
+    # each band reads the domains that meet it once, not once per tile
     bands = -(-scene.settings.height // tile[1])
-    assert pieces.reads <= bands * pieces.n_pieces
+    assert domains.reads <= bands * domains.n_domains
 
 
 def test_pieces_out_of_view_are_never_read():
     name = "amrex"
     built, camera, lo, hi, _ = loaded(name)
     scene = scene_for(name, "emission")
-    pieces = Counted(built.bricks, built.regions, scene, budget_for(name, scene, 16))
+    domains = Counted(built.bricks, built.regions, scene, budget_for(name, scene, 16))
     centre = 0.5 * (lo + hi)
     corner = camera.with_overrides(look_at=tuple(lo + 0.1 * (hi - lo)), fovy=8.0)
     near = scene.replace(camera=corner)
-    result = render_steps(pieces, near)
-    assert 0 < pieces.reads < pieces.n_pieces, (pieces.reads, pieces.n_pieces)
+    result = render_steps(domains, near)
+    assert 0 < domains.reads < domains.n_domains, (domains.reads, domains.n_domains)
     same(result.rgba, renderer(name, None).render_scene(near).rgba)
     away = scene.replace(camera=camera.with_overrides(look_at=tuple(
         2 * np.asarray(camera.position) - centre)))
-    pieces.reads = 0
-    empty = render_steps(pieces, away)
+    domains.reads = 0
+    empty = render_steps(domains, away)
     assert float(np.abs(empty.rgba).max()) == 0.0 and empty.stats["samples"] == 0
-    assert pieces.reads <= 1 and empty.stats["width"] == scene.settings.width
+    assert domains.reads <= 1 and empty.stats["width"] == scene.settings.width
 
 
 def test_footprints_hold_every_ray_that_meets_the_box():

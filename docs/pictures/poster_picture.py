@@ -8,7 +8,7 @@ docs/pictures/progressive_picture.py) as one `exabricks render --tile 512 64
 --memory-budget 12MiB` command of --size² pixels, over the pictures' dark
 background, then writes docs/images/poster.png: the frame scaled down to
 --crop² by averaging, and the --crop² pixels around its centre as drawn.
-Prints the command's pieces, bands and peak memory.
+Prints the command's domains, bands and peak memory.
 """
 
 from __future__ import annotations
@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 from benchmarks import benchdoc
 from benchmarks.bench_render import ensure_scene
-from pieces_picture import BACKGROUND, CAMERA
+from domains_picture import BACKGROUND, CAMERA
 from progressive_picture import FLAGS
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -55,7 +55,7 @@ def main(argv=None) -> int:
     write_image(ROOT / "docs" / "images" / "poster.png",
                 np.concatenate([small, gap, crop], axis=1), metadata={})
     s = meta["settings"]
-    print(f"{args.size}² in tiles {s['tile']}: {s['pieces']} pieces, {wall:.1f} s, peak "
+    print(f"{args.size}² in tiles {s['tile']}: {s['pieces']} domains, {wall:.1f} s, peak "
           f"{benchdoc.fmt_bytes(peak)} -> docs/images/poster.png")
     return 0
 

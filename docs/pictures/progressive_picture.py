@@ -1,15 +1,15 @@
 """Pictures of a frame under a memory budget (docs/design.md, "Rendering under a
-memory budget"): the image so far after a quarter, half and all of the pieces of
+memory budget"): the image so far after a quarter, half and all of the domains of
 the first sample, and the final average of every sample, as `render
 --progressive` rewrites it.
 
-    .venv/bin/python docs/pictures/progressive_picture.py [--pieces 8] [--size 320]
+    .venv/bin/python docs/pictures/progressive_picture.py [--domains 8] [--size 320]
 
 Runs exabricks.render.streaming in one process on the Athena++ blast (rho, the
-camera and transfer function of docs/pictures/pieces_picture.py, default early ray
-termination) with a budget that holds at most 1/--pieces of the data per piece.
+camera and transfer function of docs/pictures/domains_picture.py, default early ray
+termination) with a budget that holds at most 1/--domains of the data per domain.
 Writes docs/images/budget-progress.png (the four images side by side, over the
-dark background) and prints the pieces, what each image covers, and the RMSE of
+dark background) and prints the domains, what each image covers, and the RMSE of
 the final image against the in-memory frame.
 """
 
@@ -21,7 +21,7 @@ from pathlib import Path
 import numpy as np
 from benchmarks import benchdoc
 from benchmarks.bench_render import ensure_scene
-from pieces_picture import BACKGROUND, CAMERA
+from domains_picture import BACKGROUND, CAMERA
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -33,12 +33,12 @@ def main(argv=None) -> int:
     from exabricks import schema
     from exabricks.image_io import write_image
     from exabricks.scene import scene_from_options
-    from exabricks.render.partition import _piece_plan, piece_bytes
+    from exabricks.render.partition import domain_plan, domain_bytes
     from exabricks.render.renderer import Renderer, over_background
     from exabricks.render.streaming import PER_BRICK, SLACK, Budgeted, image_bytes, render_steps
 
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--pieces", type=int, default=8)
+    parser.add_argument("--domains", type=int, default=8)
     parser.add_argument("--size", type=int, default=320)
     parser.add_argument("--spp", type=int, default=4)
     args = parser.parse_args(argv)
@@ -47,11 +47,11 @@ def main(argv=None) -> int:
     scene = scene_from_options(bricks, flags={**FLAGS, **CAMERA, "size": (args.size, args.size),
                                               "spp": args.spp})
     whole = Renderer(bricks, regions, bvh, fields=scene.fields()).render_scene(scene).rgba
-    plan = _piece_plan(bricks, regions, [-np.inf] * 3, [np.inf] * 3, 0.0, True, ("b", "r"))
+    plan = domain_plan(bricks, regions, [-np.inf] * 3, [np.inf] * 3, 0.0, True, ("b", "r"))
     budget = int(image_bytes(scene) + PER_BRICK * bricks.n_bricks
-                 + SLACK * piece_bytes(bricks, regions, plan, scene.fields()) / args.pieces)
-    pieces = Budgeted(bricks, regions, scene, budget)
-    n = pieces.n_pieces
+                 + SLACK * domain_bytes(bricks, regions, plan, scene.fields()) / args.domains)
+    domains = Budgeted(bricks, regions, scene, budget)
+    n = domains.n_domains
     wanted = {(0, max(1, n // 4)), (0, max(1, n // 2)), (0, n)}
     shots = []
 
@@ -60,7 +60,7 @@ def main(argv=None) -> int:
         if key in wanted:
             shots.append((rgba.copy(), progress))
 
-    final = render_steps(pieces, scene, on_image=on_image)
+    final = render_steps(domains, scene, on_image=on_image)
     shots.append((final.rgba, final.stats["progress"]))
     for _, progress in shots:
         print(progress)
@@ -68,7 +68,7 @@ def main(argv=None) -> int:
     out = ROOT / "docs" / "images" / "budget-progress.png"
     write_image(out, strip, metadata={})
     rmse = float(np.sqrt(np.mean((final.rgba - whole) ** 2))) / float(np.abs(whole).max())
-    print(f"{n} pieces in a budget of {budget:,} bytes -> {out}; RMSE against in memory {rmse:.1e}")
+    print(f"{n} domains in a budget of {budget:,} bytes -> {out}; RMSE against in memory {rmse:.1e}")
     return 0
 
 

@@ -128,7 +128,7 @@ def field_magnitude(values: np.ndarray) -> float:
 @dataclass(frozen=True)
 class DatasetScale:
     """What a dataset's frames are scaled by: its finest cell width (the default
-    unit distance) and each field's magnitude (the gradient scales). A piece of
+    unit distance) and each field's magnitude (the gradient scales). A domain of
     a dataset (exabricks.render.partition) renders with the whole's."""
 
     finest_width_world: float
@@ -167,8 +167,8 @@ class DeviceScene:
     of `fields` (default: `field`, else the first field) only, one after the
     other (the kernels' field f is fields[f]; the program is built with
     -DEB_N_FIELDS). `scale`: the DatasetScale of the whole dataset when
-    `bricks` are a piece of it (exabricks.render.partition; default: theirs),
-    so that a piece renders as the whole does."""
+    `bricks` are a domain of it (exabricks.render.partition; default: theirs),
+    so that a domain renders as the whole does."""
 
     def __init__(self, bricks: schema.Bricks, regions: schema.Regions, bvh: schema.Bvh,
                  *, field: str | None = None, fields=None, device=None,

@@ -1,20 +1,20 @@
-"""A k-d partition of space into convex pieces, and the share of a dataset each
-piece needs (docs/design.md, "Data-parallel rendering and MPI").
+"""A k-d partition of space into convex domains, and the share of a dataset each
+domain needs (docs/design.md, "Data-parallel rendering and MPI").
 
 `kd_partition` cuts the lattice space of a dataset into `n` boxes by planes at
 lattice integers, each cut placed so that both sides hold their share of the
 bytes (brick values and region lists, counted at the boxes' centres). The outer
-faces of the outermost pieces lie at infinity and every box is half-open
-(lower <= p < upper), so each point of space lies in exactly one piece.
+faces of the outermost domains lie at infinity and every box is half-open
+(lower <= p < upper), so each point of space lies in exactly one domain.
 
-`piece_data` is what a piece's renderer loads: the regions whose boxes overlap
-the piece (grown by a halo where central differences look half a cell outside
+`domain_data` is what a domain's renderer loads: the regions whose boxes overlap
+the domain (grown by a halo where central differences look half a cell outside
 it), the bricks those regions list cropped to the cells that can reach the
-piece, and a BVH over the regions. A frame of the piece (kernels/scene.cl `eb_in_piece`) then takes
-exactly the samples of the whole frame that lie in the piece: the same
+domain, and a BVH over the regions. A frame of the domain (kernels/scene.cl `eb_in_domain`) then takes
+exactly the samples of the whole frame that lie in the domain: the same
 positions (the interval delimiters are those of the unclipped regions), the same
-bricks (every region's whole list), so the pieces' images composited front to
-back in `visibility_order` equal the one-piece frame up to float rounding.
+bricks (every region's whole list), so the domains' images composited front to
+back in `visibility_order` equal the one-domain frame up to float rounding.
 
 `visibility_order` is the classic BSP order: at every cut the side holding the
 eye comes first, which is front to back along every ray of a pinhole camera.
@@ -34,8 +34,8 @@ from ..errors import ExabricksError
 @dataclass(frozen=True)
 class KdPartition:
     """Inner nodes i: axis[i] in 0..2, plane[i] (lattice units), children left[i],
-    right[i] (node ids; a negative id -1 - k is piece k). `lower`, `upper`: float64
-    (n, 3) half-open boxes of the pieces, +-inf on the outer faces."""
+    right[i] (node ids; a negative id -1 - k is domain k). `lower`, `upper`: float64
+    (n, 3) half-open boxes of the domains, +-inf on the outer faces."""
 
     axis: np.ndarray
     plane: np.ndarray
@@ -45,11 +45,11 @@ class KdPartition:
     upper: np.ndarray
 
     @property
-    def n_pieces(self) -> int:
+    def n_domains(self) -> int:
         return int(self.lower.shape[0])
 
     def visibility_order(self, eye_lattice) -> list[int]:
-        """Piece ids front to back as seen from `eye_lattice` (lattice units)."""
+        """Domain ids front to back as seen from `eye_lattice` (lattice units)."""
         eye = np.asarray(eye_lattice, np.float64)
         if not len(self.axis):
             return [0]
@@ -128,11 +128,11 @@ def byte_grid(bricks: schema.Bricks, regions: schema.Regions, max_bytes: int | N
 
 
 def kd_partition(bricks: schema.Bricks, regions: schema.Regions, n: int) -> KdPartition:
-    """`n` pieces of about equal bytes (module docstring): each cut halves (for an
+    """`n` domains of about equal bytes (module docstring): each cut halves (for an
     odd count, splits in proportion) the bytes of its box along the box's
     longest axis, at a cell boundary of `byte_grid`."""
     if int(n) < 1:
-        raise ExabricksError(f"a partition needs at least one piece, got {n}")
+        raise ExabricksError(f"a partition needs at least one domain, got {n}")
 
     def split(lower, upper, count, block):
         return None if count == 1 else ((count // 2) / count, count // 2, count - count // 2)
@@ -148,10 +148,10 @@ def budget_partition(bricks: schema.Bricks, regions: schema.Regions, max_bytes: 
                      fields=None, halo: float = 0.0, crop: bool = True,
                      where=("the bricks", "the regions"),
                      grid_bytes: int | None = None, blocks=None) -> KdPartition:
-    """Pieces each of whose `piece_data` (of `fields`, with `halo` and `crop`)
+    """Domains each of whose `domain_data` (of `fields`, with `halo` and `crop`)
     holds at most `max_bytes` on the host and the device together
-    (`piece_bytes`): a box is cut in halves of its bytes, as `kd_partition`
-    cuts, until its exact piece fits. ExabricksError when a piece that fits
+    (`domain_bytes`): a box is cut in halves of its bytes, as `kd_partition`
+    cuts, until its exact domain fits. ExabricksError when a domain that fits
     would be smaller than a cell of the byte grid (at most `grid_bytes`),
     naming the bytes needed. `blocks`: `region_blocks` of the regions (made here
     when not given)."""
@@ -159,10 +159,10 @@ def budget_partition(bricks: schema.Bricks, regions: schema.Regions, max_bytes: 
 
     def split(lower, upper, _, block):
         if max(block.shape) > 1 and block.sum() > max_bytes:
-            # the grid's estimate undercounts a piece: cut at once
+            # the grid's estimate undercounts a domain: cut at once
             return 0.5, None, None
-        plan = _piece_plan(bricks, regions, lower, upper, halo, crop, where, blocks)
-        need = piece_bytes(bricks, regions, plan, fields)
+        plan = domain_plan(bricks, regions, lower, upper, halo, crop, where, blocks)
+        need = domain_bytes(bricks, regions, plan, fields)
         for whole in (bricks, regions):  # mapped inputs: the plan's pages go back
             schema.release(whole)
         if need <= max_bytes:
@@ -176,7 +176,7 @@ def budget_partition(bricks: schema.Bricks, regions: schema.Regions, max_bytes: 
         return _kd_tree(*grid, split, None)
     except _Uncuttable:
         raise ExabricksError(
-            f"pieces of {mib(max_bytes)} are too small for this dataset: the smallest piece it "
+            f"domains of {mib(max_bytes)} are too small for this dataset: the smallest domain it "
             f"can be cut into holds {mib(smallest[0])}") from None
 
 
@@ -191,7 +191,7 @@ def mib(nbytes) -> str:
 
 def _kd_tree(grid, origin, cell, split, payload) -> KdPartition:
     """The k-d tree whose boxes `split`(lower, upper, payload, the box's cells of
-    `grid`) cuts: it returns None for a piece, else (share of the box's bytes
+    `grid`) cuts: it returns None for a domain, else (share of the box's bytes
     before the cut, the two halves' payloads); each cut lies across the box's
     longest axis at a cell boundary of `grid` (`_cut`)."""
     axis, plane, left, right, lower, upper = [], [], [], [], [], []
@@ -204,7 +204,7 @@ def _kd_tree(grid, origin, cell, split, payload) -> KdPartition:
         if cut is None:
             lower.append(open_lo)
             upper.append(open_hi)
-            node = -len(lower)  # -1 - k for piece k
+            node = -len(lower)  # -1 - k for domain k
         else:
             share, first, second = cut
             node = len(axis)
@@ -231,8 +231,8 @@ def _cut(block: np.ndarray, size: np.ndarray, share: float) -> tuple[int, int]:
     of the block's bytes before it. A block of one cell cannot be cut: refused."""
     axes = [a for a in np.argsort(-size, kind="stable") if size[a] >= 2]
     if not axes:
-        raise _Uncuttable(f"the data is too small to cut into that many pieces "
-                             f"(a piece would be less than one cell of {GRID}^3)")
+        raise _Uncuttable(f"the data is too small to cut into that many domains "
+                             f"(a domain would be less than one cell of {GRID}^3)")
     a = int(axes[0])
     marginal = block.sum(axis=tuple(x for x in range(3) if x != a))
     cumulative = np.cumsum(marginal)
@@ -243,10 +243,10 @@ def _cut(block: np.ndarray, size: np.ndarray, share: float) -> tuple[int, int]:
     return a, min(max(k, 1), int(size[a]) - 1)
 
 
-def piece_options(bricks: schema.Bricks, scene) -> dict:
-    """`piece_data`'s options for frames of `scene`: a halo of half a cell of the
+def domain_options(bricks: schema.Bricks, scene) -> dict:
+    """`domain_data`'s options for frames of `scene`: a halo of half a cell of the
     coarsest level where normals come from central differences (kernels/scene.cl
-    eb_field_gradient looks that far outside the piece), and no cropping of the
+    eb_field_gradient looks that far outside the domain), and no cropping of the
     bricks under level of detail (their mip levels are made from whole bricks)."""
     central = scene.lighting.gradient == "central" or scene.settings.reconstruction == "nearest"
     halo = 0.0
@@ -255,32 +255,32 @@ def piece_options(bricks: schema.Bricks, scene) -> dict:
     return {"halo": halo, "crop": not scene.settings.lod > 0}
 
 
-def piece_data(bricks: schema.Bricks, regions: schema.Regions, lower, upper, *,
+def domain_data(bricks: schema.Bricks, regions: schema.Regions, lower, upper, *,
                halo: float = 0.0, crop: bool = True, fields=None,
                where=("the bricks", "the regions"), blocks=None):
-    """(bricks, regions, bvh) of the piece [lower, upper) (module docstring).
+    """(bricks, regions, bvh) of the domain [lower, upper) (module docstring).
 
-    `halo` (lattice units) grows the piece for lookups outside it (central
+    `halo` (lattice units) grows the domain for lookups outside it (central
     differences: half a cell of the coarsest level). The regions that meet the
-    grown piece are kept whole with their lists; each brick they list is cropped
-    to its cells within one cell width of the grown piece (a cell's basis
-    support reaches half its width beyond it, so no sample of the piece loses a
+    grown domain are kept whole with their lists; each brick they list is cropped
+    to its cells within one cell width of the grown domain (a cell's basis
+    support reaches half its width beyond it, so no sample of the domain loses a
     term), and dropped from the lists where nothing of it is left (its terms
     there are exactly zero). `crop` False keeps the bricks whole. `fields`:
     the names of the fields to keep (default all). `blocks`: `region_blocks` of
-    the regions, which finds the piece's regions without a pass over them all.
+    the regions, which finds the domain's regions without a pass over them all.
 
     The inputs may be mapped and unvalidated (schema.load(mapped=True)): the
     indices used are checked on the way (errors name `where`, the two files),
-    and the piece is validated as a file would be."""
+    and the domain is validated as a file would be."""
     from ..stages.bvh import build_bvh
 
-    keep, used, first, new_dims, boxes = _piece_plan(bricks, regions, lower, upper, halo, crop,
+    keep, used, first, new_dims, boxes = domain_plan(bricks, regions, lower, upper, halo, crop,
                                                      where, blocks)
     picked = _field_rows(bricks, fields)
     start, ids = regions.brick_start, regions.brick_ids
     alive = (new_dims > 0).all(axis=1)
-    # the lists without the bricks cropped away, renumbered to the piece's bricks
+    # the lists without the bricks cropped away, renumbered to the domain's bricks
     number = np.full(bricks.n_bricks, -1, np.int32)
     number[used[alive]] = np.arange(int(alive.sum()))
     lists = [_renumbered_lists(start, ids, part, number) for part in _steps(keep, start, ids)]
@@ -317,8 +317,8 @@ def piece_data(bricks: schema.Bricks, regions: schema.Regions, lower, upper, *,
                                 dims=new_dims.astype(bricks.dims.dtype, copy=False),
                                 offset=offset.astype(bricks.offset.dtype, copy=False),
                                 values=values, meta={})
-    schema.validate(sub_bricks, f"{where[0]} (a piece)")
-    schema.validate(sub_regions, f"{where[1]} (a piece)")
+    schema.validate(sub_bricks, f"{where[0]} (a domain)")
+    schema.validate(sub_regions, f"{where[1]} (a domain)")
     return sub_bricks, sub_regions, build_bvh(sub_regions)
 
 
@@ -329,11 +329,11 @@ def _field_rows(bricks: schema.Bricks, fields) -> list[int]:
     return [bricks.field_index(f) for f in dict.fromkeys(fields)]
 
 
-def _piece_plan(bricks, regions, lower, upper, halo, crop, where, blocks=None):
-    """(keep, used, first, new_dims, boxes): the regions meeting the piece grown
+def domain_plan(bricks, regions, lower, upper, halo, crop, where, blocks=None):
+    """(keep, used, first, new_dims, boxes): the regions meeting the domain grown
     by `halo` (found through `blocks`, `region_blocks`, when given), the bricks
     they list, each one's cells kept (`_crop_boxes`), and their lower_lattice,
-    level, dims and offset; every index followed is checked (piece_data)."""
+    level, dims and offset; every index followed is checked (domain_data)."""
     lo = np.asarray(lower, np.float64) - halo
     hi = np.asarray(upper, np.float64) + halo
     keep = _meeting(regions, lo, hi, blocks)
@@ -359,7 +359,7 @@ def _piece_plan(bricks, regions, lower, upper, halo, crop, where, blocks=None):
     return keep, used, first, new_dims, boxes
 
 
-# Rows per step of a scattered read of mapped files (a piece's regions and
+# Rows per step of a scattered read of mapped files (a domain's regions and
 # bricks, which lie anywhere in them): each step touches at most this many
 # pages of each array, handed back after it.
 GATHER = 1 << 10
@@ -429,8 +429,8 @@ def _meeting(regions: schema.Regions, lo: np.ndarray, hi: np.ndarray, blocks=Non
     return np.concatenate(found) if found else np.zeros(0, np.int64)
 
 
-def piece_bytes(bricks: schema.Bricks, regions: schema.Regions, plan, fields=None) -> int:
-    """Bytes a Renderer of the piece of `plan` (`_piece_plan`) holds on the host
+def domain_bytes(bricks: schema.Bricks, regions: schema.Regions, plan, fields=None) -> int:
+    """Bytes a Renderer of the domain of `plan` (`domain_plan`) holds on the host
     and the device together: its structures (brick values of `fields` cropped,
     boxes; regions and their lists; a BVH of at most two nodes per region) and
     the float4 copies the device takes of the boxes (device_data.DeviceScene),

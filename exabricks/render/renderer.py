@@ -124,16 +124,16 @@ class Renderer:
     def __init__(self, bricks: schema.Bricks, regions: schema.Regions, bvh: schema.Bvh,
                  *, field: str | None = None, fields=None, device=None,
                  lookup: str = "regions", packets: bool | None = None,
-                 piece=None, scale: DatasetScale | None = None):
-        """`piece`: (lower, upper) lattice bounds of the half-open box of a piece of
+                 domain=None, scale: DatasetScale | None = None):
+        """`domain`: (lower, upper) lattice bounds of the half-open box of a domain of
         a k-d partition (exabricks.render.partition) that these structures are
         the share of, `scale` the whole dataset's; frames then hold exactly the
         samples inside the box (docs/design.md, "Data-parallel rendering and MPI")."""
         _check_lookup(lookup)
         self.scene = DeviceScene(bricks, regions, bvh, field=field, fields=fields, device=device,
                                  scale=scale)
-        self.piece = None if piece is None else \
-            tuple((*np.asarray(b, np.float64), 0.0) for b in piece)
+        self.domain = None if domain is None else \
+            tuple((*np.asarray(b, np.float64), 0.0) for b in domain)
         self._use(lookup)
         # Sample packets: on CPU devices unless asked otherwise (both give the same image).
         self.packets = opencl.is_cpu(self.scene.device) if packets is None else bool(packets)
@@ -154,7 +154,7 @@ class Renderer:
                                  f"not with {reconstruction}")
         program = self.scene.program_for(
             extra, reconstruction=reconstruction, surfaces=surfaces, lod=lod,
-            packets=self._packet_width(reconstruction) > 1, piece=self.piece is not None,
+            packets=self._packet_width(reconstruction) > 1, domain=self.domain is not None,
             cell_location=self.lookup == "cell-location")
         return opencl.kernel(program, "eb_render")
 
@@ -215,8 +215,8 @@ class Renderer:
         pixels the whole frame has there.
         `sample`: only sample `sample` of the frame's spp rays per pixel,
         unaveraged (data-parallel frames composite each sample on its own).
-        `front` (a piece's renderer only): float32 (H, W, 4), the premultiplied
-        image of this sample in front of the piece; the rays continue from it
+        `front` (a domain's renderer only): float32 (H, W, 4), the premultiplied
+        image of this sample in front of the domain; the rays continue from it
         (early ray termination included) and the result is the composite.
         `deadline` (time.perf_counter() seconds): stop after the band that
         passes it; stats["rows"] then says how many rows from the top were
@@ -228,8 +228,8 @@ class Renderer:
         col0, tile_row0, cols, n_rows = _window(window, width, height)
         if window is not None and rows is not None:
             raise ExabricksError("a tile is rendered whole: no spans of rows in it")
-        if front is not None and (self.piece is None or front.shape != (n_rows, cols, 4)):
-            raise ExabricksError("an image in front is for a piece's frame or tile of the same size")
+        if front is not None and (self.domain is None or front.shape != (n_rows, cols, 4)):
+            raise ExabricksError("an image in front is for a domain's frame or tile of the same size")
         missing = [f for f in scene.fields() if f not in self.scene.fields]
         if missing:
             raise ExabricksError(f"field(s) {', '.join(missing)} are not on the device "
@@ -301,10 +301,10 @@ class Renderer:
             # nearest is piecewise constant: its normals come from central differences
             central=lighting.gradient == "central" or cfg.reconstruction == "nearest",
             ao_samples=lighting.ao_samples, ao_distance=ao_distance, lod_scale=lod_scale,
-            **(dict(piece_lower=self.piece[0], piece_upper=self.piece[1],
-                    use_front=front is not None) if self.piece else {})))
+            **(dict(domain_lower=self.domain[0], domain_upper=self.domain[1],
+                    use_front=front is not None) if self.domain else {})))
         fixed = [*args, *(up(q, a) for a in look),
-                 *((front_buf,) if self.piece else ()), rgba_buf, depth_buf, samples_buf, level_buf]
+                 *((front_buf,) if self.domain else ()), rgba_buf, depth_buf, samples_buf, level_buf]
         q.finish()
         start = time.perf_counter()
         total = 0

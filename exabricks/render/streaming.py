@@ -2,20 +2,20 @@
 (docs/design.md, "Rendering under a memory budget"; Wu, Doyle & Ma's streaming
 and progressive rendering, seed paper 004).
 
-A frame is drawn as steps: for each of its spp samples, each piece of the
-dataset front to back. Under a memory budget the pieces are those of a k-d
+A frame is drawn as steps: for each of its spp samples, each domain of the
+dataset front to back. Under a memory budget the domains are those of a k-d
 partition of space (exabricks.render.partition.budget_partition) whose every
-piece, structures and device copies together, fits the budget; one piece is
+domain, structures and device copies together, fits the budget; one domain is
 resident at a time, read from the mapped files (only its pages), rendered and
-dropped before the next is read. Each piece's rays continue from the image
-composited in front of it (kernels/render.cl EB_PIECE_ARGS `front`), so early
-ray termination carries from piece to piece and the frame equals the
+dropped before the next is read. Each domain's rays continue from the image
+composited in front of it (kernels/render.cl EB_DOMAIN_ARGS `front`), so early
+ray termination carries from domain to domain and the frame equals the
 in-memory one up to float rounding. Without a budget the whole dataset is the
-one piece (`Resident`).
+one domain (`Resident`).
 
 After every step the image so far is offered to `on_image`: the average of the
 samples completed, or, while the first is under way, that sample composited
-over the pieces drawn so far. A deadline stops the frame after the step (or
+over the domains drawn so far. A deadline stops the frame after the step (or
 the band of rows, kernels being enqueued by bands) that passes it; the result
 then says what it covers (`progress` in its stats).
 """
@@ -30,7 +30,7 @@ import numpy as np
 from .. import schema
 from ..errors import ExabricksError
 from .device_data import DatasetScale
-from .partition import (budget_partition, eye_lattice, mib, piece_data, piece_options,
+from .partition import (budget_partition, eye_lattice, mib, domain_data, domain_options,
                         region_blocks)
 from .renderer import Renderer, RenderResult, over_background
 
@@ -40,13 +40,13 @@ _UNITS = {"": 1, "b": 1}
 for _i, _p in enumerate("kmgt", start=1):
     _UNITS.update({_p: 1024 ** _i, _p + "ib": 1024 ** _i, _p + "b": 1000 ** _i})
 
-# A piece's bytes (partition.piece_bytes) times this must fit the budget left
-# after the images: while a piece is made, its copies from the files, its
+# A domain's bytes (partition.domain_bytes) times this must fit the budget left
+# after the images: while a domain is made, its copies from the files, its
 # validation, the BVH builder and the upload take about as much again
 # (measured: docs/benchmarks.md, "Measurements behind design choices").
 SLACK = 2.5
-# Bytes per brick of the whole dataset that making a piece holds whatever its
-# size (partition.piece_data: a mask of the bricks listed and their renumbering).
+# Bytes per brick of the whole dataset that making a domain holds whatever its
+# size (partition.domain_data: a mask of the bricks listed and their renumbering).
 PER_BRICK = 5
 
 
@@ -71,7 +71,7 @@ def parse_size(text) -> int:
 
 def image_bytes(scene, tile=None) -> int:
     """Host bytes of the images a streamed frame keeps (the composite, the sum of
-    the samples, the piece's result and a copy offered to on_image): whole
+    the samples, the domain's result and a copy offered to on_image): whole
     frames, or bands of whole rows of a tile's height with `tile` (W, H)."""
     width, height = int(scene.settings.width), int(scene.settings.height)
     rows = height if tile is None else min(int(tile[1]), height)
@@ -79,16 +79,16 @@ def image_bytes(scene, tile=None) -> int:
 
 
 class Resident:
-    """The whole dataset as one resident piece (an exabricks.render.renderer.Renderer)."""
+    """The whole dataset as one resident domain (an exabricks.render.renderer.Renderer)."""
 
     def __init__(self, renderer: Renderer):
         self.renderer = renderer
-        self.n_pieces = 1
+        self.n_domains = 1
 
     def order(self, scene) -> list[int]:
         return [0]
 
-    def piece(self, index: int, scene) -> Renderer:
+    def domain(self, index: int, scene) -> Renderer:
         return self.renderer
 
     def footprint(self, index: int, scene):
@@ -96,7 +96,7 @@ class Resident:
 
 
 class Budgeted:
-    """The pieces of a dataset (mapped, schema.load(mapped=True)) that each fit
+    """The domains of a dataset (mapped, schema.load(mapped=True)) that each fit
     `budget` bytes with the images of `scene` (SLACK, PER_BRICK); one is
     resident at a time. `where`: the two files' names for errors."""
 
@@ -117,7 +117,7 @@ class Budgeted:
         self._plan(scene)
 
     def _plan(self, scene) -> None:
-        options = piece_options(self.bricks, scene)
+        options = domain_options(self.bricks, scene)
         fixed = image_bytes(scene, self.tile) + PER_BRICK * self.bricks.n_bricks
         room = int((self.budget - fixed) / SLACK)
         if room <= 0:
@@ -129,27 +129,27 @@ class Budgeted:
         self.partition = budget_partition(self.bricks, self.regions, room, fields=self.fields,
                                           where=self.where, grid_bytes=self.budget // 4,
                                           blocks=self.blocks, **options)
-        self.n_pieces = self.partition.n_pieces
+        self.n_domains = self.partition.n_domains
         self._current = (None, None)
-        if self.n_pieces > 1:
+        if self.n_domains > 1:
             from ..parallel import needs_image_mode
 
             reason = needs_image_mode(scene)
             if reason:
                 raise ExabricksError(
                     f"{reason} need the whole dataset at once, but a memory budget of "
-                    f"{mib(self.budget)} holds it in {self.n_pieces} pieces only: "
+                    f"{mib(self.budget)} holds it in {self.n_domains} domains only: "
                     "raise the budget or leave them out")
 
     def order(self, scene) -> list[int]:
-        if piece_options(self.bricks, scene) != self.options or set(scene.fields()) - set(self.fields):
+        if domain_options(self.bricks, scene) != self.options or set(scene.fields()) - set(self.fields):
             self.fields = scene.fields()
             self.scale = DatasetScale.of(self.bricks, self.fields)
             self._plan(scene)
         return self.partition.visibility_order(eye_lattice(self.bricks, scene.camera.position))
 
     def footprint(self, index: int, scene):
-        """Pixels (col0, row0, col1, row1) that piece `index` can draw (Camera.footprint)."""
+        """Pixels (col0, row0, col1, row1) that domain `index` can draw (Camera.footprint)."""
         lo = np.maximum(self.partition.lower[index], self.data_box[0])
         hi = np.minimum(self.partition.upper[index], self.data_box[1])
         if (lo >= hi).any():
@@ -158,34 +158,34 @@ class Budgeted:
         s = scene.settings
         return scene.camera.footprint(world(lo), world(hi), int(s.width), int(s.height))
 
-    def piece(self, index: int, scene) -> Renderer:
+    def domain(self, index: int, scene) -> Renderer:
         if self._current[0] == index:
             return self._current[1]
-        self._current = (None, None)  # the previous piece goes before the next comes
+        self._current = (None, None)  # the previous domain goes before the next comes
         gc.collect()
         schema.trim_heap()
         box = (self.partition.lower[index], self.partition.upper[index])
-        data = piece_data(self.bricks, self.regions, *box, fields=self.fields, where=self.where,
+        data = domain_data(self.bricks, self.regions, *box, fields=self.fields, where=self.where,
                           blocks=self.blocks, **self.options)
         for whole in (self.bricks, self.regions):
             schema.release(whole)
         renderer = Renderer(*data, fields=self.fields, device=self.device,
-                            piece=box if self.n_pieces > 1 else None, scale=self.scale)
+                            domain=box if self.n_domains > 1 else None, scale=self.scale)
         self._current = (index, renderer)
         return renderer
 
 
-def render_steps(pieces, scene, *, band=None, tile_width=None, deadline: float | None = None,
+def render_steps(domains, scene, *, band=None, tile_width=None, deadline: float | None = None,
                  on_image=None) -> RenderResult:
-    """One frame of `scene` from `pieces` (Resident or Budgeted) step by step
+    """One frame of `scene` from `domains` (Resident or Budgeted) step by step
     (module docstring). `on_image(rgba, progress)` is called after every step
     but the last with the premultiplied image so far (over the background) and
     what it covers; `deadline` (time.perf_counter() seconds) ends the frame
-    early. stats["progress"]: samples and pieces done, complete or not.
+    early. stats["progress"]: samples and domains done, complete or not.
 
     `band` (first row, rows): draw only those rows of the frame, in tiles of
     `tile_width` columns (render_tiled; no deadline or on_image then); the
-    result is the band. A piece is read only when its footprint on the screen
+    result is the band. A domain is read only when its footprint on the screen
     meets a tile, and then draws only the tiles it meets."""
     cfg = scene.settings
     spp, width, height = int(cfg.spp), int(cfg.width), int(cfg.height)
@@ -197,11 +197,11 @@ def render_steps(pieces, scene, *, band=None, tile_width=None, deadline: float |
         raise ExabricksError("a band of tiles is drawn whole: no deadline or image so far")
     plain = scene.replace(background=(0.0, 0.0, 0.0, 0.0))
     total = np.zeros((rows, width, 4), np.float32)
-    order = pieces.order(scene)
-    several = pieces.n_pieces > 1
-    meets = {index: _tiles_met(tiles, pieces.footprint(index, scene)) for index in order}
+    order = domains.order(scene)
+    several = domains.n_domains > 1
+    meets = {index: _tiles_met(tiles, domains.footprint(index, scene)) for index in order}
     start = time.perf_counter()
-    samples, stats, done_samples, done_pieces, drawn = 0, {}, 0, 0, rows
+    samples, stats, done_samples, done_domains, drawn = 0, {}, 0, 0, rows
     depth = over = None
     for sample in range(spp):
         if sample and deadline is not None and time.perf_counter() > deadline:
@@ -215,7 +215,7 @@ def render_steps(pieces, scene, *, band=None, tile_width=None, deadline: float |
                 front = None
                 if several and over is not None:
                     front = over if whole else np.ascontiguousarray(over[:, c:c + w])
-                result = pieces.piece(index, scene).render_scene(
+                result = domains.domain(index, scene).render_scene(
                     plain, window=None if whole else tile, sample=sample if spp > 1 else None,
                     front=front, deadline=deadline)
                 stats = dict(result.stats)
@@ -225,7 +225,7 @@ def render_steps(pieces, scene, *, band=None, tile_width=None, deadline: float |
                     if over is None:
                         over = np.zeros((rows, width, 4), np.float32)
                     over[:, c:c + w] = result.rgba
-                if result.depth is not None:  # one piece only (Budgeted refuses more)
+                if result.depth is not None:  # one domain only (Budgeted refuses more)
                     if depth is None:
                         depth = np.full((rows, width), np.inf, np.float32)
                     np.minimum(depth[:, c:c + w], result.depth, out=depth[:, c:c + w])
@@ -233,17 +233,17 @@ def render_steps(pieces, scene, *, band=None, tile_width=None, deadline: float |
                 drawn = stats["rows"]
             if drawn < rows:
                 break
-            done_pieces = k + 1
+            done_domains = k + 1
             if on_image is not None and (sample, k) != (spp - 1, len(order) - 1):
-                on_image(*_so_far(total, over, sample, done_pieces, len(order), spp, scene))
-        if done_pieces == len(order) and drawn == rows:
+                on_image(*_so_far(total, over, sample, done_domains, len(order), spp, scene))
+        if done_domains == len(order) and drawn == rows:
             if over is not None:
                 total += over
             done_samples = sample + 1
-            done_pieces = 0 if done_samples < spp else len(order)
+            done_domains = 0 if done_samples < spp else len(order)
         if done_samples < sample + 1:
             break
-    rgba, progress = _so_far(total, over, done_samples, done_pieces, len(order), spp, scene,
+    rgba, progress = _so_far(total, over, done_samples, done_domains, len(order), spp, scene,
                              rows=drawn)
     if depth is None and cfg.depth:
         depth = np.full((rows, width), np.inf, np.float32)
@@ -251,16 +251,16 @@ def render_steps(pieces, scene, *, band=None, tile_width=None, deadline: float |
     if not stats and band is not None:  # nothing here: render_tiled fills the settings in
         return RenderResult(rgba, depth, {"samples": 0})
     if not stats:
-        stats = _settings(pieces, order, plain)
+        stats = _settings(domains, order, plain)
     if several:
-        for key in ("regions", "visible_regions"):  # the last piece's only
+        for key in ("regions", "visible_regions"):  # the last domain's only
             stats.pop(key, None)
     stats.pop("rows", None)
     stats.update(samples=samples, ms=1e3 * seconds / max(done_samples, 1),
                  samples_per_second=samples / seconds if seconds > 0 else 0.0,
-                 pieces=pieces.n_pieces, progress=progress)
-    if isinstance(pieces, Budgeted):
-        stats["memory_budget"] = pieces.budget
+                 pieces=domains.n_domains, progress=progress)
+    if isinstance(domains, Budgeted):
+        stats["memory_budget"] = domains.budget
     return RenderResult(rgba, depth, stats)
 
 
@@ -273,11 +273,11 @@ def _tiles_met(tiles, rect) -> list:
     return [t for t in tiles if t[0] < c1 and c0 < t[0] + t[2] and t[1] < r1 and r0 < t[1] + t[3]]
 
 
-def render_tiled(pieces, scene, tile, put, *, deadline: float | None = None,
+def render_tiled(domains, scene, tile, put, *, deadline: float | None = None,
                  on_band=None) -> dict:
-    """One frame of `scene` from `pieces` in tiles of `tile` (W, H) pixels, a row
+    """One frame of `scene` from `domains` in tiles of `tile` (W, H) pixels, a row
     of tiles at a time: each band of H rows is drawn whole (every sample, every
-    piece that meets it front to back) and handed to `put(row0, rgba, depth)`
+    domain that meets it front to back) and handed to `put(row0, rgba, depth)`
     top to bottom, so that only a band is ever in memory. `on_band(progress)`
     follows each band but the last; `deadline` stops after the band that passes
     it. Returns the frame's stats (progress: rows [done, height])."""
@@ -289,38 +289,38 @@ def render_tiled(pieces, scene, tile, put, *, deadline: float | None = None,
         if row0 and deadline is not None and time.perf_counter() > deadline:
             break
         rows = min(tile_h, height - row0)
-        result = render_steps(pieces, scene, band=(row0, rows), tile_width=tile_w)
+        result = render_steps(domains, scene, band=(row0, rows), tile_width=tile_w)
         put(row0, result.rgba, result.depth)
         samples += result.stats["samples"]
         stats = result.stats if len(result.stats) > 1 else stats
         done = row0 + rows
         if on_band is not None and done < height:
-            on_band(_tiled_progress(scene, pieces, done))
+            on_band(_tiled_progress(scene, domains, done))
     seconds = time.perf_counter() - start
     if not stats:  # nothing in view
-        stats = _settings(pieces, pieces.order(scene), scene)
+        stats = _settings(domains, domains.order(scene), scene)
     stats.update(samples=samples, ms=1e3 * seconds,
                  samples_per_second=samples / seconds if seconds > 0 else 0.0,
-                 tile=[tile_w, tile_h], progress=_tiled_progress(scene, pieces, done))
+                 tile=[tile_w, tile_h], progress=_tiled_progress(scene, domains, done))
     return stats
 
 
-def _tiled_progress(scene, pieces, done: int) -> dict:
-    spp, n, height = int(scene.settings.spp), pieces.n_pieces, int(scene.settings.height)
+def _tiled_progress(scene, domains, done: int) -> dict:
+    spp, n, height = int(scene.settings.spp), domains.n_domains, int(scene.settings.height)
     return {"complete": done == height, "samples": [spp, spp], "pieces": [n, n],
             "rows": [done, height]}
 
 
-def _settings(pieces, order, scene) -> dict:
-    """The stats of a frame of `scene` that draws nothing (none of its pieces is
-    in view): those of the first piece drawing no row (its deadline passed)."""
-    return dict(pieces.piece(order[0], scene).render_scene(scene, window=(0, 0, 1, 1),
+def _settings(domains, order, scene) -> dict:
+    """The stats of a frame of `scene` that draws nothing (none of its domains is
+    in view): those of the first domain drawing no row (its deadline passed)."""
+    return dict(domains.domain(order[0], scene).render_scene(scene, window=(0, 0, 1, 1),
                                                            deadline=0.0).stats)
 
 
-def _so_far(total, over, samples_done, pieces_done, n_pieces, spp, scene, rows=None):
+def _so_far(total, over, samples_done, domains_done, n_domains, spp, scene, rows=None):
     """(image over the background, progress): the average of the samples done, or
-    while none is, the first sample's composite of the pieces done."""
+    while none is, the first sample's composite of the domains done."""
     if samples_done:
         rgba = total / np.float32(samples_done)
     elif over is not None:
@@ -329,7 +329,7 @@ def _so_far(total, over, samples_done, pieces_done, n_pieces, spp, scene, rows=N
         rgba = np.zeros_like(total)
     complete = samples_done == spp
     progress = {"complete": complete, "samples": [samples_done, spp],
-                "pieces": [n_pieces if complete else pieces_done, n_pieces]}
+                "pieces": [n_domains if complete else domains_done, n_domains]}
     if not complete and rows is not None and 0 < rows < total.shape[0] and not samples_done:
         progress["rows"] = rows
     return over_background(rgba, scene.background), progress

@@ -220,15 +220,15 @@ JOB_OPTIONS = (
     Option("frames", "With --camera-path: frames A to B-1 (Python slice; 'A:' to the end), one "
            "upload, one image each.", kind="text", metavar="A:B"),
     Option("mpi_mode", "Under mpiexec/srun with several ranks: data splits the dataset by space "
-           "(each rank holds a piece; sort-last compositing), image replicates it and splits the "
+           "(each rank holds a domain; sort-last compositing), image replicates it and splits the "
            "frame (faster for data that fits every rank).", kind="choice",
            choices=("data", "image"), default="data"),
     Option("memory_budget", "Render within SIZE bytes of memory, host and device (e.g. 2G, "
            "512MiB, 1500000000; K/M/G/T and KiB..TiB are powers of 1024, kB/MB/GB/TB of 1000; "
-           "also $EXABRICKS_MEMORY_BUDGET): data that does not fit is cut into pieces by space "
-           "and streamed from the files, one piece at a time, for the same image.", kind="size",
+           "also $EXABRICKS_MEMORY_BUDGET): data that does not fit is cut into domains by space "
+           "and streamed from the files, one domain at a time, for the same image.", kind="size",
            envvar="EXABRICKS_MEMORY_BUDGET", metavar="SIZE", dest="budget"),
-    Option("progressive", "Rewrite the output every SECONDS with the image so far (pieces front "
+    Option("progressive", "Rewrite the output every SECONDS with the image so far (domains front "
            "to back, then more samples per pixel); each rewrite is a whole image.", **_POSITIVE,
            metavar="SECONDS"),
     Option("time_limit", "Stop refining a frame after SECONDS (the first frame counts from the "

@@ -2,9 +2,9 @@
 
 A brick's *support* is its box grown by half its cell width on every side (the
 region where the hat functions of its cells are non-zero, paper §3.2.2).  The
-superposition of all supports partitions space into pieces in which the set of
+superposition of all supports partitions space into parts in which the set of
 active bricks is constant; a top-down partition along support faces cuts those
-pieces into disjoint boxes; boxes that touch face to face with the same active
+parts into disjoint boxes; boxes that touch face to face with the same active
 bricks are then merged again (the k-d cuts run through whole regions, also
 where nothing changes), within each of the top subtrees that the partition
 builds independently (so that builds by pieces, exabricks.stages.pieces, give
@@ -37,14 +37,15 @@ _MAX_DOUBLED = 1 << 24
 
 @dataclass(frozen=True)
 class Merge:
-    """When the partition keeps a piece whole (docs/design.md "Merged regions").
+    """When the partition keeps a box of the k-d split whole (docs/design.md, "Active
+    Brick Regions and merged regions").
 
     visit_cost: the cost of entering a region, in units of a sample's cost apart
         from its bricks (`merged_region_cost`); 0 turns merging off: every region
-        is then an exact ABR piece, one set of active bricks (paper §3.2.3).
+        is then an exact ABR, one set of active bricks (paper §3.2.3).
     brick_cost: the cost of one listed brick per sample, same units.
-    max_bricks: a piece with more bricks than this is always split.
-    max_brick_cells: a piece with a brick of more cells than this is always split:
+    max_bricks: a box with more bricks than this is always split.
+    max_brick_cells: a box with a brick of more cells than this is always split:
         a large brick already makes long region visits (block-structured data), so
         merging pays only among small ones (octree-like data, thin refinement).
     The defaults were chosen on the thin-shell layout and the four shared
@@ -85,8 +86,8 @@ def build_regions(bricks: schema.Bricks, merge: Merge = Merge(),
                   piece: Piece = WHOLE) -> schema.Regions:
     """Active Brick Regions of `bricks`; statistics (paper Table 1) in meta["statistics"].
 
-    merge: with EXACT every region is an exact ABR piece (one set of active bricks);
-    by default a piece of the partition with up to `merge.max_bricks` bricks stays
+    merge: with EXACT every region is an exact ABR (one set of active bricks);
+    by default a box of the k-d split with up to `merge.max_bricks` bricks stays
     whole where the cost model (`merged_region_cost`) says its halves would cost
     rays more, with the union of their bricks.  Either way a region lists exactly
     the bricks whose support overlaps it, so every brick that can influence a
@@ -165,7 +166,7 @@ def _tasks(sup_lo, sup_hi, level, cells, merge):
     never on the thread count; pieces (exabricks.stages.pieces) are runs of tasks."""
     n = sup_lo.shape[0]
     lv = np.zeros(n, np.int64) if level is None else np.ascontiguousarray(level, np.int64)
-    # Bricks a merged piece may hold (Merge.max_brick_cells).
+    # Bricks a merged box may hold (Merge.max_brick_cells).
     small = np.ones(n, np.bool_) if cells is None else np.asarray(cells) <= merge.max_brick_cells
     want = 1 if n < 20_000 else 64
     queue = [(sup_lo.min(axis=0).astype(np.int64), sup_hi.max(axis=0).astype(np.int64),
@@ -253,7 +254,7 @@ def _coalesce(lo2, hi2, start, ids):
     """Merge face-adjacent regions with the same brick list into one box.
 
     The k-d partition (paper §3.2.3) cuts every region crossing a split plane,
-    also where the active bricks do not change, so one ABR piece ends up in
+    also where the active bricks do not change, so one ABR ends up in
     several boxes.  Two boxes with the same brick list that share a whole face
     form a box in which that list is still exactly the set of active bricks
     (each listed support covers both halves, no other support reaches

@@ -3,7 +3,7 @@ structure files to image files, by the strategy the options choose (docs/design.
 "Render jobs and render options"):
 
 - resident: the dataset uploaded once, each frame drawn whole (`Renderer`);
-- memory-budgeted: the dataset cut into pieces by space and streamed
+- memory-budgeted: the dataset cut into domains by space and streamed
   (exabricks.render.streaming.Budgeted) when `budget` is given;
 - tiled: the frame drawn a band of tiles at a time into the output file
   (`tile`), progressive rewrites (`progressive`) and a deadline (`time_limit`);
@@ -85,7 +85,7 @@ def render_job(bricks_path, regions_path, bvh_path, output, *, flags: dict | Non
             bar.update()
 
 
-def _render_tiled(pieces, scene, started, image, describe, inputs, budget, progressive,
+def _render_tiled(domains, scene, started, image, describe, inputs, budget, progressive,
                   time_limit, tile):
     """One frame tile by tile (exabricks.render.streaming.render_tiled) into a
     FrameFile beside `image`, rewriting the output every `progressive` seconds
@@ -107,13 +107,13 @@ def _render_tiled(pieces, scene, started, image, describe, inputs, budget, progr
                 _log_written(image, so_far)
                 last[0] = time.perf_counter()
 
-        stats = render_tiled(pieces, scene, tile, out.put, deadline=deadline,
+        stats = render_tiled(domains, scene, tile, out.put, deadline=deadline,
                              on_band=on_band if progressive is not None else None)
         out.write(metadata=describe(stats), inputs=inputs)
     _log_written(image, stats)
 
 
-def _render_steps(pieces, scene, started, write, budget, progressive, time_limit, tile):
+def _render_steps(domains, scene, started, write, budget, progressive, time_limit, tile):
     """One frame by steps (exabricks.render.streaming.render_steps), rewriting the
     output every `progressive` seconds and stopping after `time_limit`."""
     from ..render.renderer import RenderResult
@@ -131,14 +131,14 @@ def _render_steps(pieces, scene, started, write, budget, progressive, time_limit
                                             "device": "", "progress": progress}))
             last[0] = time.perf_counter()
 
-    return render_steps(pieces, scene, deadline=deadline,
+    return render_steps(domains, scene, deadline=deadline,
                         on_image=on_image if progressive is not None else None)
 
 
 def _prepare(bricks_path, regions_path, bvh_path, output, scene_path, camera_path, path_file,
              frame, frames, flags, device, mpi_mode, comm, steps):
     """Check the outputs, load the dataset and make the renderer (this rank's share
-    under MPI; the pieces of exabricks.render.streaming for frames by `steps`):
+    under MPI; the domains of exabricks.render.streaming for frames by `steps`):
     (renderer, scene, frame jobs, input files, dataset metadata)."""
     from ..scene import scene_file_references, scene_from_options
 
@@ -162,11 +162,11 @@ def _prepare(bricks_path, regions_path, bvh_path, output, scene_path, camera_pat
                                    flags=flags)
         schema.release(bricks)  # the default camera and range read every brick's pages
         _check_depth(scene, output)
-        pieces = Budgeted(bricks, regions, scene, steps["budget"], device=device,
+        domains = Budgeted(bricks, regions, scene, steps["budget"], device=device,
                           where=(bricks_path, regions_path), tile=steps["tile"])
-        log.info("%s: a memory budget of %s bytes: %d piece(s)", output,
-                 f"{steps['budget']:,}", pieces.n_pieces)
-        return pieces, scene, jobs, inputs, _dataset(bricks, bricks_path, regions_path, bvh_path)
+        log.info("%s: a memory budget of %s bytes: %d domain(s)", output,
+                 f"{steps['budget']:,}", domains.n_domains)
+        return domains, scene, jobs, inputs, _dataset(bricks, bricks_path, regions_path, bvh_path)
     if comm is None:
         from ..render.device_data import load_structures
 

@@ -1,14 +1,14 @@
 """Pictures of a data-parallel frame (docs/workflows.md, "MPI"): what each rank's
-piece renders, and their composite against the one-process frame.
+domain renders, and their composite against the one-process frame.
 
-    .venv/bin/python docs/pictures/pieces_picture.py [--ranks 4] [--size 320]
+    .venv/bin/python docs/pictures/domains_picture.py [--ranks 4] [--size 320]
 
-Runs the pieces in one process, exactly as `mpiexec -n N exabricks render` splits
-them (exabricks.render.partition: the k-d pieces, each piece's cropped share,
+Runs the domains in one process, exactly as `mpiexec -n N exabricks render` splits
+them (exabricks.render.partition: the k-d domains, each domain's cropped share,
 its frame of the samples inside it), on the Athena++ blast (rho, the gallery's
 camera and transfer function, no early termination). Writes
-docs/images/workflow-pieces-K.png (piece K alone, premultiplied over the dark
-background) and docs/images/workflow-pieces-composite.png, and prints the RMSE
+docs/images/workflow-domains-K.png (domain K alone, premultiplied over the dark
+background) and docs/images/workflow-domains-composite.png, and prints the RMSE
 of the composite against the one-process frame.
 """
 
@@ -37,8 +37,8 @@ def main(argv=None) -> int:
     from exabricks.image_io import write_image
     from exabricks.scene import scene_from_options
     from exabricks.render.device_data import DatasetScale
-    from exabricks.render.partition import (composite, eye_lattice, kd_partition, piece_data,
-                                            piece_options)
+    from exabricks.render.partition import (composite, eye_lattice, kd_partition, domain_data,
+                                            domain_options)
     from exabricks.render.renderer import Renderer, over_background
 
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
@@ -55,18 +55,18 @@ def main(argv=None) -> int:
     images = []
     for k in range(args.ranks):
         box = (part.lower[k], part.upper[k])
-        piece = piece_data(bricks, regions, *box, **piece_options(bricks, scene))
-        images.append(Renderer(*piece, fields=scene.fields(), piece=box, scale=scale)
+        domain = domain_data(bricks, regions, *box, **domain_options(bricks, scene))
+        images.append(Renderer(*domain, fields=scene.fields(), domain=box, scale=scale)
                       .render_scene(scene).rgba)
-        out = ROOT / "docs" / "images" / f"workflow-pieces-{k}.png"
+        out = ROOT / "docs" / "images" / f"workflow-domains-{k}.png"
         write_image(out, over_background(images[-1].copy(), BACKGROUND), metadata={})
-        print(f"piece {k}: {piece[0].n_bricks:,} bricks, {piece[1].n_regions:,} regions -> {out}")
+        print(f"domain {k}: {domain[0].n_bricks:,} bricks, {domain[1].n_regions:,} regions -> {out}")
     order = part.visibility_order(eye_lattice(bricks, scene.camera.position))
     over = images[order[0]].copy()
     for k in order[1:]:
         composite(over, images[k])
     rmse = float(np.sqrt(np.mean((over - whole) ** 2))) / float(np.abs(whole).max())
-    out = ROOT / "docs" / "images" / "workflow-pieces-composite.png"
+    out = ROOT / "docs" / "images" / "workflow-domains-composite.png"
     write_image(out, over_background(over, BACKGROUND), metadata={})
     print(f"visibility order {order}; composite -> {out}; RMSE against one process {rmse:.1e}")
     return 0
