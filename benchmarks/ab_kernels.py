@@ -199,7 +199,9 @@ def compare(name: str, versions: dict, variants, timed, rounds: int, size: int,
         else:
             images = {k: frame(k)()[2] for k in versions}
         diff = float(np.abs(images["base"] - images["this"]).max())
-        probed = {k: r.scene.probe_fields(points) for k, r in renderers.items()}
+        # (a base from before the rename calls the dataset on the device `scene`)
+        probed = {k: (r.dataset if hasattr(r, "dataset") else r.scene).probe_fields(points)
+                  for k, r in renderers.items()}
         probe_diff = float(np.nanmax(np.abs(probed["base"] - probed["this"]), initial=0.0))
         line = (f"{name} {variant}: mean alpha {float(images['this'][..., 3].mean()):.3f}, "
                 f"max abs diff image {diff:.2e}, probe {probe_diff:.2e}")

@@ -12,8 +12,8 @@ interpreter, the modules and the OpenCL runtime. Warm figures are medians of
 --runs. Cold ones (read and command after the page cache is dropped) are taken
 only where this process may write /proc/sys/vm/drop_caches (root). Then, in one
 process, the parts: `load_structures` (mapped loads, every check and CRC), the
-`DeviceScene` (layout conversions and upload) and one frame's visibility
-(`DeviceScene.visibility` with the default transfer function).
+`DeviceDataset` (layout conversions and upload) and one frame's visibility
+(`DeviceDataset.visibility` with the default transfer function).
 """
 
 from __future__ import annotations
@@ -44,7 +44,7 @@ modules, OpenCL runtime and context, cached program). *peak*: the command's peak
 resident memory (the mapped files' pages it touches count, as they do for the
 kernel reading them in place); */ files*: the peak above the baseline's over the
 files' bytes. The parts are measured in one warm process: `load_structures`
-(the three mapped loads with every check and CRC, in steps), the `DeviceScene`
+(the three mapped loads with every check and CRC, in steps), the `DeviceDataset`
 (brick boxes, dims and BVH links written in the device's layout, the buffers
 made), and one frame's node and region visibility for the default transfer
 function. Cold: after `echo 3 > /proc/sys/vm/drop_caches` (only as root).
@@ -54,7 +54,7 @@ them again. On a virtual machine whose guest hands free pages back to the host
 (Firecracker with `page_reporting`, as the one of 2026-12-03), a first write of
 pages the process never used costs from about as much as the second to a hundred
 times more, differently in every run. Every fresh array of a command pays it:
-there the DeviceScene's brick boxes and dims in the device's layout (74 MB on the
+there the DeviceDataset's brick boxes and dims in the device's layout (74 MB on the
 thin shells) took from 0.06 to 0.9 s in four runs of the same process. That, not
 the checks, is most of the spread between runs.
 
@@ -121,14 +121,14 @@ def first_touch(runs: int) -> tuple[list[float], float]:
 
 
 def parts(files, field: str) -> tuple[float, float, float]:
-    """Seconds of load_structures, DeviceScene and one frame's visibility."""
-    from exabricks.render.device_data import DeviceScene, load_structures
+    """Seconds of load_structures, DeviceDataset and one frame's visibility."""
+    from exabricks.render.device_data import DeviceDataset, load_structures
     from exabricks.transfer_function import default_transfer_function
 
     start = time.perf_counter()
     b, r, v = load_structures(*files)
     loaded = time.perf_counter()
-    scene = DeviceScene(b, r, v, field=field)
+    scene = DeviceDataset(b, r, v, field=field)
     made = time.perf_counter()
     values = b.values[b.field_index(field)]
     tf = default_transfer_function((float(np.nanmin(values)), float(np.nanmax(values))))

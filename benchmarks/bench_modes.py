@@ -164,7 +164,7 @@ def bench_dataset(key: str, modes: list[str], runs: int, size: int) -> tuple[dic
             samples[mode] = res.stats["samples"]
     device = "?"
     for ren in renderers.values():
-        s = ren.scene
+        s = ren.dataset
         device = (f"{s.device.name.strip()} ({s.device.platform.version.strip()}, "
                   f"{s.device.max_compute_units} compute units)")
     for mode in scenes:

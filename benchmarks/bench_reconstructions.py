@@ -17,7 +17,7 @@ the field's range (what `built_scene` uses; checked).
 
 (a) Reconstructions, --size x --size: for each of basis, nearest and vertex a
     fresh `Renderer` (timed: construction, the vertex values for "vertex" --
-    made on the device, `DeviceScene.vertex_args`, which the first vertex frame
+    made on the device, `DeviceDataset.vertex_args`, which the first vertex frame
     would otherwise make -- and the first frame, headlight, which also fetches
     the program variant), then --runs timed frames with `--shading none` and
     with headlight, the six cases alternating round by round so that a change of
@@ -182,7 +182,7 @@ def flags_of(data: Data, size: int, recon: str = "basis", shading: str = "headli
 
 
 def device_line(renderer: Renderer) -> str:
-    d = renderer.scene.device
+    d = renderer.dataset.device
     return f"{d.name.strip()} ({d.platform.version.strip()}, {d.max_compute_units} compute units)"
 
 
@@ -203,7 +203,7 @@ def bench_reconstructions(data: Data, runs: int, size: int) -> tuple[dict, dict]
         vertex = None
         if recon == "vertex":
             t = time.perf_counter()
-            ren.scene.vertex_args()
+            ren.dataset.vertex_args()
             vertex = time.perf_counter() - t
         t = time.perf_counter()
         first = ren.render_scene(scenes[recon, "headlight"])
@@ -496,7 +496,7 @@ central differences -- six more lookups per sample -- so its headlight frames co
 {nearest_lo:.1f}-{nearest_hi:.1f}x its unshaded ones here; vertex is one trilinear lookup in the
 one brick that holds the point instead of the hat sums over every brick of the region's list,
 and its analytic gradient comes with it. "vertex values" is the one-off device pass that makes
-the stitched corner values (`DeviceScene.vertex_args`, exabricks/render/vertex.py), which the
+the stitched corner values (`DeviceDataset.vertex_args`, exabricks/render/vertex.py), which the
 first vertex frame would otherwise do; a `Renderer` keeps them for every later frame. The
 programs of this table were already in pyopencl's cache; a variant built for the first time
 (each reconstruction is a separate program, and so are frames with iso-surfaces or slices)

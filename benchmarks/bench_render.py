@@ -148,7 +148,7 @@ def bench_one(d: Path, field: str, frames: int, size: int):
             last[traversal, path] = result
     out = {k: (np.array(times[k]), last[k].stats["samples"], last[k].rgba, np.array(cpu[k]))
            for k in runs}
-    scene = renderer.scene
+    scene = renderer.dataset
     device = (f"{scene.device.name.strip()} ({scene.device.platform.version.strip()}, "
               f"{scene.device.max_compute_units} compute units)")
     kind = "CPU" if opencl.is_cpu(scene.device) else "GPU"

@@ -152,7 +152,7 @@ def child(name: str, packets: bool, size: int, frames: int, view: str, rate: flo
     b = schema.load(d / "bricks.npz", "bricks")
     renderer = Renderer(b, schema.load(d / "regions.npz", "regions"),
                         schema.load(d / "bvh.npz", "bvh"), packets=packets)
-    values = b.values[renderer.scene.field_indices[0]]
+    values = b.values[renderer.dataset.field_indices[0]]
     value_range = (float(values.min()), float(values.max()))
     tf = default_transfer_function(value_range)
     lo, hi = schema.world_bounds(b)

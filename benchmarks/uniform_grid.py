@@ -2,7 +2,7 @@
 
 `finest_grid` gives the box of the dataset's finest lattice, `resample` fills it
 with the renderer's own basis reconstruction (paper eq. 1-2, through
-`DeviceScene.probe_fields`) at every finest-cell centre, and
+`DeviceDataset.probe_fields`) at every finest-cell centre, and
 `UniformGridRenderer` renders that volume with kernels/uniform_grid.cl: the
 renderer's camera, transfer function, sample placement (interval midpoints,
 paper §4.3), opacity correction, compositing and early termination, but one
@@ -49,7 +49,7 @@ def finest_grid(data) -> tuple[np.ndarray, np.ndarray]:
 def resample(scene, lower_lattice, dims, *, chunk: int = PROBE_CHUNK) -> np.ndarray:
     """The basis reconstruction of `scene` at every finest-cell centre of a box.
 
-    scene: an exabricks.render.device_data.DeviceScene; lower_lattice (3,) and dims (3,)
+    scene: an exabricks.render.device_data.DeviceDataset; lower_lattice (3,) and dims (3,)
     integers, the box as `finest_grid` gives it; chunk: points per probe call.
     Returns float32 (Z, Y, X) = (dims[2], dims[1], dims[0]), x fastest, in the
     field's units; NaN where no cell has support.

@@ -44,7 +44,7 @@ TUNABLES = {
 }
 
 # (name, C type): the members of eb_params in order, each naturally aligned.
-# Offsets ("*_at") count elements of the buffer they index: see DeviceScene and
+# Offsets ("*_at") count elements of the buffer they index: see DeviceDataset and
 # frame_arrays in exabricks.render.
 PARAMS = (
     # camera (world) and the world -> lattice map

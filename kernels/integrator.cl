@@ -19,7 +19,7 @@
 #pragma once
 #include "common.h"
 #include "sampler.cl"
-#include "scene.cl"
+#include "frame.cl"
 #include "packet_batch.cl"
 
 /* The samples of region r over [t_in, t_out] at step dt (its level `level`);

@@ -10,7 +10,7 @@
  * visible and shaded. */
 #pragma once
 #include "common.h"
-#include "scene.cl"
+#include "frame.cl"
 
 /* Opacity (w) and colour (xyz) of a step of length len at lattice point p
  * (sums s, field values `value`, finest level `level`), the mixture of the

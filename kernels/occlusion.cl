@@ -8,7 +8,7 @@
 #pragma once
 #include "common.h"
 #include "sampler.cl"
-#include "scene.cl"
+#include "frame.cl"
 #include "medium.cl"
 
 /* Below this visibility a ray counts as blocked. */

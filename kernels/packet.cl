@@ -19,7 +19,7 @@
 #error "sample packets are for the basis reconstruction from the regions' lists"
 #endif
 #include "common.h"
-#include "scene.cl"
+#include "frame.cl"
 
 /* EB_PACKET lanes: exabricks.kernel_abi.PACKET_WIDTH, eight (the vector types
  * below). */

@@ -7,7 +7,7 @@
 #include "dataset.cl"
 
 /* eb_render's domain arguments (-DEB_DOMAIN, a domain of a frame split by space:
- * scene.cl eb_in_domain): where use_front, the premultiplied RGBA of this sample
+ * frame.cl eb_in_domain): where use_front, the premultiplied RGBA of this sample
  * composited so far in front of the domain (one per pixel of the band), which
  * the domain's rays continue from (so that early ray termination carries
  * across domains; exabricks.render.streaming). */

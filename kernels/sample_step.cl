@@ -5,7 +5,7 @@
 #pragma once
 #include "common.h"
 #include "sampler.cl"
-#include "scene.cl"
+#include "frame.cl"
 #include "medium.cl"
 #include "surfaces.cl"
 

@@ -24,7 +24,7 @@
  * it (up to the previous sample) is integrated first. */
 #pragma once
 #include "common.h"
-#include "scene.cl"
+#include "frame.cl"
 
 #ifdef EB_SURFACES
 #include "occlusion.cl"

@@ -34,7 +34,7 @@ from exabricks.stages.bvh import build_bvh  # noqa: E402
 from exabricks.stages.compare import compare_images  # noqa: E402
 from exabricks.stages.regions import build_regions  # noqa: E402
 from exabricks.render.renderer import Renderer  # noqa: E402
-from exabricks.render.device_data import DeviceScene  # noqa: E402
+from exabricks.render.device_data import DeviceDataset  # noqa: E402
 from exabricks.transfer_function import TransferFunction, default_transfer_function  # noqa: E402
 
 SIZE = 64
@@ -92,7 +92,7 @@ def test_resample_reproduces_cells_and_finest_grid(single_level):
     lower, dims = uniform_grid.finest_grid(cells)
     assert lower.tolist() == [0, 0, 0] and dims.tolist() == [40, 36, 28]
     # A chunk smaller than one z-slab still fills every slab.
-    resampled = uniform_grid.resample(DeviceScene(*_scene(cells, 16)), lower, dims, chunk=1000)
+    resampled = uniform_grid.resample(DeviceDataset(*_scene(cells, 16)), lower, dims, chunk=1000)
     # At a cell centre only that cell's hat is non-zero: the basis value is the cell value.
     np.testing.assert_allclose(resampled, volume, rtol=1e-6, atol=1e-7)
 

@@ -11,7 +11,7 @@ from exabricks.readers import read
 from exabricks.scene import IsoSurface, Scene, Settings
 from exabricks.stages.brick import build_bricks
 from exabricks.stages.bvh import build_bvh
-from exabricks.render.device_data import DeviceScene
+from exabricks.render.device_data import DeviceDataset
 from exabricks.stages.regions import build_regions
 from exabricks.render.renderer import Renderer
 
@@ -50,7 +50,7 @@ def test_nearest_is_the_containing_cell_value(path, field, device):
     bricks, regions, bvh, *_ = built_scene(path, field)
     cells = read(path, fields=[field])
     points = random_points(bricks, 4000)
-    got = DeviceScene(bricks, regions, bvh, field=field, device=device).probe_fields(points,
+    got = DeviceDataset(bricks, regions, bvh, field=field, device=device).probe_fields(points,
                        reconstruction="nearest")[0]
     lattice = (points.astype(np.float64) - cells.origin_world) / cells.spacing_world
     want = containing_cell_values(cells, lattice).astype(np.float32)
@@ -90,7 +90,7 @@ def two_level_linear(a=(0.25, -0.5, 1.0), b=3.0):
 def test_vertex_reproduces_a_linear_field_inside_one_level(device):
     a, b = np.array([0.25, -0.5, 1.0]), 3.0
     cells, bricks, regions, bvh = two_level_linear(tuple(a), b)
-    scene = DeviceScene(bricks, regions, bvh, device=device)
+    scene = DeviceDataset(bricks, regions, bvh, device=device)
     rng = np.random.default_rng(1)
     # Where the basis field itself is linear at every vertex of the cell around the
     # point: no vertex within a hat of both levels (fine vertices 9..15; coarse
@@ -110,7 +110,7 @@ def test_vertex_is_continuous_across_level_boundaries(path, field, device):
     between levels: vertex stays within its gradient bound; nearest jumps."""
     bricks, regions, bvh, *_ = built_scene(path, field)
     cells = read(path, fields=[field])
-    scene = DeviceScene(bricks, regions, bvh, field=field, device=device)
+    scene = DeviceDataset(bricks, regions, bvh, field=field, device=device)
     # Points on faces of coarse cells that touch finer cells: sample each coarse
     # cell's faces at random positions, keep those whose other side is finer.
     rng = np.random.default_rng(2)
@@ -338,7 +338,7 @@ def test_vertex_equals_its_float64_reference_on_a_random_hierarchy(device):
     bricks = build_bricks(cells)
     regions = build_regions(bricks)
     bvh = build_bvh(regions)
-    scene = DeviceScene(bricks, regions, bvh, field="noise", device=device)
+    scene = DeviceDataset(bricks, regions, bvh, field="noise", device=device)
     lo, hi = (np.array(x) for x in schema.world_bounds(bricks))
     points = (lo + (hi - lo) * rng.random((600, 3))).astype(np.float32).astype(np.float64)
     got = scene.probe_fields(points, reconstruction="vertex")[0]

@@ -135,14 +135,14 @@ def worker_exabricks(spec: dict) -> dict:
     t = time.perf_counter()
     located = renderer.with_lookup("cell-location")
     t_located = time.perf_counter() - t
-    tree = renderer.scene.brick_tree
+    tree = renderer.dataset.brick_tree
     t = time.perf_counter()
     build_brick_tree(bricks)  # again, without numba's first-call cache load
     t_tree = time.perf_counter() - t
     out = {"load_s": t_load, "kernel_build_s": t_kernels, "upload_s": t_renderer,
            "device": renderer.device_name, "rates": {},
            "cell_location": {"setup_s": t_located, "tree_build_s": t_tree,
-                             "tree_first_build_s": renderer.scene.brick_tree_seconds,
+                             "tree_first_build_s": renderer.dataset.brick_tree_seconds,
                              "tree_nodes": int(tree.first.shape[0]), "tree_depth": tree.depth,
                              "rates": {}},
            # Ours alone, before the uniform grid is resampled (Linux: KiB).
@@ -154,7 +154,7 @@ def worker_exabricks(spec: dict) -> dict:
     marcher = None
     if uniform["fits"]:
         t = time.perf_counter()
-        volume = uniform_grid.resample(renderer.scene, lower, dims)
+        volume = uniform_grid.resample(renderer.dataset, lower, dims)
         uniform["resample_s"] = time.perf_counter() - t
         uniform["nan_voxels"] = int(np.isnan(volume).sum())
         marcher = uniform_grid.UniformGridRenderer(volume, lower, bricks.origin_world,

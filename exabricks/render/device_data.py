@@ -1,7 +1,7 @@
 """Bricks, regions and BVH checked against each other and uploaded to an OpenCL device.
 
 `check_inputs` is the consistency test shared by render and probe;
-`DeviceScene` holds one dataset's buffers on one device (uploaded once, reused
+`DeviceDataset` holds one dataset's buffers on one device (uploaded once, reused
 for every frame or probe), grouped as the EB_DATASET_ARGS of kernels/dataset.cl
 take them, and where each array starts in them (`layout`, members of
 exabricks.kernel_abi.PARAMS).
@@ -21,7 +21,7 @@ from ..errors import ExabricksError
 from .grouped import Grouped
 
 
-# Points per enqueue of `DeviceScene.probe_fields`: a fraction of a second on a CPU device.
+# Points per enqueue of `DeviceDataset.probe_fields`: a fraction of a second on a CPU device.
 PROBE_CHUNK = 1 << 18
 
 
@@ -32,7 +32,7 @@ def check_reconstruction(reconstruction: str) -> None:
 
 
 def load_structures(bricks_path, regions_path, bvh_path):
-    """The three structure files of one dataset for a DeviceScene, each checked for
+    """The three structure files of one dataset for a DeviceDataset, each checked for
     its kind: mapped and checked in steps, so that what the device takes as it is
     (values, lists) is shared with the page cache and what it takes in another
     layout (boxes, links) is handed back once converted."""
@@ -162,7 +162,7 @@ def _packed(dtype, *parts) -> np.ndarray:
     return out
 
 
-class DeviceScene:
+class DeviceDataset:
     """One dataset resident on one OpenCL device: the structures and the values
     of `fields` (default: `field`, else the first field) only, one after the
     other (the kernels' field f is fields[f]; the program is built with
@@ -193,13 +193,13 @@ class DeviceScene:
         })
         self.context, self.queue = opencl.context_for(self.device)
         # The resident buffers share host memory on CPU devices (opencl.to_device):
-        # when the scene goes, even unwinding from a signal mid-frame, its kernels
+        # when the dataset goes, even unwinding from a signal mid-frame, its kernels
         # must have finished before that memory is freed.
         weakref.finalize(self, self.queue.finish)
         self.program = self.program_for()
         q = self.queue
 
-        def up(queue, array, dtype=None):  # resident for the scene's life: shared on CPUs
+        def up(queue, array, dtype=None):  # resident for the dataset's life: shared on CPUs
             return opencl.to_device(queue, array, dtype, share=True)
 
         b, r = bricks, regions
@@ -251,7 +251,7 @@ class DeviceScene:
         self.brick_tree = self.brick_tree_seconds = None
 
     def program_for(self, extra=(), **variant):
-        """The kernel program of this scene's field count and the `variant`
+        """The kernel program of this dataset's field count and the `variant`
         (kernel_abi.variant_defines: reconstruction, surfaces, ...), with `extra`
         defines."""
         check_reconstruction(variant.get("reconstruction", "basis"))
@@ -312,12 +312,12 @@ class DeviceScene:
         return [*self._geometry, flags, *self._lists, *vertex, *mip, tree], layout
 
     def params(self, **values) -> np.ndarray:
-        """eb_params with this scene's world frame and `values` (kernel_abi.params)."""
+        """eb_params with this dataset's world frame and `values` (kernel_abi.params)."""
         return kernel_abi.params(origin_world=(*self.bricks.origin_world, 0.0),
                                  inv_spacing=(*(1.0 / self.bricks.spacing_world), 0.0), **values)
 
     def probe_fields(self, points_world, *, reconstruction: str = "basis") -> np.ndarray:
-        """Values of every field of the scene at `points_world` (N, 3) world units ->
+        """Values of every uploaded field at `points_world` (N, 3) world units ->
         (F, N) float32, F = len(self.fields), with `reconstruction`.
 
         NaN where no region contains the point or no cell has support there (no

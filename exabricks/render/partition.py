@@ -10,7 +10,7 @@ faces of the outermost domains lie at infinity and every box is half-open
 `domain_data` is what a domain's renderer loads: the regions whose boxes overlap
 the domain (grown by a halo where central differences look half a cell outside
 it), the bricks those regions list cropped to the cells that can reach the
-domain, and a BVH over the regions. A frame of the domain (kernels/scene.cl `eb_in_domain`) then takes
+domain, and a BVH over the regions. A frame of the domain (kernels/frame.cl `eb_in_domain`) then takes
 exactly the samples of the whole frame that lie in the domain: the same
 positions (the interval delimiters are those of the unclipped regions), the same
 bricks (every region's whole list), so the domains' images composited front to
@@ -245,7 +245,7 @@ def _cut(block: np.ndarray, size: np.ndarray, share: float) -> tuple[int, int]:
 
 def domain_options(bricks: schema.Bricks, scene) -> dict:
     """`domain_data`'s options for frames of `scene`: a halo of half a cell of the
-    coarsest level where normals come from central differences (kernels/scene.cl
+    coarsest level where normals come from central differences (kernels/frame.cl
     eb_field_gradient looks that far outside the domain), and no cropping of the
     bricks under level of detail (their mip levels are made from whole bricks)."""
     central = scene.lighting.gradient == "central" or scene.settings.reconstruction == "nearest"
@@ -433,7 +433,7 @@ def domain_bytes(bricks: schema.Bricks, regions: schema.Regions, plan, fields=No
     """Bytes a Renderer of the domain of `plan` (`domain_plan`) holds on the host
     and the device together: its structures (brick values of `fields` cropped,
     boxes; regions and their lists; a BVH of at most two nodes per region) and
-    the float4 copies the device takes of the boxes (device_data.DeviceScene),
+    the float4 copies the device takes of the boxes (device_data.DeviceDataset),
     over-counting lists by the bricks cropped away."""
     keep, used, _, new_dims = plan[:4]
     cells = int(new_dims.astype(np.int64).prod(axis=1).sum())

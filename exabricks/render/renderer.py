@@ -61,7 +61,7 @@ from ..kernel_abi import LOD_LEVELS, PACKET_WIDTH
 from ..errors import ExabricksError
 from ..scene import Lighting, Scene, Settings, VolumeLayer
 from ..transfer_function import knot_buckets
-from .device_data import DatasetScale, DeviceScene
+from .device_data import DatasetScale, DeviceDataset
 from .grouped import Grouped
 
 # Region walks (kernels/traversal.cl): "ordered" keeps a private min-heap of
@@ -130,19 +130,19 @@ class Renderer:
         the share of, `scale` the whole dataset's; frames then hold exactly the
         samples inside the box (docs/design.md, "Data-parallel rendering and MPI")."""
         _check_lookup(lookup)
-        self.scene = DeviceScene(bricks, regions, bvh, field=field, fields=fields, device=device,
+        self.dataset = DeviceDataset(bricks, regions, bvh, field=field, fields=fields, device=device,
                                  scale=scale)
         self.domain = None if domain is None else \
             tuple((*np.asarray(b, np.float64), 0.0) for b in domain)
         self._use(lookup)
         # Sample packets: on CPU devices unless asked otherwise (both give the same image).
-        self.packets = opencl.is_cpu(self.scene.device) if packets is None else bool(packets)
+        self.packets = opencl.is_cpu(self.dataset.device) if packets is None else bool(packets)
 
     def _use(self, lookup: str) -> None:
         _check_lookup(lookup)
         self.lookup = lookup
         if lookup == "cell-location":
-            self.scene.location_args()  # built now: its time is not a frame's
+            self.dataset.location_args()  # built now: its time is not a frame's
 
     def _kernel(self, surfaces: bool, reconstruction: str, lod: bool, extra=()):
         """eb_render built for this renderer and frame, with `extra` defines (tests)."""
@@ -152,7 +152,7 @@ class Renderer:
         if lod and reconstruction != "basis":
             raise ExabricksError(f"level of detail (--lod) works with the basis reconstruction, "
                                  f"not with {reconstruction}")
-        program = self.scene.program_for(
+        program = self.dataset.program_for(
             extra, reconstruction=reconstruction, surfaces=surfaces, lod=lod,
             packets=self._packet_width(reconstruction) > 1, domain=self.domain is not None,
             cell_location=self.lookup == "cell-location")
@@ -165,14 +165,14 @@ class Renderer:
         return PACKET_WIDTH if use else 1
 
     def with_lookup(self, lookup: str) -> "Renderer":
-        """A Renderer of the same uploaded scene (no second upload) whose samples
+        """A Renderer of the same uploaded dataset (no second upload) whose samples
         find their bricks another way (LOOKUPS)."""
         other = copy.copy(self)
         other._use(lookup)
         return other
 
     def with_packets(self, packets: bool) -> "Renderer":
-        """A Renderer of the same uploaded scene that reconstructs samples by packets
+        """A Renderer of the same uploaded dataset that reconstructs samples by packets
         (kernels/packet.cl) or one at a time; the image is the same."""
         other = copy.copy(self)
         other.packets = bool(packets)
@@ -180,11 +180,11 @@ class Renderer:
 
     @property
     def field(self) -> str:
-        return self.scene.field
+        return self.dataset.field
 
     @property
     def device_name(self) -> str:
-        return self.scene.device.name.strip()
+        return self.dataset.device.name.strip()
 
     def render(self, *, camera, transfer_function, width: int = 512, height: int = 512,
                sampling_rate: float = 2.0, spp: int = 1, seed: int = 0, jitter: bool = True,
@@ -230,11 +230,11 @@ class Renderer:
             raise ExabricksError("a tile is rendered whole: no spans of rows in it")
         if front is not None and (self.domain is None or front.shape != (n_rows, cols, 4)):
             raise ExabricksError("an image in front is for a domain's frame or tile of the same size")
-        missing = [f for f in scene.fields() if f not in self.scene.fields]
+        missing = [f for f in scene.fields() if f not in self.dataset.fields]
         if missing:
             raise ExabricksError(f"field(s) {', '.join(missing)} are not on the device "
-                                 f"(uploaded: {', '.join(self.scene.fields)})")
-        s = self.scene
+                                 f"(uploaded: {', '.join(self.dataset.fields)})")
+        s = self.dataset
         unit = s.finest_width_world if cfg.unit_distance is None else float(cfg.unit_distance)
         origin, forward, du, dv = scene.camera.frame(width, height)
         node_vis, region_vis = s.visibility(
@@ -354,7 +354,7 @@ class Renderer:
         """Refuse a sampling rate that would take more than MAX_SAMPLES_PER_RAY samples
         on a ray through the whole dataset (its bounding box's world diagonal at the
         finest step)."""
-        s = self.scene
+        s = self.dataset
         extent = (s.bvh.upper_lattice[0].astype(np.float64) - s.bvh.lower_lattice[0])
         diagonal = float(np.linalg.norm(extent * s.bricks.spacing_world))
         finest = int(s.regions.finest_level.min())
@@ -442,13 +442,13 @@ AO_DISTANCE_CELLS = 10.0
 ISO_TOLERANCE_CELLS = 1e-3
 
 
-def frame_arrays(scene: Scene, device_scene: DeviceScene) -> tuple[tuple, dict]:
+def frame_arrays(scene: Scene, device_dataset: DeviceDataset) -> tuple[tuple, dict]:
     """The look of `scene` as the render kernel takes it: its float and int arrays
     (look_f, look_i of kernels/render.cl) and their eb_params members. Every
     transfer function and colour map as merged knots one after the other (and
     each volume layer's knot index, transfer_function.knot_buckets), the volume
     layers, iso-surfaces and slices by field index on the device, and clipping."""
-    index = {name: i for i, name in enumerate(device_scene.fields)}
+    index = {name: i for i, name in enumerate(device_dataset.fields)}
     xs, rgba = [], []
 
     def knots(tf) -> tuple[int, int]:
@@ -489,7 +489,7 @@ def frame_arrays(scene: Scene, device_scene: DeviceScene) -> tuple[tuple, dict]:
     floats, ints = Grouped(np.float32), Grouped(np.int32)
     params = {
         "tf_xs_at": floats.add(cat(xs, (1,))), "tf_rgba_at": floats.add(cat(rgba, (1, 4)), 4),
-        "gradient_scale_at": floats.add(device_scene.gradient_scales, 4),
+        "gradient_scale_at": floats.add(device_dataset.gradient_scales, 4),
         "iso_value_at": floats.add(rows(iso_value, np.float32), 4),
         "iso_color_at": floats.add(rows(iso_color, np.float32), 4),
         "slice_point_at": floats.add(rows(slice_point, np.float32), 4),
@@ -499,7 +499,7 @@ def frame_arrays(scene: Scene, device_scene: DeviceScene) -> tuple[tuple, dict]:
         "iso_at": ints.add(rows(iso, np.int32), 4), "slices_at": ints.add(rows(slices, np.int32), 4),
         "buckets_at": ints.add(np.concatenate(buckets) if buckets else np.zeros(0, np.int32)),
         "n_layers": len(layers), "n_iso": len(iso), "n_slices": len(slices),
-        "iso_tolerance": ISO_TOLERANCE_CELLS * device_scene.finest_width_world,
+        "iso_tolerance": ISO_TOLERANCE_CELLS * device_dataset.finest_width_world,
         "clip_box": clip.box is not None, "clip_lower": (*box[0], 0.0),
         "clip_upper": (*box[1], 0.0), "n_clip_planes": len(clip.planes),
     }

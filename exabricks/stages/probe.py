@@ -12,7 +12,7 @@ import numpy as np
 
 from .. import schema
 from ..errors import ExabricksError
-from ..render.device_data import DeviceScene
+from ..render.device_data import DeviceDataset
 
 
 def probe(bricks: schema.Bricks, regions: schema.Regions, bvh: schema.Bvh, points_world,
@@ -24,5 +24,5 @@ def probe(bricks: schema.Bricks, regions: schema.Regions, bvh: schema.Bvh, point
         raise ExabricksError(f"points must be an (N, 3) array, got shape {points.shape}")
     if points.shape[0] >= 2**31:
         raise ExabricksError(f"too many points ({points.shape[0]}); probe at most 2**31 - 1 at once")
-    scene = DeviceScene(bricks, regions, bvh, field=field, device=device)
+    scene = DeviceDataset(bricks, regions, bvh, field=field, device=device)
     return scene.probe_fields(points, reconstruction=reconstruction)[0]
