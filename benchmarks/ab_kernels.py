@@ -134,11 +134,15 @@ class Version:
         return cells
 
     def renderer(self, fields, **kw):
-        return self.module("render.renderer").Renderer(*self.structures, fields=fields, **kw)
+        try:
+            module = self.module("render.renderer")
+        except ModuleNotFoundError:  # a base from before exabricks.render (19d5715)
+            module = self.module("stages.render")
+        return module.Renderer(*self.structures, fields=fields, **kw)
 
-    def scene(self, scene_file: Path, size: int):
+    def scene(self, scene_file: Path, flags: dict):
         return self.module("scene").scene_from_options(
-            self.structures[0], scene_path=scene_file, flags={"size": (size, size)})
+            self.structures[0], scene_path=scene_file, flags=flags)
 
 
 @contextlib.contextmanager
@@ -182,11 +186,20 @@ def compare(name: str, versions: dict, variants, timed, rounds: int, size: int,
         doc = make(field, second, lo.tolist(), hi.tolist(), mid_value)
         doc.setdefault("unit_distance", unit)
         doc.setdefault("sampling_rate", rate)
+        # The scalar settings and the lighting go as flags: an older base reads the
+        # working tree's scene schema (importlib.resources finds the package named
+        # exabricks), whose scalar nodes are made at run time since 2026-12-05.
+        flags = {"size": (size, size), **{k: doc.pop(k) for k in
+                                          ("reconstruction", "lod", "unit_distance", "sampling_rate")
+                                          if k in doc}}
+        lighting = doc.pop("lighting", {})
+        ao = lighting.pop("ambient_occlusion", {})
+        flags.update(lighting, **({"ao_samples": ao["samples"]} if ao else {}))
         scene_file = workdir / f"{name}-{len(lines)}.json"
         scene_file.write_text(json.dumps(doc))
         used = tuple(dict.fromkeys([field] + ([second] if needs_second else [])))
         renderers = {k: v.renderer(used, **options) for k, v in versions.items()}
-        scenes = {k: v.scene(scene_file, size) for k, v in versions.items()}
+        scenes = {k: v.scene(scene_file, flags) for k, v in versions.items()}
 
         def frame(k, renderers=renderers, scenes=scenes):
             def render():
@@ -199,12 +212,15 @@ def compare(name: str, versions: dict, variants, timed, rounds: int, size: int,
         else:
             images = {k: frame(k)()[2] for k in versions}
         diff = float(np.abs(images["base"] - images["this"]).max())
-        # (a base from before the rename calls the dataset on the device `scene`)
-        probed = {k: (r.dataset if hasattr(r, "dataset") else r.scene).probe_fields(points)
-                  for k, r in renderers.items()}
-        probe_diff = float(np.nanmax(np.abs(probed["base"] - probed["this"]), initial=0.0))
+        # (a base from before the rename calls the dataset on the device `scene`, and
+        # one older still has no probe_fields on it)
+        on_device = {k: r.dataset if hasattr(r, "dataset") else r.scene for k, r in renderers.items()}
+        probe = "n/a"
+        if all(hasattr(d, "probe_fields") for d in on_device.values()):
+            probed = {k: d.probe_fields(points) for k, d in on_device.items()}
+            probe = f"{float(np.nanmax(np.abs(probed['base'] - probed['this']), initial=0.0)):.2e}"
         line = (f"{name} {variant}: mean alpha {float(images['this'][..., 3].mean()):.3f}, "
-                f"max abs diff image {diff:.2e}, probe {probe_diff:.2e}")
+                f"max abs diff image {diff:.2e}, probe {probe}")
         if variant in timed:
             ms = {k: [1e3 * t for t in measured[k]["kernel_s"]] for k in versions}
             base, this = (statistics.median(ms[k]) for k in versions)
