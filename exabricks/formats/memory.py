@@ -1,0 +1,115 @@
+"""Memory: handing back the pages of mapped arrays (`release`, `release_arrays`)
+and the C heap (`trim_heap`), work in steps of about CHUNK elements (`rows`,
+`reduce_chunks`), and the memory this process can hold (`memory_limit`,
+`check_memory` before allocating).
+"""
+
+from __future__ import annotations
+
+import os
+
+import numpy as np
+
+from ..errors import ExabricksError
+
+
+# Elements per step of `reduce_chunks` (4 MiB of float32).
+CHUNK = 1 << 20
+
+
+def mapping(array: np.ndarray):
+    """The mmap behind a mapped array (load(mapped=True)), else None."""
+    return getattr(array, "_mmap", None) if isinstance(array, np.memmap) else None
+
+
+def _hand_back(base, start: int = 0, length: int = 0) -> None:
+    """Drop the resident pages of mmap `base` from byte `start` for `length` bytes
+    (0: to the end): clean copies of the file, read again if used again."""
+    import mmap
+
+    if not hasattr(mmap, "MADV_DONTNEED"):
+        return
+    if not length:
+        base.madvise(mmap.MADV_DONTNEED)
+        return
+    lo = start // mmap.PAGESIZE * mmap.PAGESIZE
+    base.madvise(mmap.MADV_DONTNEED, lo, start + length - lo)
+
+
+def release(obj) -> None:
+    """Hand back the resident pages of `obj`'s mapped arrays (`obj` a file kind)."""
+    release_arrays(*obj.arrays().values())
+
+
+def release_arrays(*arrays: np.ndarray) -> None:
+    """Hand back the resident pages of those `arrays` that are mapped."""
+    for array in arrays:
+        base = mapping(array)
+        if base is not None:
+            _hand_back(base)
+
+
+def trim_heap() -> None:
+    """Give the C heap's free memory back to the system (glibc keeps what the
+    piece's temporaries used, a few hundred MB on large data); a no-op elsewhere."""
+    import ctypes
+    import ctypes.util
+
+    try:
+        ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6").malloc_trim(0)
+    except (OSError, AttributeError):
+        pass
+
+
+def rows(*arrays: np.ndarray):
+    """Steps of about CHUNK elements (whole rows) along the first axis, which
+    `arrays` share: yields (start, [views of rows start.. of each array]).  The pages
+    of mapped arrays are handed back after each step, so that a pass over large
+    mapped arrays does not keep them resident."""
+    n = arrays[0].shape[0]
+    width = max(max(1, int(np.prod(a.shape[1:]))) for a in arrays)
+    step = max(1, CHUNK // width)
+    for start in range(0, n, step):
+        parts = [a[start:start + step] for a in arrays]
+        yield start, parts
+        for a, part in zip(arrays, parts):
+            base = mapping(a)
+            if base is not None and part.size:
+                _hand_back(base, part.ctypes.data - np.frombuffer(base, np.uint8).ctypes.data,
+                           part.nbytes)
+
+
+def reduce_chunks(array: np.ndarray, fn, combine):
+    """combine() over fn(chunk) of the `rows` steps of `array` (fn(array[:0]) if it
+    has no rows)."""
+    result = None
+    for _, (part,) in rows(array):
+        value = fn(part)
+        result = value if result is None else combine(result, value)
+    return fn(array[:0]) if result is None else result
+
+
+def check_memory(nbytes: int, where: str) -> None:
+    """Refuse arrays that cannot fit this machine's memory (or the process's limit)."""
+    limit = memory_limit()
+    if limit is not None and nbytes > limit:
+        raise ExabricksError(f"{where}: its arrays need {nbytes / 2**30:.1f} GiB, more than the "
+                             f"{limit / 2**30:.1f} GiB of memory available")
+
+
+def memory_limit() -> int | None:
+    """Bytes this process can hold: physical memory, or a lower RLIMIT_AS; None if unknown."""
+    limits = []
+    try:
+        limits.append(os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES"))
+    except (ValueError, OSError, AttributeError):
+        pass
+    try:
+        import resource
+
+        soft, _ = resource.getrlimit(resource.RLIMIT_AS)
+        if soft != resource.RLIM_INFINITY:
+            limits.append(soft)
+    except (ImportError, ValueError, OSError):
+        pass
+    return min(limits) if limits else None
