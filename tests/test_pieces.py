@@ -17,7 +17,7 @@ from exabricks.readers import read
 from exabricks.stages.brick import build_bricks
 from exabricks.stages.bvh import build_bvh
 from exabricks.stages.join import join_bricks, join_bvh, join_regions
-from exabricks.stages.pieces import Piece, task_range
+from exabricks.pieces import Piece, task_range
 from exabricks.stages.regions import build_regions
 
 from conftest import AMREX, ATHENA, ENZO, GERRIS, assert_one_error_line

@@ -1,5 +1,5 @@
 """`exabricks join PIECES... -o OUT`: one bricks, regions or BVH file from the
-pieces that `brick`, `regions` or `bvh --piece K/N` built (exabricks.stages.pieces)."""
+pieces that `brick`, `regions` or `bvh --piece K/N` built (exabricks.pieces)."""
 
 from __future__ import annotations
 

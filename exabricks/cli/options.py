@@ -69,7 +69,7 @@ def numbers(counts=None, low=0.0, high=1.0):
 
 def _piece(ctx, param, text):
     """Callback: "K/N" as a Piece (WHOLE when not given)."""
-    from ..stages.pieces import WHOLE, Piece
+    from ..pieces import WHOLE, Piece
 
     if text is None:
         return WHOLE

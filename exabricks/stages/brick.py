@@ -29,7 +29,7 @@ from .. import schema
 from ..constants import LATTICE_DTYPE, LEVEL_DTYPE, OFFSET_DTYPE, VALUE_DTYPE
 from ..errors import ExabricksError
 from .ingest import neighbour_overlap_keys, spread3, find_overlap
-from .pieces import WHOLE, Piece, share_meta, task_range
+from ..pieces import WHOLE, Piece, share_meta, task_range
 
 # Columns of a cell row in `rec` and fields of a node row.
 _LEVEL, _ID = 3, 4
@@ -41,7 +41,7 @@ _LEAF, _SPLIT, _OVERLAP = 0, 1, -1
 _PARALLEL_MIN_CELLS = 200_000
 # Subtrees per thread for the depth-first parallel phase (more: better balance).
 _TASKS_PER_THREAD = 16
-# Subtrees per piece when a build is cut into pieces (exabricks.stages.pieces).
+# Subtrees per piece when a build is cut into pieces (exabricks.pieces).
 _TASKS_PER_PIECE = 16
 
 
@@ -513,7 +513,7 @@ def build_bricks(cells: schema.Cells, *, max_brick_width: int = 32,
 
     cells: schema.Cells with N >= 1 non-overlapping cells.
     max_brick_width: most cells per axis of a brick (the paper uses 32).
-    piece: build only this share (exabricks.stages.pieces): the bricks of one
+    piece: build only this share (exabricks.pieces): the bricks of one
         run of the partitioned cells, offsets from 0, values of those cells only;
         meta["piece"]["cells"] is the run, [a, b) of N.
     Returns schema.Bricks in k-d leaf order (whole builds: joined by `merge_bricks`,

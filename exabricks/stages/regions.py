@@ -7,7 +7,7 @@ active bricks is constant; a top-down partition along support faces cuts those
 parts into disjoint boxes; boxes that touch face to face with the same active
 bricks are then merged again (the k-d cuts run through whole regions, also
 where nothing changes), within each of the top subtrees that the partition
-builds independently (so that builds by pieces, exabricks.stages.pieces, give
+builds independently (so that builds by pieces, exabricks.pieces, give
 the same regions), giving the Active Brick Regions.  Each region records the
 bricks whose support overlaps it, the value range of every cell whose support
 overlaps it (space skipping, paper §4.1) and the finest level among its bricks
@@ -29,7 +29,7 @@ from .. import schema
 from ..constants import BOUNDS_DTYPE, INDEX_DTYPE, OFFSET_DTYPE
 from ..errors import ExabricksError
 from .brick import require_disjoint
-from .pieces import WHOLE, Piece, share_meta, task_range
+from ..pieces import WHOLE, Piece, share_meta, task_range
 
 # float32 holds every half-integer exactly up to 2**23, i.e. doubled coordinates up to 2**24.
 _MAX_DOUBLED = 1 << 24
@@ -163,7 +163,7 @@ def _tasks(sup_lo, sup_hi, level, cells, merge):
     """The top of the partition, split breadth first here until there are enough
     subtrees: their (lo, hi, ids) in order, and the level and merge flags per brick
     that `_partition` takes.  The task count depends only on the input size,
-    never on the thread count; pieces (exabricks.stages.pieces) are runs of tasks."""
+    never on the thread count; pieces (exabricks.pieces) are runs of tasks."""
     n = sup_lo.shape[0]
     lv = np.zeros(n, np.int64) if level is None else np.ascontiguousarray(level, np.int64)
     # Bricks a merged box may hold (Merge.max_brick_cells).

@@ -23,7 +23,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..errors import ExabricksError
+from .errors import ExabricksError
 
 # A share's meta["piece"]: index, count, and per kind where its share lies.
 PIECE_KEY = "piece"
