@@ -26,7 +26,10 @@ from test_packets import DATASETS, loaded, renderer, scene_for
 
 # What a domain can render alone (exabricks.parallel.needs_image_mode: iso-surfaces,
 # AO, depth and the vertex reconstruction take image mode).
-MODES = ("emission", "central", "two-layers", "clip-slice", "lod", "spp", "nearest")
+# clip-slice and lod build program variants of their own, the slowest of the fast
+# suite on a fresh machine: the slow suite runs them.
+MODES = ("emission", "central", "two-layers", pytest.param("clip-slice", marks=pytest.mark.slow),
+         pytest.param("lod", marks=pytest.mark.slow), "spp", "nearest")
 
 
 @functools.lru_cache(maxsize=None)
@@ -70,7 +73,7 @@ def no_termination(scene):
 @device_param
 @pytest.mark.parametrize("mode", MODES)
 @pytest.mark.parametrize("name", sorted(DATASETS))
-def test_pieces_composite_to_the_whole_frame(name, mode, device):
+def test_domains_composite_to_the_whole_frame(name, mode, device):
     scene = no_termination(scene_for(name, mode))
     whole = renderer(name, device).render_scene(scene)
     for n in (2, 3):
@@ -86,7 +89,7 @@ def test_pieces_composite_to_the_whole_frame(name, mode, device):
 
 @pytest.mark.parametrize("name", sorted(DATASETS))
 @pytest.mark.parametrize("n", [1, 2, 3, 5, 8])
-def test_pieces_tile_space_and_share_the_bytes(name, n, rng):
+def test_domains_tile_space_and_share_the_bytes(name, n, rng):
     built = loaded(name)[0]
     part = kd_partition(built.bricks, built.regions, n)
     assert part.n_domains == n

@@ -324,7 +324,7 @@ def test_tiled_budgeted_frame_equals_the_in_memory_frame(name, mode):
     assert domains.reads <= bands * domains.n_domains
 
 
-def test_pieces_out_of_view_are_never_read():
+def test_domains_out_of_view_are_never_read():
     name = "amrex"
     built, camera, lo, hi, _ = loaded(name)
     scene = scene_for(name, "emission")
