@@ -128,6 +128,7 @@ def test_packets_give_the_one_sample_image(name, mode, device):
     assert_same_frame(packet, single, 1 if mode in ("nearest", "vertex") else PACKET_WIDTH)
 
 
+@pytest.mark.slow  # two program variants of its own: in the slow suite
 @device_param
 @pytest.mark.parametrize("name", ["gerris", "amrex"])
 def test_packets_with_the_retrace_walk_and_none_with_cell_location(name, device):

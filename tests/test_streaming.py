@@ -371,6 +371,7 @@ def test_footprints_hold_every_ray_that_meets_the_box():
     assert behind == (0, 0, width, height)  # the eye inside the box: every pixel
 
 
+@pytest.mark.slow  # the library's tiled frames are in the fast suite
 def test_cli_tiles_write_the_same_image_in_bands(gerris_files, cli, tmp_path):
     flags = [*FLAGS, "--size", 150, 70, "--spp", 2]
     for suffix in (".exr", ".png"):
