@@ -497,6 +497,7 @@ def test_stage_errors():
         build_bvh(regions, leaf_size=0)
 
 
+@pytest.mark.slow  # the library merge options are in the fast suite
 def test_cli_merge_options(tmp_path):
     """Default merging, --exact, the tuning options and their refusals; the setting used
     is recorded in meta["parameters"]["merge"]."""

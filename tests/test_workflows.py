@@ -52,6 +52,7 @@ def series(tmp_path_factory):
     return sorted(d.glob("plt*"))
 
 
+@pytest.mark.slow  # the orbit pipeline runs the same Makefile in the fast suite
 def test_make_series_pipeline(series, tmp_path):
     out = tmp_path / "out"
     make = ["make", "-f", WORKFLOWS / "Makefile", "-j2", "series", f"SERIES={series[0].parent}/plt*",
