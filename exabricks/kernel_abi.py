@@ -117,8 +117,7 @@ def option_params(scene) -> dict:
     out = {}
     for option in SCENE_OPTIONS:
         if option.kernel:
-            part, _, attribute = option.target.partition(".")
-            value = getattr(getattr(scene, part), attribute)
+            value = option.value_in(scene)
             out[option.name] = option.choices.index(value) if option.kind == "choice" else value
     return out
 

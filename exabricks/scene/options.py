@@ -65,6 +65,11 @@ class Option:
     def keyword(self) -> str:
         return self.dest or self.name
 
+    def value_in(self, scene):
+        """The value of this option's `target` in `scene` (exabricks.scene.Scene)."""
+        part, _, attribute = self.target.partition(".")
+        return getattr(getattr(scene, part), attribute)
+
     @property
     def key(self) -> tuple:
         """Where the option sits in a scene file."""

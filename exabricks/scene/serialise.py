@@ -35,8 +35,7 @@ def scene_to_dict(scene: Scene) -> dict:
     }
     for option in SCENE_OPTIONS:
         if option.target:
-            part, _, attribute = option.target.partition(".")
-            value = getattr(getattr(scene, part), attribute)
+            value = option.value_in(scene)
             if value is not None:
                 node = out
                 for key in option.key[:-1]:
