@@ -91,7 +91,7 @@ def _dtype() -> np.dtype:
     names, formats, offsets, at = [], [], [], 0
     for name, ctype in PARAMS:
         dtype = np.dtype(_C_TYPES[ctype])
-        at = -(-at // dtype.itemsize) * dtype.itemsize if ctype != "float4" else -(-at // 16) * 16
+        at = -(-at // dtype.itemsize) * dtype.itemsize
         names.append(name)
         formats.append(dtype)
         offsets.append(at)

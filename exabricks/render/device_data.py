@@ -395,8 +395,10 @@ class DeviceDataset:
             self.brick_tree_seconds = time.perf_counter() - start
             words = Grouped(np.float32)
             layout = {"tree_lower_at": words.add(tree.lower), "tree_upper_at": words.add(tree.upper),
-                      "tree_link_at": words.add(_packed(np.int32, tree.first, tree.count), align=2),
-                      "tree_brick_at": words.add(np.asarray(tree.brick_index, np.int32)),
+                      "tree_link_at": words.add(_packed(np.int32, tree.first, tree.count)
+                                                .view(np.float32), align=2),
+                      "tree_brick_at": words.add(np.asarray(tree.brick_index, np.int32)
+                                                 .view(np.float32)),
                       "n_tree_nodes": tree.first.shape[0]}
             self._location_args = opencl.to_device(self.queue, words.array()), layout
         return self._location_args

@@ -18,12 +18,10 @@ class Grouped:
         self.size = 0
 
     def add(self, array, align: int = 1) -> int:
-        """Append `array` (any shape; an element size equal to dtype's is taken
-        bit for bit, other numbers are converted) and return its offset."""
-        part = np.ascontiguousarray(array)
-        part = part.view(self.dtype) if part.dtype.itemsize == self.dtype.itemsize \
-            and part.dtype != self.dtype and part.dtype.kind != self.dtype.kind \
-            else part.astype(self.dtype, copy=False)
+        """Append `array` (any shape; its numbers converted to dtype: a part read
+        as another type is passed as a view, `ints.view(np.float32)`) and return
+        its offset."""
+        part = np.ascontiguousarray(array, self.dtype)
         at = -(-self.size // align) * align
         if at > self.size:
             self.parts.append(np.zeros(at - self.size, self.dtype))
