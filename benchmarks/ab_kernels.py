@@ -134,10 +134,12 @@ class Version:
         return cells
 
     def renderer(self, fields, **kw):
-        try:
-            module = self.module("render.renderer")
-        except ModuleNotFoundError:  # a base from before exabricks.render (19d5715)
-            module = self.module("stages.render")
+        for name in ("engine.renderer", "render.renderer", "stages.render"):
+            try:  # the package's name for it now, before the library's eb.render, before 19d5715
+                module = self.module(name)
+                break
+            except ModuleNotFoundError:
+                continue
         return module.Renderer(*self.structures, fields=fields, **kw)
 
     def scene(self, scene_file: Path, flags: dict):

@@ -77,7 +77,7 @@ def child(name: str, kernels: str | None) -> None:
     from exabricks.stages.brick import build_bricks
     from exabricks.stages.bvh import build_bvh
     from exabricks.stages.regions import build_regions
-    from exabricks.render.renderer import Renderer
+    from exabricks.engine.renderer import Renderer
     from exabricks.transfer_function import TransferFunction
 
     if kernels:

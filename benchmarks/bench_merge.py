@@ -37,7 +37,7 @@ from exabricks import schema
 from exabricks.camera import default_camera
 from exabricks.stages.bvh import build_bvh
 from exabricks.stages.regions import EXACT, Merge, build_regions
-from exabricks.render.renderer import Renderer
+from exabricks.engine.renderer import Renderer
 from exabricks.transfer_function import default_transfer_function
 
 ROOT = Path(__file__).resolve().parents[1]

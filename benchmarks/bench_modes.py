@@ -8,7 +8,7 @@ regions, bvh; cached under bench-data/gallery/<dataset>/ as by benchmarks/galler
 not timed). Each mode is a list of `exabricks render` flags (MODES below, printed
 by --list), parsed by the CLI's own option parser and turned into a Scene by
 exabricks.scene.scene_from_options, exactly as `exabricks render` does; the
-frame is then drawn in-process by exabricks.render.renderer.Renderer(bricks,
+frame is then drawn in-process by exabricks.engine.renderer.Renderer(bricks,
 regions, bvh, fields=scene.fields()).render_scene(scene): one Renderer per set
 of fields (uploaded once), one warm-up frame per mode (it also builds the
 program variant), then --runs rounds of one timed frame of every mode (so that
@@ -38,7 +38,7 @@ from benchmarks import gallery
 
 from exabricks import schema
 from exabricks.scene import FLAGS, scene_from_options
-from exabricks.render.renderer import Renderer
+from exabricks.engine.renderer import Renderer
 
 ROOT = Path(__file__).resolve().parents[1]
 

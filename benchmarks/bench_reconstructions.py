@@ -61,7 +61,7 @@ from exabricks import schema
 from exabricks.camera import default_camera
 from exabricks.scene import FLAGS, RECONSTRUCTIONS, scene_from_options, scene_to_dict
 from exabricks.stages.compare import compare_images
-from exabricks.render.renderer import Renderer
+from exabricks.engine.renderer import Renderer
 from exabricks.transfer_function import default_transfer_function
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -496,7 +496,7 @@ central differences -- six more lookups per sample -- so its headlight frames co
 {nearest_lo:.1f}-{nearest_hi:.1f}x its unshaded ones here; vertex is one trilinear lookup in the
 one brick that holds the point instead of the hat sums over every brick of the region's list,
 and its analytic gradient comes with it. "vertex values" is the one-off device pass that makes
-the stitched corner values (`DeviceDataset.vertex_args`, exabricks/render/vertex.py), which the
+the stitched corner values (`DeviceDataset.vertex_args`, exabricks/engine/vertex.py), which the
 first vertex frame would otherwise do; a `Renderer` keeps them for every later frame. The
 programs of this table were already in pyopencl's cache; a variant built for the first time
 (each reconstruction is a separate program, and so are frames with iso-surfaces or slices)

@@ -38,7 +38,7 @@ from benchmarks import benchdoc
 
 from exabricks import opencl, schema
 from exabricks.camera import default_camera
-from exabricks.render.renderer import TRAVERSALS, Renderer
+from exabricks.engine.renderer import TRAVERSALS, Renderer
 from exabricks.transfer_function import default_transfer_function
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -5,7 +5,7 @@ frame and spills that its compiler reports.
     .venv/bin/python -m benchmarks.kernel_resources [--device SPEC]
 
 Each variant is the render kernel (kernels/render.cl, eb_render) built with the
-defines that exabricks.render.renderer.Renderer passes for a mode (one field, the basis
+defines that exabricks.engine.renderer.Renderer passes for a mode (one field, the basis
 reconstruction unless named), or the uniform-grid marcher (kernels/uniform_grid.cl).
 Every variant is built afresh (into an empty pyopencl binary cache, so that the
 driver writes its build log), with exabricks.opencl.BUILD_OPTIONS, plus -cl-nv-verbose on

@@ -144,7 +144,7 @@ def child(name: str, packets: bool, size: int, frames: int, view: str, rate: flo
     """Render under the parent's perf record: a -g build, one warm-up frame, `frames` frames."""
     from exabricks import opencl, schema
     from exabricks.camera import default_camera
-    from exabricks.render.renderer import Renderer
+    from exabricks.engine.renderer import Renderer
     from exabricks.transfer_function import default_transfer_function
 
     opencl.BUILD_OPTIONS = (*opencl.BUILD_OPTIONS, "-g", "-DEB_PROFILE")

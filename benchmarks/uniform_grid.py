@@ -49,7 +49,7 @@ def finest_grid(data) -> tuple[np.ndarray, np.ndarray]:
 def resample(scene, lower_lattice, dims, *, chunk: int = PROBE_CHUNK) -> np.ndarray:
     """The basis reconstruction of `scene` at every finest-cell centre of a box.
 
-    scene: an exabricks.render.device_data.DeviceDataset; lower_lattice (3,) and dims (3,)
+    scene: an exabricks.engine.device_data.DeviceDataset; lower_lattice (3,) and dims (3,)
     integers, the box as `finest_grid` gives it; chunk: points per probe call.
     Returns float32 (Z, Y, X) = (dims[2], dims[1], dims[0]), x fastest, in the
     field's units; NaN where no cell has support.

@@ -27,7 +27,7 @@ from .scene.options import SCENE_OPTIONS
 PACKET_WIDTH = 8
 # Levels whose samples a --lod frame counts.
 LOD_LEVELS = 16
-# Mip levels kept per brick for level of detail (exabricks.render.lod).
+# Mip levels kept per brick for level of detail (exabricks.engine.lod).
 MAX_MIP = 6
 
 LIMITS = {
@@ -45,7 +45,7 @@ TUNABLES = {
 
 # (name, C type): the members of eb_params in order, each naturally aligned.
 # Offsets ("*_at") count elements of the buffer they index: see DeviceDataset and
-# frame_arrays in exabricks.render.
+# frame_arrays in exabricks.engine.
 PARAMS = (
     # camera (world) and the world -> lattice map
     ("cam_origin", "float4"), ("cam_forward", "float4"), ("cam_du", "float4"),

@@ -2,7 +2,7 @@
 one frame with N processes (docs/design.md, "Data-parallel rendering and MPI").
 
 * ``data`` mode (the default for N > 1): the space is cut into N domains by a
-  k-d partition (exabricks.render.partition), each rank keeps the structures of
+  k-d partition (exabricks.engine.partition), each rank keeps the structures of
   its domain only and renders exactly the samples inside it; the domains' images
   are composited sort-last in visibility order by direct send (IceT's simplest
   strategy, and yt's `reduce_tree_images` does the same front-to-back "over"):
@@ -147,7 +147,7 @@ def load_for(mode: str, bricks_path, regions_path, bvh_path):
     partition.domain_data checks what it takes) and the bvh only checked to be
     one of the same regions; else loaded as for one process (load_structures)."""
     from . import schema
-    from .render.device_data import check_chain, load_structures
+    from .engine.device_data import check_chain, load_structures
 
     if mode != "data":
         return load_structures(bricks_path, regions_path, bvh_path)
@@ -190,8 +190,8 @@ class ParallelRenderer:
     def __init__(self, comm, bricks, regions, bvh, scene, *, device=None, mode: str = "data",
                  where=("the bricks", "the regions")):
         from . import schema
-        from .render.device_data import DatasetScale
-        from .render.renderer import Renderer
+        from .engine.device_data import DatasetScale
+        from .engine.renderer import Renderer
 
         if mode not in MODES:
             raise ExabricksError(f"unknown MPI mode {mode!r} (one of {', '.join(MODES)})")
@@ -206,7 +206,7 @@ class ParallelRenderer:
         if self.mode == "image":
             self.renderer = Renderer(bricks, regions, bvh, fields=fields, device=device)
             return
-        from .render.partition import kd_partition, domain_data, domain_options
+        from .engine.partition import kd_partition, domain_data, domain_options
 
         self.partition = kd_partition(bricks, regions, self.size)
         for whole in (bricks, regions):  # the partition read them all: only the domain now
@@ -221,7 +221,7 @@ class ParallelRenderer:
                                  scale=DatasetScale.of(bricks, fields))
 
     def render_scene(self, scene):
-        from .render.renderer import RenderResult, over_background
+        from .engine.renderer import RenderResult, over_background
 
         start = time.perf_counter()
         if self.mode == "image":
@@ -258,7 +258,7 @@ class ParallelRenderer:
         return rgba, depth, dict(result.stats)
 
     def _data(self, scene):
-        from .render.partition import composite, eye_lattice
+        from .engine.partition import composite, eye_lattice
 
         cfg = scene.settings
         width, height, spp = int(cfg.width), int(cfg.height), int(cfg.spp)

@@ -13,6 +13,12 @@ import numpy as np
 import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
+
+# Sources' built structures go to a cache of this test process, never the user's.
+if "EXABRICKS_CACHE" not in os.environ:
+    import tempfile
+
+    os.environ["EXABRICKS_CACHE"] = tempfile.mkdtemp(prefix="exabricks-test-cache-")
 PACKAGE_DATA = ROOT / "exabricks" / "data"
 
 

@@ -1,5 +1,6 @@
 """The package's structure as the contributing rules state it (issue 33): no
-import cycles between its modules, function-level imports included, and no
+import cycles between its modules, function-level imports included (not the
+`if TYPE_CHECKING:` names of the package's lazy facade, which never run), and no
 private name imported from another module."""
 
 from __future__ import annotations
@@ -22,7 +23,11 @@ def _imports(name: str, path: Path, modules) -> list[tuple[str, str]]:
     """(module imported, name imported from it or '') of every import in `path`."""
     package = name if path.name == "__init__.py" else name.rpartition(".")[0]
     out = []
-    for node in ast.walk(ast.parse(path.read_text())):
+    tree = ast.parse(path.read_text())
+    for block in [n for n in ast.walk(tree) if isinstance(n, ast.If)
+                  and ast.unparse(n.test) in ("TYPE_CHECKING", "typing.TYPE_CHECKING")]:
+        block.body = []  # names for type checkers only: never imported when the code runs
+    for node in ast.walk(tree):
         if isinstance(node, ast.ImportFrom):
             base = node.module or ""
             if node.level:

@@ -33,8 +33,8 @@ from exabricks.stages.brick import build_bricks  # noqa: E402
 from exabricks.stages.bvh import build_bvh  # noqa: E402
 from exabricks.stages.compare import compare_images  # noqa: E402
 from exabricks.stages.regions import build_regions  # noqa: E402
-from exabricks.render.renderer import Renderer  # noqa: E402
-from exabricks.render.device_data import DeviceDataset  # noqa: E402
+from exabricks.engine.renderer import Renderer  # noqa: E402
+from exabricks.engine.device_data import DeviceDataset  # noqa: E402
 from exabricks.transfer_function import TransferFunction, default_transfer_function  # noqa: E402
 
 SIZE = 64

@@ -1,6 +1,6 @@
 """The cell-location variant of the renderer (paper §6.4.2, Table 3).
 
-The tree over the brick supports (exabricks.render.cell_location) finds, for
+The tree over the brick supports (exabricks.engine.cell_location) finds, for
 any point, exactly the bricks whose support contains it; a renderer that finds
 each sample's bricks through it (kernels/cell_location.cl) takes the same
 samples and makes the same frame as the default, which reads the region's
@@ -14,8 +14,8 @@ import numpy as np
 import pytest
 
 from exabricks.errors import ExabricksError
-from exabricks.render.cell_location import build_brick_tree, support_boxes
-from exabricks.render.renderer import Renderer
+from exabricks.engine.cell_location import build_brick_tree, support_boxes
+from exabricks.engine.renderer import Renderer
 
 from conftest import AMREX, ENZO, GERRIS, DEVICES, built_scene
 

@@ -22,7 +22,7 @@ import pytest
 from exabricks import schema
 from exabricks.stages.brick import build_bricks
 from exabricks.stages.bvh import build_bvh
-from exabricks.render.cell_location import build_brick_tree
+from exabricks.engine.cell_location import build_brick_tree
 from exabricks.stages.ingest import amr_from_uniform, cell_statistics, find_overlap, validate_cells
 from exabricks.stages.regions import build_regions
 

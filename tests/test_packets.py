@@ -21,7 +21,7 @@ from exabricks import schema
 from exabricks.camera import default_camera
 from exabricks.readers import read
 from exabricks.scene import Clip, IsoSurface, Lighting, Scene, Settings, Slice, VolumeLayer
-from exabricks.render.renderer import PACKET_WIDTH, Renderer
+from exabricks.engine.renderer import PACKET_WIDTH, Renderer
 from exabricks.transfer_function import TransferFunction, default_transfer_function, knot_buckets
 
 from conftest import AMREX, ATHENA, ENZO, GERRIS, build, device_param

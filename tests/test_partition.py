@@ -1,4 +1,4 @@
-"""Data-parallel rendering (exabricks.render.partition, issue 12): the domains of a
+"""Data-parallel rendering (exabricks.engine.partition, issue 12): the domains of a
 k-d partition each render exactly their samples, and their images composited
 front to back in visibility order give the whole frame, in process (the MPI
 runs are tests/test_mpi.py).
@@ -16,10 +16,10 @@ import functools
 import numpy as np
 import pytest
 
-from exabricks.render.device_data import DatasetScale
-from exabricks.render.partition import (_meeting, composite, eye_lattice, kd_partition,
+from exabricks.engine.device_data import DatasetScale
+from exabricks.engine.partition import (_meeting, composite, eye_lattice, kd_partition,
                                          domain_data, domain_options, region_blocks)
-from exabricks.render.renderer import Renderer, over_background
+from exabricks.engine.renderer import Renderer, over_background
 
 from conftest import device_param
 from test_packets import DATASETS, loaded, renderer, scene_for

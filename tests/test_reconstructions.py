@@ -11,9 +11,9 @@ from exabricks.readers import read
 from exabricks.scene import IsoSurface, Scene, Settings
 from exabricks.stages.brick import build_bricks
 from exabricks.stages.bvh import build_bvh
-from exabricks.render.device_data import DeviceDataset
+from exabricks.engine.device_data import DeviceDataset
 from exabricks.stages.regions import build_regions
-from exabricks.render.renderer import Renderer
+from exabricks.engine.renderer import Renderer
 
 from conftest import AMREX, GERRIS, built_scene, device_param, run_cli
 
@@ -269,7 +269,7 @@ def test_lod_refuses_other_reconstructions(device):
 
 def vertex_reference(cells: schema.Cells, points_lattice: np.ndarray, field: int = 1):
     """float64 reference of the vertex reconstruction, written from its definition
-    (docs/design.md) and independent of exabricks.render.vertex: the value at a
+    (docs/design.md) and independent of exabricks.engine.vertex: the value at a
     point is the trilinear interpolation of its leaf cell's corner values, and a
     corner's value, seen from a cell of level l, is the trilinear value in the
     coarsest leaf cell of a coarser level whose closed box contains it (recursively,

@@ -20,7 +20,7 @@ import pytest
 from exabricks import kernel_abi, opencl, schema
 from exabricks.camera import Camera, default_camera
 from exabricks.readers import read
-from exabricks.render.renderer import Renderer
+from exabricks.engine.renderer import Renderer
 from exabricks.transfer_function import TransferFunction
 
 import reference

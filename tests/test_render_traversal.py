@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 
 from exabricks.errors import ExabricksError
-from exabricks.render.renderer import TRAVERSALS, Renderer
+from exabricks.engine.renderer import TRAVERSALS, Renderer
 
 from conftest import AMREX, ATHENA, GERRIS, DEVICES, built_scene
 

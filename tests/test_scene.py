@@ -484,7 +484,7 @@ def test_cli_usage_errors_and_depth_with_png(trio, tmp_path):
 
 
 def _render_scene_exists() -> bool:
-    from exabricks.render import renderer
+    from exabricks.engine import renderer
 
     return hasattr(renderer, "render_scene")
 

@@ -1,5 +1,5 @@
 """Rendering under a memory budget, progressively and against a time limit
-(exabricks.render.streaming, issue 11).
+(exabricks.engine.streaming, issue 11).
 
 A budgeted frame is drawn domain by domain, each domain's rays continuing from the
 image composited in front of it, so it takes the in-memory frame's samples and
@@ -19,10 +19,11 @@ import pytest
 
 from exabricks.errors import ExabricksError
 from exabricks.image_io import read_image
-from exabricks.render.partition import domain_plan, domain_bytes
-from exabricks.render.renderer import Renderer
-from exabricks.render.streaming import (PER_BRICK, SLACK, Budgeted, Resident, image_bytes,
-                                        parse_size, render_steps, render_tiled)
+from exabricks.sizes import parse_size
+from exabricks.engine.partition import domain_plan, domain_bytes
+from exabricks.engine.renderer import Renderer
+from exabricks.engine.streaming import (PER_BRICK, SLACK, Budgeted, Resident, image_bytes,
+                                        render_steps, render_tiled)
 
 from conftest import GERRIS, assert_one_error_line, peak_rss
 from test_mpi import files_of

@@ -36,7 +36,7 @@ from exabricks import schema
 from exabricks.camera import Camera, default_camera
 from exabricks.readers import read
 from exabricks.scene import Clip, IsoSurface, Lighting, Scene, Settings, Slice, VolumeLayer
-from exabricks.render.renderer import Renderer
+from exabricks.engine.renderer import Renderer
 from exabricks.transfer_function import TransferFunction
 
 import reference

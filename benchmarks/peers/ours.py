@@ -80,7 +80,7 @@ def scene_paths(spec: dict) -> dict:
 def worker_prepare(spec: dict) -> dict:
     """The offline stages (ingest, brick, regions, bvh) in memory, saved as .npz; the view."""
     from exabricks import schema
-    from exabricks.render.device_data import finest_cell_width_world
+    from exabricks.engine.device_data import finest_cell_width_world
 
     cells, bricks, regions, bvh, t_read, t_build = build_scene(Path(spec["path"]), spec["field"])
     camera, tf, bounds, value_range = view_of(cells, spec["alpha_scale"])
@@ -113,8 +113,8 @@ def worker_exabricks(spec: dict) -> dict:
     from exabricks import kernel_abi, opencl
     from exabricks.camera import Camera
     from benchmarks import uniform_grid
-    from exabricks.render.cell_location import build_brick_tree
-    from exabricks.render.renderer import Renderer
+    from exabricks.engine.cell_location import build_brick_tree
+    from exabricks.engine.renderer import Renderer
     from exabricks.transfer_function import TransferFunction
 
     field, size, runs, unit = spec["field"], spec["size"], spec["runs"], spec["unit_distance"]

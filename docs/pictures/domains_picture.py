@@ -4,7 +4,7 @@ domain renders, and their composite against the one-process frame.
     .venv/bin/python docs/pictures/domains_picture.py [--ranks 4] [--size 320]
 
 Runs the domains in one process, exactly as `mpiexec -n N exabricks render` splits
-them (exabricks.render.partition: the k-d domains, each domain's cropped share,
+them (exabricks.engine.partition: the k-d domains, each domain's cropped share,
 its frame of the samples inside it), on the Athena++ blast (rho, the gallery's
 camera and transfer function, no early termination). Writes
 docs/images/workflow-domains-K.png (domain K alone, premultiplied over the dark
@@ -36,10 +36,10 @@ def main(argv=None) -> int:
     from exabricks import schema
     from exabricks.image_io import write_image
     from exabricks.scene import scene_from_options
-    from exabricks.render.device_data import DatasetScale
-    from exabricks.render.partition import (composite, eye_lattice, kd_partition, domain_data,
+    from exabricks.engine.device_data import DatasetScale
+    from exabricks.engine.partition import (composite, eye_lattice, kd_partition, domain_data,
                                             domain_options)
-    from exabricks.render.renderer import Renderer, over_background
+    from exabricks.engine.renderer import Renderer, over_background
 
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--ranks", type=int, default=4)

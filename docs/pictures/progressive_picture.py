@@ -5,7 +5,7 @@ the first sample, and the final average of every sample, as `render
 
     .venv/bin/python docs/pictures/progressive_picture.py [--domains 8] [--size 320]
 
-Runs exabricks.render.streaming in one process on the Athena++ blast (rho, the
+Runs exabricks.engine.streaming in one process on the Athena++ blast (rho, the
 camera and transfer function of docs/pictures/domains_picture.py, default early ray
 termination) with a budget that holds at most 1/--domains of the data per domain.
 Writes docs/images/budget-progress.png (the four images side by side, over the
@@ -33,9 +33,9 @@ def main(argv=None) -> int:
     from exabricks import schema
     from exabricks.image_io import write_image
     from exabricks.scene import scene_from_options
-    from exabricks.render.partition import domain_plan, domain_bytes
-    from exabricks.render.renderer import Renderer, over_background
-    from exabricks.render.streaming import PER_BRICK, SLACK, Budgeted, image_bytes, render_steps
+    from exabricks.engine.partition import domain_plan, domain_bytes
+    from exabricks.engine.renderer import Renderer, over_background
+    from exabricks.engine.streaming import PER_BRICK, SLACK, Budgeted, image_bytes, render_steps
 
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--domains", type=int, default=8)

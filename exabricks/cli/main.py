@@ -26,6 +26,7 @@ COMMANDS = (
     "info",
     "devices",
     "camera",
+    "cache",
 )
 
 

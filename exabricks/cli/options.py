@@ -38,10 +38,10 @@ def finite(ctx, param, value):
 
 
 def size(ctx, param, text):
-    """Callback: a size in bytes ("2G", "512MiB"; exabricks.render.streaming.parse_size)."""
+    """Callback: a size in bytes ("2G", "512MiB"; exabricks.sizes.parse_size)."""
     if text is None:
         return None
-    from ..render.streaming import parse_size
+    from ..sizes import parse_size
 
     try:
         return parse_size(text)
@@ -126,3 +126,134 @@ def _click_option(o):
 
 # --field of render, probe and the viewer: the render option's one declaration.
 field_option = declared(*(o for o in SCENE_OPTIONS if o.name == "field"))
+
+
+# ---------------------------------------------------------------------------
+# ingest's options: of `ingest`, and of the commands that take a source
+# (render, probe), which build through ingest with them.
+
+
+def _name_equals(kind: str):
+    def convert(ctx, param, values):
+        out = []
+        for v in values:
+            key, sep, rest = v.partition("=")
+            if not sep or not key or not rest:
+                raise click.BadParameter(f"{v!r} is not {kind}", ctx=ctx, param=param)
+            out.append((key, rest))
+        return tuple(out)
+    return convert
+
+
+def _names(ctx, param, values):
+    """Repeatable, comma-separated names, in order."""
+    return tuple(n for v in values for n in v.split(",") if n)
+
+
+def ingest_options(*field_flags: str):
+    """The ingest options (their one declaration); `field_flags` name the field
+    selection (`ingest --field`; `--fields` where `--field` is the rendered field)."""
+    from ..readers import FORMATS
+    from ..readers.raw import BYTE_ORDERS, DTYPES
+    from ..stages.ingest import AUTO_MASK_FIELD, NAN_POLICIES
+
+    options = [
+        click.option("--format", "fmt", type=click.Choice(("auto", *FORMATS)), default="auto",
+                     show_default=True, help="Input format; auto tells it from the path."),
+        click.option(*field_flags, "fields", multiple=True, metavar="NAME[,NAME...]", callback=_names,
+                     help="Keep only these fields (repeatable; default: all fields of the input)."),
+        click.option("--scalars", multiple=True, metavar="NAME=FILE", callback=_name_equals("NAME=FILE"),
+                     help="exajet: field NAME from FILE (repeatable; default: the STEM.NAME.scalars "
+                     "siblings)."),
+        click.option("--dims", nargs=3, type=click.IntRange(min=1), default=None, metavar="X Y Z",
+                     help="raw: voxels per axis, x fastest in the file."),
+        click.option("--dtype", type=click.Choice(DTYPES), default="float32", show_default=True,
+                     help="raw: voxel type."),
+        click.option("--byte-order", type=click.Choice(tuple(BYTE_ORDERS)), default="little",
+                     show_default=True, help="raw: byte order of the voxels."),
+        click.option("--name", "raw_name", default="value", show_default=True, help="raw: field name."),
+        click.option("--max-level", type=click.IntRange(min=0), default=None,
+                     help="raw: coarsest level to merge to [default: as coarse as the dims allow]."),
+        click.option("--threshold", type=click.FloatRange(min=0), callback=finite, default=0.0,
+                     show_default=True, help="raw: a 2x2x2 group merges when max - min of its voxels "
+                     "is at most this (absolute, in data units)."),
+        click.option("--magnitude", multiple=True, metavar="NAME=A,B,C",
+                     callback=_name_equals("NAME=A,B,C"),
+                     help="Add field NAME = |(A, B, C)| from component fields (repeatable)."),
+        click.option("--nan", "nan_policy", type=click.Choice(NAN_POLICIES), default="error",
+                     show_default=True, help="NaN/Inf values: error; zero (replace by 0); drop "
+                     "(remove those cells); keep (store unchanged)."),
+        click.option("--mask", "mask", default=None, metavar="FIELD",
+                     help="Drop the cells where FIELD == 0 (they become holes, e.g. the body of an "
+                     f"embedded-boundary plotfile). Default: {AUTO_MASK_FIELD} when the input has it."),
+        click.option("--no-mask", "no_mask", is_flag=True,
+                     help=f"Keep every cell: no automatic --mask {AUTO_MASK_FIELD}."),
+    ]
+
+    def apply(command):
+        for option in reversed(options):
+            command = option(command)
+        return command
+    return apply
+
+
+INGEST_KEYS = ("fmt", "fields", "scalars", "dims", "dtype", "byte_order", "raw_name", "max_level",
+               "threshold", "magnitude", "nan_policy", "mask", "no_mask")
+
+
+def ingest_kwargs(options: dict) -> dict:
+    """The ingest stage's keyword arguments from the click values of `ingest_options`
+    (popped from `options`)."""
+    v = {k: options.pop(k) for k in INGEST_KEYS}
+    if v["mask"] is not None and v["no_mask"]:
+        raise click.UsageError("--mask and --no-mask exclude each other")
+    return {"format": v["fmt"], "fields": v["fields"], "scalars": dict(v["scalars"]) or None,
+            "dims": v["dims"], "dtype": v["dtype"], "byte_order": v["byte_order"],
+            "name": v["raw_name"], "max_level": v["max_level"], "threshold": v["threshold"],
+            "magnitude": v["magnitude"], "nan_policy": v["nan_policy"], "mask": v["mask"],
+            "auto_mask": not v["no_mask"]}
+
+
+def dataset_arguments(command):
+    """SOURCE | BRICKS REGIONS BVH, with the ingest options and the cache's (the
+    commands that take a dataset: render, probe); `dataset_from` makes it."""
+    command = click.option(
+        "--cache", "cache", default=None, metavar="DIR", type=click.Path(file_okay=False),
+        help="Where a source's built structures are kept [default: $EXABRICKS_CACHE, else "
+        "$XDG_CACHE_HOME/exabricks, else ~/.cache/exabricks].")(command)
+    command = click.option(
+        "--no-cache", "no_cache", is_flag=True,
+        help="Build a source's structures in memory only.")(command)
+    command = ingest_options("--fields")(command)
+    return click.argument("inputs", nargs=-1, required=True, metavar="SOURCE | BRICKS REGIONS BVH",
+                          type=click.Path(exists=True))(command)
+
+
+_FLAG_OF = {"format": "--format", "fields": "--fields", "scalars": "--scalars", "dims": "--dims",
+            "dtype": "--dtype", "byte_order": "--byte-order", "name": "--name",
+            "max_level": "--max-level", "threshold": "--threshold", "magnitude": "--magnitude",
+            "nan_policy": "--nan", "mask": "--mask", "auto_mask": "--no-mask"}
+
+
+def dataset_from(inputs, options: dict, desc: str = "build"):
+    """The exabricks.dataset.Dataset of the arguments of `dataset_arguments` (their
+    values popped from `options`): three structure files, or a source built with
+    the ingest options given (through the cache unless --no-cache)."""
+    from ..dataset import ingest_defaults, open_dataset
+
+    cache, no_cache = options.pop("cache"), options.pop("no_cache")
+    kwargs = ingest_kwargs(options)
+    defaults = ingest_defaults()
+    given = {k: v for k, v in kwargs.items() if v != defaults[k] and not (v == () and not defaults[k])}
+    if len(inputs) == 3:
+        flags = [_FLAG_OF.get(k, k) for k in given] + (["--cache"] if cache is not None else []) \
+            + (["--no-cache"] if no_cache else [])
+        if flags:
+            raise click.UsageError(f"{', '.join(flags)}: only with a source, not with three "
+                                   "structure files")
+    elif len(inputs) != 1:
+        raise click.UsageError(f"give one source or the three structure files BRICKS REGIONS BVH, "
+                               f"not {len(inputs)} inputs")
+    if cache is not None and no_cache:
+        raise click.UsageError("--cache and --no-cache exclude each other")
+    return open_dataset(inputs, given, cache=False if no_cache else cache, desc=desc)

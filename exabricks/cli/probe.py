@@ -1,4 +1,4 @@
-"""`exabricks probe BRICKS REGIONS BVH --points P.npy -o V.npy`: the reconstructed field at points."""
+"""`exabricks probe SOURCE|BRICKS REGIONS BVH --points P.npy -o V.npy`: the reconstructed field at points."""
 
 from __future__ import annotations
 
@@ -9,7 +9,7 @@ from ..errors import ExabricksError
 from ..jsonfile import open_regular
 from ..output import check_output, write_output
 from ..scene import RECONSTRUCTIONS
-from .options import device_option, field_option, input_path, output_option
+from .options import dataset_arguments, dataset_from, device_option, field_option, output_option
 
 
 def _load_points(path) -> np.ndarray:
@@ -33,9 +33,7 @@ def _load_points(path) -> np.ndarray:
 
 
 @click.command()
-@input_path("bricks_path", metavar="BRICKS")
-@input_path("regions_path", metavar="REGIONS")
-@input_path("bvh_path", metavar="BVH")
+@dataset_arguments
 @click.option("--points", "points_path", required=True, type=click.Path(exists=True, dir_okay=False),
               help="World points, a .npy array of shape (N, 3).")
 @field_option
@@ -45,15 +43,18 @@ def _load_points(path) -> np.ndarray:
                    "containing leaf cell; vertex: trilinear in stitched vertex values.")
 @output_option
 @device_option
-def probe(bricks_path, regions_path, bvh_path, points_path, field, reconstruction, output, device):
-    """Reconstructed FIELD at world points (float32 .npy, NaN where no cell has support)."""
-    from ..render.device_data import load_structures
+def probe(inputs, points_path, field, reconstruction, output, device, **options):
+    """Reconstructed FIELD at world points (float32 .npy, NaN where no cell has
+    support) of a SOURCE (anything `ingest` reads, or a cells file; built and
+    cached) or of the three structure files BRICKS REGIONS BVH."""
     from ..stages.probe import probe as probe_points
 
-    inputs = [bricks_path, regions_path, bvh_path, points_path]
-    check_output(output, inputs)
+    check_output(output, [*inputs, points_path])
     points = _load_points(points_path)
-    bricks, regions, bvh = load_structures(bricks_path, regions_path, bvh_path)
+    dataset = dataset_from(inputs, options)
+    inputs = [*dataset.inputs, points_path]
+    check_output(output, inputs)
+    bricks, regions, bvh = dataset.structures()
     values = probe_points(bricks, regions, bvh, points, field=field, device=device,
                           reconstruction=reconstruction)
     def write(tmp):

@@ -34,7 +34,8 @@ def regions(bricks_path, output, exact, visit_cost, brick_cost, max_merged, max_
     whole are kept whole, with the union of their bricks (docs/design.md
     "Merged regions"): far fewer, larger regions on octree-like data.
     """
-    from ..stages.regions import EXACT, Merge, build_regions
+    from ..stages.regions import EXACT, Merge
+    from ..structures import regions_of
 
     check_output(output, [bricks_path])
     given = [name for name, v in (("--visit-cost", visit_cost), ("--brick-cost", brick_cost),
@@ -54,18 +55,5 @@ def regions(bricks_path, output, exact, visit_cost, brick_cost, max_merged, max_
     except ExabricksError as e:
         raise click.UsageError(str(e)) from None
     bricks = schema.load(bricks_path, "bricks", mapped=True, checked=True, digest=True)
-    try:
-        result = build_regions(bricks, merge, piece)
-    except ExabricksError as e:
-        raise ExabricksError(f"{bricks_path}: {e}") from e
-    stats = result.meta["statistics"]
-    meta = schema.make_meta(
-        inputs=[bricks_path],
-        parameters=result.meta["parameters"],
-        statistics=stats,
-        upstream=bricks,
-        # Lets bvh/render/probe check that bricks, regions and BVH belong together.
-        consistency={"n_bricks": bricks.n_bricks, "n_regions": result.n_regions},
-        **{k: v for k, v in result.meta.items() if k == "piece"},
-    )
-    schema.save(output, result.replace(meta=meta), inputs=[bricks_path])
+    regions = regions_of(bricks, [bricks_path], where=bricks_path, merge=merge, piece=piece)
+    schema.save(output, regions, inputs=[bricks_path])

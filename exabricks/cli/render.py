@@ -1,4 +1,4 @@
-"""`exabricks render BRICKS REGIONS BVH -o IMAGE`: one frame of volumes, iso-surfaces
+"""`exabricks render SOURCE|BRICKS REGIONS BVH -o IMAGE`: one frame of volumes, iso-surfaces
 and slices (paper §4-5; docs/scene.md for the scene file and the flags). The
 options are declared once in exabricks.scene.options; the job is
 exabricks.stages.render."""
@@ -10,27 +10,27 @@ import time
 import click
 
 from ..scene.options import FLAGS, JOB_OPTIONS, SCENE_OPTIONS
-from .options import declared, device_option, input_path, output_option
+from .options import dataset_arguments, dataset_from, declared, device_option, output_option
 
 
 @click.command()
-@input_path("bricks_path", metavar="BRICKS")
-@input_path("regions_path", metavar="REGIONS")
-@input_path("bvh_path", metavar="BVH")
+@dataset_arguments
 @output_option
 @declared(*JOB_OPTIONS[:2])
 @declared(*SCENE_OPTIONS)
 @declared(*JOB_OPTIONS[2:])
 @device_option
-def render(bricks_path, regions_path, bvh_path, output, device, **options):
-    """Render BRICKS/REGIONS/BVH into an .exr (float RGBA) or .png image."""
+def render(inputs, output, device, **options):
+    """Render a dataset into an .exr (float RGBA) or .png image: a SOURCE (anything
+    `ingest` reads, with its options, or a cells file; its structures are built and
+    cached) or the three structure files BRICKS REGIONS BVH."""
     from ..errors import UsageError
     from ..stages.render import render_job
 
     started = time.perf_counter()
     flags = {name: options.pop(name) for name in FLAGS}
     try:
-        render_job(bricks_path, regions_path, bvh_path, output, flags=flags, device=device,
-                   started=started, **options)
+        dataset = dataset_from(inputs, options)
+        render_job(dataset, output, flags=flags, device=device, started=started, **options)
     except UsageError as e:  # options that contradict each other: click's usage error
         raise click.UsageError(str(e)) from None

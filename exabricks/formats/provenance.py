@@ -139,7 +139,7 @@ def check_built_from(obj: Kind, where, source: Kind, source_where) -> None:
     records that it was built from `source` (read from `source_where`): the
     regions from the bricks, the BVH from the regions. Files that predate the
     record, or objects built in memory, carry none and are checked by their
-    counts and frames only (exabricks.render.device_data.check_inputs)."""
+    counts and frames only (exabricks.engine.device_data.check_inputs)."""
     recorded = obj.meta.get("built_from")
     recorded = recorded.get("content_sha256") if isinstance(recorded, dict) else None
     actual = source.meta.get("content_sha256")

@@ -4,6 +4,7 @@ the file and the key path (`SceneFile`, `read_scene_file`)."""
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 from ..errors import ExabricksError
@@ -143,13 +144,19 @@ def read_scene_file(path) -> dict:
     """The parsed scene file `path`, validated against the scene schema; one
     ExabricksError `PATH: KEY.PATH: what was expected (found X)` for the first
     mistake in file order (docs/scene.md)."""
+    from ..jsonfile import read_json
+
+    return validate_scene(read_json(path, "scene file", object_pairs_hook=_no_duplicate_keys), path)
+
+
+def validate_scene(doc, name) -> dict:
+    """`doc` (a scene file's object, named `name` in messages) validated against the
+    scene schema: one ExabricksError `NAME: KEY.PATH: ...` for the first mistake."""
     import itertools
 
     import jsonschema
 
-    from ..jsonfile import read_json
-
-    doc = read_json(path, "scene file", object_pairs_hook=_no_duplicate_keys)
+    path = name
     schema = scene_schema()
     if isinstance(doc, dict):  # the top-level lists' limits, before their items are validated
         for key, value in doc.items():
@@ -175,9 +182,15 @@ def read_scene_file(path) -> dict:
 
 class SceneFile:
     """A validated scene file: its object, its name in messages and its folder
-    (the base of the relative paths it holds). `SceneFile(None)` is no file."""
+    (the base of the relative paths it holds). `SceneFile(None)` is no file; a
+    dict is a scene file's object given in Python (eb.render's `scene`), named
+    "scene", its relative paths relative to the working directory."""
 
     def __init__(self, path):
+        if isinstance(path, dict):
+            self.name, self.folder = "scene", Path.cwd()
+            self.doc = validate_scene(_plain(path), "scene")
+            return
         self.name = None if path is None else str(path)
         self.folder = None if path is None else Path(path).parent
         self.doc = {} if path is None else read_scene_file(path)
@@ -230,6 +243,30 @@ class SceneFile:
 
 
 def scene_file_references(path) -> list[Path]:
-    """The files scene file `path` refers to (camera file, preset files), resolved
-    against its folder; ExabricksError naming the key path of a missing one."""
+    """The files scene file `path` (or a scene object) refers to (camera file, preset
+    files), resolved against its folder; ExabricksError naming the key path of a
+    missing one."""
     return SceneFile(path).references()
+
+
+def _plain(doc):
+    """A Python scene object as JSON values (tuples as lists, numpy numbers as numbers),
+    as a file holding it would read."""
+    import json
+
+    import numpy as np
+
+    def default(x):
+        if isinstance(x, np.generic):
+            return x.item()
+        if isinstance(x, np.ndarray):
+            return x.tolist()
+        if isinstance(x, os.PathLike):
+            return os.fspath(x)
+        raise ExabricksError(f"scene: {type(x).__name__} is not a scene-file value")
+
+    return json.loads(json.dumps(doc, default=default), parse_constant=_refuse)
+
+
+def _refuse(name):
+    raise ExabricksError(f"scene: {name} is not a number a scene file may hold")

@@ -1,7 +1,7 @@
 """The scene model: camera, volume layers, iso-surfaces, slices, clipping,
 lighting, background and render settings, and the limits of one frame.
 
-`Scene` is what the renderer consumes (`exabricks.render.renderer.render_scene`).
+`Scene` is what the renderer consumes (`exabricks.engine.renderer.render_scene`).
 Every colour map and transfer function here is already stretched over its data
 range; every position is in world units.
 """

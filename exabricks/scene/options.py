@@ -75,6 +75,97 @@ class Option:
         """Where the option sits in a scene file."""
         return self.scene_key or (self.name,)
 
+    def coerce(self, value):
+        """A Python keyword's `value` as the command line would parse it (eb.render's
+        options): numbers checked against the limits, `nargs` values as a tuple, a
+        repeatable option as a tuple of them (one value alone is accepted);
+        ExabricksError naming the keyword for anything else. None: not given."""
+        if value is None:
+            return None
+        if self.multiple:
+            items = [value] if self._single(value) else list(value)
+            return tuple(self._one(v) for v in items) or None
+        return self._one(value)
+
+    def _single(self, value) -> bool:
+        """Whether `value` is one value of a repeatable option (not a list of them)."""
+        if isinstance(value, (str, bytes)) or not hasattr(value, "__len__"):
+            return True
+        return self.nargs > 1 and len(value) == self.nargs and all(
+            not hasattr(v, "__len__") for v in value)
+
+    def _one(self, value):
+        if self.nargs > 1:
+            if isinstance(value, (str, bytes)) or not hasattr(value, "__len__") \
+                    or len(value) != self.nargs:
+                raise ExabricksError(f"{self.keyword}: expected {self.nargs} values, got {value!r}")
+            return tuple(self._scalar(v) for v in value)
+        return self._scalar(value)
+
+    def _scalar(self, value):
+        import math
+        import os
+
+        bad = ExabricksError(f"{self.keyword}: expected {self._expected()}, got {value!r}")
+        kind = self.kind
+        if kind in ("float", "int"):
+            if isinstance(value, bool) or not isinstance(value, (int, float)) and not hasattr(
+                    value, "__float__"):
+                raise bad
+            number = float(value)
+            if kind == "int":
+                if number != int(number):
+                    raise bad
+                number = int(number)
+            elif self.finite and not math.isfinite(number):
+                raise ExabricksError(f"{self.keyword}: values must be finite numbers, got {value!r}")
+            lo, hi = self.low, self.high
+            if (lo is not None and (number < lo or (self.low_open and number == lo))) or \
+                    (hi is not None and (number > hi or (self.high_open and number == hi))):
+                raise bad
+            return number
+        if kind == "choice":
+            if value not in self.choices:
+                raise bad
+            return value
+        if kind == "flag":
+            if not isinstance(value, bool):
+                raise bad
+            return value
+        if kind == "numbers":
+            values = value.split(",") if isinstance(value, str) else value
+            try:
+                values = tuple(float(v) for v in values)
+            except (TypeError, ValueError):
+                raise bad from None
+            if (self.counts is not None and len(values) not in self.counts) or \
+                    not all(0.0 <= v <= 1.0 for v in values):
+                raise bad
+            return values
+        if kind == "size":
+            from ..sizes import parse_size
+
+            return parse_size(value)
+        if kind == "file":
+            if not isinstance(value, (str, os.PathLike)) or not os.path.isfile(value):
+                raise ExabricksError(f"{self.keyword}: no such file: {value!r}")
+            return os.fspath(value)
+        if not isinstance(value, (str, os.PathLike)):
+            raise bad
+        return os.fspath(value)
+
+    def _expected(self) -> str:
+        if self.kind in ("float", "int"):
+            return self._words()
+        if self.kind == "choice":
+            return _one_of(self.choices)
+        if self.kind == "flag":
+            return "True or False"
+        if self.kind == "numbers":
+            n = " or ".join(map(str, self.counts)) if self.counts else "any number of"
+            return f"{n} numbers in [0, 1]"
+        return "a string"
+
     def schema(self) -> dict:
         """The JSON Schema node of the option's value in a scene file."""
         if self.kind == "choice":

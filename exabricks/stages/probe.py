@@ -12,7 +12,7 @@ import numpy as np
 
 from .. import schema
 from ..errors import ExabricksError
-from ..render.device_data import DeviceDataset
+from ..engine.device_data import DeviceDataset
 
 
 def probe(bricks: schema.Bricks, regions: schema.Regions, bvh: schema.Bvh, points_world,

@@ -1,10 +1,11 @@
-"""A render job: the frames of one `exabricks render` (or `eb.render`) from three
-structure files to image files, by the strategy the options choose (docs/design.md,
-"Render jobs and render options"):
+"""A render job: the frames of one `exabricks render` (or `eb.render`) from a
+dataset (exabricks.dataset.Dataset: three structure files, or a source) to image
+files, by the strategy the options choose (docs/design.md, "Render jobs and
+render options"):
 
 - resident: the dataset uploaded once, each frame drawn whole (`Renderer`);
 - memory-budgeted: the dataset cut into domains by space and streamed
-  (exabricks.render.streaming.Budgeted) when `budget` is given;
+  (exabricks.engine.streaming.Budgeted) when `budget` is given;
 - tiled: the frame drawn a band of tiles at a time into the output file
   (`tile`), progressive rewrites (`progressive`) and a deadline (`time_limit`);
 - MPI: when launched under mpiexec/srun with several ranks
@@ -30,14 +31,14 @@ STEP_FLAGS = {"budget": "--memory-budget", "progressive": "--progressive",
               "time_limit": "--time-limit", "tile": "--tile"}
 
 
-def render_job(bricks_path, regions_path, bvh_path, output, *, flags: dict | None = None,
+def render_job(dataset, output, *, flags: dict | None = None,
                scene_path=None, camera_path=None, path_file=None, frame=None, frames=None,
                mpi_mode: str = "data", budget: int | None = None, progressive: float | None = None,
                time_limit: float | None = None, tile=None, device=None,
                started: float | None = None) -> None:
     """Render the frame(s) of the scene that `scene_path`, `camera_path` and `flags`
-    (exabricks.scene.options.SCENE_OPTIONS by name) describe over the dataset of
-    the three structure files into `output` (.exr or .png; with a camera path
+    (exabricks.scene.options.SCENE_OPTIONS by name) describe over `dataset`
+    (exabricks.dataset.Dataset) into `output` (.exr or .png; with a camera path
     `path_file`, frame `frame` or frames `frames` named by a printf field of
     `output`). `budget` (bytes), `progressive` and `time_limit` (seconds),
     `tile` ((W, H) pixels) and `mpi_mode` choose the strategy (module
@@ -45,9 +46,10 @@ def render_job(bricks_path, regions_path, bvh_path, output, *, flags: dict | Non
     UsageError for options that contradict each other, ExabricksError for bad
     data."""
     from ..scene import check_flags
+    from ..scene.options import normalised_flags
 
     started = time.perf_counter() if started is None else started
-    flags = dict(flags or {})
+    flags = normalised_flags(flags)
     if Path(output).suffix.lower() not in (".exr", ".png"):
         raise UsageError("-o: the image must end in .exr or .png")
     try:
@@ -58,7 +60,7 @@ def render_job(bricks_path, regions_path, bvh_path, output, *, flags: dict | Non
     comm = parallel.world()
     steps = {"budget": budget, "progressive": progressive, "time_limit": time_limit, "tile": tile}
     renderer, scene, jobs, inputs, dataset = parallel.agree(
-        comm, _prepare, bricks_path, regions_path, bvh_path, output, scene_path, camera_path,
+        comm, _prepare, dataset, output, scene_path, camera_path,
         path_file, frame, frames, flags, device, mpi_mode, comm, steps)
     root = comm is None or comm.Get_rank() == 0
     with progress.bar(total=len(jobs), desc="render", unit="frame", disable=not root) as bar:
@@ -67,7 +69,7 @@ def render_job(bricks_path, regions_path, bvh_path, output, *, flags: dict | Non
             frame_scene = scene if cam is None else scene.replace(camera=cam)
 
             def describe(stats, frame_scene=frame_scene, index=index):
-                return _metadata(frame_scene, dataset, path_file, index, stats)
+                return frame_metadata(frame_scene, dataset, path_file, index, stats)
 
             def write(result, image=image, describe=describe):
                 return _write(image, result, describe, inputs)
@@ -87,11 +89,11 @@ def render_job(bricks_path, regions_path, bvh_path, output, *, flags: dict | Non
 
 def _render_tiled(domains, scene, started, image, describe, inputs, budget, progressive,
                   time_limit, tile):
-    """One frame tile by tile (exabricks.render.streaming.render_tiled) into a
+    """One frame tile by tile (exabricks.engine.streaming.render_tiled) into a
     FrameFile beside `image`, rewriting the output every `progressive` seconds
     (after the band that passes them) and stopping after `time_limit`."""
     from ..image_io import FrameFile
-    from ..render.streaming import render_tiled
+    from ..engine.streaming import render_tiled
 
     s = scene.settings
     now = time.perf_counter()
@@ -114,10 +116,10 @@ def _render_tiled(domains, scene, started, image, describe, inputs, budget, prog
 
 
 def _render_steps(domains, scene, started, write, budget, progressive, time_limit, tile):
-    """One frame by steps (exabricks.render.streaming.render_steps), rewriting the
+    """One frame by steps (exabricks.engine.streaming.render_steps), rewriting the
     output every `progressive` seconds and stopping after `time_limit`."""
-    from ..render.renderer import RenderResult
-    from ..render.streaming import render_steps
+    from ..engine.renderer import RenderResult
+    from ..engine.streaming import render_steps
 
     now = time.perf_counter()
     deadline = None if time_limit is None else (started or now) + time_limit
@@ -135,15 +137,15 @@ def _render_steps(domains, scene, started, write, budget, progressive, time_limi
                         on_image=on_image if progressive is not None else None)
 
 
-def _prepare(bricks_path, regions_path, bvh_path, output, scene_path, camera_path, path_file,
+def _prepare(dataset, output, scene_path, camera_path, path_file,
              frame, frames, flags, device, mpi_mode, comm, steps):
     """Check the outputs, load the dataset and make the renderer (this rank's share
-    under MPI; the domains of exabricks.render.streaming for frames by `steps`):
+    under MPI; the domains of exabricks.engine.streaming for frames by `steps`):
     (renderer, scene, frame jobs, input files, dataset metadata)."""
     from ..scene import scene_file_references, scene_from_options
 
-    inputs = [bricks_path, regions_path, bvh_path, camera_path, flags["transfer_function"], scene_path,
-              path_file]
+    inputs = [*dataset.inputs, camera_path, flags["transfer_function"],
+              None if isinstance(scene_path, dict) else scene_path, path_file]
     if scene_path:
         inputs += scene_file_references(scene_path)
     jobs = _frame_jobs(output, path_file, frame, frames)
@@ -153,50 +155,52 @@ def _prepare(bricks_path, regions_path, bvh_path, output, scene_path, camera_pat
     if comm is not None and given:
         raise ExabricksError(f"{', '.join(given)}: not under MPI (the ranks already share the "
                              "data and the frame)")
+    if (steps["budget"] is not None or comm is not None) and dataset.paths is None:
+        raise ExabricksError(f"{'--memory-budget' if comm is None else 'MPI'}: reads the structures "
+                             "from files by parts: render a source through the cache (not --no-cache)")
+    paths = dataset.paths
     if steps["budget"] is not None:
         from ..parallel import load_for
-        from ..render.streaming import Budgeted
+        from ..engine.streaming import Budgeted
 
-        bricks, regions, _ = load_for("data", bricks_path, regions_path, bvh_path)
+        bricks, regions, _ = load_for("data", *paths)
         scene = scene_from_options(bricks, scene_path=scene_path, camera_path=camera_path,
                                    flags=flags)
         schema.release(bricks)  # the default camera and range read every brick's pages
         _check_depth(scene, output)
         domains = Budgeted(bricks, regions, scene, steps["budget"], device=device,
-                          where=(bricks_path, regions_path), tile=steps["tile"])
+                          where=paths[:2], tile=steps["tile"])
         log.info("%s: a memory budget of %s bytes: %d domain(s)", output,
                  f"{steps['budget']:,}", domains.n_domains)
-        return domains, scene, jobs, inputs, _dataset(bricks, bricks_path, regions_path, bvh_path)
+        return domains, scene, jobs, inputs, dataset.describe()
     if comm is None:
-        from ..render.device_data import load_structures
-
-        bricks, regions, bvh = load_structures(bricks_path, regions_path, bvh_path)
+        bricks, regions, bvh = dataset.structures()
     else:
         from ..parallel import load_for, needs_image_mode
 
-        bricks, regions, bvh = load_for(mpi_mode, bricks_path, regions_path, bvh_path)
+        bricks, regions, bvh = load_for(mpi_mode, *paths)
     scene = scene_from_options(bricks, scene_path=scene_path, camera_path=camera_path, flags=flags)
     if comm is not None and mpi_mode == "data" and needs_image_mode(scene):
-        bricks, regions, bvh = load_for("image", bricks_path, regions_path, bvh_path)
+        bricks, regions, bvh = load_for("image", *paths)
     _check_depth(scene, output)
-    dataset = _dataset(bricks, bricks_path, regions_path, bvh_path)
+    described = dataset.describe()
     if comm is None:
-        from ..render.renderer import Renderer
+        from ..engine.renderer import Renderer
 
         renderer = Renderer(bricks, regions, bvh, fields=scene.fields(), device=device)
         if given:
-            from ..render.streaming import Resident
+            from ..engine.streaming import Resident
 
             renderer = Resident(renderer)
     else:
         from ..parallel import ParallelRenderer
 
         renderer = ParallelRenderer(comm, bricks, regions, bvh, scene, device=device,
-                                    mode=mpi_mode, where=(bricks_path, regions_path))
+                                    mode=mpi_mode, where=paths[:2])
         if renderer.reason and comm.Get_rank() == 0:
             log.info("%s: %s need the whole dataset on every rank: image-parallel (--mpi-mode "
                      "image)", output, renderer.reason)
-    return renderer, scene, jobs, inputs, dataset
+    return renderer, scene, jobs, inputs, described
 
 
 def _check_depth(scene, output) -> None:
@@ -204,14 +208,9 @@ def _check_depth(scene, output) -> None:
         raise ExabricksError(f"{output}: a depth image needs .exr output (PNG has no depth channel)")
 
 
-def _dataset(bricks, bricks_path, regions_path, bvh_path) -> dict:
-    """The metadata's dataset: the three files and the sources of the bricks."""
-    return {"bricks": str(bricks_path), "regions": str(regions_path), "bvh": str(bvh_path),
-            "source": bricks.meta.get("inputs", [])}
-
-
-def _metadata(scene, dataset, path_file, index, stats) -> dict:
-    """The metadata of a frame: software, camera, dataset, settings (`stats`), scene."""
+def frame_metadata(scene, dataset, path_file, index, stats) -> dict:
+    """The metadata of a frame: software, camera, dataset (Dataset.describe()),
+    settings (`stats`), scene, and the camera path's file and frame `index`."""
     from ..scene import scene_to_dict
 
     metadata = {

@@ -57,7 +57,7 @@ def vertex_values(bricks: schema.Bricks,
     """(offset int64 (B,), values float32 (F, M)): the stitched vertex values.
 
     basis_at(lattice float64 (K, 3)) -> (F, K) values of the basis field at
-    lattice points (the device probe, exabricks.render.device_data.DeviceDataset.probe_fields).
+    lattice points (the device probe, exabricks.engine.device_data.DeviceDataset.probe_fields).
     """
     offset, total = vertex_layout(bricks)
     lattice = _vertex_lattice(bricks.lower_lattice.astype(np.int64), bricks.level,

@@ -126,7 +126,7 @@ class Renderer:
                  lookup: str = "regions", packets: bool | None = None,
                  domain=None, scale: DatasetScale | None = None):
         """`domain`: (lower, upper) lattice bounds of the half-open box of a domain of
-        a k-d partition (exabricks.render.partition) that these structures are
+        a k-d partition (exabricks.engine.partition) that these structures are
         the share of, `scale` the whole dataset's; frames then hold exactly the
         samples inside the box (docs/design.md, "Data-parallel rendering and MPI")."""
         _check_lookup(lookup)

@@ -4,7 +4,7 @@ and progressive rendering, seed paper 004).
 
 A frame is drawn as steps: for each of its spp samples, each domain of the
 dataset front to back. Under a memory budget the domains are those of a k-d
-partition of space (exabricks.render.partition.budget_partition) whose every
+partition of space (exabricks.engine.partition.budget_partition) whose every
 domain, structures and device copies together, fits the budget; one domain is
 resident at a time, read from the mapped files (only its pages), rendered and
 dropped before the next is read. Each domain's rays continue from the image
@@ -34,12 +34,6 @@ from .partition import (budget_partition, eye_lattice, mib, domain_data, domain_
                         region_blocks)
 from .renderer import Renderer, RenderResult, over_background
 
-# Units of a --memory-budget: binary for K, M, G, T and KiB..TiB (as SLURM's --mem,
-# Java's -Xmx and numfmt --from=iec read them), decimal for kB, MB, GB, TB.
-_UNITS = {"": 1, "b": 1}
-for _i, _p in enumerate("kmgt", start=1):
-    _UNITS.update({_p: 1024 ** _i, _p + "ib": 1024 ** _i, _p + "b": 1000 ** _i})
-
 # A domain's bytes (partition.domain_bytes) times this must fit the budget left
 # after the images: while a domain is made, its copies from the files, its
 # validation, the BVH builder and the upload take about as much again
@@ -48,25 +42,6 @@ SLACK = 2.5
 # Bytes per brick of the whole dataset that making a domain holds whatever its
 # size (partition.domain_data: a mask of the bricks listed and their renumbering).
 PER_BRICK = 5
-
-
-def parse_size(text) -> int:
-    """Bytes of a size written as an integer, or a number with a unit ("512MiB",
-    "8GiB", "2G", "1.5GB"; _UNITS); ExabricksError for anything else."""
-    raw = str(text).strip()
-    number = raw.rstrip("kKmMgGtTiIbB ")
-    unit = raw[len(number):].strip().lower()
-    try:
-        value = float(number)
-    except ValueError:
-        value = float("nan")
-    if unit not in _UNITS or not np.isfinite(value) or value <= 0:
-        raise ExabricksError(f"memory budget {raw!r}: expected a positive size such as "
-                             "1073741824, 512MiB, 8GiB or 2G")
-    nbytes = int(value * _UNITS[unit])
-    if nbytes < 1:
-        raise ExabricksError(f"memory budget {raw!r}: less than one byte")
-    return nbytes
 
 
 def image_bytes(scene, tile=None) -> int:
@@ -79,7 +54,7 @@ def image_bytes(scene, tile=None) -> int:
 
 
 class Resident:
-    """The whole dataset as one resident domain (an exabricks.render.renderer.Renderer)."""
+    """The whole dataset as one resident domain (an exabricks.engine.renderer.Renderer)."""
 
     def __init__(self, renderer: Renderer):
         self.renderer = renderer

@@ -129,7 +129,7 @@ def field_magnitude(values: np.ndarray) -> float:
 class DatasetScale:
     """What a dataset's frames are scaled by: its finest cell width (the default
     unit distance) and each field's magnitude (the gradient scales). A domain of
-    a dataset (exabricks.render.partition) renders with the whole's."""
+    a dataset (exabricks.engine.partition) renders with the whole's."""
 
     finest_width_world: float
     magnitudes: dict  # field name -> magnitude
@@ -167,7 +167,7 @@ class DeviceDataset:
     of `fields` (default: `field`, else the first field) only, one after the
     other (the kernels' field f is fields[f]; the program is built with
     -DEB_N_FIELDS). `scale`: the DatasetScale of the whole dataset when
-    `bricks` are a domain of it (exabricks.render.partition; default: theirs),
+    `bricks` are a domain of it (exabricks.engine.partition; default: theirs),
     so that a domain renders as the whole does."""
 
     def __init__(self, bricks: schema.Bricks, regions: schema.Regions, bvh: schema.Bvh,
@@ -353,7 +353,7 @@ class DeviceDataset:
         return out
 
     def mip_args(self) -> list:
-        """The bricks' mip levels for level of detail (exabricks.render.lod), made and
+        """The bricks' mip levels for level of detail (exabricks.engine.lod), made and
         uploaded on first use."""
         if self._mip_args is None:
             from .lod import brick_mips
@@ -364,7 +364,7 @@ class DeviceDataset:
 
     def vertex_args(self) -> list:
         """The vertex values of every brick for reconstruction "vertex"
-        (exabricks.render.vertex: the basis field at the vertices, stitched at
+        (exabricks.engine.vertex: the basis field at the vertices, stitched at
         level boundaries), made with the device's basis probe on first use."""
         if self._vertex_args is None:
             from .vertex import vertex_values
@@ -383,7 +383,7 @@ class DeviceDataset:
         return [up(q, offset, np.int64), up(q, values, np.float32)], values.shape[1]
 
     def location_args(self) -> tuple:
-        """The tree over the brick supports (exabricks.render.cell_location) as one
+        """The tree over the brick supports (exabricks.engine.cell_location) as one
         buffer of 4-byte words (kernels/dataset.cl) and its eb_params members,
         built and uploaded on the first call (kept as `brick_tree`, its build time
         in `brick_tree_seconds`)."""

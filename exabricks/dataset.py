@@ -1,0 +1,212 @@
+"""A dataset ready to render or probe: its three structures (bricks, regions, BVH),
+from three structure files, from a source built with the builders' defaults
+(and kept in exabricks.cache), or from objects built in memory.
+
+`open_source` is what a source-taking `render`/`probe` and `eb.open` share
+(DESIGN.md "The pipeline"): a source is anything `ingest` reads, with
+`ingest`'s options, or a cells file. Structures come out bit for bit as the
+staged pipeline writes them, so the image is the staged pipeline's.
+"""
+
+from __future__ import annotations
+
+import inspect
+import logging
+import os
+from pathlib import Path
+
+from . import progress, schema
+from .errors import ExabricksError
+
+log = logging.getLogger(__name__)
+
+
+class Dataset:
+    """The three structures of one dataset. Those from files are loaded (mapped and
+    checked) when first used; `paths` are the files, where there are any, which the
+    memory-budgeted and MPI renders read by parts."""
+
+    def __init__(self, structures=None, *, paths=None, source: dict | None = None):
+        if structures is None and paths is None:
+            raise ValueError("a dataset needs its structures or their files")
+        self._structures = structures
+        self.paths = None if paths is None else tuple(Path(p) for p in paths)
+        self.source = source or {}
+
+    @classmethod
+    def from_files(cls, bricks_path, regions_path, bvh_path) -> Dataset:
+        return cls(paths=(bricks_path, regions_path, bvh_path))
+
+    def structures(self) -> tuple[schema.Bricks, schema.Regions, schema.Bvh]:
+        """(bricks, regions, bvh), loaded and checked as render loads them."""
+        if self._structures is None:
+            from .engine.device_data import load_structures
+
+            self._structures = load_structures(*self.paths)
+        return self._structures
+
+    @property
+    def bricks(self) -> schema.Bricks:
+        return self.structures()[0]
+
+    @property
+    def fields(self) -> tuple[str, ...]:
+        """The field names, in file order."""
+        return tuple(self.bricks.fields)
+
+    @property
+    def bounds(self):
+        """The world box of the cells: ((x0, y0, z0), (x1, y1, z1))."""
+        lo, hi = schema.world_bounds(self.bricks)
+        return tuple(lo), tuple(hi)
+
+    @property
+    def levels(self) -> int:
+        """How many refinement levels hold cells."""
+        import numpy as np
+
+        return int(np.unique(self.bricks.level).size)
+
+    @property
+    def inputs(self) -> list:
+        """The files an output must not replace."""
+        files = [self.source["path"]] if "path" in self.source else []
+        return files + list(self.paths or ())
+
+    def describe(self) -> dict:
+        """The image metadata's dataset: the three files (where there are), the source
+        (where built from one) and the inputs the bricks record."""
+        out = {}
+        if self.paths is not None:
+            out.update(zip(("bricks", "regions", "bvh"), map(str, self.paths)))
+        if self.source:
+            out["built_from"] = self.source
+        bricks = self._structures[0] if self._structures else None
+        if bricks is None and self.paths is not None:
+            bricks = schema.load(self.paths[0], "bricks", mapped=True, checked=False)
+        out["source"] = bricks.meta.get("inputs", []) if bricks is not None else []
+        return out
+
+    def __repr__(self) -> str:
+        where = self.source.get("path") or (self.paths[0].parent if self.paths else "memory")
+        return f"<exabricks.Dataset {where}: fields {', '.join(self.fields)}>"
+
+
+def ingest_defaults() -> dict:
+    """The ingest options a source takes, with their defaults (the stage's own)."""
+    from .stages.ingest import ingest
+
+    return {name: p.default for name, p in inspect.signature(ingest).parameters.items()
+            if p.kind is p.KEYWORD_ONLY and name not in ("level_cap", "on_step")}
+
+
+def open_dataset(inputs, options: dict | None = None, *, cache=None, desc: str = "build") -> Dataset:
+    """The dataset of `inputs`: three structure files (BRICKS, REGIONS, BVH), or one
+    source (`open_source`). Under MPI rank 0 builds a source into the cache first
+    and the other ranks then load that entry."""
+    from . import parallel
+
+    if len(inputs) == 3:
+        if options:
+            raise ExabricksError(f"{', '.join(options)}: only with a source, not with three "
+                                 "structure files")
+        return Dataset.from_files(*inputs)
+    if len(inputs) != 1:
+        raise ExabricksError(f"give one source or three structure files, not {len(inputs)} inputs")
+    comm = parallel.world()
+    if comm is not None:
+        if cache is False:
+            raise ExabricksError("--no-cache: under MPI the ranks share a source's structures "
+                                 "through the cache")
+        parallel.agree(comm, lambda: open_source(inputs[0], options, cache=cache, desc=desc)
+                       if comm.Get_rank() == 0 else None)
+    return open_source(inputs[0], options, cache=cache, desc=desc)
+
+
+def open_source(path, options: dict | None = None, *, cache: str | os.PathLike | bool | None = None,
+                desc: str = "build") -> Dataset:
+    """The dataset of source `path` (anything `ingest` reads, or a cells file) built
+    with ingest `options` and the builders' defaults. `cache`: a directory, None
+    for the default (exabricks.cache.default_root), False to build in memory only.
+    A cached entry that fails its checks is built again."""
+    from . import cache as cache_mod
+
+    given = dict(options or {})
+    defaults = ingest_defaults()
+    unknown = sorted(set(given) - set(defaults))
+    if unknown:
+        raise ExabricksError(f"{path}: unknown ingest option(s) {', '.join(unknown)} "
+                             f"(ingest takes {', '.join(defaults)})")
+    if not Path(path).exists():
+        raise ExabricksError(f"{path}: no such file or directory")
+    cells_file = _is_cells_file(path, given)
+    chosen = _normalised({**defaults, **given})
+    about = {"path": str(path), "options": _normalised(given)}
+    if cache is False:
+        structures = _build(path, given, cells_file, desc)
+        return Dataset(structures, source=about)
+    store = cache_mod.Cache(Path(cache) if cache not in (None, True) else cache_mod.default_root())
+    k = cache_mod.key(path, {"cells_file": cells_file, **chosen})
+    paths = store.paths(k)
+    if paths is not None:
+        try:
+            from .engine.device_data import load_structures
+
+            log.debug("%s: structures from the cache (%s)", path, paths[0].parent)
+            return Dataset(load_structures(*paths), paths=paths, source=about)
+        except ExabricksError as e:
+            log.warning("%s: a damaged cache entry (%s): building it again", path, e)
+            store.drop(k)
+    structures = _build(path, given, cells_file, desc)
+
+    def write(directory):
+        for name, obj in zip(cache_mod.FILES, structures):
+            schema.save(directory / name, obj)
+
+    paths = store.put(k, write, about)
+    return Dataset(structures, paths=paths, source=about)
+
+
+def _is_cells_file(path, options) -> bool:
+    """Whether `path` is an exabricks cells file (which takes no ingest option);
+    another exabricks file is refused."""
+    p = Path(path)
+    if p.is_dir() or p.suffix.lower() != ".npz":
+        return False
+    kind, _, _ = schema.peek(p)
+    if kind != "cells":
+        raise ExabricksError(f"{path}: a {kind} file is not a source: give the three structure "
+                             "files BRICKS REGIONS BVH, or a cells file or anything ingest reads")
+    if options:
+        raise ExabricksError(f"{path}: a cells file takes no ingest options "
+                             f"({', '.join(sorted(options))}); ingest the source again")
+    return True
+
+
+def _build(path, options, cells_file: bool, desc: str):
+    """The structures of `path`, built in memory, with a progress bar on a terminal."""
+    from . import structures
+    from .stages.ingest import ingest
+
+    with progress.bar(total=4 if cells_file else 5, desc=desc, unit="step") as bar:
+        if cells_file:
+            cells = schema.load(path, "cells")
+            bar.update()
+        else:
+            cells = ingest(path, **options, on_step=bar.update)
+        return structures.build(cells, where=str(path), on_step=bar.update)
+
+
+def _normalised(options: dict) -> dict:
+    """`options` as JSON values (tuples as lists, paths as strings), for the key."""
+    import json
+
+    return json.loads(json.dumps(options, sort_keys=True, default=_plain))
+
+
+def _plain(x):
+    if isinstance(x, os.PathLike):
+        return os.fspath(x)
+    if isinstance(x, (set, frozenset)):
+        return sorted(x)
+    raise TypeError(f"not JSON serialisable: {type(x).__name__}")
