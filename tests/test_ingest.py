@@ -538,6 +538,132 @@ def test_ingest_stage_returns_checked_cells_with_meta():
 
 
 # ---------------------------------------------------------------------------
+# derived fields: derive=[(NAME, EXPR)], expressions in numexpr's language
+
+
+def gerris_field(name):
+    """A Gerris plume field as float64, straight from its .scalars file."""
+    return np.fromfile(GERRIS.with_name(f"plume7-1.{name}.scalars"), "<f4").astype(np.float64)
+
+
+def test_derive_equals_numpy_in_float64():
+    cells = ingest(GERRIS, derive=[("mix", "(T - P) * V / (1 + U * U) + sqrt(T * T + P * P) / 3")])
+    assert cells.fields == (*GERRIS_FIELDS, "mix")
+    t, p, u, v = (gerris_field(n) for n in "TPUV")
+    expected = ((t - p) * v / (1 + u * u) + np.sqrt(t * t + p * p) / 3).astype(np.float32)
+    np.testing.assert_array_equal(cells.values[-1], expected)
+    assert cells.meta["parameters"]["derive"] == {
+        "mix": "(T - P) * V / (1 + U * U) + sqrt(T * T + P * P) / 3"}
+
+
+def test_derive_with_field_selection_and_mask():
+    # `hot` (a comparison: 1 or 0) masks, `ratio` reads U and W, and only T and ratio are
+    # kept: U, W and hot are read or made, used, then dropped.
+    cells = ingest(GERRIS, fields=["T", "ratio"], mask="hot",
+                   derive={"hot": "T > 0.25", "ratio": "U / W"})
+    t, u, w = (gerris_field(n) for n in "TUW")
+    keep = t > 0.25
+    assert 0 < keep.sum() < len(t)
+    assert cells.fields == ("T", "ratio") and cells.n_cells == keep.sum()
+    np.testing.assert_array_equal(cells.values[0], t[keep].astype(np.float32))
+    np.testing.assert_array_equal(cells.values[1], (u / w)[keep].astype(np.float32))
+    params = cells.meta["parameters"]
+    assert params["derive"] == {"hot": "T > 0.25", "ratio": "U / W"} and params["mask"] == "hot"
+    assert cells.meta["statistics"]["masked_cells"] == len(t) - keep.sum()
+
+
+def test_derive_uses_magnitudes_earlier_fields_functions_and_constants():
+    # a constant is the same at every cell; a name that is no identifier goes in backticks
+    cells = ingest(GERRIS, magnitude={"speed": "U,V,W"}, fields=["k", "k2", "up", "one", "x-y"],
+                   derive=[("k", "0.5 * speed**2"), ("k2", "where(k > 1e-4, log10(k), -4)"),
+                           ("up", "(V > 0) & ~(abs(U) > 0.05)"), ("one", "1"),
+                           ("x-y", "`one` + 1")])
+    u, v, w = (gerris_field(n) for n in "UVW")
+    speed = np.sqrt(u * u + v * v + w * w).astype(np.float32).astype(np.float64)
+    k = (0.5 * speed**2).astype(np.float32)
+    assert cells.fields == ("k", "k2", "up", "one", "x-y")
+    np.testing.assert_allclose(cells.values[0], k, rtol=1e-7)
+    k64 = k.astype(np.float64)  # a derived field reads the earlier ones as stored (float32)
+    np.testing.assert_allclose(cells.values[1], np.where(k64 > 1e-4, np.log10(k64), -4), rtol=1e-6)
+    np.testing.assert_array_equal(cells.values[2], ((v > 0) & ~(np.abs(u) > 0.05)).astype(np.float32))
+    np.testing.assert_array_equal(cells.values[3], np.ones(len(u), np.float32))  # broadcast
+    np.testing.assert_array_equal(cells.values[4], np.full(len(u), 2, np.float32))
+
+
+def test_derive_division_by_zero_meets_the_nan_policy():
+    with pytest.raises(ExabricksError, match=r"field 'r' is -?inf at cell \d+"):
+        ingest(GERRIS, derive=[("r", "1 / (T - T)")])
+    cells = ingest(GERRIS, derive=[("r", "T / 0"), ("z", "0 / 0")], nan_policy="zero",
+                   fields=["r", "z"])
+    assert not cells.values.any()
+    cells = ingest(GERRIS, derive=[("r", "1 / (T - T)")], nan_policy="keep", fields=["r"])
+    assert np.isposinf(cells.values[0]).all()
+
+
+DERIVE_ERRORS = {
+    "unknown field": (("s", "T + x"), "unknown field 'x' (fields: P, T, U, V, W, speed)"),
+    "syntax": (("s", "T +"), "syntax error"),
+    "attribute": (("s", "T.__class__"), "attribute access 'T.__class__' is not allowed"),
+    "attribute call": (("s", "().__class__.__bases__[0]()"), "only functions can be called"),
+    "import": (("s", "__import__('os').system('true')"), "attribute access"),
+    "unknown function": (("s", "foo(T)"), "unknown function 'foo' (functions: abs,"),
+    "builtin": (("s", "eval('1')"), "unknown function 'eval'"),
+    "reduction": (("s", "sum(T)"), "sum is a reduction over all cells"),
+    "arity": (("s", "sqrt(T, U)"), "sqrt takes 1 argument, not 2"),
+    "keywords": (("s", "hypot(T, y=U)"), "hypot takes plain positional arguments"),
+    "input name": (("T", "U * 2"), "a field named 'T' exists already"),
+    "magnitude name": (("speed", "U"), "a field named 'speed' exists already"),
+    "derived twice": (("s", "U"), "a field named 's' exists already"),
+    "string": (("s", "'abc'"), "only real numbers can be constants"),
+    "complex": (("s", "1j * T"), "only real numbers can be constants"),
+    "indexing": (("s", "T[0]"), "indexing 'T[0]' is not allowed"),
+    "lambda": (("s", "(lambda: T)()"), "only functions can be called"),
+    "conditional": (("s", "T if U else V"), "use where(condition, a, b)"),
+    "and": (("s", "(T > 0) and (U > 0)"), "use & and |"),
+    "chained": (("s", "0 < T < 1"), "chained comparisons are not supported"),
+    "floor division": (("s", "T // U"), "operator '//' is not supported"),
+    "xor": (("s", "T ^ 2"), "operator '^' is not supported (** is the power)"),
+    "bitwise on numbers": (("s", "T & U"), "numexpr cannot evaluate it"),
+    "backtick": (("s", "`T + U"), "unmatched backtick"),
+    "empty": (("s", "  "), "empty expression"),
+    "no name": (("", "T"), "the field needs a name"),
+    "newline": (("s", "T\n+ U"), "syntax error"),
+    "nested": (("s", "(" * 300 + "T" + ")" * 300), "derived field 's'"),
+}
+
+
+@pytest.mark.parametrize("fields", [(), ("T",)], ids=["all", "subset"])
+@pytest.mark.parametrize("case", sorted(DERIVE_ERRORS))
+def test_derive_errors_name_the_file_field_and_problem(case, fields):
+    pair, needle = DERIVE_ERRORS[case]
+    derive = [("s", "T")] if case == "derived twice" else []
+    with pytest.raises(ExabricksError) as info:
+        ingest(GERRIS, fields=fields, magnitude={"speed": "U,V,W"}, derive=[*derive, pair])
+    message = str(info.value)
+    assert message.startswith(f"{GERRIS}: derived field {pair[0]!r} = ") and needle in message
+    assert "\n" not in message
+
+
+def test_derive_must_be_name_expression_pairs():
+    for bad in (["s=T"], [("s", "T", "U")], [("s", 1)]):
+        with pytest.raises(ExabricksError, match=r"a derived field is a \(NAME, EXPRESSION\) pair"):
+            ingest(GERRIS, derive=bad)
+
+
+def test_derive_is_checked_before_reading(monkeypatch):
+    from exabricks import readers
+
+    def no_read(*args, **kwargs):
+        raise AssertionError("read")
+
+    monkeypatch.setattr(readers, "read", no_read)
+    with pytest.raises(ExabricksError, match="syntax error"):
+        ingest(GERRIS, derive=[("s", "T +")])
+    with pytest.raises(ExabricksError, match=r"unknown field 'x' \(fields: P, T, U, V, W, speed\)"):
+        ingest(GERRIS, fields=["s"], magnitude={"speed": "U,V,W"}, derive=[("s", "x * speed")])
+
+
+# ---------------------------------------------------------------------------
 # --mask FIELD and the automatic volFrac rule (embedded-boundary bodies become holes)
 
 

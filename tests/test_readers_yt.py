@@ -518,3 +518,79 @@ def test_yt_bridge_errors(tmp_path, monkeypatch):
     monkeypatch.setitem(__import__("sys").modules, "yt", None)
     with pytest.raises(ExabricksError, match=r"yt is not installed: pip install 'exabricks\[yt\]'"):
         yt_bridge.read(ENZO)
+
+
+# ---------------------------------------------------------------------------
+# fields yt derives, through the bridge (cells_from_dataset) and through ingest
+
+
+@pytest.fixture(scope="module")
+def enzo_ds():
+    pytest.importorskip("yt")
+    return yt_bridge.load(ENZO)
+
+
+def test_yt_derived_fields_match_yt(enzo_ds):
+    cells = yt_bridge.cells_from_dataset(
+        enzo_ds, [("gas", "velocity_magnitude"), ("gas", "vorticity_magnitude"), ("enzo", "Density")])
+    assert cells.fields == ("velocity_magnitude", "vorticity_magnitude", "Density")
+    assert cells.meta["source"]["units"] == {"velocity_magnitude": "cm/s", "vorticity_magnitude": "1/s",
+                                             "Density": "code_mass/code_length**3"}
+    # |v| from the on-disk components in float64 (converted to cm/s by yt), cell by cell
+    ad = enzo_ds.all_data()
+    vx, vy, vz = (ad["enzo", f"{a}-velocity"].to("cm/s").d for a in "xyz")
+    np.testing.assert_array_equal(cells.values[0], np.sqrt(vx * vx + vy * vy + vz * vz).astype(np.float32))
+    # the vorticity (finite differences with ghost zones) as yt computes it on its own grids
+    _, lattice, level, values = yt_leaves(ENZO, "gas", ["vorticity_magnitude"])
+    a, b = _sorted(cells.lower_lattice, cells.level), _sorted(lattice, level)
+    np.testing.assert_array_equal(cells.lower_lattice[a], lattice[b])
+    reference = values["vorticity_magnitude"][b]
+    assert np.count_nonzero(reference) > 0.9 * len(reference)
+    np.testing.assert_array_equal(cells.values[1][a], reference.astype(np.float32))
+    # and at a few cells, against the float64 values of ds.all_data()
+    w = ad["gas", "vorticity_magnitude"].d
+    for i in (0, 1000, len(w) // 2, len(w) - 1):
+        assert cells.values[1][i] == np.float32(w[i])
+
+
+def test_yt_derived_field_names(enzo_ds):
+    cells = yt_bridge.cells_from_dataset(
+        enzo_ds, [("gas", "density"), "Density", "gas:velocity_magnitude", ("gas", "x"), ("index", "x")])
+    assert cells.fields == ("density", "Density", "gas:velocity_magnitude", "gas:x", "index:x")
+    units = cells.meta["source"]["units"]
+    assert units["gas:x"] == "cm" and units["index:x"] == "code_length"  # yt's units for each
+    np.testing.assert_allclose(cells.values[3], cells.values[4] * enzo_ds.length_unit.to("cm").d,
+                               rtol=1e-6)
+    assert yt_bridge.field_names(enzo_ds, also=["gas:density", "gas:nope", "Density"])[-1] == "gas:density"
+
+
+def test_yt_derived_field_errors(enzo_ds):
+    with pytest.raises(ExabricksError, match=r"moving7_0010: no field \('gas', 'nope'\) on disk or "
+                                             r"derived by yt \(on disk: Dark_Matter_Density, Density"):
+        yt_bridge.cells_from_dataset(enzo_ds, [("gas", "nope")])
+    with pytest.raises(ExabricksError, match=r"no field 'gas:nope' .*TYPE:NAME"):
+        yt_bridge.cells_from_dataset(enzo_ds, ["gas:nope"])
+    with pytest.raises(ExabricksError, match=r"field 'particle_mass': yt gives \(9233,\) values for "
+                                             r"27077 cells, not one per cell"):
+        yt_bridge.cells_from_dataset(enzo_ds, [("all", "particle_mass")])
+    with pytest.raises(ExabricksError, match="field listed twice"):
+        yt_bridge.cells_from_dataset(enzo_ds, ["Density", ("enzo", "Density")])
+
+
+def test_ingest_derives_from_yt_fields(capfd):
+    from exabricks.stages.ingest import ingest
+
+    expression = "`gas:velocity_magnitude` / abs(`x-velocity`)"
+    cells = ingest(ENZO, fields=["Density", "ratio"], derive=[("ratio", expression)])
+    assert cells.fields == ("Density", "ratio")
+    assert cells.meta["parameters"]["derive"] == {"ratio": expression}
+    ref = yt_bridge.read(ENZO, fields=["gas:velocity_magnitude", "x-velocity", "Density"])
+    speed, vx, density = ref.values.astype(np.float64)
+    np.testing.assert_array_equal(cells.values[0], density.astype(np.float32))
+    np.testing.assert_array_equal(cells.values[1], (speed / np.abs(vx)).astype(np.float32))
+    # every field: the on-disk ones, then the derived one; the yt field it reads is not kept
+    every = ingest(ENZO, derive=[("ratio", expression)])
+    assert every.fields == (*yt_bridge.read(ENZO, fields=None).fields, "ratio")
+    np.testing.assert_array_equal(every.values[-1], cells.values[1])
+    out, err = capfd.readouterr()
+    assert out == "" and err == ""

@@ -13,13 +13,19 @@ volume into AMR.
   from a raw volume.
 
 `add_magnitude` derives a vector-magnitude field from component fields (a user
-option, DESIGN.md "Fields"); `apply_mask` drops the cells where a field is 0
-(the body of an embedded-boundary plotfile, whose `volFrac` is 0 there).
+option, DESIGN.md "Fields"), `parse_expression` and `add_derived` a field given
+by an expression over the others (evaluated by numexpr); `apply_mask` drops the
+cells where a field is 0 (the body of an embedded-boundary plotfile, whose
+`volFrac` is 0 there).
 """
 
 from __future__ import annotations
 
+import ast
+import importlib
+import re
 from collections.abc import Callable, Iterable, Mapping
+from dataclasses import dataclass
 from pathlib import Path
 
 import numba
@@ -70,6 +76,7 @@ def ingest(
     max_level: int | None = None,
     threshold: float = 0.0,
     magnitude: Iterable[tuple[str, str | Iterable[str]]] | Mapping = (),
+    derive: Iterable[tuple[str, str]] | Mapping[str, str] = (),
     nan_policy: str = "error",
     mask: str | None = None,
     auto_mask: bool = True,
@@ -87,6 +94,12 @@ def ingest(
             is an error.
     magnitude: (NAME, "A,B,C" or (A, B, C)) pairs, or a mapping: field NAME =
             sqrt(A² + B² + C²), appended before `fields` selects.
+    derive: (NAME, EXPR) pairs, or a mapping: field NAME = EXPR, an expression in
+            numexpr's language over the fields (`parse_expression`: its names, the
+            functions it may call), evaluated per cell in float64 and stored as float32;
+            appended after the magnitudes, in order, so each may use the magnitudes and
+            the ones before it.  Like a magnitude's components, the fields it reads are
+            read even when `fields` leaves them out.
     nan_policy: one of NAN_POLICIES.
     mask: drop the cells where this field is exactly 0 (compared as stored, float32);
           they become holes.  The field itself stays unless `fields` leaves it out.
@@ -95,9 +108,11 @@ def ingest(
           plotfile stores for level `level_cap` (`readers.amrex.read`; `coarsen` uses it).
     on_step: called after reading and after checking (for a progress bar).
 
-    The order: read, magnitudes, mask, field selection, `validate_cells`.
-    meta: inputs with sha256, parameters (format, fields, nan, mask, mask_auto, and the
-    format's own options), statistics (`cell_statistics`, dropped_nonfinite_cells,
+    The order: read, magnitudes, derived expressions, mask, field selection,
+    `validate_cells` (so an expression's inf or NaN, e.g. from a division by zero, meets
+    `nan_policy`).  Expressions are parsed and checked before anything is read.
+    meta: inputs with sha256, parameters (format, fields, nan, mask, mask_auto, magnitude,
+    derive, and the format's own options), statistics (`cell_statistics`, dropped_nonfinite_cells,
     masked_cells), and the reader's source description.
     Raises ExabricksError naming `path` for bad input or options.
     """
@@ -131,22 +146,49 @@ def ingest(
     pairs = list(magnitude.items()) if isinstance(magnitude, Mapping) else list(magnitude)
     derived = [(k, tuple(c for c in v.split(",") if c) if isinstance(v, str) else tuple(v))
                for k, v in pairs]
-    derived_names = {k for k, _ in derived}
+    expressions = _expressions(derive, [k for k, _ in derived], source=source)
+    derived_names = {k for k, _ in derived} | {e.name for e in expressions}
     if mask is not None and not mask:
         raise ExabricksError(f"{source}: --mask needs a field name")
+    dataset = None
+    if fmt == "yt":
+        # Imported by name, as readers.read imports its readers: yt_bridge.to_amr_grids
+        # builds bricks, and stages.brick imports this module.
+        yt_bridge = importlib.import_module(f"{readers.__name__}.yt_bridge")
+        dataset = yt_bridge.load(path)  # once: its field names and its cells both come from it
 
     read_fields = [f for f in fields if f not in derived_names]
-    if derived and read_fields:
-        # components of a derived field must be read even if not kept
-        read_fields += [c for _, comps in derived for c in comps if c not in read_fields]
+    if (derived or expressions) and fields:
+        # what derived fields are made of must be read even if not kept
+        made_of = [c for _, comps in derived for c in comps] + [n for e in expressions for n in e.fields]
+        read_fields += [c for c in dict.fromkeys(made_of) if c not in read_fields
+                        and c not in derived_names]
     mask_auto = False
-    if read_fields and (mask is not None or auto_mask):
+    names = None
+    helpers: list[str] = []  # fields yt derives that only expressions read: read, not kept
+    if dataset is not None:
+        # The index that yt reads anyway tells the on-disk fields, and which of the
+        # "TYPE:NAME" fields asked for yt derives.
+        refs = [n for e in expressions for n in e.fields]
+        names = yt_bridge.field_names(dataset, also=[*read_fields, *refs, *([mask] if mask else [])])
+        on_disk = yt_bridge.field_names(dataset)
+        if not read_fields and len(names) > len(on_disk):  # all, and some yt derives
+            read_fields = list(names)
+            helpers = [n for n in names[len(on_disk):] if n != mask]
+    elif (read_fields and (mask is not None or auto_mask)) or expressions:
         # A subset is read: the mask field must be part of it even if not kept, and the
-        # automatic rule must know whether the input has AUTO_MASK_FIELD.
+        # automatic rule must know whether the input has AUTO_MASK_FIELD.  An
+        # expression's unknown names are refused before anything is read.
         names = readers.field_names(path, format=fmt, **options)
+    if names is not None:
+        known = [*names, *(k for k, _ in derived)]
+        for e in expressions:
+            check_expression_fields(e, known, source=source)
+            known.append(e.name)
+    if read_fields and (mask is not None or auto_mask):
         if mask is None:
             if names is None:
-                read_fields = []  # cannot tell cheaply (yt): read all, decide below
+                read_fields = []  # cannot tell cheaply: read all, decide below
             elif AUTO_MASK_FIELD in names:
                 mask, mask_auto = AUTO_MASK_FIELD, True
         elif names is not None and mask not in names and mask not in derived_names:
@@ -160,10 +202,18 @@ def ingest(
     with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
         # Readers turn out-of-range values into inf and refuse bad geometry with their
         # own messages; no RuntimeWarning may reach stderr ahead of an error line.
-        cells = readers.read(path, format=fmt, fields=read_fields or None, **options)
+        if dataset is not None:
+            cells = yt_bridge.cells_from_dataset(dataset, read_fields or None, source=source)
+        else:
+            cells = readers.read(path, format=fmt, fields=read_fields or None, **options)
         step()
         for mag_name, comps in derived:
             cells = add_magnitude(cells, mag_name, comps, source=source)
+        for e in expressions:
+            cells = add_derived(cells, e, source=source)
+        if helpers:
+            cells = readers.select_fields(cells, [f for f in cells.fields if f not in helpers],
+                                          source=source)
         if mask is None and auto_mask and AUTO_MASK_FIELD in cells.fields:
             mask, mask_auto = AUTO_MASK_FIELD, True
         n_masked = 0
@@ -188,6 +238,7 @@ def ingest(
             "name": name, "max_level": max_level, "threshold": threshold}
            if fmt == "raw" else {}),
         **({"magnitude": {k: ",".join(c) for k, c in derived}} if derived else {}),
+        **({"derive": {e.name: e.text for e in expressions}} if expressions else {}),
         **({"level_cap": int(level_cap)} if level_cap is not None else {}),
     }
     statistics = {**cell_statistics(cells), "dropped_nonfinite_cells": int(n_read - cells.n_cells),
@@ -513,6 +564,254 @@ def add_magnitude(cells: Cells, name: str, components: tuple[str, ...], *, sourc
         rows.append(cells.values[cells.fields.index(c)].astype(np.float64))
     mag = np.sqrt(sum(r * r for r in rows)).astype(VALUE_DTYPE)
     return cells.replace(fields=(*cells.fields, name), values=np.vstack([cells.values, mag[None]]))
+
+
+FUNCTIONS = {
+    **dict.fromkeys(("abs", "arccos", "arccosh", "arcsin", "arcsinh", "arctan", "arctanh",
+                     "ceil", "cos", "cosh", "exp", "expm1", "floor", "isfinite", "isinf",
+                     "isnan", "log", "log10", "log1p", "log2", "ones_like", "round", "sign",
+                     "signbit", "sin", "sinh", "sqrt", "tan", "tanh", "trunc"), 1),
+    **dict.fromkeys(("arctan2", "copysign", "fmod", "hypot", "maximum", "minimum",
+                     "nextafter"), 2),
+    "where": 3,
+}
+"""The functions a derived field's expression may call, with their argument counts:
+numexpr's element-wise real functions.  Its reductions (sum, prod, min, max) give one
+value for all cells, and its complex and string functions no real value per cell, so
+they are refused as unknown functions."""
+
+_OPERATORS = {ast.Add: "+", ast.Sub: "-", ast.Mult: "*", ast.Div: "/", ast.Pow: "**",
+              ast.Mod: "%", ast.BitAnd: "&", ast.BitOr: "|", ast.BitXor: "^",
+              ast.FloorDiv: "//", ast.LShift: "<<", ast.RShift: ">>", ast.MatMult: "@",
+              ast.USub: "-", ast.UAdd: "+", ast.Invert: "~", ast.Not: "not",
+              ast.Lt: "<", ast.LtE: "<=", ast.Gt: ">", ast.GtE: ">=", ast.Eq: "==",
+              ast.NotEq: "!=", ast.In: "in", ast.NotIn: "not in", ast.Is: "is",
+              ast.IsNot: "is not"}
+# numexpr's `^` is a boolean xor and its `//` a true division: refused, as are the
+# operators numexpr lacks.
+_REFUSED = {"^": " (** is the power)", "//": " (use floor(a / b))", "not": " (use ~)"}
+_ALLOWED = {"+", "-", "*", "/", "**", "%", "&", "|", "~", "<", "<=", ">", ">=", "==", "!="}
+_QUOTED = re.compile(r"`([^`]*)`")
+
+
+@dataclass(frozen=True)
+class Expression:
+    """A derived field NAME = TEXT, parsed and checked by `parse_expression`.
+
+    fields: the field names the expression reads, in order of first use.
+    constants: its numbers (as float64) and truth values, in order.
+    program: the numexpr source that computes it: field i renamed `_v{i}`, constant j
+             `_c{j}`.  numexpr gets the constants as 0-d arrays, not as literals, so
+             that it folds none of them in Python: T / 0 is then inf at every cell (as
+             0 / 0 is NaN) instead of a ZeroDivisionError, and no integer overflows.
+    """
+
+    name: str
+    text: str
+    fields: tuple[str, ...]
+    constants: tuple[float | bool, ...]
+    program: str
+
+    def operands(self, rows: Iterable[np.ndarray]) -> dict[str, np.ndarray]:
+        """numexpr's local_dict: `rows` (one float64 (N,) array per field) and the constants."""
+        named = {f"_v{i}": row for i, row in enumerate(rows)}
+        for j, c in enumerate(self.constants):
+            named[f"_c{j}"] = np.array(c, np.bool_ if isinstance(c, bool) else np.float64)
+        return named
+
+
+def parse_expression(name: str, text: str, *, source: str) -> Expression:
+    """The checked expression of derived field `name` = `text` (no field is looked at yet).
+
+    The language is numexpr's: numbers, field names, + - * / ** %, comparisons
+    (< <= > >= == !=, one per pair of operands), & | ~ on comparisons, parentheses and
+    calls of FUNCTIONS.  A field whose name is not a Python identifier (x-velocity,
+    gas:density) is written between backticks: `x-velocity`.  Everything else
+    (attributes, indexing, strings, keywords such as lambda or if, Python's and/or/not)
+    is refused.  The text is parsed with `ast` and rewritten, never evaluated by
+    Python; numexpr then compiles the rewritten program on a one-cell probe, so a type
+    error (& between numbers) is found here too.
+
+    Raises ExabricksError naming `source`, the field and its expression.
+    """
+    where = _where(source, name, text)
+    if not name:
+        raise ExabricksError(f"{where}: the field needs a name")
+    if "`" in name:
+        raise ExabricksError(f"{where}: a field name cannot hold a backtick")
+    if not text.strip():
+        raise ExabricksError(f"{where}: empty expression")
+    prefix = "_q"
+    while prefix in text:  # placeholders that no identifier of the text can equal
+        prefix += "_"
+    quoted: dict[str, str] = {}
+
+    def placeholder(match):
+        if not match.group(1):
+            raise ExabricksError(f"{where}: empty field name between backticks")
+        return " " + quoted.setdefault(match.group(1), f"{prefix}{len(quoted)}") + " "
+
+    body = _QUOTED.sub(placeholder, text).strip()
+    if "`" in body:
+        raise ExabricksError(f"{where}: unmatched backtick")
+    unquote = {v: k for k, v in quoted.items()}
+    fields: dict[str, str] = {}
+    constants: list[float | bool] = []
+    try:
+        tree = ast.parse(body, mode="eval")
+        program = ast.unparse(_rewrite(tree.body, fields, constants, unquote, where))
+    except SyntaxError as e:
+        raise ExabricksError(f"{where}: syntax error ({e.msg})") from None
+    except (RecursionError, MemoryError, ValueError) as e:
+        raise ExabricksError(f"{where}: cannot be parsed ({type(e).__name__}: too long, "
+                             "too deeply nested or not text)") from None
+
+    import numexpr
+
+    expression = Expression(name=name, text=text, fields=tuple(fields),
+                            constants=tuple(constants), program=program)
+    probe = expression.operands(np.zeros(1) for _ in fields)
+    problem = numexpr.validate(program, local_dict=probe, global_dict={})
+    if problem is not None:
+        raise ExabricksError(
+            f"{where}: numexpr cannot evaluate it ({type(problem).__name__}: {problem}; "
+            "&, |, ~ and where's condition take comparisons, the rest numbers)"
+        )
+    return expression
+
+
+def _where(source: str, name: str, text: str) -> str:
+    """The start of every message about derived field `name` = `text` (a long text cut)."""
+    return f"{source}: derived field {name!r} = {text if len(text) <= 80 else text[:77] + '...'!r}"
+
+
+def _rewrite(node: ast.expr, fields: dict[str, str], constants: list, unquote: dict[str, str],
+             where: str):
+    """`node` checked against the language of `parse_expression`, its field names
+    renamed `_v{i}` (recorded in `fields`, name -> variable) and its constants `_c{j}`
+    (their values appended to `constants`, numbers as floats)."""
+    def again(child):
+        return _rewrite(child, fields, constants, unquote, where)
+
+    def operator(op):
+        text = _OPERATORS.get(type(op), type(op).__name__)
+        if text not in _ALLOWED:
+            raise ExabricksError(f"{where}: operator {text!r} is not supported"
+                                 f"{_REFUSED.get(text, '')}")
+        return op
+
+    if isinstance(node, ast.Name):
+        field = unquote.get(node.id, node.id)
+        return ast.Name(fields.setdefault(field, f"_v{len(fields)}"), ast.Load())
+    if isinstance(node, ast.Constant):
+        value = node.value
+        if isinstance(value, (int, float)) and not isinstance(value, bool):
+            try:
+                value = float(value)
+            except OverflowError:
+                raise ExabricksError(f"{where}: a number is too large for float64") from None
+        if isinstance(value, (bool, float)):
+            constants.append(value)
+            return ast.Name(f"_c{len(constants) - 1}", ast.Load())
+        raise ExabricksError(f"{where}: only real numbers can be constants, not {ast.unparse(node)}")
+    if isinstance(node, ast.BinOp):
+        return ast.BinOp(again(node.left), operator(node.op), again(node.right))
+    if isinstance(node, ast.UnaryOp):
+        return ast.UnaryOp(operator(node.op), again(node.operand))
+    if isinstance(node, ast.Compare):
+        if len(node.ops) != 1:
+            raise ExabricksError(f"{where}: chained comparisons are not supported "
+                                 "(write (a < b) & (b < c))")
+        return ast.Compare(again(node.left), [operator(node.ops[0])], [again(node.comparators[0])])
+    if isinstance(node, ast.BoolOp):
+        raise ExabricksError(f"{where}: 'and' and 'or' are not supported (use & and | "
+                             "between comparisons)")
+    if isinstance(node, ast.Call):
+        func = node.func
+        if isinstance(func, ast.Attribute):
+            raise ExabricksError(f"{where}: attribute access {ast.unparse(func)!r} is not allowed")
+        if not isinstance(func, ast.Name):
+            raise ExabricksError(f"{where}: only functions can be called, not {ast.unparse(func)!r}")
+        arity = FUNCTIONS.get(func.id)
+        if func.id in ("sum", "prod", "min", "max"):
+            raise ExabricksError(f"{where}: {func.id} is a reduction over all cells, not one value "
+                                 "per cell (maximum and minimum compare two values per cell)")
+        if arity is None:
+            raise ExabricksError(f"{where}: unknown function {func.id!r} "
+                                 f"(functions: {', '.join(sorted(FUNCTIONS))})")
+        if node.keywords or any(isinstance(a, ast.Starred) for a in node.args):
+            raise ExabricksError(f"{where}: {func.id} takes plain positional arguments")
+        if len(node.args) != arity:
+            raise ExabricksError(f"{where}: {func.id} takes {arity} argument"
+                                 f"{'s' * (arity > 1)}, not {len(node.args)}")
+        return ast.Call(ast.Name(func.id, ast.Load()), [again(a) for a in node.args], [])
+    if isinstance(node, ast.Attribute):
+        raise ExabricksError(f"{where}: attribute access {ast.unparse(node)!r} is not allowed")
+    if isinstance(node, ast.Subscript):
+        raise ExabricksError(f"{where}: indexing {ast.unparse(node)!r} is not allowed")
+    if isinstance(node, ast.IfExp):
+        raise ExabricksError(f"{where}: 'if ... else' is not supported (use where(condition, a, b))")
+    raise ExabricksError(f"{where}: {ast.unparse(node)!r} ({type(node).__name__}) is not allowed")
+
+
+def _expressions(derive, taken: list[str], *, source: str) -> list[Expression]:
+    """The parsed (NAME, EXPR) pairs or mapping `derive`; `taken`: the names that the
+    magnitudes take first."""
+    pairs = list(derive.items()) if isinstance(derive, Mapping) else list(derive)
+    out: list[Expression] = []
+    taken = list(taken)
+    for pair in pairs:
+        if isinstance(pair, (str, bytes)) or len(pair) != 2 \
+                or not all(isinstance(p, str) for p in pair):
+            raise ExabricksError(f"{source}: a derived field is a (NAME, EXPRESSION) pair of "
+                                 f"strings, not {pair!r}")
+        e = parse_expression(*pair, source=source)
+        if e.name in taken:
+            raise ExabricksError(f"{_where(source, e.name, e.text)}: a field named {e.name!r} "
+                                 "exists already")
+        taken.append(e.name)
+        out.append(e)
+    return out
+
+
+def check_expression_fields(expression: Expression, known: Iterable[str], *, source: str) -> None:
+    """Refuse `expression` when its name is one of the fields `known` (at that point) or it
+    reads one that is not; the message lists `known`."""
+    known = list(known)
+    where = _where(source, expression.name, expression.text)
+    if expression.name in known:
+        raise ExabricksError(f"{where}: a field named {expression.name!r} exists already")
+    missing = [f for f in expression.fields if f not in known]
+    if missing:
+        raise ExabricksError(f"{where}: unknown field {missing[0]!r} "
+                             f"(fields: {', '.join(known) or 'none'})")
+
+
+def add_derived(cells: Cells, expression: Expression, *, source: str) -> Cells:
+    """Append field expression.name = the expression at every cell, computed in float64.
+
+    values: float32 (F + 1, N); the new row is last.  A comparison gives 1.0 or 0.0, an
+    expression that reads no field (a constant) the same value at every cell; inf and
+    NaN (a division by zero, the log of a negative) are stored as they are, for
+    `validate_cells`'s NaN policy to handle.
+    """
+    import numexpr
+
+    check_expression_fields(expression, cells.fields, source=source)
+    local = expression.operands(cells.values[cells.fields.index(f)].astype(np.float64)
+                                for f in expression.fields)
+    where = _where(source, expression.name, expression.text)
+    try:
+        result = np.asarray(numexpr.evaluate(expression.program, local_dict=local, global_dict={}))
+    except Exception as e:  # parse_expression's probe passed; what is left is e.g. memory
+        raise ExabricksError(f"{where}: numexpr failed ({type(e).__name__}: {e})") from e
+    if result.shape not in ((), (cells.n_cells,)) or result.dtype.kind not in "biuf":
+        raise ExabricksError(f"{where}: {result.dtype} of shape {result.shape}, not one real "
+                             "value per cell")
+    with np.errstate(over="ignore"):  # beyond float32: inf, like the readers
+        row = np.broadcast_to(result.astype(np.float64), (cells.n_cells,)).astype(VALUE_DTYPE)
+    return cells.replace(fields=(*cells.fields, expression.name),
+                         values=np.vstack([cells.values, row[None]]))
 
 
 # ---------------------------------------------------------------------------
