@@ -75,10 +75,11 @@ def _is_yt(source) -> bool:
 def _open_yt(ds, fields, options) -> Dataset:
     from . import structures
     from .readers.yt_bridge import cells_from_dataset
+    from .stages.ingest import validate_cells
 
     if options:
         raise ExabricksError(f"{ds}: a yt dataset takes `fields` only, not {', '.join(options)}")
-    cells = cells_from_dataset(ds, fields)
+    cells = validate_cells(cells_from_dataset(ds, fields), source=str(ds))
     return Dataset(structures.build(cells, where=str(ds)), source={"yt": str(ds)})
 
 

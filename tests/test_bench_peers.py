@@ -27,7 +27,7 @@ from benchmarks.peers import yt as peer_yt
 from exabricks import schema  # noqa: E402
 from exabricks.camera import Camera, default_camera  # noqa: E402
 from exabricks.errors import ExabricksError  # noqa: E402
-from exabricks.readers import yt_bridge  # noqa: E402
+from exabricks import yt_grids  # noqa: E402
 from benchmarks import uniform_grid
 from exabricks.stages.brick import build_bricks  # noqa: E402
 from exabricks.stages.bvh import build_bvh  # noqa: E402
@@ -239,7 +239,7 @@ def test_uniform_grid_refuses_a_volume_that_is_not_3d():
 
 
 # ---------------------------------------------------------------------------
-# leaf cells as yt's nested grids (exabricks.readers.yt_bridge.to_amr_grids)
+# leaf cells as yt's nested grids (exabricks.yt_grids.to_amr_grids)
 
 
 def test_to_amr_grids_by_hand():
@@ -252,7 +252,7 @@ def test_to_amr_grids_by_hand():
         lower_lattice=np.array(fine + [(2, 0, 0)], np.int32),
         level=np.array([0] * 8 + [1], np.int8),
         values=np.array([[1, 2, 3, 4, 5, 6, 7, 8, 20]], np.float32))
-    grids, top = yt_bridge.to_amr_grids(cells)
+    grids, top = yt_grids.to_amr_grids(cells)
     assert top == 1 and len(grids) == 2
     coarse, child = grids
     assert coarse["level"] == 0 and child["level"] == 1
@@ -274,7 +274,7 @@ def test_to_amr_grids_hold_exactly_our_leaves():
     from exabricks import readers
 
     cells = readers.read(GERRIS, fields=["T"])
-    grids, top = yt_bridge.to_amr_grids(cells)
+    grids, top = yt_grids.to_amr_grids(cells)
     lo, hi = (np.asarray(b) for b in schema.world_bounds(cells))
     root = np.rint((hi - lo) / cells.spacing_world / (1 << top)).astype(int)
     ds = yt.load_amr_grids(grids, root, bbox=np.column_stack([lo, hi]), length_unit=1.0)
@@ -296,7 +296,7 @@ def test_to_amr_grids_refuses_incomplete_octree():
         lower_lattice=np.array([[0, 0, 0], [1, 0, 0], [2, 0, 0]], np.int32),  # 2 of 8 children
         level=np.array([0, 0, 1], np.int8), values=np.ones((1, 3), np.float32))
     with pytest.raises(ExabricksError, match="toy: not octree-complete at level 0"):
-        yt_bridge.to_amr_grids(cells, source="toy")
+        yt_grids.to_amr_grids(cells, source="toy")
 
 
 # ---------------------------------------------------------------------------
@@ -786,7 +786,7 @@ def test_to_amr_grids_fill_holes():
         fields=("v",), origin_world=np.zeros(3), spacing_world=np.ones(3),
         lower_lattice=np.array([[0, 0, 0], [1, 0, 0], [2, 0, 0], [0, 0, 2]], np.int32),
         level=np.array([0, 0, 1, 1], np.int8), values=np.array([[1, 2, 5, 7]], np.float32))
-    grids, top = yt_bridge.to_amr_grids(cells, fill=-9.0)
+    grids, top = yt_grids.to_amr_grids(cells, fill=-9.0)
     assert top == 1
     by_level = {g["level"]: g for g in grids}
     assert len(grids) == 2

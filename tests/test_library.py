@@ -136,3 +136,19 @@ def test_errors(plume):
         eb.open("/nonexistent/plotfile")
     with pytest.raises(eb.ExabricksError, match="reconstruction"):
         eb.probe(plume, [[0, 0, 0]], reconstruction="cubic")
+
+
+@pytest.mark.slow
+def test_a_yt_dataset_with_a_field_yt_derives(tmp_path):
+    yt = pytest.importorskip("yt")
+    from conftest import ENZO
+
+    ds = eb.open(yt.load(str(ENZO)), fields=[("gas", "density"), ("gas", "velocity_magnitude")])
+    assert ds.fields == ("density", "velocity_magnitude") and ds.paths is None
+    image = eb.render(ds, field="velocity_magnitude", **SMALL)
+    assert image.rgba[..., 3].max() > 0.05
+    # the same field through ingest --format yt: the same cells, so the same frame
+    run_cli("render", ENZO, "--format", "yt", "--fields", "gas:density,gas:velocity_magnitude",
+            "--field", "gas:velocity_magnitude", "--size", "96", "80", "--spp", "1", "-o",
+            tmp_path / "cli.exr", check=0)
+    np.testing.assert_array_equal(eb.Image.read(tmp_path / "cli.exr").rgba, image.rgba)

@@ -64,23 +64,27 @@ def test_render_source_is_the_staged_image_bit_for_bit(tmp_path, name):
 
 
 def test_probe_source_equals_staged_and_ingest_options_reach_the_build(tmp_path):
-    trio = staged(tmp_path, GERRIS, ("--field", "T", "--fields", "speed", "--magnitude", "speed=U,V,W"))
+    derived = ("--magnitude", "speed=U,V,W", "--derive", "hot=where(T > 0.3, speed * 2 + T, 0)")
+    trio = staged(tmp_path, GERRIS, ("--fields", "T,speed,hot", *derived))
     rng = np.random.default_rng(7)
     from exabricks import schema
 
     lo, hi = (np.array(x) for x in schema.world_bounds(schema.load(trio[0])))
     np.save(tmp_path / "p.npy", lo + rng.random((500, 3)) * (hi - lo))
-    run_cli("probe", *trio, "--points", tmp_path / "p.npy", "--field", "speed", "-o",
-            tmp_path / "staged.npy", check=0)
-    run_cli("probe", GERRIS, "--fields", "T,speed", "--magnitude", "speed=U,V,W", "--points",
-            tmp_path / "p.npy", "--field", "speed", "-o", tmp_path / "source.npy", check=0)
-    expected = np.load(tmp_path / "staged.npy")
-    assert np.isfinite(expected).sum() > 400
-    np.testing.assert_array_equal(np.load(tmp_path / "source.npy"), expected)
-    # the cells file is a source too
-    run_cli("probe", tmp_path / "cells.npz", "--points", tmp_path / "p.npy", "--field", "speed",
-            "-o", tmp_path / "cells.npy", check=0)
-    np.testing.assert_array_equal(np.load(tmp_path / "cells.npy"), expected)
+    for field in ("speed", "hot"):
+        run_cli("probe", *trio, "--points", tmp_path / "p.npy", "--field", field, "-o",
+                tmp_path / "staged.npy", check=0)
+        run_cli("probe", GERRIS, "--fields", "T,speed,hot", *derived, "--points", tmp_path / "p.npy",
+                "--field", field, "-o", tmp_path / "source.npy", check=0)
+        expected = np.load(tmp_path / "staged.npy")
+        assert np.isfinite(expected).sum() > 400 and np.abs(expected).max() > 0
+        np.testing.assert_array_equal(np.load(tmp_path / "source.npy"), expected)
+        # the cells file is a source too
+        run_cli("probe", tmp_path / "cells.npz", "--points", tmp_path / "p.npy", "--field", field,
+                "-o", tmp_path / "cells.npy", check=0)
+        np.testing.assert_array_equal(np.load(tmp_path / "cells.npy"), expected)
+    assert_one_error_line(run_cli("render", GERRIS, "--derive", "bad=T +", "-o", tmp_path / "x.png"),
+                          str(GERRIS), "derived field 'bad'")
 
 
 @pytest.fixture

@@ -29,7 +29,7 @@ if not (DATA / "amrex-advection3d").is_dir():
     DATA = ROOT.parent / "shared" / "data"
 
 # name: (path, field, how yt gets the data: "native" = yt.load, "grids" = our leaf cells
-# converted to nested grids for yt.load_amr_grids, see yt_bridge.to_amr_grids)
+# converted to nested grids for yt.load_amr_grids, see yt_grids.to_amr_grids)
 DATASETS = {
     "amrex": (DATA / "amrex-advection3d" / "plt00020", "phi", "native"),
     "athena": (DATA / "athena-blast3d" / "Blast.out2.00001.athdf", "rho", "native"),

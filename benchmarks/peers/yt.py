@@ -52,7 +52,7 @@ field_interpolation_tables.pxd):
 ExaJet data (gerris, big, shell256) has no yt front end (and yt.load_octree says of
 itself that "fluid fields will not work yet, or possibly ever"): our reader's
 leaf cells are turned into properly nested grids
-(`exabricks.readers.yt_bridge.to_amr_grids`) and given to
+(`exabricks.yt_grids.to_amr_grids`) and given to
 yt.load_amr_grids. yt then has exactly our leaves and values (checked on the
 Gerris plume); the conversion is timed on its own and not counted as yt's
 load, but it is part of the yt process's peak memory. Where the data has a
@@ -150,14 +150,14 @@ def worker_yt(spec: dict) -> dict:
     t_convert = None
     if spec["yt_mode"] == "grids":
         from exabricks import readers, schema
-        from exabricks.readers import yt_bridge
+        from exabricks import yt_grids
 
         t = time.perf_counter()
         cells = readers.read(spec["path"], fields=[spec["field"]])
         # Cells missing from the data (the thin shells' hole) become leaves of a value
         # below yt's bounds, which its transfer function makes transparent.
         low, high = yt_bounds(spec["value_range"])
-        grids, top = yt_bridge.to_amr_grids(cells, source=spec["path"],
+        grids, top = yt_grids.to_amr_grids(cells, source=spec["path"],
                                             fill=low - (high - low))
         lo, hi = (np.asarray(b) for b in schema.world_bounds(cells))
         root = np.rint((hi - lo) / cells.spacing_world / (1 << top)).astype(int)

@@ -180,6 +180,10 @@ def ingest_options(*field_flags: str):
         click.option("--magnitude", multiple=True, metavar="NAME=A,B,C",
                      callback=_name_equals("NAME=A,B,C"),
                      help="Add field NAME = |(A, B, C)| from component fields (repeatable)."),
+        click.option("--derive", multiple=True, metavar="NAME=EXPR", callback=_name_equals("NAME=EXPR"),
+                     help="Add field NAME = EXPR, evaluated per cell over the input's fields "
+                     "(numexpr's language: + - * / **, sqrt, log, where, ...; docs/ingest.md; "
+                     "repeatable, in order)."),
         click.option("--nan", "nan_policy", type=click.Choice(NAN_POLICIES), default="error",
                      show_default=True, help="NaN/Inf values: error; zero (replace by 0); drop "
                      "(remove those cells); keep (store unchanged)."),
@@ -198,7 +202,7 @@ def ingest_options(*field_flags: str):
 
 
 INGEST_KEYS = ("fmt", "fields", "scalars", "dims", "dtype", "byte_order", "raw_name", "max_level",
-               "threshold", "magnitude", "nan_policy", "mask", "no_mask")
+               "threshold", "magnitude", "derive", "nan_policy", "mask", "no_mask")
 
 
 def ingest_kwargs(options: dict) -> dict:
@@ -210,7 +214,8 @@ def ingest_kwargs(options: dict) -> dict:
     return {"format": v["fmt"], "fields": v["fields"], "scalars": dict(v["scalars"]) or None,
             "dims": v["dims"], "dtype": v["dtype"], "byte_order": v["byte_order"],
             "name": v["raw_name"], "max_level": v["max_level"], "threshold": v["threshold"],
-            "magnitude": v["magnitude"], "nan_policy": v["nan_policy"], "mask": v["mask"],
+            "magnitude": v["magnitude"], "derive": v["derive"], "nan_policy": v["nan_policy"],
+            "mask": v["mask"],
             "auto_mask": not v["no_mask"]}
 
 
@@ -232,6 +237,7 @@ def dataset_arguments(command):
 _FLAG_OF = {"format": "--format", "fields": "--fields", "scalars": "--scalars", "dims": "--dims",
             "dtype": "--dtype", "byte_order": "--byte-order", "name": "--name",
             "max_level": "--max-level", "threshold": "--threshold", "magnitude": "--magnitude",
+            "derive": "--derive",
             "nan_policy": "--nan", "mask": "--mask", "auto_mask": "--no-mask"}
 
 

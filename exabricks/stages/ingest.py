@@ -22,7 +22,6 @@ cells where a field is 0 (the body of an embedded-boundary plotfile, whose
 from __future__ import annotations
 
 import ast
-import importlib
 import re
 from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass
@@ -152,9 +151,8 @@ def ingest(
         raise ExabricksError(f"{source}: --mask needs a field name")
     dataset = None
     if fmt == "yt":
-        # Imported by name, as readers.read imports its readers: yt_bridge.to_amr_grids
-        # builds bricks, and stages.brick imports this module.
-        yt_bridge = importlib.import_module(f"{readers.__name__}.yt_bridge")
+        from ..readers import yt_bridge
+
         dataset = yt_bridge.load(path)  # once: its field names and its cells both come from it
 
     read_fields = [f for f in fields if f not in derived_names]
