@@ -41,12 +41,14 @@ $(OUT)/bvh.npz: $(OUT)/regions.npz
 	$(EB) bvh $< -o $@
 
 # The hot core as an iso-surface (T = 0.45, with ambient occlusion and a little
-# specular) inside the translucent volume of T, on a dark background.
+# specular) inside the translucent volume of T, on a dark background. 64 occlusion
+# rays per hit and 4 samples per pixel: the occlusion's grain falls below the
+# volume's own jitter noise (docs/benchmarks.md, "Iso-surface normals").
 $(OUT)/plume.png: $(OUT)/bvh.npz
 	$(EB) -v render $(OUT)/bricks.npz $(OUT)/regions.npz $(OUT)/bvh.npz -o $@ \
 	  --field T --camera $(DATA)/camera.json \
 	  --colormap inferno --range -0.1 0.6 --opacity 0,0,0.1,0.18,0.25,0.3,0.35,0.4 \
-	  --iso 0.45 --iso-color 0.95,0.95,1 --specular 0.3 --ao-samples 8 \
+	  --iso 0.45 --iso-color 0.95,0.95,1 --specular 0.3 --ao-samples 64 --spp 4 \
 	  --background 0.05,0.05,0.08
 
 demo: setup $(OUT)/plume.png

@@ -299,7 +299,7 @@ def linear_field() -> Built:
 
 
 @device_param
-@pytest.mark.parametrize("gradient", ["analytic", "central", "iso-central"])
+@pytest.mark.parametrize("gradient", ["analytic", "central", "iso-analytic"])
 @pytest.mark.parametrize("specular", [0.0, 0.4])
 def test_headlight_shading_of_a_plane(gradient, specular, device):
     """Iso f = f(centre) of a linear f is the plane through the centre with normal
@@ -316,7 +316,7 @@ def test_headlight_shading_of_a_plane(gradient, specular, device):
     size = 32
     scene = Scene(camera=camera, isosurfaces=(IsoSurface("f", value, tuple(rgb), 1.0),),
                   lighting=Lighting(shading="headlight", specular=specular, shininess=7.0,
-                                    **({"iso_gradient": "central"} if gradient == "iso-central"
+                                    **({"iso_gradient": "analytic"} if gradient == "iso-analytic"
                                        else {"gradient": gradient})),
                   settings=settings(size, depth=True))
     result = Renderer(built.bricks, built.regions, built.bvh, device=device).render_scene(scene)
@@ -338,10 +338,10 @@ def test_headlight_shading_of_a_plane(gradient, specular, device):
 
 @device_param
 def test_iso_gradient_central_is_the_central_gradient_at_iso_hits(device):
-    """lighting.iso_gradient = "central" shades iso-surfaces (only) with central
-    differences: on Gerris an iso-only frame is then bit for bit the frame of
-    gradient = "central" and differs from the analytic one, and the option reaches
-    the renderer from a flag and back into scene_to_dict."""
+    """lighting.iso_gradient = "central" (the default) shades iso-surfaces (only)
+    with central differences: on Gerris an iso-only frame is then bit for bit the
+    frame of gradient = "central" and differs from iso_gradient = "analytic", and
+    the option reaches the renderer from a flag and back into scene_to_dict."""
     from exabricks.scene import scene_from_options, scene_to_dict
 
     built = load("gerris")
@@ -351,14 +351,15 @@ def test_iso_gradient_central_is_the_central_gradient_at_iso_hits(device):
     frames = {name: renderer.render_scene(Scene(camera=camera, isosurfaces=iso,
                                                 lighting=Lighting(**lighting),
                                                 settings=settings(48))).rgba
-              for name, lighting in (("analytic", {}), ("central", {"gradient": "central"}),
-                                     ("iso", {"iso_gradient": "central"}))}
+              for name, lighting in (("analytic", {"iso_gradient": "analytic"}),
+                                     ("central", {"gradient": "central"}), ("iso", {}))}
     assert frames["analytic"][..., 3].mean() > 0.05
     np.testing.assert_array_equal(frames["iso"], frames["central"])
     assert np.abs(frames["iso"] - frames["analytic"]).max() > 0.01
-    flagged = scene_from_options(built.bricks, flags={"iso_gradient": "central"})
-    assert flagged.lighting.iso_gradient == "central" and flagged.lighting.gradient == "analytic"
-    assert scene_to_dict(flagged)["lighting"]["iso_gradient"] == "central"
+    assert scene_from_options(built.bricks).lighting.iso_gradient == "central"
+    flagged = scene_from_options(built.bricks, flags={"iso_gradient": "analytic"})
+    assert flagged.lighting.iso_gradient == "analytic" and flagged.lighting.gradient == "analytic"
+    assert scene_to_dict(flagged)["lighting"]["iso_gradient"] == "analytic"
 
 
 def test_iso_gradient_in_a_scene_file(tmp_path):
@@ -367,8 +368,8 @@ def test_iso_gradient_in_a_scene_file(tmp_path):
 
     built = load("gerris")
     path = tmp_path / "scene.json"
-    path.write_text(json.dumps({"lighting": {"iso_gradient": "central"}}))
-    assert scene_from_options(built.bricks, scene_path=path).lighting.iso_gradient == "central"
+    path.write_text(json.dumps({"lighting": {"iso_gradient": "analytic"}}))
+    assert scene_from_options(built.bricks, scene_path=path).lighting.iso_gradient == "analytic"
     path.write_text(json.dumps({"lighting": {"iso_gradient": "sobel"}}))
     with pytest.raises(ExabricksError, match=r"lighting.iso_gradient.*\"analytic\" or \"central\""):
         scene_from_options(built.bricks, scene_path=path)

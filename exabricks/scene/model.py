@@ -89,7 +89,8 @@ class Lighting:
     (and of everything with "central"), "analytic" or "central"; ambient
     occlusion of surface hits: `ao_samples` rays (0: off) of length
     `ao_distance` world units (None: 10 finest cell widths); iso_gradient: the
-    normals of iso-surfaces, "analytic" or "central"."""
+    normals of iso-surfaces, "central" (the default: differences of the
+    reconstructed field at the hit) or "analytic"."""
 
     shading: str = "headlight"
     gradient: str = "analytic"
@@ -97,7 +98,7 @@ class Lighting:
     shininess: float = 32.0
     ao_samples: int = 0
     ao_distance: float | None = None
-    iso_gradient: str = "analytic"
+    iso_gradient: str = "central"
 
 
 @dataclass(frozen=True)

@@ -267,8 +267,8 @@ SCENE_OPTIONS = (
              metavar="PIXELS", description="a number of pixels >= 0 (0: full resolution)"),
     _light("gradient", "Normals from the analytic gradient (default) or central differences.",
            kind="choice", choices=GRADIENTS),
-    _light("iso_gradient", "Normals of iso-surfaces from the analytic gradient (default) or "
-           "central differences of the reconstructed field (computed at hits only).",
+    _light("iso_gradient", "Normals of iso-surfaces from central differences of the "
+           "reconstructed field (default; computed at hits only) or the analytic gradient.",
            kind="choice", choices=GRADIENTS, kernel=True),
     _light("specular", "Blinn-Phong specular weight on surfaces (default 0).", low=0.0,
            kernel=True),
