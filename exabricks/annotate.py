@@ -183,7 +183,7 @@ class ColourBar:
         if top <= 0.0:
             return 1.0
         step = 10.0 ** math.floor(math.log10(top))
-        return min(1.0, math.ceil(top / step * (1 - 1e-9)) * step)
+        return min(1.0, round(math.ceil(top / step * (1 - 1e-9)) * step, 12))
 
     def values(self) -> np.ndarray:
         """The data value of each row of the bar (float64 (height,), top row first)."""
@@ -513,6 +513,8 @@ def _draw(layout: Layout, scene: Scene) -> np.ndarray:
     """The margins drawn by matplotlib (Agg, object API): uint8 (H', W', 4)."""
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
+    from matplotlib.patches import Rectangle
+    from matplotlib.transforms import IdentityTransform
 
     width, height = layout.width, layout.height
     # 72 dpi: one point is one pixel, so every size here is in pixels.
@@ -546,6 +548,10 @@ def _draw(layout: Layout, scene: Scene) -> np.ndarray:
         fig.figimage(np.broadcast_to(np.rint(np.asarray(s.color) * 255).astype(np.uint8),
                                      (b.height, b.width, 3)).copy(),
                      xo=b.x, yo=height - b.y - b.height, origin="upper", zorder=1)
+        # An outline in the text colour: a pale swatch on a pale backdrop stays visible.
+        fig.add_artist(Rectangle((b.x - 0.5, height - b.y - b.height - 0.5), b.width + 1,
+                                 b.height + 1, fill=False, edgecolor=fg, linewidth=1.0,
+                                 transform=IdentityTransform(), zorder=2))
         text(b.x + b.width + 0.5 * f, b.y + b.height / 2.0, s.label, small, va="center")
 
     b = layout.scale_bar

@@ -323,6 +323,22 @@ def test_a_4096_frame_is_annotated_at_its_scale():
         (512, 512), scene, facts={"time": 0.25}, title="Gerris plume").width - 512), rel=0.05)
 
 
+@needs_device
+@pytest.mark.parametrize("shape", [(16, 16), (48, 256), (256, 40)], ids=["tiny", "wide", "tall"])
+def test_small_and_narrow_frames_keep_their_pixels(shape):
+    """Pieces of the real frame: the margins grow to hold legible annotations
+    (the minimum font size), and the frame stays as it was."""
+    scene, rgba = rendered(DARK)
+    frame = np.ascontiguousarray(rgba[:shape[0], :shape[1]])
+    out = annotated(frame, scene, facts={"time": 1.0}, title="plume")
+    layout = annotation_layout(frame.shape, scene, facts={"time": 1.0}, title="plume")
+    np.testing.assert_array_equal(out[layout.frame.pixels], to_png_pixels(frame))
+    assert layout.font_px == 10.0
+    for bar in layout.bars:  # every bar inside the picture, beside the frame
+        assert bar.box.x >= layout.frame.x + layout.frame.width
+        assert bar.box.y + bar.box.height <= layout.height and bar.box.height >= 40
+
+
 def test_facts_come_from_the_readers_provenance():
     """AMReX: the time in the plotfile's Header (after the field names and the
     dimension), through `ingest`'s cells meta; the ExaJet cells of the plume record
