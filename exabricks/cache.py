@@ -154,7 +154,7 @@ class Cache:
         if not self.root.is_dir():
             return out
         for p in sorted(self.root.iterdir()):
-            if _KEY.fullmatch(p.name) and (p / ENTRY).is_file():
+            if _KEY.fullmatch(p.name) and not p.is_symlink() and (p / ENTRY).is_file():
                 try:
                     about = json.loads((p / ENTRY).read_text())
                 except (OSError, ValueError):

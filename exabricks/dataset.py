@@ -139,6 +139,9 @@ def open_source(path, options: dict | None = None, *, cache: str | os.PathLike |
                              f"(ingest takes {', '.join(defaults)})")
     if not Path(path).exists():
         raise ExabricksError(f"{path}: no such file or directory")
+    if not (Path(path).is_file() or Path(path).is_dir()):
+        raise ExabricksError(f"{path}: not a regular file or a directory (a source is a file or "
+                             "a plotfile directory)")
     cells_file = _is_cells_file(path, given)
     chosen = _normalised({**defaults, **given})
     about = {"path": str(path), "options": _normalised(given)}

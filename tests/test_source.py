@@ -175,6 +175,8 @@ def test_source_usage_errors(tmp_path, plume_trio):
                           "cannot write the cache")
     assert_one_error_line(run_cli("render", GERRIS, "--fields", "nope", "--no-cache", "-o", out),
                           str(GERRIS), "nope")
+    assert_one_error_line(run_cli("render", "/dev/zero", "-o", out), "/dev/zero",
+                          "not a regular file or a directory")
     assert not out.exists()
     # the output may not replace the source
     assert_one_error_line(run_cli("render", tmp_path / "file", "-o", tmp_path / "file"), "file")

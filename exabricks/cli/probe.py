@@ -33,7 +33,6 @@ def _load_points(path) -> np.ndarray:
 
 
 @click.command()
-@dataset_arguments
 @click.option("--points", "points_path", required=True, type=click.Path(exists=True, dir_okay=False),
               help="World points, a .npy array of shape (N, 3).")
 @field_option
@@ -43,6 +42,7 @@ def _load_points(path) -> np.ndarray:
                    "containing leaf cell; vertex: trilinear in stitched vertex values.")
 @output_option
 @device_option
+@dataset_arguments
 def probe(inputs, points_path, field, reconstruction, output, device, **options):
     """Reconstructed FIELD at world points (float32 .npy, NaN where no cell has
     support) of a SOURCE (anything `ingest` reads, or a cells file; built and

@@ -14,12 +14,12 @@ from .options import dataset_arguments, dataset_from, declared, device_option, o
 
 
 @click.command()
-@dataset_arguments
 @output_option
 @declared(*JOB_OPTIONS[:2])
 @declared(*SCENE_OPTIONS)
 @declared(*JOB_OPTIONS[2:])
 @device_option
+@dataset_arguments
 def render(inputs, output, device, **options):
     """Render a dataset into an .exr (float RGBA) or .png image: a SOURCE (anything
     `ingest` reads, with its options, or a cells file; its structures are built and
