@@ -365,7 +365,7 @@ def annotation_layout(frame_shape, scene: Scene, *, facts=None, title=None) -> L
     facts = _checked_facts(facts)
     if title is not None and not isinstance(title, str):
         raise ExabricksError(f"title must be text, got {type(title).__name__}")
-    title = title.strip() or None if title else None
+    title = (title.strip() or None) if title else None
     units = facts["field_units"]
     f = font_size(height, width)
     small = TICK_FONT * f
