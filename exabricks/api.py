@@ -172,8 +172,11 @@ class Renderer:
                                  "eb.render_job(dataset, output, ...)")
         chosen = self.scene(scene, **options)
         result = self._on_device(chosen.fields()).render_scene(chosen)
+        from .annotate import facts_from_meta
+
         metadata = frame_metadata(chosen, self.dataset.describe(), None, None, result.stats)
-        return Image(result.rgba, result.depth, metadata)
+        return Image(result.rgba, result.depth, metadata, scene=chosen,
+                     facts=facts_from_meta(self.dataset.meta))
 
     def _on_device(self, fields):
         from .engine.renderer import Renderer as DeviceRenderer

@@ -50,6 +50,14 @@ class Dataset:
         return self.structures()[0]
 
     @property
+    def meta(self) -> dict:
+        """The bricks' meta (provenance, and the reader's word on the source: its time
+        and units), read from the file's header alone where the dataset is files."""
+        if self._structures is not None:
+            return self._structures[0].meta
+        return schema.peek(self.paths[0])[2]
+
+    @property
     def fields(self) -> tuple[str, ...]:
         """The field names, in file order."""
         return tuple(self.bricks.fields)
@@ -81,10 +89,7 @@ class Dataset:
             out.update(zip(("bricks", "regions", "bvh"), map(str, self.paths)))
         if self.source:
             out["built_from"] = self.source
-        bricks = self._structures[0] if self._structures else None
-        if bricks is None and self.paths is not None:
-            bricks = schema.load(self.paths[0], "bricks", mapped=True, checked=False)
-        out["source"] = bricks.meta.get("inputs", []) if bricks is not None else []
+        out["source"] = self.meta.get("inputs", [])
         return out
 
     def __repr__(self) -> str:

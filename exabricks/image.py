@@ -16,12 +16,18 @@ class Image:
               None when the frame was drawn without `depth=True`.
     metadata: what the image file carries: software, camera, dataset, settings
               (samples, ms, device), scene, transfer function.
+    scene:    the eb.Scene it was drawn with (None for an image read from a file).
+    facts:    what the source says of itself (simulation time, units;
+              exabricks.annotate.facts_from_meta), for `annotated`.
     """
 
-    def __init__(self, rgba: np.ndarray, depth: np.ndarray | None = None, metadata: dict | None = None):
+    def __init__(self, rgba: np.ndarray, depth: np.ndarray | None = None, metadata: dict | None = None,
+                 *, scene=None, facts: dict | None = None):
         self.rgba = rgba
         self.depth = depth
         self.metadata = metadata or {}
+        self.scene = scene
+        self.facts = facts
 
     @classmethod
     def read(cls, path: str | os.PathLike) -> Image:
@@ -36,12 +42,36 @@ class Image:
         """(width, height) in pixels."""
         return self.rgba.shape[1], self.rgba.shape[0]
 
-    def save(self, path: str | os.PathLike) -> None:
+    def save(self, path: str | os.PathLike, *, annotate: bool = False, title: str | None = None) -> None:
         """Write the frame as `render -o path` does: .exr (float RGBA, and Z with a
-        depth) or .png (8-bit), with the metadata, atomically."""
+        depth) or .png (8-bit), with the metadata, atomically; `annotate` (a .png)
+        as `render --annotate [--title]` does."""
+        from pathlib import Path
+
+        from .errors import ExabricksError
         from .image_io import write_image
 
-        write_image(path, self.rgba, metadata=self.metadata, depth=self.depth)
+        if title is not None and not annotate:
+            raise ExabricksError("title goes with annotate=True")
+        if annotate and Path(path).suffix.lower() != ".png":
+            raise ExabricksError(f"{path}: an annotated picture is a .png; an .exr stays the raw "
+                                 "integration")
+        image = self.annotated(title=title) if annotate else self
+        write_image(path, image.rgba, metadata=self.metadata, depth=image.depth)
+
+    def annotated(self, *, title: str | None = None) -> Image:
+        """The picture with colour bars (the volume's with its opacity curve), field
+        names and units, the simulation time, a scale bar and an axes triad beside
+        the frame (docs/annotate.md): an opaque Image, without depth."""
+        from .annotate import annotate
+        from .errors import ExabricksError
+        from .image_io import from_png_pixels
+
+        if self.scene is None:
+            raise ExabricksError("an image read from a file has no scene to annotate: render it "
+                                 "with eb.render, or with `exabricks render --annotate`")
+        pixels = annotate(self.rgba, self.scene, facts=self.facts, title=title)
+        return Image(from_png_pixels(pixels), None, self.metadata, scene=self.scene, facts=self.facts)
 
     def to_rgba8(self) -> np.ndarray:
         """(H, W, 4) uint8, un-premultiplied, as the .png holds it."""
@@ -49,14 +79,22 @@ class Image:
 
         return to_png_pixels(self.rgba)
 
+    def shown(self) -> np.ndarray:
+        """(H, W, 3) uint8: the frame over its scene's background made opaque (black
+        behind a transparent one, as yt shows a frame), as a notebook displays it."""
+        from .annotate import backdrop_color, frame_pixels
+
+        background = self.scene.background if self.scene is not None else (0.0, 0.0, 0.0, 0.0)
+        return frame_pixels(self.rgba, backdrop_color(background))
+
     def _repr_png_(self) -> bytes:
-        """The frame as PNG bytes, for Jupyter's rich display."""
+        """`shown()` as PNG bytes, for Jupyter's rich display."""
         import io
 
         from PIL import Image as PILImage
 
         out = io.BytesIO()
-        PILImage.fromarray(self.to_rgba8(), "RGBA").save(out, format="PNG")
+        PILImage.fromarray(self.shown(), "RGB").save(out, format="PNG")
         return out.getvalue()
 
     def __repr__(self) -> str:

@@ -32,7 +32,9 @@ def bricks_of(cells: schema.Cells, inputs: Sequence = (), *, where: str | None =
         bricks = build_bricks(cells, max_brick_width=max_brick_width, piece=piece)
     meta = schema.make_meta(
         inputs=inputs, parameters={"max_brick_width": max_brick_width},
-        statistics=bricks.meta["statistics"], upstream=cells, **_share(bricks))
+        statistics=bricks.meta["statistics"], upstream=cells, **_share(bricks),
+        # what the reader said of the source (time, units), for annotated images
+        **({"source": cells.meta["source"]} if "source" in cells.meta else {}))
     return bricks.replace(meta=meta)
 
 

@@ -116,8 +116,15 @@ def test_image_save_and_notebook_display(tmp_path, plume):
     back = eb.Image.read(tmp_path / "a.png")
     assert back.metadata["camera"] == image.metadata["camera"]
     shown = PILImage.open(io.BytesIO(image._repr_png_()))
-    assert shown.size == (96, 80) and shown.mode == "RGBA"
-    np.testing.assert_array_equal(np.asarray(shown), image.to_rgba8())
+    assert shown.size == (96, 80) and shown.mode == "RGB"
+    np.testing.assert_array_equal(np.asarray(shown), image.shown())
+    # over black where the frame is transparent (the default background), as it is
+    png = image.to_rgba8().astype(float)
+    a = png[..., 3:] / 255
+    np.testing.assert_array_equal(image.shown(), np.rint(png[..., :3] * a))
+    dark = eb.render(plume, field="T", background=(0.2, 0.3, 0.4), **SMALL)
+    corner = dark.shown()[0, 0]
+    assert np.abs(corner - np.array([0.2, 0.3, 0.4]) * 255).max() <= 0.5 + 1e-6  # float32 colours
     assert "96x80" in repr(image)
 
 
@@ -152,3 +159,26 @@ def test_a_yt_dataset_with_a_field_yt_derives(tmp_path):
             "--field", "gas:velocity_magnitude", "--size", "96", "80", "--spp", "1", "-o",
             tmp_path / "cli.exr", check=0)
     np.testing.assert_array_equal(eb.Image.read(tmp_path / "cli.exr").rgba, image.rgba)
+
+
+def test_annotated_pictures_from_python_and_the_command(tmp_path, plume):
+    image = eb.render(plume, field="T", colormap="inferno", **SMALL)
+    image.save(tmp_path / "py.png", annotate=True, title="plume")
+    run_cli("render", GERRIS, "--field", "T", "--colormap", "inferno", "--size", "96", "80", "--spp",
+            "1", "--annotate", "--title", "plume", "-o", tmp_path / "cli.png", check=0)
+    eb.render_job(plume, tmp_path / "job.png", field="T", colormap="inferno", annotate=True,
+                  title="plume", **SMALL)
+    expected = eb.Image.read(tmp_path / "cli.png").rgba
+    assert expected.shape[0] > 80 and expected.shape[1] > 96 and (expected[..., 3] == 1).all()
+    for name in ("py", "job"):
+        np.testing.assert_array_equal(eb.Image.read(tmp_path / f"{name}.png").rgba, expected,
+                                      err_msg=name)
+    np.testing.assert_array_equal(image.annotated(title="plume").rgba, expected)
+    with pytest.raises(eb.ExabricksError, match="an .exr stays the raw integration"):
+        image.save(tmp_path / "a.exr", annotate=True)
+    with pytest.raises(eb.ExabricksError, match="no scene to annotate"):
+        eb.Image.read(tmp_path / "cli.png").annotated()
+    proc = run_cli("render", GERRIS, "--title", "x", "-o", tmp_path / "x.png")
+    assert proc.returncode == 2 and "--title goes with --annotate" in proc.stderr
+    proc = run_cli("render", GERRIS, "--annotate", "--tile", "32", "32", "-o", tmp_path / "x.png")
+    assert proc.returncode == 2 and "not with --tile" in proc.stderr

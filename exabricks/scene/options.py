@@ -330,6 +330,10 @@ JOB_OPTIONS = (
     Option("time_limit", "Stop refining a frame after SECONDS (the first frame counts from the "
            "start of the command) and write the best image so far; its metadata "
            "(settings.progress) says what it covers.", **_POSITIVE, metavar="SECONDS"),
+    Option("annotate", "Draw a .png with colour bars (the volume's with its opacity curve), field "
+           "names and units, the simulation time, a scale bar and an axes triad beside the frame "
+           "(docs/annotate.md); an .exr stays the raw integration.", kind="flag"),
+    Option("title", "With --annotate: a title above the frame.", kind="text", metavar="TEXT"),
     Option("tile", "Draw the frame in tiles of W x H pixels, a row of tiles at a time, each "
            "written to the output file as it is done: only a band of H rows is ever in memory "
            "(posters far larger than memory; with --memory-budget the budget counts the band, "

@@ -34,8 +34,8 @@ STEP_FLAGS = {"budget": "--memory-budget", "progressive": "--progressive",
 def render_job(dataset, output, *, flags: dict | None = None,
                scene_path=None, camera_path=None, path_file=None, frame=None, frames=None,
                mpi_mode: str = "data", budget: int | None = None, progressive: float | None = None,
-               time_limit: float | None = None, tile=None, device=None,
-               started: float | None = None) -> None:
+               time_limit: float | None = None, tile=None, annotate: bool | None = None,
+               title: str | None = None, device=None, started: float | None = None) -> None:
     """Render the frame(s) of the scene that `scene_path`, `camera_path` and `flags`
     (exabricks.scene.options.SCENE_OPTIONS by name) describe over `dataset`
     (exabricks.dataset.Dataset) into `output` (.exr or .png; with a camera path
@@ -43,6 +43,8 @@ def render_job(dataset, output, *, flags: dict | None = None,
     `output`). `budget` (bytes), `progressive` and `time_limit` (seconds),
     `tile` ((W, H) pixels) and `mpi_mode` choose the strategy (module
     docstring); `started` (perf_counter) is when the time limit's clock started.
+    `annotate` draws a .png's colour bars, time, scale bar and axes beside the
+    frame (exabricks.annotate), with `title`.
     UsageError for options that contradict each other, ExabricksError for bad
     data."""
     from ..scene import check_flags
@@ -57,9 +59,10 @@ def render_job(dataset, output, *, flags: dict | None = None,
     except ExabricksError as e:
         raise UsageError(str(e)) from None
     _check_path_flags(path_file, frame, frames, camera_path, flags)
+    _check_annotate(output, annotate, title, tile)
     comm = parallel.world()
     steps = {"budget": budget, "progressive": progressive, "time_limit": time_limit, "tile": tile}
-    renderer, scene, jobs, inputs, dataset = parallel.agree(
+    renderer, scene, jobs, inputs, described = parallel.agree(
         comm, _prepare, dataset, output, scene_path, camera_path,
         path_file, frame, frames, flags, device, mpi_mode, comm, steps)
     root = comm is None or comm.Get_rank() == 0
@@ -69,10 +72,11 @@ def render_job(dataset, output, *, flags: dict | None = None,
             frame_scene = scene if cam is None else scene.replace(camera=cam)
 
             def describe(stats, frame_scene=frame_scene, index=index):
-                return frame_metadata(frame_scene, dataset, path_file, index, stats)
+                return frame_metadata(frame_scene, described, path_file, index, stats)
 
-            def write(result, image=image, describe=describe):
-                return _write(image, result, describe, inputs)
+            def write(result, image=image, describe=describe, frame_scene=frame_scene):
+                finish = _annotated(frame_scene, dataset, title) if annotate else None
+                return _write(image, result, describe, inputs, finish)
 
             if comm is None and tile is not None:
                 _render_tiled(renderer, frame_scene, started, image, describe, inputs, **steps)
@@ -203,6 +207,24 @@ def _prepare(dataset, output, scene_path, camera_path, path_file,
     return renderer, scene, jobs, inputs, described
 
 
+def _check_annotate(output, annotate, title, tile) -> None:
+    if title is not None and not annotate:
+        raise UsageError("--title goes with --annotate")
+    if annotate and Path(output).suffix.lower() != ".png":
+        raise UsageError("--annotate draws on a .png; an .exr stays the raw integration")
+    if annotate and tile is not None:
+        raise UsageError("--annotate draws beside the whole frame, not with --tile")
+
+
+def _annotated(scene, dataset, title):
+    """The frame's pixels -> the annotated picture's (exabricks.annotate)."""
+    from ..annotate import annotate, facts_from_meta
+    from ..image_io import from_png_pixels
+
+    facts = facts_from_meta(dataset.meta)
+    return lambda rgba: from_png_pixels(annotate(rgba, scene, facts=facts, title=title))
+
+
 def _check_depth(scene, output) -> None:
     if scene.settings.depth and Path(output).suffix.lower() == ".png":
         raise ExabricksError(f"{output}: a depth image needs .exr output (PNG has no depth channel)")
@@ -227,15 +249,15 @@ def frame_metadata(scene, dataset, path_file, index, stats) -> dict:
     return metadata
 
 
-def _write(image, result, describe, inputs) -> None:
-    """Write one frame with its metadata, describe(stats) (rank 0: the others have
-    no result)."""
+def _write(image, result, describe, inputs, finish=None) -> None:
+    """Write one frame with its metadata, describe(stats), its pixels through
+    `finish` when given (rank 0: the others have no result)."""
     from ..image_io import write_image
 
     if result is None:
         return
-    write_image(image, result.rgba, metadata=describe(result.stats), depth=result.depth,
-                inputs=inputs)
+    rgba = result.rgba if finish is None else finish(result.rgba)
+    write_image(image, rgba, metadata=describe(result.stats), depth=result.depth, inputs=inputs)
     _log_written(image, result.stats)
 
 
