@@ -155,14 +155,15 @@ def shots() -> list[Shot]:
         f"{G_CAM} --field U --no-volume --iso -0.03 --iso 0.03 --iso-color 0.9,0.8,0.7 "
         "--ao-samples 16 --spp 4")
     add("gerris", "gradient-analytic", "Analytic gradient",
-        "A close-up of the iso-surface T = 0.3 with specular highlights and the default "
-        "analytic gradient: the faint terraces at cell faces (docs/design.md, \"Integration and images\").",
+        "A close-up of the iso-surface T = 0.3 with specular highlights and "
+        "`--iso-gradient analytic`: the faint terraces at cell faces (docs/design.md, "
+        "\"Surfaces, slices and clipping\").",
         f"{G_CLOSE} --field T --no-volume --iso 0.3 --iso-color 0.9,0.9,1 --specular 0.5 "
-        "--gradient analytic")
+        "--iso-gradient analytic")
     add("gerris", "gradient-central", "Central-difference gradient",
-        "The same close-up with `--gradient central`: central differences half a cell wide.",
-        f"{G_CLOSE} --field T --no-volume --iso 0.3 --iso-color 0.9,0.9,1 --specular 0.5 "
-        "--gradient central")
+        "The same close-up with the default normals, central differences of the reconstructed "
+        "field at the hit: no terraces.",
+        f"{G_CLOSE} --field T --no-volume --iso 0.3 --iso-color 0.9,0.9,1 --specular 0.5")
     add("gerris", "layers", "Two volume layers",
         f"Two media in one frame from the scene file `{EXAMPLES}/plume-layers.json`: T "
         "(inferno) and the horizontal velocity W (coolwarm, opaque only where |W| is large).",
@@ -176,6 +177,11 @@ def shots() -> list[Shot]:
         "slice of the vertical velocity V below the cap (viridis), a clip box and an oblique "
         "clip plane, specular, ambient occlusion and a dark background, at 4 samples per pixel.",
         f"--scene {EXAMPLES}/plume-scene.json")
+    add("gerris", "annotated", "An annotated picture",
+        "The same scene with `--annotate --title`: a colour bar per colour-mapped layer, "
+        "surface and slice (the volume's with its opacity curve), a swatch for the fixed-colour "
+        "surface, a scale bar and the axes, beside the untouched frame (docs/annotate.md).",
+        f"--scene {EXAMPLES}/plume-scene.json --annotate --title 'Gerris buoyant plume'")
 
     # -- Athena++ blast ------------------------------------------------------
     add("athena", "volume", "Volume (headlight)",
@@ -229,13 +235,14 @@ def shots() -> list[Shot]:
         f"{A_CAM} --field rho --no-volume --iso 1.5 --iso-color 0.9,0.8,0.7 "
         "--clip-plane 0 0 0 0 0 -1 --ao-samples 16 --ao-distance 0.05 --spp 4")
     add("athena", "gradient-analytic", "Analytic gradient",
-        "The iso-surface rho = 1.5 with specular highlights and the default analytic "
-        "gradient: concentric terraces where the gradient jumps at cell faces.",
-        f"{A_CAM} --field rho --no-volume --iso 1.5 --iso-color 0.7,0.8,1 --specular 0.5")
-    add("athena", "gradient-central", "Central-difference gradient",
-        "The same with `--gradient central`: softer terraces.",
+        "The iso-surface rho = 1.5 with specular highlights and `--iso-gradient analytic`: "
+        "concentric terraces where the gradient jumps at cell faces.",
         f"{A_CAM} --field rho --no-volume --iso 1.5 --iso-color 0.7,0.8,1 --specular 0.5 "
-        "--gradient central")
+        "--iso-gradient analytic")
+    add("athena", "gradient-central", "Central-difference gradient",
+        "The same with the default normals, central differences of the reconstructed field at "
+        "the hit: the terraces are gone.",
+        f"{A_CAM} --field rho --no-volume --iso 1.5 --iso-color 0.7,0.8,1 --specular 0.5")
     add("athena", "layers", "Two volume layers",
         f"The density (Blues) and the pressure (Reds) as two media in one frame, cut open "
         f"by a clip plane (`{EXAMPLES}/blast-layers.json`): the hot high-pressure interior "
@@ -268,6 +275,12 @@ def shots() -> list[Shot]:
         "with the volume, in a clip box around the sheet.",
         f"{X_CAM} {X_TF} --slice 0.5 0.5 0.25 0 0 1 --slice 0.68 0.59 0.5 1 1 0 "
         "--slice-colormap viridis --slice-range 1 1.97 --clip-box 0.45 0.25 0 0.9 0.95 1")
+    add("amrex", "annotated", "An annotated picture",
+        "The volume with `--annotate --title`: the simulation time from the plotfile's Header, "
+        "the colour bar with the opacity curve, a scale bar and the axes. Beside yt's "
+        "`save_annotated` of the same data (docs/examples/annotated_vs_yt.py): "
+        "![exabricks and yt](images/annotated/amrex-exabricks-vs-yt.png)",
+        f"{X_CAM} {X_TF} --annotate --title 'AMReX advection, phi'")
 
     # -- Enzo moving7 ----------------------------------------------------------
     add("enzo", "volume", "Volume (headlight)",

@@ -29,3 +29,22 @@ MAX_SAMPLES_PER_RAY = 1 << 20
 # and matplotlib's tables have at most a few hundred; the cap bounds the cost of
 # checking a hostile preset and the image metadata that embeds it.
 MAX_KNOTS = 4096
+
+# ingest's vocabulary (exabricks.stages.ingest), here so that the command line declares
+# ingest's options without importing the stage.
+NAN_POLICIES = ("error", "zero", "drop", "keep")
+"""What `validate_cells` does with NaN or +-Inf values.
+
+error: refuse the input, naming the field and the first cell (the default);
+zero:  replace every non-finite value by 0;
+drop:  remove every cell that has a non-finite value in any field (leaves holes,
+       which the reconstruction treats as empty space);
+keep:  store them unchanged (the renderer then sees NaN/Inf; use with care).
+"""
+
+
+AUTO_MASK_FIELD = "volFrac"
+"""The field that masks cells by itself: where an input has it and no mask is given
+(and the automatic rule is not turned off), cells with volFrac == 0 are dropped.
+AMReX embedded-boundary plotfiles store the fluid volume fraction of each cell
+under this name; 0 is inside the body."""

@@ -71,7 +71,7 @@ def test_probe_source_equals_staged_and_ingest_options_reach_the_build(tmp_path)
 
     lo, hi = (np.array(x) for x in schema.world_bounds(schema.load(trio[0])))
     np.save(tmp_path / "p.npy", lo + rng.random((500, 3)) * (hi - lo))
-    for field in ("speed", "hot"):
+    for field in ("hot",):  # made of a magnitude and an expression
         run_cli("probe", *trio, "--points", tmp_path / "p.npy", "--field", field, "-o",
                 tmp_path / "staged.npy", check=0)
         run_cli("probe", GERRIS, "--fields", "T,speed,hot", *derived, "--points", tmp_path / "p.npy",
@@ -202,3 +202,11 @@ def test_open_source_in_memory_equals_the_cached_files(tmp_path):
             np.testing.assert_array_equal(np.asarray(getattr(b, name)), array, err_msg=name)
     assert memory.fields == ("T",) and memory.levels >= 2
     assert os.fspath(GERRIS) in memory.inputs
+
+
+def test_the_commands_ingest_defaults_are_the_stages():
+    """What the command line takes as "not given" is the ingest stage's own default."""
+    from exabricks.cli.options import INGEST_DEFAULTS
+    from exabricks.dataset import ingest_defaults
+
+    assert INGEST_DEFAULTS == ingest_defaults()

@@ -153,9 +153,9 @@ def _names(ctx, param, values):
 def ingest_options(*field_flags: str):
     """The ingest options (their one declaration); `field_flags` name the field
     selection (`ingest --field`; `--fields` where `--field` is the rendered field)."""
+    from ..constants import AUTO_MASK_FIELD, NAN_POLICIES
     from ..readers import FORMATS
     from ..readers.raw import BYTE_ORDERS, DTYPES
-    from ..stages.ingest import AUTO_MASK_FIELD, NAN_POLICIES
 
     options = [
         click.option("--format", "fmt", type=click.Choice(("auto", *FORMATS)), default="auto",
@@ -205,6 +205,14 @@ INGEST_KEYS = ("fmt", "fields", "scalars", "dims", "dtype", "byte_order", "raw_n
                "threshold", "magnitude", "derive", "nan_policy", "mask", "no_mask")
 
 
+# The ingest stage's defaults, as the options above give them when not used
+# (tests/test_source.py checks them against exabricks.stages.ingest.ingest).
+INGEST_DEFAULTS = {"format": "auto", "fields": (), "scalars": None, "dims": None, "dtype": "float32",
+                   "byte_order": "little", "name": "value", "max_level": None, "threshold": 0.0,
+                   "magnitude": (), "derive": (), "nan_policy": "error", "mask": None,
+                   "auto_mask": True}
+
+
 def ingest_kwargs(options: dict) -> dict:
     """The ingest stage's keyword arguments from the click values of `ingest_options`
     (popped from `options`)."""
@@ -245,12 +253,10 @@ def dataset_from(inputs, options: dict, desc: str = "build"):
     """The exabricks.dataset.Dataset of the arguments of `dataset_arguments` (their
     values popped from `options`): three structure files, or a source built with
     the ingest options given (through the cache unless --no-cache)."""
-    from ..dataset import ingest_defaults, open_dataset
+    from ..dataset import open_dataset
 
     cache, no_cache = options.pop("cache"), options.pop("no_cache")
-    kwargs = ingest_kwargs(options)
-    defaults = ingest_defaults()
-    given = {k: v for k, v in kwargs.items() if v != defaults[k] and not (v == () and not defaults[k])}
+    given = {k: v for k, v in ingest_kwargs(options).items() if v != INGEST_DEFAULTS[k]}
     if len(inputs) == 3:
         flags = [_FLAG_OF.get(k, k) for k in given] + (["--cache"] if cache is not None else []) \
             + (["--no-cache"] if no_cache else [])

@@ -16,7 +16,6 @@ import numpy as np
 from ..constants import VALUE_DTYPE, WORLD_DTYPE
 from ..errors import ExabricksError
 from ..schema import Cells
-from ..stages.ingest import amr_from_uniform
 
 DTYPES = ("uint8", "int8", "uint16", "int16", "uint32", "int32", "float32", "float64")
 BYTE_ORDERS = {"little": "<", "big": ">"}
@@ -69,6 +68,8 @@ def read(
     volume = np.fromfile(path, dtype=dt).reshape(dims[2], dims[1], dims[0])
     if not volume.dtype.isnative or volume.dtype not in (np.float32, np.float64):
         volume = volume.astype(np.float64 if dtype == "float64" else VALUE_DTYPE)
+    from ..stages.ingest import amr_from_uniform  # numba, when a raw volume is read
+
     lower, level, values = amr_from_uniform(volume, max_level=max_level, threshold=threshold)
     return Cells(
         fields=(name,),

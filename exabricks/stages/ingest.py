@@ -31,26 +31,9 @@ import numba
 import numpy as np
 
 from .. import schema
-from ..constants import LATTICE_DTYPE, LEVEL_DTYPE, MAX_LEVEL, VALUE_DTYPE
+from ..constants import AUTO_MASK_FIELD, LATTICE_DTYPE, LEVEL_DTYPE, MAX_LEVEL, NAN_POLICIES, VALUE_DTYPE
 from ..errors import ExabricksError
 from ..schema import Cells, first_misaligned
-
-NAN_POLICIES = ("error", "zero", "drop", "keep")
-"""What `validate_cells` does with NaN or +-Inf values.
-
-error: refuse the input, naming the field and the first cell (the default);
-zero:  replace every non-finite value by 0;
-drop:  remove every cell that has a non-finite value in any field (leaves holes,
-       which the reconstruction treats as empty space);
-keep:  store them unchanged (the renderer then sees NaN/Inf; use with care).
-"""
-
-
-AUTO_MASK_FIELD = "volFrac"
-"""The field that masks cells by itself: where an input has it and no mask is given
-(and the automatic rule is not turned off), cells with volFrac == 0 are dropped.
-AMReX embedded-boundary plotfiles store the fluid volume fraction of each cell
-under this name; 0 is inside the body."""
 
 RAW_DEFAULTS = {"dims": None, "dtype": "float32", "byte_order": "little", "name": "value",
                 "max_level": None, "threshold": 0.0}
