@@ -82,6 +82,7 @@ def test_a_renderer_keeps_its_upload(plume):
     np.testing.assert_array_equal(r.render(field="T", **SMALL).rgba, first.rgba)
 
 
+@pytest.mark.slow
 def test_the_render_job_strategies(tmp_path, plume):
     whole = eb.render(plume, field="T", **SMALL)
     eb.render_job(plume, tmp_path / "budget.exr", field="T", memory_budget="1M", **SMALL)

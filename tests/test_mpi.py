@@ -72,8 +72,9 @@ def same_image(a_path, b_path, exact=False):
 FLAGS = ["--size", 72, 48, "--max-opacity", 1]
 
 
-@pytest.mark.parametrize("dataset", ["gerris", "amrex"])
-@pytest.mark.parametrize("n", [2, 3])
+@pytest.mark.parametrize("dataset,n", [("gerris", 2), pytest.param("gerris", 3, marks=pytest.mark.slow),
+                                       pytest.param("amrex", 2, marks=pytest.mark.slow),
+                                       pytest.param("amrex", 3, marks=pytest.mark.slow)])
 def test_data_parallel_equals_one_process(request, dataset, n, cli, tmp_path):
     files = request.getfixturevalue(dataset)
     extra = ["--spp", 2, "--gradient", "central", "--slice", 0.5, 0.5, 0.5, 0, 0, 1] \

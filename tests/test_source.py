@@ -63,6 +63,7 @@ def test_render_source_is_the_staged_image_bit_for_bit(tmp_path, name):
     assert len(entries(cache)) == 1
 
 
+@pytest.mark.slow
 def test_probe_source_equals_staged_and_ingest_options_reach_the_build(tmp_path):
     derived = ("--magnitude", "speed=U,V,W", "--derive", "hot=where(T > 0.3, speed * 2 + T, 0)")
     trio = staged(tmp_path, GERRIS, ("--fields", "T,speed,hot", *derived))
@@ -95,6 +96,7 @@ def own_plume(tmp_path):
     return d / GERRIS.name
 
 
+@pytest.mark.slow
 def test_the_cache_keys_by_content_and_options(tmp_path, own_plume):
     cache = tmp_path / "cache"
     render = lambda *extra: run_cli("render", own_plume, "--field", "T", *FRAME, "-o",  # noqa: E731
@@ -182,6 +184,7 @@ def test_source_usage_errors(tmp_path, plume_trio):
     assert_one_error_line(run_cli("render", tmp_path / "file", "-o", tmp_path / "file"), "file")
 
 
+@pytest.mark.slow
 def test_a_source_under_a_memory_budget(tmp_path):
     args = (GERRIS, "--field", "T", *FRAME)
     run_cli("render", *args, "-o", tmp_path / "a.exr", check=0)

@@ -117,6 +117,7 @@ def test_budgeted_frame_equals_the_in_memory_frame(name, mode, n, max_opacity):
                                         "pieces": [domains.n_domains] * 2}
 
 
+@pytest.mark.slow  # one of the budget's cases; make test keeps the others
 def test_early_termination_carries_across_domains():
     """An opaque front domain stops the rays: the domains behind take no samples."""
     name = "gerris"
@@ -307,7 +308,8 @@ class Counted(Budgeted):
         return super().domain(index, scene)
 
 
-@pytest.mark.parametrize("name,mode", [("gerris", "emission"), ("amrex", "central")])
+@pytest.mark.parametrize("name,mode", [pytest.param("gerris", "emission", marks=pytest.mark.slow),
+                                       ("amrex", "central")])
 def test_tiled_budgeted_frame_equals_the_in_memory_frame(name, mode):
     built = loaded(name)[0]
     scene = scene_for(name, mode)

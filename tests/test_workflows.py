@@ -69,6 +69,7 @@ def test_make_series_pipeline(series, tmp_path):
     assert subprocess.run([str(c) for c in make] + ["-q"], env=ENV).returncode == 0
 
 
+@pytest.mark.slow
 def test_make_orbit_pipeline(tmp_path):
     out = tmp_path / "out"
     run("make", "-f", WORKFLOWS / "Makefile", "-j2", "orbit", f"DATASET={GERRIS}", "FIELD=T",
