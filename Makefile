@@ -10,7 +10,7 @@ OUT    ?= out
 DATA    = exabricks/data/gerris-plume
 SUDO   := $(shell [ "$$(id -u)" = 0 ] || echo sudo)
 
-.PHONY: setup system-deps demo lint test test-slow fuzz test-slurm test-all bench bench-large gallery clean
+.PHONY: setup system-deps demo lint test test-slow fuzz test-slurm test-all bench bench-large gallery clean browser-deps
 
 system-deps:
 	@if ! ls /etc/OpenCL/vendors/*.icd >/dev/null 2>&1; then \
@@ -68,8 +68,16 @@ WORKERS ?= 2
 test: setup
 	$(PY) -m pytest -q -n $(WORKERS) --dist loadfile -m "not slow and not slurm"
 
-# The slow tests (real datasets end to end, random layouts, no-JIT runs).
-test-slow: setup
+# Headless Chromium and its driver for the viewer's browser tests (tests/test_view.py).
+browser-deps:
+	@if ! command -v chromium >/dev/null 2>&1 || ! command -v chromedriver >/dev/null 2>&1; then \
+	  $(SUDO) apt-get update -qq && \
+	  $(SUDO) env DEBIAN_FRONTEND=noninteractive apt-get install -y -qq chromium chromium-driver >/dev/null; \
+	fi
+
+# The slow tests (real datasets end to end, random layouts, no-JIT runs, the viewer
+# in a real browser).
+test-slow: setup browser-deps
 	$(PY) -m pytest -q -n $(WORKERS) --dist loadfile -m "slow"
 
 # The fuzzers with many examples each.

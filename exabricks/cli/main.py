@@ -27,6 +27,7 @@ COMMANDS = (
     "devices",
     "camera",
     "cache",
+    "view",
 )
 
 

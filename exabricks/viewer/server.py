@@ -1,0 +1,269 @@
+"""The viewer's web server (aiohttp): the page, its assets and one websocket per page.
+
+Security, as a Jupyter server has it (docs/view.md):
+
+- it listens on the loopback interface unless told otherwise (`--host`);
+- every request needs the random token of the printed URL, as `?token=` or as the
+  cookie the page gets with it; anything else is 403;
+- the Host header must name this server (no DNS rebinding), and a websocket's
+  Origin must be this server's own page;
+- nothing a page sends names a file: the page reads its assets by fixed names, and a
+  scene from the page may hold no file reference (session._no_files);
+- a malformed message gets an error reply on its websocket; the server goes on.
+
+Messages (JSON text; frames are PNG bytes, each after a "frame" message):
+
+    page -> server  {"type": "scene", "scene": {...}, "moving": false, "version": N}
+                    {"type": "save"}          (writes --scene-out, sends the document back)
+    server -> page  {"type": "init", ...}     (session.Session.info)
+                    {"type": "frame", "stage", "width", "height", "spp", "ms",
+                     "samples_per_second", "device", "version"}, then the PNG
+                    (version: the page's number of the scene it shows, 0 at the start)
+                    {"type": "saved", "scene": {...}, "path": ...}
+                    {"type": "error", "message": "..."}
+"""
+
+from __future__ import annotations
+
+import asyncio
+import hmac
+import json
+import logging
+import secrets
+from importlib import resources
+from pathlib import Path
+
+from ..errors import ExabricksError, one_line
+
+log = logging.getLogger(__name__)
+
+COOKIE = "exabricks_view_token"
+ASSETS = {"/": ("index.html", "text/html"), "/viewer.js": ("viewer.js", "text/javascript"),
+          "/viewer.css": ("viewer.css", "text/css")}
+MAX_MESSAGE = 1 << 20
+
+
+class Viewer:
+    """The web application over one Session."""
+
+    def __init__(self, session, *, host: str = "127.0.0.1", port: int = 0, scene_out=None,
+                 token: str | None = None):
+        self.session = session
+        self.host = host
+        self.port = port
+        self.scene_out = None if scene_out is None else Path(scene_out)
+        self.token = token or secrets.token_urlsafe(24)
+        self.lock = asyncio.Lock()  # one frame on the device at a time
+        self.runner = None
+
+    # -- checks ---------------------------------------------------------------
+
+    def _allowed_hosts(self) -> set[str]:
+        names = {"127.0.0.1", "localhost", "[::1]", self.host}
+        return {f"{n}:{self.port}" for n in names}
+
+    def _check(self, request) -> None:
+        from aiohttp import web
+
+        if request.host not in self._allowed_hosts():
+            raise web.HTTPForbidden(text="unknown host")
+        given = request.query.get("token") or request.cookies.get(COOKIE) or ""
+        if not hmac.compare_digest(given.encode(), self.token.encode()):
+            raise web.HTTPForbidden(text="a token is needed: open the URL that `exabricks view` printed")
+
+    # -- handlers -------------------------------------------------------------
+
+    async def asset(self, request):
+        from aiohttp import web
+
+        self._check(request)
+        name, kind = ASSETS[request.path]
+        body = resources.files(__package__).joinpath("static", name).read_bytes()
+        response = web.Response(body=body, content_type=kind,
+                                headers={"Cache-Control": "no-store",
+                                         "Content-Security-Policy": "default-src 'self'; img-src 'self' blob: data:; "
+                                         "connect-src 'self'; style-src 'self'",
+                                         "X-Content-Type-Options": "nosniff"})
+        response.set_cookie(COOKIE, self.token, httponly=True, samesite="Strict")
+        return response
+
+    async def socket(self, request):
+        from aiohttp import WSMsgType, web
+
+        self._check(request)
+        origin = request.headers.get("Origin")
+        if origin is not None and origin not in {f"http://{h}" for h in self._allowed_hosts()}:
+            raise web.HTTPForbidden(text="cross-origin websocket refused")
+        ws = web.WebSocketResponse(max_msg_size=MAX_MESSAGE, heartbeat=30)
+        await ws.prepare(request)
+        page = _Page(self, ws)
+        await ws.send_str(json.dumps(self.session.info()))
+        page.want(self.session.doc, False)
+        async for msg in ws:
+            if msg.type == WSMsgType.TEXT:
+                await page.receive(msg.data)
+            elif msg.type == WSMsgType.BINARY:
+                await page.error("binary messages are not understood")
+            elif msg.type == WSMsgType.ERROR:
+                break
+        page.close()
+        return ws
+
+    def app(self):
+        from aiohttp import web
+
+        app = web.Application(client_max_size=MAX_MESSAGE)
+        for path in ASSETS:
+            app.router.add_get(path, self.asset)
+        app.router.add_get("/ws", self.socket)
+        return app
+
+    async def start(self) -> str:
+        """Listen; the URL with the token."""
+        from aiohttp import web
+
+        self.runner = web.AppRunner(self.app(), access_log=None)
+        await self.runner.setup()
+        site = web.TCPSite(self.runner, self.host, self.port)
+        await site.start()
+        self.port = site._server.sockets[0].getsockname()[1]
+        host = f"[{self.host}]" if ":" in self.host else self.host
+        return f"http://{host}:{self.port}/?token={self.token}"
+
+    async def stop(self) -> None:
+        if self.runner is not None:
+            await self.runner.cleanup()
+
+    def save(self, doc: dict) -> str | None:
+        """Write `doc` to --scene-out (atomically); its path, or None without one."""
+        from ..output import write_output
+
+        if self.scene_out is None:
+            return None
+        text = json.dumps(doc, indent=1) + "\n"
+
+        def write(tmp):
+            with open(tmp, "w") as f:
+                f.write(text)
+
+        write_output(self.scene_out, write)
+        return str(self.scene_out)
+
+
+class _Page:
+    """One page's websocket: the version it wants drawn and the drawing of it."""
+
+    def __init__(self, viewer: Viewer, ws):
+        self.viewer, self.ws = viewer, ws
+        self.version = 0
+        self.doc = self.good = viewer.session.doc  # wanted; last that passed its checks
+        self.moving = False
+        self.tag = 0  # the page's number of the wanted scene
+        self.task = None
+
+    def want(self, doc: dict, moving: bool, tag=0) -> None:
+        self.version += 1
+        self.doc, self.moving = doc, moving
+        self.tag = tag if isinstance(tag, int) and not isinstance(tag, bool) else 0
+        if self.task is None or self.task.done():
+            self.task = asyncio.ensure_future(self._draw())
+
+    async def _draw(self) -> None:
+        session = self.viewer.session
+        loop = asyncio.get_running_loop()
+        while True:
+            version, doc, moving, tag = self.version, self.doc, self.moving, self.tag
+            try:
+                scene = await loop.run_in_executor(None, session.check, doc)
+                self.good = doc
+                for stage, staged in session.stages(scene, moving):
+                    if version != self.version:
+                        break
+                    async with self.viewer.lock:
+                        frame = await loop.run_in_executor(None, session.draw, stage, staged)
+                    if version != self.version or self.ws.closed:
+                        break
+                    await self.ws.send_str(json.dumps({
+                        "type": "frame", "stage": frame.stage, "width": frame.width,
+                        "height": frame.height, "spp": frame.spp, "ms": round(frame.ms, 1),
+                        "samples_per_second": frame.samples_per_second, "device": frame.device,
+                        "version": tag}))
+                    await self.ws.send_bytes(frame.png)
+                else:
+                    if version == self.version:
+                        self.viewer.session.doc = doc  # the last complete view: what save writes
+            except ExabricksError as e:
+                if version == self.version:
+                    self.doc = self.good  # what "save" writes stays a scene that draws
+                await self.error(str(e))
+            except (ConnectionError, RuntimeError) as e:  # the page went away mid-send
+                log.debug("view: %s", e)
+                return
+            if version == self.version or self.ws.closed:
+                return
+
+    async def receive(self, text: str) -> None:
+        try:
+            message = json.loads(text)
+        except (ValueError, RecursionError):
+            await self.error("not a JSON message")
+            return
+        if not isinstance(message, dict) or not isinstance(message.get("type"), str):
+            await self.error('a message is an object with a "type"')
+            return
+        kind = message["type"]
+        if kind == "scene":
+            doc = message.get("scene")
+            if not isinstance(doc, dict):
+                await self.error('"scene" needs a scene object')
+                return
+            self.want(doc, bool(message.get("moving", False)), message.get("version", 0))
+        elif kind == "save":
+            try:
+                doc = self.good
+                path = self.viewer.save(doc)
+            except ExabricksError as e:
+                await self.error(str(e))
+                return
+            await self.ws.send_str(json.dumps({"type": "saved", "scene": doc, "path": path}))
+        else:
+            await self.error(f"unknown message type {one_line(kind)[:40]!r}")
+
+    async def error(self, message: str) -> None:
+        if not self.ws.closed:
+            await self.ws.send_str(json.dumps({"type": "error", "message": one_line(message)}))
+
+    def close(self) -> None:
+        self.version += 1
+        if self.task is not None:
+            self.task.cancel()
+
+
+async def serve(viewer: Viewer, on_url) -> int | None:
+    """Run until SIGINT, SIGTERM or SIGHUP, calling `on_url(url)` once listening; the
+    signal's number. The signals are the loop's own (they wake it up; they never
+    interrupt a callback, whose exception asyncio would swallow), and the server
+    stops cleanly before returning."""
+    import signal
+
+    from .. import interrupt
+
+    loop = asyncio.get_running_loop()
+    stop = asyncio.Event()
+    received = []
+
+    def on_signal(signum):
+        received.append(signum)
+        stop.set()
+
+    for s in interrupt.SIGNALS:
+        loop.add_signal_handler(s, on_signal, s)
+    try:
+        url = await viewer.start()
+        on_url(url)
+        await stop.wait()
+    finally:
+        for s in interrupt.SIGNALS:
+            loop.remove_signal_handler(s)
+        await viewer.stop()
+    return received[0] if received else signal.SIGINT

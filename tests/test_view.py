@@ -1,0 +1,343 @@
+"""`exabricks view`: the server's security and protocol (a real HTTP and websocket
+client), and the page in a real browser (headless Chromium through Selenium):
+it loads, a frame appears and refines, a drag orbits, dragging an opacity knot
+changes the image, and "Save scene" writes a file whose `render --scene` is the
+viewer's converged frame. EXABRICKS_VIEW_SCREENSHOTS=DIR keeps the screenshots
+(docs/view.md's pictures)."""
+
+from __future__ import annotations
+
+import asyncio
+import base64
+import io
+import json
+import os
+import re
+import shutil
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from conftest import GERRIS, run_cli
+
+pytestmark = pytest.mark.slow
+aiohttp = pytest.importorskip("aiohttp")
+
+VIEW = ("--field", "T", "--colormap", "inferno", "--opacity", "0,0.1,0.3,0.6", "--range", "0", "0.6",
+        "--position", "129", "63", "148", "--look-at", "64", "33", "64", "--size", "320", "256",
+        "--spp", "2")
+
+
+class Server:
+    """`exabricks view` in a subprocess; its URL, base and token."""
+
+    def __init__(self, tmp_path, *args):
+        env = {**os.environ, "EXABRICKS_CACHE": str(tmp_path / "cache"), "PYTHONFAULTHANDLER": "1"}
+        self.proc = subprocess.Popen([sys.executable, "-m", "exabricks.cli.main", "view", *map(str, args)],
+                                     stderr=subprocess.PIPE, stdout=subprocess.DEVNULL, text=True, env=env)
+        deadline = time.monotonic() + 120
+        self.url = None
+        while self.url is None and time.monotonic() < deadline:
+            line = self.proc.stderr.readline()
+            if not line:
+                break
+            m = re.search(r"(http://\S+)", line)
+            self.url = m.group(1) if m else None
+        assert self.url, "the viewer printed no URL"
+        self.base, self.token = self.url.split("/?token=")
+
+    def stop(self):
+        self.proc.terminate()
+        try:
+            return self.proc.wait(timeout=30)
+        except subprocess.TimeoutExpired:
+            import signal
+            self.proc.send_signal(signal.SIGABRT)
+            time.sleep(2)
+            raise AssertionError(self.proc.stderr.read()[-6000:])
+        finally:
+            self.proc.kill()
+
+
+@pytest.fixture
+def server(tmp_path):
+    s = Server(tmp_path, GERRIS, *VIEW, "--scene-out", tmp_path / "scene.json")
+    yield s
+    assert s.stop() in (0, 143, -15)
+
+
+def ws_messages(server, send=(), origin=None, until=lambda m: False, count=30, then=()):
+    """Messages (decoded JSON, or bytes) of one websocket session that sends `send`
+    and reads until `until` (or `count` messages); then, for each (messages,
+    predicate) of `then`, sends those and reads until that."""
+    async def run():
+        jar = aiohttp.CookieJar(unsafe=True)
+        async with aiohttp.ClientSession(cookie_jar=jar) as s:
+            async with s.get(server.url):
+                pass
+            got = []
+            async with s.ws_connect(server.base + "/ws", headers={"Origin": origin or server.base}) as ws:
+                for messages, stop in [(send, until), *then]:
+                    for m in messages:
+                        await ws.send_str(m if isinstance(m, str) else json.dumps(m))
+                    while len(got) < count:
+                        msg = await asyncio.wait_for(ws.receive(), 60)
+                        if msg.type == aiohttp.WSMsgType.TEXT:
+                            got.append(json.loads(msg.data))
+                        elif msg.type == aiohttp.WSMsgType.BINARY:
+                            got.append(msg.data)
+                        else:
+                            break
+                        if stop(got[-1]):
+                            break
+            return got
+    return asyncio.run(run())
+
+
+def status(url, headers=None, cookies=None):
+    async def run():
+        async with aiohttp.ClientSession() as s:
+            async with s.get(url, headers=headers or {}, cookies=cookies or {}) as r:
+                return r.status
+    return asyncio.run(run())
+
+
+def test_the_server_wants_its_token_its_host_and_its_origin(server):
+    assert status(server.base + "/") == 403
+    assert status(server.base + "/viewer.js") == 403
+    assert status(server.base + "/?token=wrong") == 403
+    assert status(server.url) == 200
+    assert status(server.base + "/viewer.js?token=" + server.token) == 200
+    assert status(server.base + "/ws") == 403  # no token
+    assert status(server.url, headers={"Host": "evil.example"}) == 403  # DNS rebinding
+    assert status(server.base + "/../../etc/passwd?token=" + server.token) == 404
+    assert status(server.base + "/static/viewer.js?token=" + server.token) == 404
+    with pytest.raises(aiohttp.WSServerHandshakeError) as e:
+        ws_messages(server, origin="http://evil.example")
+    assert e.value.status == 403
+
+
+def test_frames_refine_and_bad_messages_get_an_error(server):
+    got = ws_messages(server, until=lambda m: isinstance(m, dict) and m.get("stage") == "converged")
+    init, frames = got[0], [m for m in got if isinstance(m, dict) and m["type"] == "frame"]
+    assert init["type"] == "init" and set(init["fields"]) == {"P", "T", "U", "V", "W"}
+    assert [f["stage"] for f in frames] == ["coarse", "full", "converged"]
+    assert frames[0]["width"] == 80 and frames[-1]["width"] == 320 and frames[-1]["spp"] == 2
+    assert all(isinstance(m, bytes) and m[:8] == b"\x89PNG\r\n\x1a\n" for m in got[2::2])
+    protocol = ["not json", "[1, 2]", {"type": 3}, {"type": "nope"}, {"type": "scene"}]
+    scenes = [({"camera": "/etc/passwd"}, "inline camera object, not a file"),
+              ({"volumes": [{"field": "T", "transfer_function": "/etc/passwd"}]}, "not a file"),
+              ({"spp": 0}, "spp"), ({"volumes": "x" * 100}, "volumes")]
+    is_error = lambda m: isinstance(m, dict) and m.get("type") == "error"  # noqa: E731
+    errors = [m["message"] for m in ws_messages(server, send=protocol, count=60,
+                                               until=lambda m: is_error(m) and "scene object" in m["message"])
+              if is_error(m)]
+    for doc, needle in scenes:  # one at a time: a newer scene drops an older one unchecked
+        got = ws_messages(server, send=[{"type": "scene", "scene": doc}], count=60, until=is_error)
+        errors.append(got[-1]["message"])
+        assert needle in got[-1]["message"], (needle, got[-1])
+    text = " | ".join(errors)
+    for needle in ("not a JSON message", 'a message is an object with a "type"', "unknown message type",
+                   '"scene" needs a scene object'):
+        assert needle in text, (needle, text)
+    # the server still draws after all that
+    assert any(isinstance(m, dict) and m.get("stage") == "coarse" for m in ws_messages(server, count=4))
+
+
+@pytest.mark.fuzz
+def test_hostile_requests_never_crash_the_server(server):
+    from hypothesis import HealthCheck, given, settings, strategies as st
+
+    from conftest import FUZZ_EXAMPLES
+
+    json_values = st.recursive(st.none() | st.booleans() | st.floats() | st.text(max_size=20),
+                               lambda c: st.lists(c, max_size=4) | st.dictionaries(st.text(max_size=8), c, max_size=4),
+                               max_leaves=20)
+    messages = st.one_of(st.text(max_size=200), json_values.map(json.dumps),
+                         st.fixed_dictionaries({"type": st.sampled_from(["scene", "save", "x"]),
+                                                "scene": json_values}).map(json.dumps))
+
+    @settings(max_examples=FUZZ_EXAMPLES, deadline=None, suppress_health_check=list(HealthCheck))
+    @given(st.lists(messages, min_size=1, max_size=5), st.text(max_size=40))
+    def attack(sent, path):
+        ws_messages(server, send=sent, count=len(sent) + 1)
+        status(server.base + "/" + path.replace("?", "").replace("#", ""))
+
+    attack()
+    assert server.proc.poll() is None
+    assert status(server.url) == 200
+
+
+def test_save_scene_renders_the_viewers_frame(server, tmp_path):
+    got = ws_messages(server, count=40, until=after_converged(),
+                      then=[([{"type": "save"}], lambda m: isinstance(m, dict) and m.get("type") == "saved")])
+    assert got[-1]["type"] == "saved" and got[-1]["path"] == str(tmp_path / "scene.json")
+    doc = json.loads((tmp_path / "scene.json").read_text())
+    assert doc == got[-1]["scene"]
+    converged = frame_after(got, "converged")
+    assert_renders(doc, tmp_path, converged)
+
+
+def after_converged():
+    """A predicate true at the PNG that follows a "converged" frame message."""
+    seen = []
+
+    def stop(m):
+        if isinstance(m, dict):
+            seen.append(m.get("stage"))
+            return False
+        return bool(seen) and seen[-1] == "converged"
+    return stop
+
+
+def frame_after(got, stage):
+    i = next(i for i, m in enumerate(got) if isinstance(m, dict) and m.get("stage") == stage)
+    return got[i + 1]
+
+
+def assert_renders(scene_file_or_doc, tmp_path, png: bytes):
+    """`render --scene` of the document draws `png` (the viewer's frame), pixel for pixel."""
+    from PIL import Image as PILImage
+
+    import exabricks as eb
+
+    path = tmp_path / "check.json"
+    if isinstance(scene_file_or_doc, dict):
+        path.write_text(json.dumps(scene_file_or_doc))
+    else:
+        shutil.copy(scene_file_or_doc, path)
+    run_cli("render", GERRIS, "--scene", path, "-o", tmp_path / "check.exr", check=0)
+    rendered = eb.Image.read(tmp_path / "check.exr")
+    doc = json.loads(path.read_text())
+    rendered.scene = type("S", (), {"background": tuple(doc["background"])})()
+    viewer = np.asarray(PILImage.open(io.BytesIO(png)).convert("RGB"))
+    np.testing.assert_array_equal(viewer, rendered.shown())
+
+
+# -- the page in a real browser --------------------------------------------------
+
+
+@pytest.fixture
+def browser():
+    webdriver = pytest.importorskip("selenium.webdriver")
+    chromium = shutil.which("chromium") or shutil.which("chromium-browser")
+    driver_path = shutil.which("chromedriver")
+    if not chromium or not driver_path:
+        pytest.skip("Debian's chromium and chromium-driver are not installed")
+    options = webdriver.ChromeOptions()
+    options.binary_location = chromium
+    for arg in ("--headless=new", "--no-sandbox", "--disable-dev-shm-usage", "--window-size=1280,800",
+                "--disable-gpu"):
+        options.add_argument(arg)
+    options.set_capability("goog:loggingPrefs", {"browser": "ALL"})
+    driver = webdriver.Chrome(options=options, service=webdriver.ChromeService(executable_path=driver_path))
+    yield driver
+    driver.quit()
+
+
+def wait_for(driver, script, timeout=60):
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        value = driver.execute_script(script)
+        if value:
+            return value
+        time.sleep(0.05)
+    raise AssertionError(f"timed out waiting for: {script}")
+
+
+def converged(driver, after_version=-1):
+    return wait_for(driver, f"const f = window.exabricks.frame; return f && f.stage === 'converged' && "
+                            f"f.version > {after_version} && window.exabricks.version === f.version ? f : null")
+
+
+def shown_png(driver) -> bytes:
+    data = driver.execute_async_script(
+        "const done = arguments[0], r = new FileReader(); r.onload = () => done(r.result); "
+        "r.readAsDataURL(window.exabricks.blob);")
+    return base64.b64decode(data.split(",", 1)[1])
+
+
+def screenshot(driver, name):
+    keep = os.environ.get("EXABRICKS_VIEW_SCREENSHOTS")
+    if keep:
+        Path(keep).mkdir(parents=True, exist_ok=True)
+        driver.save_screenshot(str(Path(keep) / name))
+
+
+def test_the_page_in_a_browser(server, browser, tmp_path):
+    from selenium.webdriver.common.action_chains import ActionChains
+    from selenium.webdriver.common.by import By
+
+    started = time.monotonic()
+    browser.get(server.url)
+    first = wait_for(browser, "const f = window.exabricks.frame; return f ? f : null")
+    assert first["stage"] in ("coarse", "full", "converged")
+    frame = converged(browser)
+    assert frame["width"] == 320 and frame["spp"] == 2 and time.monotonic() - started < 60
+    status_text = browser.find_element(By.ID, "status").text
+    assert "converged 320×256, 2 spp" in status_text and "samples/s" in status_text
+    screenshot(browser, "view-plume.png")
+    before = shown_png(browser)
+
+    # a drag orbits the camera
+    position = browser.execute_script("return window.exabricks.doc.camera.position.slice()")
+    view = browser.find_element(By.ID, "view")
+    ActionChains(browser).move_to_element(view).click_and_hold().move_by_offset(80, 0) \
+        .move_by_offset(40, 10).release().perform()
+    frame = converged(browser, frame["version"])
+    moved = browser.execute_script("return window.exabricks.doc.camera.position")
+    assert np.linalg.norm(np.subtract(moved, position)) > 10
+    look_at = browser.execute_script("return window.exabricks.doc.camera.look_at")
+    assert np.allclose(np.linalg.norm(np.subtract(moved, look_at)),
+                       np.linalg.norm(np.subtract(position, look_at)), rtol=1e-6)  # an orbit
+    orbited = shown_png(browser)
+    assert orbited != before
+
+    # dragging an opacity knot (the last, at the top right) down changes the image
+    knots = browser.execute_script("return window.exabricks.doc.volumes[0].transfer_function.opacity.slice()")
+    canvas = browser.find_element(By.ID, "opacity")
+    w, h = canvas.size["width"], canvas.size["height"]
+    y_last = 5 + (1 - knots[-1]) * (h - 10)
+    ActionChains(browser).move_to_element_with_offset(canvas, w / 2 - 5, y_last - h / 2).click_and_hold() \
+        .move_by_offset(0, 40).release().perform()
+    frame = converged(browser, frame["version"])
+    dragged = browser.execute_script("return window.exabricks.doc.volumes[0].transfer_function.opacity")
+    assert dragged[:-1] == knots[:-1] and dragged[-1] < knots[-1] - 0.2
+    assert shown_png(browser) != orbited
+    screenshot(browser, "view-knot.png")
+
+    # an iso-surface, then "Save scene": render --scene of it draws the viewer's frame
+    browser.find_element(By.ID, "iso-add").click()
+    frame = converged(browser, frame["version"])
+    browser.find_element(By.ID, "save").click()
+    wait_for(browser, "return document.getElementById('saved').textContent")
+    assert str(tmp_path / "scene.json") in browser.find_element(By.ID, "saved").text
+    assert_renders(tmp_path / "scene.json", tmp_path, shown_png(browser))
+    screenshot(browser, "view-iso.png")
+    logs = [e for e in browser.get_log("browser") if e["level"] == "SEVERE"]
+    assert not logs, logs
+
+
+def test_a_view_within_a_memory_budget(tmp_path):
+    """`view --memory-budget` draws domain by domain; its saved scene renders the same
+    frame with `render --scene --memory-budget`."""
+    s = Server(tmp_path, GERRIS, *VIEW, "--memory-budget", "8M", "--scene-out", tmp_path / "scene.json")
+    try:
+        got = ws_messages(s, count=40, until=after_converged(),
+                          then=[([{"type": "save"}], lambda m: isinstance(m, dict) and m.get("type") == "saved")])
+    finally:
+        s.stop()
+    from PIL import Image as PILImage
+
+    import exabricks as eb
+
+    run_cli("render", GERRIS, "--scene", tmp_path / "scene.json", "--memory-budget", "8M", "-o",
+            tmp_path / "check.exr", check=0)
+    rendered = eb.Image.read(tmp_path / "check.exr")
+    rendered.scene = type("S", (), {"background": (0.0, 0.0, 0.0, 0.0)})()
+    viewer = np.asarray(PILImage.open(io.BytesIO(frame_after(got, "converged"))).convert("RGB"))
+    np.testing.assert_array_equal(viewer, rendered.shown())
