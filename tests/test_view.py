@@ -54,11 +54,12 @@ class Server:
         self.proc.terminate()
         try:
             return self.proc.wait(timeout=30)
-        except subprocess.TimeoutExpired:
+        except subprocess.TimeoutExpired:  # show where it hangs (PYTHONFAULTHANDLER)
             import signal
+
             self.proc.send_signal(signal.SIGABRT)
             time.sleep(2)
-            raise AssertionError(self.proc.stderr.read()[-6000:])
+            raise AssertionError(self.proc.stderr.read()[-6000:]) from None
         finally:
             self.proc.kill()
 
