@@ -209,12 +209,6 @@ def _normalised(options: dict) -> dict:
     """`options` as JSON values (tuples as lists, paths as strings), for the key."""
     import json
 
-    return json.loads(json.dumps(options, sort_keys=True, default=_plain))
+    from .jsonfile import json_default
 
-
-def _plain(x):
-    if isinstance(x, os.PathLike):
-        return os.fspath(x)
-    if isinstance(x, (set, frozenset)):
-        return sorted(x)
-    raise TypeError(f"not JSON serialisable: {type(x).__name__}")
+    return json.loads(json.dumps(options, sort_keys=True, default=json_default))

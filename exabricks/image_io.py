@@ -32,6 +32,7 @@ import numpy as np
 
 from . import __version__
 from .errors import ExabricksError
+from .jsonfile import json_default
 from .output import write_output
 
 METADATA_PREFIX = "exabricks:"
@@ -47,16 +48,6 @@ def _suffix(path: Path) -> str:
     return suffix
 
 
-def _json_default(x):
-    if isinstance(x, np.generic):
-        return x.item()
-    if isinstance(x, np.ndarray):
-        return x.tolist()
-    if isinstance(x, os.PathLike):
-        return os.fspath(x)
-    raise TypeError(f"not JSON serialisable: {type(x).__name__}")
-
-
 def _encoded_metadata(metadata: dict, path: Path) -> dict[str, str]:
     """{"exabricks:KEY": JSON text}; keys must be short printable ASCII (PNG keyword rules)."""
     out = {}
@@ -65,7 +56,7 @@ def _encoded_metadata(metadata: dict, path: Path) -> dict[str, str]:
         if not isinstance(key, str) or not key or len(name) > 79 or not all(32 < ord(c) < 127 for c in key):
             raise ExabricksError(f"{path}: metadata key {key!r} must be 1-69 printable ASCII characters")
         try:
-            out[name] = json.dumps(value, sort_keys=True, default=_json_default, allow_nan=True)
+            out[name] = json.dumps(value, sort_keys=True, default=json_default, allow_nan=True)
         except (TypeError, ValueError) as e:
             raise ExabricksError(f"{path}: metadata {key!r} cannot be written as JSON: {e}") from None
     return out

@@ -131,3 +131,16 @@ def check_bounds(doc, where: str, *, max_list: int = MAX_LIST, max_depth: int = 
         if values > max_values:
             raise ExabricksError(f"{where}: holds more than {max_values:,} values")
         stack.extend((item, depth + 1) for item in items if isinstance(item, (dict, list)))
+
+
+def json_default(x):
+    """`json.dumps(..., default=json_default)`: numpy numbers and arrays as JSON
+    numbers and lists, paths as strings, sets as sorted lists; TypeError for anything
+    else (what every JSON this package writes holds)."""
+    if hasattr(x, "dtype") and hasattr(x, "tolist"):  # a numpy number or array
+        return x.tolist() if getattr(x, "ndim", 0) else x.item()
+    if isinstance(x, os.PathLike):
+        return os.fspath(x)
+    if isinstance(x, (set, frozenset)):
+        return sorted(x)
+    raise TypeError(f"not JSON serialisable: {type(x).__name__}")

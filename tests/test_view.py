@@ -342,3 +342,10 @@ def test_a_view_within_a_memory_budget(tmp_path):
     rendered.scene = type("S", (), {"background": (0.0, 0.0, 0.0, 0.0)})()
     viewer = np.asarray(PILImage.open(io.BytesIO(frame_after(got, "converged"))).convert("RGB"))
     np.testing.assert_array_equal(viewer, rendered.shown())
+
+
+def test_a_server_that_cannot_listen_says_so():
+    from conftest import assert_one_error_line
+
+    assert_one_error_line(run_cli("view", GERRIS, "--host", "203.0.113.1"), "--host 203.0.113.1",
+                          "cannot listen there")

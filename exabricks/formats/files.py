@@ -12,6 +12,7 @@ import numpy as np
 
 from .. import __version__
 from ..errors import ExabricksError
+from ..jsonfile import json_default
 from ..output import write_output
 from .checks import check_declared, check_implied_sizes, validate
 from .kinds import KINDS, Kind
@@ -31,7 +32,7 @@ def save(path: str | os.PathLike, obj: Kind, *, inputs=()) -> None:
         "format": np.array(FORMAT),
         "kind": np.array(obj.KIND),
         "version": np.array(obj.VERSION, dtype=np.int32),
-        "meta": np.array(json.dumps(meta, sort_keys=True, default=_json_default)),
+        "meta": np.array(json.dumps(meta, sort_keys=True, default=json_default)),
     }
 
     def write(tmp: str) -> None:
@@ -41,14 +42,6 @@ def save(path: str | os.PathLike, obj: Kind, *, inputs=()) -> None:
             os.fsync(f.fileno())
 
     write_output(path, write, inputs=inputs)
-
-
-def _json_default(x):
-    if isinstance(x, np.generic):
-        return x.item()
-    if isinstance(x, np.ndarray):
-        return x.tolist()
-    raise TypeError(f"not JSON serialisable: {type(x).__name__}")
 
 
 def peek(path: str | os.PathLike) -> tuple[str, int, dict]:

@@ -4,7 +4,6 @@ the file and the key path (`SceneFile`, `read_scene_file`)."""
 
 from __future__ import annotations
 
-import os
 from pathlib import Path
 
 from ..errors import ExabricksError
@@ -254,18 +253,13 @@ def _plain(doc):
     as a file holding it would read."""
     import json
 
-    import numpy as np
+    from ..jsonfile import json_default
 
-    def default(x):
-        if isinstance(x, np.generic):
-            return x.item()
-        if isinstance(x, np.ndarray):
-            return x.tolist()
-        if isinstance(x, os.PathLike):
-            return os.fspath(x)
-        raise ExabricksError(f"scene: {type(x).__name__} is not a scene-file value")
-
-    return json.loads(json.dumps(doc, default=default), parse_constant=_refuse)
+    try:
+        text = json.dumps(doc, default=json_default)
+    except TypeError as e:
+        raise ExabricksError(f"scene: {e} (a scene holds numbers, strings, lists and objects)") from None
+    return json.loads(text, parse_constant=_refuse)
 
 
 def _refuse(name):

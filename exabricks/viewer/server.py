@@ -125,7 +125,12 @@ class Viewer:
         self.runner = web.AppRunner(self.app(), access_log=None)
         await self.runner.setup()
         site = web.TCPSite(self.runner, self.host, self.port)
-        await site.start()
+        try:
+            await site.start()
+        except OSError as e:
+            await self.runner.cleanup()
+            raise ExabricksError(f"--host {self.host} --port {self.port}: cannot listen there "
+                                 f"({e.strerror or e})") from None
         self.port = site._server.sockets[0].getsockname()[1]
         host = f"[{self.host}]" if ":" in self.host else self.host
         return f"http://{host}:{self.port}/?token={self.token}"
