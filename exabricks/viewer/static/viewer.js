@@ -91,8 +91,14 @@ function volume() {
     v.transfer_function = { colormap: "viridis", opacity: [0, 1] };
   }
   if (!v.transfer_function.opacity) v.transfer_function.opacity = [0, 1];
-  if (!v.range) v.range = state.info.fields[v.field].range.slice();
+  if (!v.range) v.range = fieldRange(v.field);
   return v;
+}
+
+// A field's range, or [0, 1] for a name the data lacks (the server then says so).
+function fieldRange(name) {
+  const f = state.info.fields[name];
+  return f ? f.range.slice() : [0, 1];
 }
 
 // Every control from the document.
@@ -138,7 +144,8 @@ function numbers(id, values, set, enabled) {
 function drawOpacity() {
   const c = $("opacity"), g = c.getContext("2d"), v = volume();
   // the field's histogram (log counts) under the knots, over the layer's range
-  const field = state.info.fields[v.field], hist = field.histogram, top = Math.log1p(Math.max(...hist, 1));
+  const field = state.info.fields[v.field] || { histogram: [], range: fieldRange(v.field) };
+  const hist = field.histogram, top = Math.log1p(Math.max(...hist, 1));
   const [flo, fhi] = field.range, [rlo, rhi] = v.range, bin = (fhi - flo) / hist.length;
   const x = (value) => 5 + ((value - rlo) / ((rhi - rlo) || 1)) * (c.width - 10);
   g.clearRect(0, 0, c.width, c.height);
@@ -221,7 +228,7 @@ function isos() {
   $("isos").replaceChildren(...list.map((iso, i) => {
     const row = document.createElement("div");
     row.className = "item iso";
-    const [lo, hi] = state.info.fields[iso.field].range;
+    const [lo, hi] = fieldRange(iso.field);
     row.append(iso.field, ...slider(iso.value, lo, hi, (x) => { iso.value = x; send(); }),
                removeButton(list, i, isos));
     return row;
@@ -312,7 +319,7 @@ function controls() {
   $("field").onchange = () => {
     const v = volume();
     v.field = $("field").value;
-    v.range = state.info.fields[v.field].range.slice();
+    v.range = fieldRange(v.field);
     fill(); send();
   };
   $("colormap").onchange = () => { volume().transfer_function.colormap = $("colormap").value; send(); };
@@ -320,7 +327,7 @@ function controls() {
     volume().range = [+$("range-lo").value, +$("range-hi").value]; send();
   };
   $("iso-add").onclick = () => {
-    const v = volume(), [lo, hi] = state.info.fields[v.field].range;
+    const v = volume(), [lo, hi] = fieldRange(v.field);
     state.doc.isosurfaces.push({ field: v.field, value: (lo + hi) / 2, color: [0.9, 0.9, 0.9], opacity: 1 });
     isos(); send();
   };
