@@ -158,3 +158,26 @@ def test_crafted_regions_under_data_parallel_mpi(gerris, tmp_path, array, value,
     proc = mpirun(2, "render", gerris[0], bad, gerris[2], "-o", out)
     assert_one_error_line(proc, str(bad), needle)
     assert not out.exists()
+
+
+@pytest.mark.slow
+def test_the_library_and_a_source_under_mpiexec(tmp_path):
+    """`mpiexec -n 2 python script.py` with eb.render_job of a source: rank 0 builds
+    it into the cache, the other rank loads that entry, and the frame is one
+    process's; `eb.render` refuses to run under MPI."""
+    script = tmp_path / "job.py"
+    script.write_text(
+        "import sys\nimport exabricks as eb\n"
+        "ds = eb.open(sys.argv[1])\n"
+        "eb.render_job(ds, sys.argv[2], field='T', size=(72, 48), max_opacity=1)\n"
+        "try:\n    eb.render(ds, field='T')\nexcept eb.ExabricksError as e:\n    print('refused:', e)\n")
+    env = {**os.environ, "EXABRICKS_CACHE": str(tmp_path / "cache")}
+    proc = subprocess.run([str(MPIEXEC), "-n", "2", sys.executable, str(script), str(GERRIS),
+                           str(tmp_path / "mpi.exr")], capture_output=True, text=True, timeout=600, env=env)
+    assert proc.returncode == 0, proc.stderr
+    assert proc.stdout.count("refused: under MPI") == 2
+    entries = [p for p in (tmp_path / "cache").iterdir() if (p / "entry.json").is_file()]
+    assert len(entries) == 1
+    subprocess.run([*EB, "render", str(GERRIS), "--field", "T", "--size", "72", "48", "--max-opacity",
+                    "1", "-o", str(tmp_path / "one.exr")], check=True, env=env)
+    same_image(tmp_path / "mpi.exr", tmp_path / "one.exr")
