@@ -209,7 +209,7 @@ def test_open_source_in_memory_equals_the_cached_files(tmp_path):
 
 def test_the_commands_ingest_defaults_are_the_stages():
     """What the command line takes as "not given" is the ingest stage's own default."""
-    from exabricks.cli.options import INGEST_DEFAULTS
+    from exabricks.cli.options import ingest_defaults as declared
     from exabricks.dataset import ingest_defaults
 
-    assert INGEST_DEFAULTS == ingest_defaults()
+    assert declared() == ingest_defaults()

@@ -150,49 +150,68 @@ def _names(ctx, param, values):
     return tuple(n for v in values for n in v.split(",") if n)
 
 
-def ingest_options(*field_flags: str):
-    """The ingest options (their one declaration); `field_flags` name the field
-    selection (`ingest --field`; `--fields` where `--field` is the rendered field)."""
+def _pairs_dict(kind: str):
+    """Callback: NAME=VALUE pairs as a dict, None when none is given."""
+    pairs = _name_equals(kind)
+    return lambda ctx, param, values: dict(pairs(ctx, param, values)) or None
+
+
+def _ingest_table(field_flags=("--field", "--fields")) -> list[tuple[str, tuple, dict]]:
+    """(the ingest stage's keyword, flags, click settings) of every ingest option: their
+    one declaration; `field_flags` name the field selection (`ingest --field`;
+    `--fields` where `--field` is the rendered field)."""
     from ..constants import AUTO_MASK_FIELD, NAN_POLICIES
     from ..readers import FORMATS
     from ..readers.raw import BYTE_ORDERS, DTYPES
 
-    options = [
-        click.option("--format", "fmt", type=click.Choice(("auto", *FORMATS)), default="auto",
-                     show_default=True, help="Input format; auto tells it from the path."),
-        click.option(*field_flags, "fields", multiple=True, metavar="NAME[,NAME...]", callback=_names,
-                     help="Keep only these fields (repeatable; default: all fields of the input)."),
-        click.option("--scalars", multiple=True, metavar="NAME=FILE", callback=_name_equals("NAME=FILE"),
-                     help="exajet: field NAME from FILE (repeatable; default: the STEM.NAME.scalars "
-                     "siblings)."),
-        click.option("--dims", nargs=3, type=click.IntRange(min=1), default=None, metavar="X Y Z",
-                     help="raw: voxels per axis, x fastest in the file."),
-        click.option("--dtype", type=click.Choice(DTYPES), default="float32", show_default=True,
-                     help="raw: voxel type."),
-        click.option("--byte-order", type=click.Choice(tuple(BYTE_ORDERS)), default="little",
-                     show_default=True, help="raw: byte order of the voxels."),
-        click.option("--name", "raw_name", default="value", show_default=True, help="raw: field name."),
-        click.option("--max-level", type=click.IntRange(min=0), default=None,
-                     help="raw: coarsest level to merge to [default: as coarse as the dims allow]."),
-        click.option("--threshold", type=click.FloatRange(min=0), callback=finite, default=0.0,
-                     show_default=True, help="raw: a 2x2x2 group merges when max - min of its voxels "
-                     "is at most this (absolute, in data units)."),
-        click.option("--magnitude", multiple=True, metavar="NAME=A,B,C",
-                     callback=_name_equals("NAME=A,B,C"),
-                     help="Add field NAME = |(A, B, C)| from component fields (repeatable)."),
-        click.option("--derive", multiple=True, metavar="NAME=EXPR", callback=_name_equals("NAME=EXPR"),
-                     help="Add field NAME = EXPR, evaluated per cell over the input's fields "
-                     "(numexpr's language: + - * / **, sqrt, log, where, ...; docs/ingest.md; "
-                     "repeatable, in order)."),
-        click.option("--nan", "nan_policy", type=click.Choice(NAN_POLICIES), default="error",
-                     show_default=True, help="NaN/Inf values: error; zero (replace by 0); drop "
-                     "(remove those cells); keep (store unchanged)."),
-        click.option("--mask", "mask", default=None, metavar="FIELD",
-                     help="Drop the cells where FIELD == 0 (they become holes, e.g. the body of an "
-                     f"embedded-boundary plotfile). Default: {AUTO_MASK_FIELD} when the input has it."),
-        click.option("--no-mask", "no_mask", is_flag=True,
-                     help=f"Keep every cell: no automatic --mask {AUTO_MASK_FIELD}."),
+    return [
+        ("format", ("--format",), dict(type=click.Choice(("auto", *FORMATS)), default="auto",
+                                       show_default=True, help="Input format; auto tells it from the path.")),
+        ("fields", field_flags, dict(multiple=True, metavar="NAME[,NAME...]", callback=_names,
+                                     help="Keep only these fields (repeatable; default: all fields of "
+                                     "the input).")),
+        ("scalars", ("--scalars",), dict(multiple=True, metavar="NAME=FILE", callback=_pairs_dict("NAME=FILE"),
+                                         help="exajet: field NAME from FILE (repeatable; default: the "
+                                         "STEM.NAME.scalars siblings).")),
+        ("dims", ("--dims",), dict(nargs=3, type=click.IntRange(min=1), default=None, metavar="X Y Z",
+                                   help="raw: voxels per axis, x fastest in the file.")),
+        ("dtype", ("--dtype",), dict(type=click.Choice(DTYPES), default="float32", show_default=True,
+                                     help="raw: voxel type.")),
+        ("byte_order", ("--byte-order",), dict(type=click.Choice(tuple(BYTE_ORDERS)), default="little",
+                                               show_default=True, help="raw: byte order of the voxels.")),
+        ("name", ("--name",), dict(default="value", show_default=True, help="raw: field name.")),
+        ("max_level", ("--max-level",), dict(type=click.IntRange(min=0), default=None,
+                                             help="raw: coarsest level to merge to [default: as coarse "
+                                             "as the dims allow].")),
+        ("threshold", ("--threshold",), dict(type=click.FloatRange(min=0), callback=finite, default=0.0,
+                                             show_default=True, help="raw: a 2x2x2 group merges when "
+                                             "max - min of its voxels is at most this (absolute, in data "
+                                             "units).")),
+        ("magnitude", ("--magnitude",), dict(multiple=True, metavar="NAME=A,B,C",
+                                             callback=_name_equals("NAME=A,B,C"),
+                                             help="Add field NAME = |(A, B, C)| from component fields "
+                                             "(repeatable).")),
+        ("derive", ("--derive",), dict(multiple=True, metavar="NAME=EXPR", callback=_name_equals("NAME=EXPR"),
+                                       help="Add field NAME = EXPR, evaluated per cell over the input's "
+                                       "fields (numexpr's language: + - * / **, sqrt, log, where, ...; "
+                                       "docs/ingest.md; repeatable, in order).")),
+        ("nan_policy", ("--nan",), dict(type=click.Choice(NAN_POLICIES), default="error",
+                                        show_default=True, help="NaN/Inf values: error; zero (replace "
+                                        "by 0); drop (remove those cells); keep (store unchanged).")),
+        ("mask", ("--mask",), dict(default=None, metavar="FIELD",
+                                   help="Drop the cells where FIELD == 0 (they become holes, e.g. the body "
+                                   f"of an embedded-boundary plotfile). Default: {AUTO_MASK_FIELD} when "
+                                   "the input has it.")),
+        ("auto_mask", ("--no-mask",), dict(is_flag=True, flag_value=False, default=True,
+                                           help=f"Keep every cell: no automatic --mask {AUTO_MASK_FIELD}.")),
     ]
+
+
+def ingest_options(*field_flags: str):
+    """A decorator adding the ingest options (`_ingest_table`), each passed under the
+    ingest stage's own keyword."""
+    options = [click.option(*flags, keyword, **settings)
+               for keyword, flags, settings in _ingest_table(field_flags)]
 
     def apply(command):
         for option in reversed(options):
@@ -201,30 +220,23 @@ def ingest_options(*field_flags: str):
     return apply
 
 
-INGEST_KEYS = ("fmt", "fields", "scalars", "dims", "dtype", "byte_order", "raw_name", "max_level",
-               "threshold", "magnitude", "derive", "nan_policy", "mask", "no_mask")
-
-
-# The ingest stage's defaults, as the options above give them when not used
-# (tests/test_source.py checks them against exabricks.stages.ingest.ingest).
-INGEST_DEFAULTS = {"format": "auto", "fields": (), "scalars": None, "dims": None, "dtype": "float32",
-                   "byte_order": "little", "name": "value", "max_level": None, "threshold": 0.0,
-                   "magnitude": (), "derive": (), "nan_policy": "error", "mask": None,
-                   "auto_mask": True}
+def ingest_defaults() -> dict:
+    """What the ingest options give when none is used (tests/test_source.py checks
+    them against the stage's own defaults)."""
+    out = {}
+    for keyword, _, settings in _ingest_table():
+        value = settings.get("default", () if settings.get("multiple") else None)
+        callback = settings.get("callback")
+        out[keyword] = callback(None, None, value) if callback else value
+    return out
 
 
 def ingest_kwargs(options: dict) -> dict:
-    """The ingest stage's keyword arguments from the click values of `ingest_options`
-    (popped from `options`)."""
-    v = {k: options.pop(k) for k in INGEST_KEYS}
-    if v["mask"] is not None and v["no_mask"]:
+    """The ingest stage's keyword arguments, popped from a command's `options`."""
+    kwargs = {keyword: options.pop(keyword) for keyword, _, _ in _ingest_table()}
+    if kwargs["mask"] is not None and not kwargs["auto_mask"]:
         raise click.UsageError("--mask and --no-mask exclude each other")
-    return {"format": v["fmt"], "fields": v["fields"], "scalars": dict(v["scalars"]) or None,
-            "dims": v["dims"], "dtype": v["dtype"], "byte_order": v["byte_order"],
-            "name": v["raw_name"], "max_level": v["max_level"], "threshold": v["threshold"],
-            "magnitude": v["magnitude"], "derive": v["derive"], "nan_policy": v["nan_policy"],
-            "mask": v["mask"],
-            "auto_mask": not v["no_mask"]}
+    return kwargs
 
 
 def dataset_arguments(command):
@@ -242,13 +254,6 @@ def dataset_arguments(command):
                           type=click.Path(exists=True))(command)
 
 
-_FLAG_OF = {"format": "--format", "fields": "--fields", "scalars": "--scalars", "dims": "--dims",
-            "dtype": "--dtype", "byte_order": "--byte-order", "name": "--name",
-            "max_level": "--max-level", "threshold": "--threshold", "magnitude": "--magnitude",
-            "derive": "--derive",
-            "nan_policy": "--nan", "mask": "--mask", "auto_mask": "--no-mask"}
-
-
 def dataset_from(inputs, options: dict, desc: str = "build"):
     """The exabricks.dataset.Dataset of the arguments of `dataset_arguments` (their
     values popped from `options`): three structure files, or a source built with
@@ -256,9 +261,11 @@ def dataset_from(inputs, options: dict, desc: str = "build"):
     from ..dataset import open_dataset
 
     cache, no_cache = options.pop("cache"), options.pop("no_cache")
-    given = {k: v for k, v in ingest_kwargs(options).items() if v != INGEST_DEFAULTS[k]}
+    defaults = ingest_defaults()
+    given = {k: v for k, v in ingest_kwargs(options).items() if v != defaults[k]}
     if len(inputs) == 3:
-        flags = [_FLAG_OF.get(k, k) for k in given] + (["--cache"] if cache is not None else []) \
+        flag_of = {keyword: flags[-1] for keyword, flags, _ in _ingest_table()}
+        flags = [flag_of[k] for k in given] + (["--cache"] if cache is not None else []) \
             + (["--no-cache"] if no_cache else [])
         if flags:
             raise click.UsageError(f"{', '.join(flags)}: only with a source, not with three "
