@@ -107,11 +107,9 @@ def render_job(dataset, output: str | os.PathLike, scene=None, *, device: str | 
     from .stages.render import render_job as job
 
     dataset = open(dataset)
-    declared = {o.name: o for o in JOB_OPTIONS}
-    job_options = {}
-    for name in [n for n in options if n in declared and n != "scene"]:
-        o = declared[name]
-        job_options[o.keyword] = o.coerce(options.pop(name))
+    # the job's own options; `camera` (a file or an object) is the scene's, as in `render`
+    job_options = {o.keyword: o.coerce(options.pop(o.name)) for o in JOB_OPTIONS
+                   if o.name in options and o.name not in SCENE_KEYS}
     doc, camera, flags = _scene_options(scene, options)
     if camera is not None:
         job_options["camera_path"] = camera
