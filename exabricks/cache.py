@@ -37,7 +37,6 @@ FILES = ("bricks.npz", "regions.npz", "bvh.npz")
 ENTRY = "entry.json"
 _KEY = re.compile(r"[0-9a-f]{64}")
 _BUILDING = ".eb-build-"
-_CHUNK = 1 << 22
 
 
 def default_root() -> Path:
@@ -48,19 +47,13 @@ def default_root() -> Path:
     return Path(base) / "exabricks"
 
 
-def file_sha256(path: Path) -> str:
-    h = hashlib.sha256()
-    with open(path, "rb") as f:
-        while block := f.read(_CHUNK):
-            h.update(block)
-    return h.hexdigest()
-
-
 def source_digest(path: str | os.PathLike) -> str:
     """The sha256 of what a source holds: a directory's every file (relative name
     and content), or a file with its siblings that share its name up to the last
     suffix (an Enzo output's .hierarchy and .cpu files, a Gerris .cells file's
     .scalars), which a reader may also read."""
+    from .formats.provenance import sha256_file
+
     path = Path(path)
     h = hashlib.sha256()
     try:
@@ -75,7 +68,7 @@ def source_digest(path: str | os.PathLike) -> str:
                 members.append(path)
             names = [p.name for p in members]
         for name, member in zip(names, members):
-            h.update(json.dumps([name, file_sha256(member)]).encode())
+            h.update(json.dumps([name, sha256_file(member)]).encode())
     except OSError as e:
         raise ExabricksError(f"{path}: cannot read the source ({e.strerror or e})") from None
     return h.hexdigest()
