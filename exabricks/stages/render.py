@@ -217,12 +217,12 @@ def _check_annotate(output, annotate, title, tile) -> None:
 
 
 def _annotated(scene, dataset, title):
-    """The frame's pixels -> the annotated picture's (exabricks.annotate)."""
-    from ..annotate import annotate, facts_from_meta
-    from ..image_io import from_png_pixels
+    """The frame's pixels -> the annotated picture's (eb.Image.annotated)."""
+    from ..annotate import facts_from_meta
+    from ..image import Image
 
     facts = facts_from_meta(dataset.meta)
-    return lambda rgba: from_png_pixels(annotate(rgba, scene, facts=facts, title=title))
+    return lambda rgba: Image(rgba, scene=scene, facts=facts).annotated(title=title).rgba
 
 
 def _check_depth(scene, output) -> None:
