@@ -185,7 +185,7 @@ class _Page:
                     if version != self.version:
                         break
                     async with self.viewer.lock:
-                        frame = await loop.run_in_executor(None, session.draw, stage, staged)
+                        frame = await _finished(loop.run_in_executor(None, session.draw, stage, staged))
                     if version != self.version or self.ws.closed:
                         break
                     await self.ws.send_str(json.dumps({
@@ -242,6 +242,17 @@ class _Page:
         self.version += 1
         if self.task is not None:
             self.task.cancel()
+
+
+async def _finished(future):
+    """The result of a frame drawn in a thread. When the page goes away meanwhile,
+    the drawing is waited for before the cancel goes on, so that the lock on the
+    device is not released while a thread still draws."""
+    try:
+        return await asyncio.shield(future)
+    except asyncio.CancelledError:
+        await asyncio.wait([future])
+        raise
 
 
 async def serve(viewer: Viewer, on_url) -> int | None:
