@@ -32,7 +32,7 @@ SCENE_KEYS = ("camera", "volumes", "isosurfaces", "slices", "clip", "lighting")
 
 
 def open(source, *, fields: Sequence | None = None, cache: str | os.PathLike | bool | None = None,
-         **ingest_options) -> Dataset:
+         values: str | os.PathLike | None = None, **ingest_options) -> Dataset:
     """A dataset to render or probe.
 
     source: a path that `ingest` reads (AMReX plotfile directory, Athena++ .athdf,
@@ -45,6 +45,9 @@ def open(source, *, fields: Sequence | None = None, cache: str | os.PathLike | b
     fields: the fields to keep (default: all).
     cache: where built structures are kept (default: $EXABRICKS_CACHE, else
         $XDG_CACHE_HOME/exabricks, else ~/.cache/exabricks); False builds in memory.
+    values: with three structure files, a values file of another step of the same
+        cells (`exabricks values`; docs/time-series.md), drawn instead of the
+        bricks' own values.
     """
     if isinstance(source, Dataset):
         return source
@@ -56,7 +59,9 @@ def open(source, *, fields: Sequence | None = None, cache: str | os.PathLike | b
                                  "three structure files")
         from .dataset import open_dataset
 
-        return open_dataset(tuple(source))
+        return open_dataset(tuple(source), values=values)
+    if values is not None:
+        raise ExabricksError("values: goes with the three structure files it was made for")
     from .dataset import open_source
 
     if not isinstance(source, (str, os.PathLike)):

@@ -26,24 +26,46 @@ class Dataset:
     checked) when first used; `paths` are the files, where there are any, which the
     memory-budgeted and MPI renders read by parts."""
 
-    def __init__(self, structures=None, *, paths=None, source: dict | None = None):
+    def __init__(self, structures=None, *, paths=None, source: dict | None = None, values=None):
         if structures is None and paths is None:
             raise ValueError("a dataset needs its structures or their files")
+        if values is not None and paths is None:
+            raise ExabricksError("a values file goes with the three structure files it was made for")
         self._structures = structures
         self.paths = None if paths is None else tuple(Path(p) for p in paths)
         self.source = source or {}
+        self.values = None if values is None else Path(values)
 
     @classmethod
-    def from_files(cls, bricks_path, regions_path, bvh_path) -> Dataset:
-        return cls(paths=(bricks_path, regions_path, bvh_path))
+    def from_files(cls, bricks_path, regions_path, bvh_path, *, values=None) -> Dataset:
+        """The dataset of three structure files; `values`: a values file of another
+        step of the same cells (exabricks values), drawn instead of the bricks' own."""
+        return cls(paths=(bricks_path, regions_path, bvh_path), values=values)
 
     def structures(self) -> tuple[schema.Bricks, schema.Regions, schema.Bvh]:
         """(bricks, regions, bvh), loaded and checked as render loads them."""
         if self._structures is None:
             from .engine.device_data import load_structures
 
-            self._structures = load_structures(*self.paths)
+            self._structures = self._step(*load_structures(*self.paths))
         return self._structures
+
+    def load(self, mode: str) -> tuple[schema.Bricks, schema.Regions, schema.Bvh]:
+        """The structures as a memory-budgeted or an MPI render in `mode` reads them
+        (mapped, by parts: exabricks.parallel.load_for)."""
+        from .parallel import load_for
+
+        return self._step(*load_for(mode, *self.paths))
+
+    def _step(self, bricks, regions, bvh):
+        """The structures with the values file's step, when there is one."""
+        if self.values is None:
+            return bricks, regions, bvh
+        from .stages.values import with_values
+
+        step = schema.load(self.values, "values", mapped=True, checked=True)
+        return with_values(bricks, regions, bvh, step, where=str(self.values),
+                           bricks_where=str(self.paths[0]))
 
     @property
     def bricks(self) -> schema.Bricks:
@@ -55,7 +77,11 @@ class Dataset:
         and units), read from the file's header alone where the dataset is files."""
         if self._structures is not None:
             return self._structures[0].meta
-        return schema.peek(self.paths[0])[2]
+        meta = schema.peek(self.paths[0])[2]
+        if self.values is not None:  # the step's own time (with_values does the same)
+            step = schema.peek(self.values)[2]
+            meta = {**meta, **({"source": step["source"]} if "source" in step else {})}
+        return meta
 
     @property
     def fields(self) -> tuple[str, ...]:
@@ -79,7 +105,7 @@ class Dataset:
     def inputs(self) -> list:
         """The files an output must not replace."""
         files = [self.source["path"]] if "path" in self.source else []
-        return files + list(self.paths or ())
+        return files + list(self.paths or ()) + ([self.values] if self.values else [])
 
     def describe(self) -> dict:
         """The image metadata's dataset: the three files (where there are), the source
@@ -87,6 +113,8 @@ class Dataset:
         out = {}
         if self.paths is not None:
             out.update(zip(("bricks", "regions", "bvh"), map(str, self.paths)))
+        if self.values is not None:
+            out["values"] = str(self.values)
         if self.source:
             out["built_from"] = self.source
         out["source"] = self.meta.get("inputs", [])
@@ -105,17 +133,22 @@ def ingest_defaults() -> dict:
             if p.kind is p.KEYWORD_ONLY and name not in ("level_cap", "on_step")}
 
 
-def open_dataset(inputs, options: dict | None = None, *, cache=None, desc: str = "build") -> Dataset:
-    """The dataset of `inputs`: three structure files (BRICKS, REGIONS, BVH), or one
-    source (`open_source`). Under MPI rank 0 builds a source into the cache first
-    and the other ranks then load that entry."""
+def open_dataset(inputs, options: dict | None = None, *, cache=None, desc: str = "build",
+                 values=None) -> Dataset:
+    """The dataset of `inputs`: three structure files (BRICKS, REGIONS, BVH), with a
+    `values` file of another step if given, or one source (`open_source`). Under
+    MPI rank 0 builds a source into the cache first and the other ranks then load
+    that entry."""
     from . import parallel
 
     if len(inputs) == 3:
         if options:
             raise ExabricksError(f"{', '.join(options)}: only with a source, not with three "
                                  "structure files")
-        return Dataset.from_files(*inputs)
+        return Dataset.from_files(*inputs, values=values)
+    if values is not None:
+        raise ExabricksError("--values: goes with the three structure files BRICKS REGIONS BVH that "
+                             "it was made for, not with a source (render that step's source)")
     if len(inputs) != 1:
         raise ExabricksError(f"give one source or three structure files, not {len(inputs)} inputs")
     comm = parallel.world()
@@ -151,7 +184,7 @@ def open_source(path, options: dict | None = None, *, cache: str | os.PathLike |
     chosen = _normalised({**defaults, **given})
     about = {"path": str(path), "options": _normalised(given)}
     if cache is False:
-        structures = _build(path, given, cells_file, desc)
+        structures = _build(path, given, desc)
         return Dataset(structures, source=about)
     store = cache_mod.Cache(Path(cache) if cache not in (None, True) else cache_mod.default_root())
     k = cache_mod.key(path, {"cells_file": cells_file, **chosen})
@@ -165,7 +198,7 @@ def open_source(path, options: dict | None = None, *, cache: str | os.PathLike |
         except ExabricksError as e:
             log.warning("%s: a damaged cache entry (%s): building it again", path, e)
             store.drop(k)
-    structures = _build(path, given, cells_file, desc)
+    structures = _build(path, given, desc)
 
     def write(directory):
         for name, obj in zip(cache_mod.FILES, structures):
@@ -191,17 +224,25 @@ def _is_cells_file(path, options) -> bool:
     return True
 
 
-def _build(path, options, cells_file: bool, desc: str):
-    """The structures of `path`, built in memory, with a progress bar on a terminal."""
-    from . import structures
+def source_cells(path, options: dict | None = None, *, on_step=None) -> schema.Cells:
+    """The leaf cells of a source: a cells file as it is, anything else through
+    ingest with `options` (on_step twice, as ingest calls it)."""
     from .stages.ingest import ingest
 
-    with progress.bar(total=4 if cells_file else 5, desc=desc, unit="step") as bar:
-        if cells_file:
-            cells = schema.load(path, "cells")
-            bar.update()
-        else:
-            cells = ingest(path, **options, on_step=bar.update)
+    step = on_step or (lambda: None)
+    if _is_cells_file(path, options or {}):
+        cells = schema.load(path, "cells")
+        step(), step()
+        return cells
+    return ingest(path, **(options or {}), on_step=step)
+
+
+def _build(path, options, desc: str):
+    """The structures of `path`, built in memory, with a progress bar on a terminal."""
+    from . import structures
+
+    with progress.bar(total=5, desc=desc, unit="step") as bar:
+        cells = source_cells(path, options, on_step=bar.update)
         return structures.build(cells, where=str(path), on_step=bar.update)
 
 

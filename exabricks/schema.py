@@ -12,7 +12,7 @@ names the file.  `docs/file-formats.md` documents every array.
 Each concept lives in its own module of exabricks.formats; this module imports
 and re-exports their public names (use them as `schema.load`, `schema.Bricks`):
 
-- the kinds and their summaries (`Cells`, `Bricks`, `Regions`, `Bvh`,
+- the kinds and their summaries (`Cells`, `Bricks`, `Regions`, `Bvh`, `Values`,
   `world_bounds`, `summary`): exabricks/formats/kinds.py;
 - their checks (`validate`, `first_misaligned`, `tree_depth`): formats/checks.py;
 - provenance (`sha256_file`, `prefetch_sha256`, `make_meta`, `content_sha256`,
@@ -27,7 +27,7 @@ from __future__ import annotations
 
 from .formats.checks import first_misaligned, tree_depth, validate
 from .formats.files import load, peek, save
-from .formats.kinds import KINDS, ArraySpec, Bricks, Bvh, Cells, Kind, Regions, summary, world_bounds
+from .formats.kinds import KINDS, ArraySpec, Bricks, Bvh, Cells, Kind, Regions, Values, summary, world_bounds
 from .formats.memory import CHUNK, memory_limit, reduce_chunks, release, release_arrays, rows, trim_heap
 from .formats.npz import FORMAT, HEADER_KEYS, MAX_HEADER_BYTES, NpzArchive
 from .formats.provenance import (
@@ -41,7 +41,7 @@ from .formats.provenance import (
 
 __all__ = [
     # kinds
-    "ArraySpec", "Kind", "Cells", "Bricks", "Regions", "Bvh", "KINDS", "world_bounds", "summary",
+    "ArraySpec", "Kind", "Cells", "Bricks", "Regions", "Bvh", "Values", "KINDS", "world_bounds", "summary",
     # checks
     "validate", "first_misaligned", "tree_depth",
     # provenance

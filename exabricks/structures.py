@@ -1,6 +1,7 @@
 """The three structures of a dataset (paper §3) built from one another, each with
 the provenance its file records: bricks from leaf cells, Active Brick Regions
-from bricks, the BVH from regions.
+from bricks, the BVH from regions; and a time series' step values for bricks
+built from another step of the same cells.
 
 `exabricks brick|regions|bvh` call one function each and save its result; a
 source's build (exabricks.source) calls `build` with the builders' defaults, so
@@ -77,6 +78,20 @@ def bvh_of(regions: schema.Regions, inputs: Sequence = (), *, where: str | None 
         },
         **_share(bvh))
     return bvh.replace(meta=meta)
+
+
+def values_of(cells: schema.Cells, bricks: schema.Bricks, inputs: Sequence = (), *,
+              where: str | None = None, bricks_where: str | None = None) -> schema.Values:
+    """One step of a time series on the hierarchy of `bricks`: the values of `cells`
+    in the bricks' cell order (exabricks.stages.values.step_values), recording the
+    bricks' content sha256 and what the reader said of the step (its time)."""
+    from .stages.values import step_values
+
+    step = step_values(cells, bricks, where=where or "the source", bricks_where=bricks_where or "the bricks")
+    meta = schema.make_meta(
+        inputs=inputs, upstream=bricks,
+        **({"source": cells.meta["source"]} if "source" in cells.meta else {}))
+    return step.replace(meta=meta)
 
 
 def build(cells: schema.Cells, *, where: str | None = None,

@@ -19,6 +19,7 @@ COMMANDS = (
     "regions",
     "bvh",
     "join",
+    "values",
     "render",
     "probe",
     "compare",

@@ -250,6 +250,10 @@ def dataset_arguments(command):
         "--no-cache", "no_cache", is_flag=True,
         help="Build a source's structures in memory only.")(command)
     command = ingest_options("--fields")(command)
+    command = click.option(
+        "--values", "values", default=None, metavar="FILE", type=click.Path(exists=True, dir_okay=False),
+        help="A step of a time series on these structures' cells (`exabricks values`), drawn "
+        "instead of the bricks' own values; with BRICKS REGIONS BVH.")(command)
     return click.argument("inputs", nargs=-1, required=True, metavar="SOURCE | BRICKS REGIONS BVH",
                           type=click.Path(exists=True))(command)
 
@@ -260,7 +264,7 @@ def dataset_from(inputs, options: dict, desc: str = "build"):
     the ingest options given (through the cache unless --no-cache)."""
     from ..dataset import open_dataset
 
-    cache, no_cache = options.pop("cache"), options.pop("no_cache")
+    cache, no_cache, values = options.pop("cache"), options.pop("no_cache"), options.pop("values")
     defaults = ingest_defaults()
     given = {k: v for k, v in ingest_kwargs(options).items() if v != defaults[k]}
     if len(inputs) == 3:
@@ -273,6 +277,9 @@ def dataset_from(inputs, options: dict, desc: str = "build"):
     elif len(inputs) != 1:
         raise click.UsageError(f"give one source or the three structure files BRICKS REGIONS BVH, "
                                f"not {len(inputs)} inputs")
+    elif values is not None:
+        raise click.UsageError("--values: with the three structure files BRICKS REGIONS BVH it was "
+                               "made for, not with a source (give that step's source instead)")
     if cache is not None and no_cache:
         raise click.UsageError("--cache and --no-cache exclude each other")
-    return open_dataset(inputs, given, cache=False if no_cache else cache, desc=desc)
+    return open_dataset(inputs, given, cache=False if no_cache else cache, desc=desc, values=values)

@@ -207,7 +207,26 @@ class Bvh(Kind):
         return int(self.count.shape[0])
 
 
-KINDS: dict[str, type[Kind]] = {k.KIND: k for k in (Cells, Bricks, Regions, Bvh)}
+@dataclass(frozen=True, eq=False)
+class Values(Kind):
+    """One step of a time series on a fixed hierarchy (docs/time-series.md): the
+    step's fields in the cell order of the bricks it was made for, whose content
+    sha256 meta["built_from"] records.
+
+    values: float32 (F, V), laid out as those bricks' `values`.
+    """
+
+    values: np.ndarray = None
+
+    KIND: ClassVar[str] = "values"
+    VERSION: ClassVar[int] = 1
+    SPECS: ClassVar[dict[str, ArraySpec]] = {
+        "values": ArraySpec(VALUE_DTYPE, ("F", "V")),
+        **_common_specs(),
+    }
+
+
+KINDS: dict[str, type[Kind]] = {k.KIND: k for k in (Cells, Bricks, Regions, Bvh, Values)}
 
 
 # ---------------------------------------------------------------------------
@@ -216,6 +235,8 @@ KINDS: dict[str, type[Kind]] = {k.KIND: k for k in (Cells, Bricks, Regions, Bvh)
 
 def world_bounds(obj: Kind) -> tuple[list[float], list[float]]:
     """World-space bounding box of the data (cells/bricks) or the structure (regions/bvh)."""
+    if isinstance(obj, Values):
+        return [], []  # the bricks it goes with have the bounds
     if isinstance(obj, Cells):
         lo, hi = _cell_box(obj.lower_lattice, obj.level)
     elif isinstance(obj, Bricks):
@@ -250,8 +271,10 @@ def summary(obj: Kind) -> dict[str, Any]:
     """A JSON-ready description: kind, version, counts, fields with ranges, frame, meta."""
     counts: dict[str, Any] = {}
     ranges: dict[str, list[float | None]] = {}
-    if isinstance(obj, (Cells, Bricks)):
-        if isinstance(obj, Cells):
+    if isinstance(obj, (Cells, Bricks, Values)):
+        if isinstance(obj, Values):
+            counts["cells"] = int(obj.values.shape[1])
+        elif isinstance(obj, Cells):
             per_level = np.bincount(obj.level.astype(np.int64), minlength=1)
             counts["cells"] = obj.n_cells
         else:
@@ -263,7 +286,8 @@ def summary(obj: Kind) -> dict[str, Any]:
                 str(l): int(c) for l, c in enumerate(np.bincount(obj.level.astype(np.int64)))
                 if c
             }
-        counts["cells_per_level"] = {str(l): int(c) for l, c in enumerate(per_level) if c}
+        if not isinstance(obj, Values):
+            counts["cells_per_level"] = {str(l): int(c) for l, c in enumerate(per_level) if c}
         for i, name in enumerate(obj.fields):
             v = obj.values[i]
             finite = v[np.isfinite(v)]

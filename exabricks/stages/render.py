@@ -164,10 +164,9 @@ def _prepare(dataset, output, scene_path, camera_path, path_file,
                              "from files by parts: render a source through the cache (not --no-cache)")
     paths = dataset.paths
     if steps["budget"] is not None:
-        from ..parallel import load_for
         from ..engine.streaming import Budgeted
 
-        bricks, regions, _ = load_for("data", *paths)
+        bricks, regions, _ = dataset.load("data")
         scene = scene_from_options(bricks, scene_path=scene_path, camera_path=camera_path,
                                    flags=flags)
         schema.release(bricks)  # the default camera and range read every brick's pages
@@ -180,12 +179,12 @@ def _prepare(dataset, output, scene_path, camera_path, path_file,
     if comm is None:
         bricks, regions, bvh = dataset.structures()
     else:
-        from ..parallel import load_for, needs_image_mode
+        from ..parallel import needs_image_mode
 
-        bricks, regions, bvh = load_for(mpi_mode, *paths)
+        bricks, regions, bvh = dataset.load(mpi_mode)
     scene = scene_from_options(bricks, scene_path=scene_path, camera_path=camera_path, flags=flags)
     if comm is not None and mpi_mode == "data" and needs_image_mode(scene):
-        bricks, regions, bvh = load_for("image", *paths)
+        bricks, regions, bvh = dataset.load("image")
     _check_depth(scene, output)
     described = dataset.describe()
     if comm is None:

@@ -125,12 +125,10 @@ class Session:
         --memory-budget` draws it (exabricks.engine.streaming)."""
         from ..engine.streaming import Budgeted, render_steps
         from ..image import Image
-        from ..parallel import load_for
-
         key = (scene.fields(), scene.settings.width, scene.settings.height)
         if self._domains is None or self._domains[0] != key:
             paths = self.renderer.dataset.paths
-            bricks, regions, _ = load_for("data", *paths)
+            bricks, regions, _ = self.renderer.dataset.load("data")
             self._domains = (key, Budgeted(bricks, regions, scene, self.budget, device=self.device,
                                            where=tuple(map(str, paths[:2]))))
         result = render_steps(self._domains[1], scene)
