@@ -69,6 +69,47 @@ def test_make_series_pipeline(series, tmp_path):
     assert subprocess.run([str(c) for c in make] + ["-q"], env=ENV).returncode == 0
 
 
+@pytest.fixture(scope="module")
+def fixed_series(tmp_path_factory):
+    d = tmp_path_factory.mktemp("fixed")
+    run(sys.executable, WORKFLOWS / "make_series.py", d, "--steps", 3, "--fixed-hierarchy")
+    return sorted(d.glob("plt*"))
+
+
+def assert_frame_is_a_full_rebuild(series, k, frame, range_file, tmp_path):
+    """The frame of step k equals a render of that step's own structures."""
+    lo, hi = range_file.read_text().split()
+    d = tmp_path / f"rebuild{k}"
+    d.mkdir()
+    eb("ingest", series[k], "-o", d / "cells.npz")
+    eb("brick", d / "cells.npz", "-o", d / "bricks.npz")
+    eb("regions", d / "bricks.npz", "-o", d / "regions.npz")
+    eb("bvh", d / "regions.npz", "-o", d / "bvh.npz")
+    eb("render", d / "bricks.npz", d / "regions.npz", d / "bvh.npz", "-o", d / "direct.png",
+       "--field", "phi", "--range", lo, hi, "--size", 64, 48)
+    assert_same_png(frame, d / "direct.png")
+
+
+@pytest.mark.slow
+def test_make_series_on_a_fixed_hierarchy_takes_values(fixed_series, tmp_path):
+    """Steps whose leaf cells are the first step's are only their values on its
+    structures (workflows/series_step.sh), and their frames equal full rebuilds."""
+    out = tmp_path / "out"
+    make = ["make", "-f", WORKFLOWS / "Makefile", "-j2", "series",
+            f"SERIES={fixed_series[0].parent}/plt*", "FIELD=phi", f"OUT={out}",
+            "RENDER=--size 64 48", "FPS=5"]
+    run(*make)
+    first = out / "steps" / fixed_series[0].name
+    for step in fixed_series[1:]:
+        d = out / "steps" / step.name
+        assert (d / "step.txt").read_text().split() == [str(first), str(d / "values.npz")]
+        assert not (d / "bricks.npz").exists()
+    assert movie_frames(out / "movie.mp4") == 3
+    assert_frame_is_a_full_rebuild(fixed_series, 2, out / "frames" / f"{fixed_series[2].name}.png",
+                                   out / "range.txt", tmp_path)
+    assert subprocess.run([str(c) for c in make] + ["-q"], env=ENV).returncode == 0
+
+
 @pytest.mark.slow
 def test_make_orbit_pipeline(tmp_path):
     out = tmp_path / "out"
@@ -161,22 +202,23 @@ def test_slurm_mpi_frame(gerris_files, tmp_path, launch):
 
 @pytest.mark.slurm
 @needs_cluster
-def test_slurm_series_with_dependencies(series, tmp_path):
+def test_slurm_series_with_dependencies(fixed_series, tmp_path):
+    """Step 0's task first, the others on its structures (a fixed hierarchy: their
+    values only), then the range, the frames and the movie."""
     out = tmp_path / "out"
     env = {**ENV, "FIELD": "phi", "RENDER_OPTIONS": "--size 64 48", "WAIT": "1", "FPS": "5"}
-    proc = subprocess.run([str(WORKFLOWS / "slurm" / "series.sh"), str(out), *map(str, series)],
+    proc = subprocess.run([str(WORKFLOWS / "slurm" / "series.sh"), str(out), *map(str, fixed_series)],
                           capture_output=True, text=True, env=env, cwd=tmp_path, timeout=900)
     assert proc.returncode == 0, proc.stderr + proc.stdout
     jobs = dict(part.split("=") for part in proc.stdout.split())
-    assert set(jobs) == {"preprocess", "range", "render", "movie"}
+    assert set(jobs) == {"hierarchy", "preprocess", "range", "render", "movie"}
     for job in jobs.values():
         assert_completed(job)
     assert movie_frames(out / "movie.mp4") == 3
-    lo, hi = (out / "range.txt").read_text().split()
-    step = out / "step_00002"
-    eb("render", step / "bricks.npz", step / "regions.npz", step / "bvh.npz", "-o",
-       tmp_path / "direct.png", "--field", "phi", "--range", lo, hi, "--size", 64, 48)
-    assert_same_png(out / "frames" / "frame_00002.png", tmp_path / "direct.png")
+    assert (out / "step_00002" / "step.txt").read_text().split() == [
+        str(out / "step_00000"), str(out / "step_00002" / "values.npz")]
+    assert_frame_is_a_full_rebuild(fixed_series, 2, out / "frames" / "frame_00002.png",
+                                   out / "range.txt", tmp_path)
 
 
 @pytest.mark.slurm

@@ -1,6 +1,7 @@
 """Write a small synthetic AMReX time series: plotfiles plt00000, plt00010, ... in OUTDIR.
 
     .venv/bin/python workflows/make_series.py OUTDIR [--steps 8] [--size 32] [--max-level 2]
+        [--fixed-hierarchy]
 
 The input of the time-series pipelines: the Make pipeline that turns every plotfile
 of a series into cells, bricks, regions, bvh and a frame (then `exabricks movie`),
@@ -12,7 +13,8 @@ in seconds on a laptop or in CI, and shaped like a real run:
   the last one leads back to the first; values in [0, 1] (`render --range 0 1`);
 - a SIZE^3 base grid on [0, 1]^3 and MAX_LEVEL finer levels of refinement ratio 2
   that follow the blob: level 1 covers the blob +- 0.25 (about 3 sigma), level 2
-  +- 0.125, each SIZE^3 cells in boxes of at most SIZE/2 per side, aligned to
+  +- 0.125 (with --fixed-hierarchy, where the blob is in the first plotfile, so
+  that every plotfile has the same leaf cells), each SIZE^3 cells in boxes of at most SIZE/2 per side, aligned to
   8 cells (AMReX's blocking factor) and properly nested (at least 8 cells of the
   level below around each box where the domain allows);
 - step numbers 0, 10, 20, ... (`plt%05d`, as AMReX names them), time = step / 100;
@@ -84,11 +86,13 @@ def hierarchy(c, size: int, max_level: int) -> list[list[tuple[tuple, tuple]]]:
     return levels
 
 
-def write_step(outdir: Path, k: int, steps: int, size: int, max_level: int) -> Path:
-    """Write plotfile k of the series into `outdir`; returns its path."""
+def write_step(outdir: Path, k: int, steps: int, size: int, max_level: int,
+               fixed: bool = False) -> Path:
+    """Write plotfile k of the series into `outdir`; returns its path. `fixed`: the
+    refinement stays where it is in plotfile 0 while the blob moves on."""
     step = k * STRIDE
     c = centre(k, steps)
-    boxes = hierarchy(c, size, max_level)
+    boxes = hierarchy(centre(0, steps) if fixed else c, size, max_level)
 
     def data(level, glo, ghi):
         dx = 1.0 / (size * 2 ** level)
@@ -132,6 +136,9 @@ def main(argv=None) -> None:
                    help="base grid cells per side, a multiple of 16 (default 32)")
     p.add_argument("--max-level", type=int, default=2, choices=range(0, 5),
                    help="levels of refinement above the base grid (default 2)")
+    p.add_argument("--fixed-hierarchy", action="store_true",
+                   help="keep the refinement of the first plotfile in every plotfile (the leaf "
+                        "cells stay the same, as in many CFD runs; docs/time-series.md)")
     args = p.parse_args(argv)
     if args.steps < 1:
         p.error("--steps must be at least 1")
@@ -140,7 +147,8 @@ def main(argv=None) -> None:
     args.outdir.mkdir(parents=True, exist_ok=True)
     start = time.perf_counter()
     for k in range(args.steps):
-        path = write_step(args.outdir, k, args.steps, args.size, args.max_level)
+        path = write_step(args.outdir, k, args.steps, args.size, args.max_level,
+                          args.fixed_hierarchy)
         print(path)
     print(f"{args.steps} plotfiles in {time.perf_counter() - start:.2f} s", file=sys.stderr)
 
