@@ -1,4 +1,4 @@
-"""The public face of the `.npz` file kinds: cells, bricks, regions, bvh.
+"""The public face of the `.npz` file kinds: cells, bricks, regions, bvh, values.
 
 Every file holds plain numeric arrays (loaded with ``allow_pickle=False``) plus
 four header entries: ``format`` (the string ``"exabricks"``), ``kind``,

@@ -40,7 +40,7 @@ from exabricks import schema
 SUPPRESSED = [HealthCheck.too_slow, HealthCheck.function_scoped_fixture, HealthCheck.data_too_large]
 TIMEOUT = 60
 TMP_PATTERN = re.compile(r"^\.eb-.*\.tmp$")
-KINDS = ("cells", "bricks", "regions", "bvh")
+KINDS = ("cells", "bricks", "regions", "bvh", "values")
 HEADER = ("format", "kind", "version", "meta")
 
 # ---------------------------------------------------------------------------
@@ -144,6 +144,7 @@ def _build(directory: Path, leaf_size: int) -> Dataset:
     run_cli("brick", p["cells"], "-o", p["bricks"], check=0)
     run_cli("regions", p["bricks"], "-o", p["regions"], check=0)
     run_cli("bvh", p["regions"], "-o", p["bvh"], "--leaf-size", leaf_size, check=0)
+    run_cli("values", p["cells"], "--bricks", p["bricks"], "-o", p["values"], check=0)
     return ds
 
 
@@ -293,7 +294,7 @@ def consumer_args(ds: Dataset, kind: str, path: Path, command: str, out_dir: Pat
     if command in ("brick", "regions", "bvh"):
         out = out_dir / "out.npz"
         return [command, path, "-o", out], out
-    trio = ds.trio(**{kind: path})
+    trio = ds.trio(**{kind: path}) + (["--values", path] if kind == "values" else [])
     if command == "render":
         out = out_dir / "out.exr"
         return ["render", *trio, "--size", 16, 16, "-o", out], out
@@ -306,6 +307,7 @@ CONSUMERS = {
     "bricks": ("regions", "render", "probe"),
     "regions": ("bvh", "render", "probe"),
     "bvh": ("render", "probe"),
+    "values": ("render", "probe"),
 }
 
 

@@ -112,10 +112,13 @@ def test_render_and_probe_with_values_equal_a_full_rebuild(series, tmp_path):
     a, b, c = (exr_pixels(tmp_path / f"{k}.exr") for k in "abc")
     assert np.array_equal(a, b)
     assert not np.array_equal(a, c)  # the step's values are drawn, not the bricks' own
-    # a memory budget streams the values file's pages by domains
-    run_cli("render", *structures(d, 0), "--values", d / "v1.npz", "-o", tmp_path / "m.exr",
-            *VIEW, "--memory-budget", "8M", check=0)
-    assert np.allclose(exr_pixels(tmp_path / "m.exr"), b, atol=1e-6)
+    # a memory budget streams the values file's pages by domains (a volume: 5 of them)
+    volume = [*VIEW[:7], "--range", "0", "1.5"]
+    proc = run_cli("-v", "render", *structures(d, 0), "--values", d / "v1.npz", "-o", tmp_path / "m.exr",
+                   *volume, "--memory-budget", "2M", check=0)
+    assert "5 domain(s)" in proc.stderr
+    run_cli("render", *structures(d, 1), "-o", tmp_path / "n.exr", *volume, check=0)
+    assert np.allclose(exr_pixels(tmp_path / "m.exr"), exr_pixels(tmp_path / "n.exr"), atol=1e-6)
     points = np.random.default_rng(3).uniform(0, 128, (500, 3))
     np.save(tmp_path / "pts.npy", points)
     run_cli("probe", *structures(d, 0), "--values", d / "v1.npz", "--points", tmp_path / "pts.npy",
@@ -158,3 +161,20 @@ def test_values_refused_with_one_error_line(series, tmp_path):
     assert not (tmp_path / "x.png").exists() and not (tmp_path / "v.npz").exists()
     proc = run_cli("render", d / "c1.npz", "--values", d / "v1.npz", "-o", tmp_path / "x.png")
     assert proc.returncode == 2 and "--values" in proc.stderr
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("mode", ["data", "image"])
+def test_values_under_mpi_equal_one_process(series, tmp_path, mode):
+    """`mpiexec -n 2 render --values`: every rank takes the step's values (and its
+    value ranges) on its share, as one process of the full rebuild draws them."""
+    from test_mpi import mpirun, same_image
+
+    d = series
+    flags = ["--field", "T", "--size", "96", "80", "--spp", "2", "--range", "0", "1.5", "--max-opacity", "1",
+             *(["--iso", "0.6"] if mode == "image" else [])]
+    proc = mpirun(2, "render", *structures(d, 0), "--values", d / "v1.npz", "-o", tmp_path / "mpi.exr",
+                  "--mpi-mode", mode, *flags)
+    assert proc.returncode == 0, proc.stderr
+    run_cli("render", *structures(d, 1), "-o", tmp_path / "one.exr", *flags, check=0)
+    same_image(tmp_path / "mpi.exr", tmp_path / "one.exr", exact=mode == "image")

@@ -16,7 +16,7 @@ from .. import schema
               help="Print only 'LO HI', the range of FIELD over all the FILEs (a time series' "
                    "fixed transfer-function range: render --range $(exabricks info --field-range ...)).")
 def info(paths, as_json, field_range):
-    """Summarise exabricks .npz files (cells, bricks, regions or bvh)."""
+    """Summarise exabricks .npz files (cells, bricks, regions, bvh or values)."""
     if field_range is not None:
         click.echo(" ".join(f"{v!r}" for v in series_range(paths, field_range)))
         return
@@ -58,7 +58,8 @@ def _show(path, as_json) -> None:
     for f in s["fields"]:
         click.echo(f"  field {f['name']}: [{f['min']}, {f['max']}]")
     b = s["world_bounds"]
-    click.echo(f"  world bounds: {b['lower']} .. {b['upper']}")
+    if b["lower"]:  # a values file has none: its bricks have them
+        click.echo(f"  world bounds: {b['lower']} .. {b['upper']}")
     click.echo(f"  origin: {s['origin']}  spacing: {s['spacing']}")
     stats = s["meta"].get("statistics") or {}
     for key, value in stats.items():

@@ -1,4 +1,4 @@
-"""The file kinds: cells, bricks, regions, bvh, each a frozen dataclass of the
+"""The file kinds: cells, bricks, regions, bvh, values, each a frozen dataclass of the
 arrays it stores (`SPECS`: dtype and symbolic shape of each), and the
 summaries of one (`world_bounds`, `summary`, for `exabricks info`).
 """

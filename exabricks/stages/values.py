@@ -14,6 +14,8 @@ cells are the same.
 
 from __future__ import annotations
 
+from concurrent.futures import ThreadPoolExecutor
+
 import numba
 import numpy as np
 
@@ -41,24 +43,29 @@ def step_values(cells: schema.Cells, bricks: schema.Bricks, *, where: str = "the
         raise ExabricksError(f"{where}: {cells.n_cells:,} leaf cells, {bricks_where} hold {n:,}: "
                              "the cells differ, rebuild the structures")
     lower = np.asarray(cells.lower_lattice)
-    origin = np.minimum(lower.min(axis=0), bricks.lower_lattice.min(axis=0)).astype(np.int64) \
-        if n else np.zeros(3, np.int64)
-    top = (bricks.lower_lattice.astype(np.int64)
-           + (bricks.dims.astype(np.int64) << bricks.level.astype(np.int64)[:, None])).max(initial=0)
-    _keys(np.full((1, 3), top, np.int64), origin)  # the bricks' far corner fits the keys too
+    cell_lo, cell_hi = _extent(lower)
+    brick_lo, _ = _extent(bricks.lower_lattice)
+    brick_hi = (bricks.lower_lattice.astype(np.int64) + (bricks.dims.astype(np.int64)
+                << bricks.level.astype(np.int64)[:, None])).max(axis=0, initial=0)
+    origin = np.minimum(cell_lo, brick_lo)
+    if np.any(np.maximum(cell_hi, brick_hi) - origin >= KEY_SPAN):
+        raise ExabricksError(f"{where}: lattices wider than 2**21 finest cells per axis are not "
+                             "supported by time series")
     slot_level = np.empty(n, np.int8)
     slot_key = _slot_keys(bricks.lower_lattice, bricks.level, bricks.dims, bricks.offset, origin, slot_level)
-    cell_key = _keys(lower, origin)
-    by_cell, by_slot = np.argsort(cell_key, kind="stable"), np.argsort(slot_key, kind="stable")
-    differ = np.flatnonzero(cell_key[by_cell] != slot_key[by_slot])
-    if differ.size:
-        i = int(by_cell[differ[0]])
+    cell_key = _cell_keys(lower, origin)
+    with ThreadPoolExecutor(2) as pool:  # NumPy sorts without the GIL: one on each core
+        by_cell, by_slot = pool.map(lambda k: np.argsort(k, kind="stable"), (cell_key, slot_key))
+    differ = _first_difference(cell_key, by_cell, slot_key, by_slot)
+    del cell_key, slot_key
+    if differ >= 0:
+        i = int(by_cell[differ])
         raise ExabricksError(f"{where}: cell {i} at {lower[i].tolist()} (level {int(cells.level[i])}) "
                              f"is not a cell of {bricks_where}: the cells differ, rebuild the "
                              "structures")
     source = np.empty(n, np.int64)
     source[by_slot] = by_cell  # slot s of the bricks holds cell source[s]
-    del by_cell, by_slot, cell_key, slot_key
+    del by_cell, by_slot
     wrong = np.flatnonzero(np.asarray(cells.level)[source] != slot_level)
     if wrong.size:
         i = int(source[wrong[0]])
@@ -109,6 +116,9 @@ def check_values_for(step: schema.Values, bricks: schema.Bricks, *, where: str =
     recorded = step.meta.get("built_from")
     recorded = recorded.get("content_sha256") if isinstance(recorded, dict) else None
     actual = bricks.meta.get("content_sha256") or schema.content_sha256(bricks)
+    if not isinstance(recorded, str):
+        raise ExabricksError(f"{where}: records no bricks it was made for (meta.built_from): make "
+                             f"it with `exabricks values SOURCE --bricks {bricks_where}`")
     if recorded != actual:
         raise ExabricksError(
             f"{where}: was made for other bricks than {bricks_where} (it records bricks content "
@@ -121,18 +131,52 @@ def check_values_for(step: schema.Values, bricks: schema.Bricks, *, where: str =
                              f"{bricks_where}, although it records them")
 
 
-def _keys(lower: np.ndarray, origin: np.ndarray) -> np.ndarray:
-    """One int64 per lattice point (lower - origin, 21 bits per axis)."""
-    p = lower.astype(np.int64) - origin
-    if p.size and int(p.max()) > 1 << 21:
-        raise ExabricksError("time series: lattices wider than 2**21 finest cells per axis are not "
-                             "supported")
-    return (p[:, 2] << 42) | (p[:, 1] << 21) | p[:, 0]
+KEY_SPAN = 1 << 21  # lattice units per axis that one int64 key holds (21 bits each)
+
+
+def _extent(lower: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Per-axis (min, max) of int32 (N, 3) corners, as int64 (3,) each (zeros for none)."""
+    return _column_extent(lower) if lower.shape[0] else (np.zeros(3, np.int64), np.zeros(3, np.int64))
+
+
+@numba.njit(cache=True)
+def _column_extent(lower):
+    lo = np.empty(3, np.int64)
+    hi = np.empty(3, np.int64)
+    for ax in range(3):
+        lo[ax] = hi[ax] = lower[0, ax]
+    for i in range(lower.shape[0]):
+        for ax in range(3):
+            v = lower[i, ax]
+            if v < lo[ax]:
+                lo[ax] = v
+            elif v > hi[ax]:
+                hi[ax] = v
+    return lo, hi
+
+
+@numba.njit(cache=True)
+def _first_difference(a, order_a, b, order_b):
+    """The first k with a[order_a[k]] != b[order_b[k]], or -1."""
+    for k in range(order_a.shape[0]):
+        if a[order_a[k]] != b[order_b[k]]:
+            return k
+    return -1
+
+
+@numba.njit(cache=True, parallel=True)
+def _cell_keys(lower, origin):
+    """One int64 per cell: its corner less `origin`, 21 bits per axis, z highest."""
+    out = np.empty(lower.shape[0], np.int64)
+    for i in numba.prange(lower.shape[0]):
+        out[i] = (((np.int64(lower[i, 2]) - origin[2]) << 42) | ((np.int64(lower[i, 1]) - origin[1]) << 21)
+                  | (np.int64(lower[i, 0]) - origin[0]))
+    return out
 
 
 @numba.njit(cache=True, parallel=True)
 def _slot_keys(lower, level, dims, offset, origin, slot_level):
-    """The `_keys` of every cell slot of the bricks (their lower corners), and
+    """The `_cell_keys` of every cell slot of the bricks (their lower corners), and
     their levels into slot_level."""
     n = slot_level.shape[0]
     out = np.empty(n, np.int64)
