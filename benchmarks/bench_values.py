@@ -33,8 +33,8 @@ values in the bricks' order. Every dataset here has one output: a step is that
 output again, which costs what any step of the same cells costs. *Render*: a 64²
 frame of the structure files as a whole command, with `--values STEP.npz` and
 without; the difference is loading the values file and recomputing the value
-ranges of the regions (`_leaf_ranges` of the regions builder) and of the BVH
-nodes (its `_refit`).
+ranges of the regions (`leaf_ranges` of the regions builder) and of the BVH
+nodes (its `refit`).
 
 What it says. A step as values costs what reading it costs plus one pass over
 its cells: on the 20.6 M-cell thin shells the reader takes 3.4 s of the 5.8 s

@@ -41,7 +41,7 @@ def build_bvh(regions: schema.Regions, *, leaf_size: int = 4, bins: int = 16,
     hi = np.ascontiguousarray(regions.upper_lattice)
     first, count, order, share = build_tree(lo, hi, leaf_size=leaf_size, bins=bins,
                                             item="region", piece=piece)
-    node_lo, node_hi, vr, finest = _refit(
+    node_lo, node_hi, vr, finest = refit(
         first, count, order, lo, hi, np.ascontiguousarray(regions.value_range), regions.finest_level
     )
     bvh = schema.Bvh(
@@ -92,7 +92,7 @@ def tree_bounds(first, count, order, lower, upper) -> tuple[np.ndarray, np.ndarr
     """Node boxes of a `build_tree` tree: float32 (M, 3) lower and upper, the union of
     the node's boxes."""
     n = lower.shape[0]
-    lo, hi, _, _ = _refit(first, count, order, np.ascontiguousarray(lower, np.float32),
+    lo, hi, _, _ = refit(first, count, order, np.ascontiguousarray(lower, np.float32),
                           np.ascontiguousarray(upper, np.float32),
                           np.empty((n, 0, 2), np.float32), np.zeros(n, np.int8))
     return lo, hi
@@ -394,7 +394,7 @@ def _bin(c, cmin, scale, bins):
 
 
 @numba.njit(cache=True)
-def _refit(first, count, order, lo, hi, region_vr, region_finest):
+def refit(first, count, order, lo, hi, region_vr, region_finest):
     """Node bounds, value ranges and finest levels, children before parents.
 
     Returns lower, upper float32 (M, 3), value_range float32 (M, F, 2) and

@@ -122,7 +122,7 @@ def build_regions(bricks: schema.Bricks, merge: Merge = Merge(),
         parts[k] = list(_coalesce(*p))
     lo2, hi2, brick_start, brick_ids = _join(parts)
     schema.trim_heap()
-    value_range, finest = _leaf_ranges(
+    value_range, finest = leaf_ranges(
         lo2, hi2, brick_start, brick_ids, bricks.lower_lattice, bricks.dims,
         bricks.offset, bricks.values, bricks.level,
     )
@@ -685,7 +685,7 @@ def _floor_div(a, b):
 
 
 @numba.njit(cache=True, parallel=True)
-def _leaf_ranges(lo2, hi2, start, ids, lower, dims, offset, values, level):
+def leaf_ranges(lo2, hi2, start, ids, lower, dims, offset, values, level):
     """Per-region value range and finest level.
 
     lo2, hi2: int32 (R, 3) doubled region bounds; start/ids: CSR brick lists;

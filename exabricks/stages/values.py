@@ -85,8 +85,8 @@ def with_values(bricks: schema.Bricks, regions: schema.Regions, bvh: schema.Bvh,
     """(bricks, regions, bvh) of the step `step`: the structures of another step of
     the same cells with `step`'s values and the value ranges they imply."""
     check_values_for(step, bricks, where=where, bricks_where=bricks_where)
-    from .bvh import _refit
-    from .regions import _leaf_ranges
+    from .bvh import refit
+    from .regions import leaf_ranges
 
     ranges = np.empty_like(regions.value_range)
     lo2 = np.rint(np.asarray(regions.lower_lattice, np.float64) * 2).astype(np.int64)
@@ -95,11 +95,11 @@ def with_values(bricks: schema.Bricks, regions: schema.Regions, bvh: schema.Bvh,
     for a in range(0, regions.n_regions, REGION_CHUNK):
         b = min(a + REGION_CHUNK, regions.n_regions)
         ids = np.asarray(regions.brick_ids[start[a]:start[b]])
-        ranges[a:b], _ = _leaf_ranges(lo2[a:b], hi2[a:b], start[a:b + 1] - start[a], ids,
+        ranges[a:b], _ = leaf_ranges(lo2[a:b], hi2[a:b], start[a:b + 1] - start[a], ids,
                                       bricks.lower_lattice, bricks.dims, bricks.offset,
                                       step.values, bricks.level)
         schema.release_arrays(step.values)  # a mapped file's pages: read again if needed
-    _, _, node_ranges, _ = _refit(bvh.first, bvh.count, bvh.region_index,
+    _, _, node_ranges, _ = refit(bvh.first, bvh.count, bvh.region_index,
                                   np.ascontiguousarray(regions.lower_lattice),
                                   np.ascontiguousarray(regions.upper_lattice), ranges,
                                   np.ascontiguousarray(regions.finest_level))
