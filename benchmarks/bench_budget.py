@@ -61,6 +61,89 @@ def tiny_scene(d: Path, field: str) -> list[Path]:
     return paths
 
 
+LAYOUTS_SECTION = "The memory budget on every layout"
+LAYOUT_NOTES = """
+What did not scale with the budget (issue 38), found on the octree-like layout at
+small budgets, where the peak above the baseline was 11.6 MiB at 6, 12 and 24 MiB
+alike (the same probe on this machine before the changes; 6.0 and 8.0 MiB on the
+shells at 6 and 12 MiB):
+
+- *Per-region and per-node arrays read whole.* Loading for a budget maps the
+  large arrays of the three files, but read every array under 1 MiB (5.6 MB of
+  them on the octree layout: region list starts, value ranges, levels and the BVH's
+  arrays, which a budgeted frame does not use). Arrays from 64 KiB up are now
+  mapped (`NpzArchive.MAP_BYTES`).
+- *Steps of 1 M elements.* A pass over a mapped array in steps of 2^20 elements
+  held its 4 MiB of pages and temporaries a few times that (`field_range`, the
+  default transfer function's range, peaked 11 MB above the baseline); the steps
+  are 2^18 elements now (`schema.CHUNK`), and the scans of the region bounds 2^14
+  regions (`partition.SCAN`) instead of 2^18.
+- *Page-cache folios.* On Linux 6.16 and later, ext4 caches files in folios of up
+  to 2 MiB, and a read fault maps the whole folio: reading one float of a mapped
+  file raised the resident memory by 2.0 MiB (measured in /proc/self/smaps:
+  Rss 2048 kB, PTE-mapped, with MADV_RANDOM and MADV_NOHUGEPAGE alike). The copy
+  of a domain's brick values from the mapped file, 1024 bricks a step, brought in
+  up to a folio per brick. It now goes in steps of at most a quarter of a
+  domain's share, each brick counted as a folio (`partition.GRAIN`, `_copy_parts`),
+  and the plan keeps one folio (or the values' bytes, if fewer) for these reads
+  besides the images and indices. Small budgets therefore make more, smaller
+  domains than before (the octree layout at 6 MiB: 83 domains instead of 45).
+"""
+LAYOUT_BUDGETS = (8, 16, 32)  # MiB
+
+
+def make_layouts(d: Path) -> dict[str, tuple[list[Path], str]]:
+    """{name: (bricks, regions and bvh files, field)} of make_big.py's layouts at
+    test size, built into `d`: octree-like (a smooth volume merged to coarse cells
+    where it is smooth: 3.0 M cells in 22 K bricks), block-structured (such a
+    volume as an AMReX plotfile: 1.4 M cells in 51 bricks) and thin shells (1.1 M
+    cells in 60 K bricks of 19 cells). tests/test_streaming.py draws budgets over
+    them."""
+    from benchmarks import make_big
+    from exabricks import schema
+    from exabricks.stages.ingest import ingest
+    from exabricks.structures import build
+
+    make_big.generate(d / "octree.raw", 192, 7)
+    make_big.generate(d / "blocks.raw", 128, 7)
+    make_big.write_amrex(np.fromfile(d / "blocks.raw", "<f4").reshape(128, 128, 128), d / "plt")
+    cells = {"octree": ingest(d / "octree.raw", format="raw", dims=(192, 192, 192), dtype="float32",
+                              max_level=make_big.MAX_LEVEL, threshold=make_big.THRESHOLD),
+             "blocks": ingest(d / "plt"), "shells": make_big.thin_shell_cells(256)}
+    out = {}
+    for name, c in cells.items():
+        files = [d / f"{name}_{k}.npz" for k in ("bricks", "regions", "bvh")]
+        for path, obj in zip(files, build(c)):
+            schema.save(path, obj)
+        out[name] = (files, c.fields[0])
+    return out
+
+
+def bench_layouts(tmp: Path, size: int) -> list[str]:
+    """Rows: each layout of `make_layouts` under each of LAYOUT_BUDGETS, against the
+    same budgeted command on the 64-cell dataset."""
+    from exabricks.image_io import read_image
+
+    eb = benchdoc.exabricks_command()
+    rows = []
+    for name, (files, field) in make_layouts(tmp).items():
+        tiny = tiny_scene(tmp, field)
+        nbytes = sum(f.stat().st_size for f in files)
+        for mib in LAYOUT_BUDGETS:
+            flags = ["--field", field, "--size", size, size, "--max-opacity", 1,
+                     "--memory-budget", f"{mib}MiB"]
+            benchdoc.run_child([*eb, "render", *files, "-o", tmp / "l.exr", *flags])  # warm
+            _, _, base = benchdoc.run_child([*eb, "render", *tiny, "-o", tmp / "t.exr", *flags])
+            wall, _, peak = benchdoc.run_child([*eb, "render", *files, "-o", tmp / "l.exr", *flags])
+            pieces = read_image(tmp / "l.exr")[1]["settings"]["pieces"]
+            over = peak - base
+            rows.append(f"| {name} | {benchdoc.fmt_bytes(nbytes)} | {mib} MiB | {pieces} | "
+                        f"{wall:.1f} | {benchdoc.fmt_bytes(peak)} | {benchdoc.fmt_bytes(base)} | "
+                        f"{benchdoc.fmt_bytes(over)} ({over / (mib << 20):.2f} of the budget) |")
+            print(rows[-1], flush=True)
+    return rows
+
+
 def bench_dataset(name: str, d: Path, field: str, size: int, tmp: Path,
                   runs=None) -> list[str]:
     """Table rows: the in-memory render, then each (fraction k, extra flags) of `runs`
@@ -154,8 +237,25 @@ def main(argv=None) -> int:
     parser.add_argument("--work", type=Path, default=ROOT / "bench-data" / "render")
     parser.add_argument("--poster", type=int, default=16384,
                         help="poster side (0: no poster table)")
+    parser.add_argument("--layouts", action="store_true",
+                        help="instead: make_big.py's layouts at test size under budgets of "
+                        f"{', '.join(map(str, LAYOUT_BUDGETS))} MiB (section \"{LAYOUTS_SECTION}\")")
     parser.add_argument("--write-docs", action="store_true")
     args = parser.parse_args(argv)
+    if args.layouts:
+        with tempfile.TemporaryDirectory() as tmp:
+            rows = bench_layouts(Path(tmp), args.size)
+        section = (
+            f"Command: `.venv/bin/python -m benchmarks.bench_budget --layouts --size {args.size} "
+            f"--write-docs`\n\n- machine: {benchdoc.machine(opencl=True)}\n"
+            f"- one {args.size}² frame of each layout of `make_layouts` (tests/test_streaming.py "
+            "draws budgets over the same ones), default camera and transfer function, "
+            "`--max-opacity 1`; whole commands, each run once before it is measured; baseline: "
+            "the same budgeted command on a 64-cell dataset\n\n"
+            "| layout | files | budget | domains | command s | peak | baseline | above baseline |\n"
+            "|---|---:|---:|---:|---:|---:|---:|---:|\n" + "\n".join(rows) + "\n" + LAYOUT_NOTES)
+        benchdoc.publish(LAYOUTS_SECTION, section, args.write_docs)
+        return 0
     sets = benchdoc.datasets()
     keys = benchdoc.chosen([args.only], list(sets)) if args.only else ["shell"]
     rows = []

@@ -257,7 +257,7 @@ def domain_options(bricks: schema.Bricks, scene) -> dict:
 
 def domain_data(bricks: schema.Bricks, regions: schema.Regions, lower, upper, *,
                halo: float = 0.0, crop: bool = True, fields=None,
-               where=("the bricks", "the regions"), blocks=None):
+               where=("the bricks", "the regions"), blocks=None, touch: int | None = None):
     """(bricks, regions, bvh) of the domain [lower, upper) (module docstring).
 
     `halo` (lattice units) grows the domain for lookups outside it (central
@@ -269,6 +269,8 @@ def domain_data(bricks: schema.Bricks, regions: schema.Regions, lower, upper, *,
     there are exactly zero). `crop` False keeps the bricks whole. `fields`:
     the names of the fields to keep (default all). `blocks`: `region_blocks` of
     the regions, which finds the domain's regions without a pass over them all.
+    `touch`: the most bytes of mapped brick values one step of the copy may page
+    in per field (`_copy_parts`; default GATHER bricks a step), for a memory budget.
 
     The inputs may be mapped and unvalidated (schema.load(mapped=True)): the
     indices used are checked on the way (errors name `where`, the two files),
@@ -307,8 +309,8 @@ def domain_data(bricks: schema.Bricks, regions: schema.Regions, lower, upper, *,
     np.cumsum(cells[:-1], out=offset[1:])
     values = np.empty((len(picked), int(cells.sum())), np.float32)
     rows = np.asarray(picked, np.int64)
-    for s in range(0, len(cells), GATHER):
-        part = slice(s, s + GATHER)
+    base = getattr(bricks.values, "offset", 0) + rows[0] * bricks.values.shape[1] * 4 if len(rows) else 0
+    for part in _copy_parts(offsets, dims, touch, base):
         _copy_crops(bricks.values, rows, offsets[part], dims[part], first[part],
                     new_dims[part], offset[part], values)
         schema.release_arrays(bricks.values)
@@ -320,6 +322,40 @@ def domain_data(bricks: schema.Bricks, regions: schema.Regions, lower, upper, *,
     schema.validate(sub_bricks, f"{where[0]} (a domain)")
     schema.validate(sub_regions, f"{where[1]} (a domain)")
     return sub_bricks, sub_regions, build_bvh(sub_regions)
+
+
+# Resident bytes a read of one value of a mapped file can bring in: Linux maps the
+# whole page-cache folio around a read fault, and since 6.16 ext4 (like xfs and
+# tmpfs) caches files in folios of up to 2 MiB, so that a brick far from the
+# previous one costs up to this much until its step's pages are handed back
+# (measured: docs/benchmarks.md, "Measurements behind design choices").
+GRAIN = 1 << 21
+
+
+def _copy_parts(offsets: np.ndarray, dims: np.ndarray, touch: int | None, base: int = 0):
+    """Slices of consecutive bricks (of value `offsets` and `dims`) to copy from a
+    mapped file in one step each: GATHER bricks each without `touch`; else runs
+    whose values (from byte `base` of the file) lie within at most max(1, touch //
+    GRAIN) GRAIN-aligned windows of the file, a run's first to last, so that a
+    step of one field brings in at most that many windows of folios (a folio never
+    crosses a multiple of its size), however its bricks are spread."""
+    n = len(dims)
+    if touch is None:
+        return [slice(s, s + GATHER) for s in range(0, n, GATHER)]
+    start = base + offsets.astype(np.int64) * 4
+    end = start + np.maximum(dims.astype(np.int64).prod(axis=1) * 4, 1)
+    first, last = (start // GRAIN).tolist(), ((end - 1) // GRAIN).tolist()
+    windows = max(1, touch // GRAIN)
+    parts, s, lo, hi = [], 0, first[0] if n else 0, last[0] if n else 0
+    for b in range(1, n):
+        lo_b, hi_b = min(lo, first[b]), max(hi, last[b])
+        if hi_b - lo_b + 1 > windows:
+            parts.append(slice(s, b))
+            s, lo_b, hi_b = b, first[b], last[b]
+        lo, hi = lo_b, hi_b
+    if n:
+        parts.append(slice(s, n))
+    return parts
 
 
 def _field_rows(bricks: schema.Bricks, fields) -> list[int]:
@@ -386,6 +422,10 @@ def _take(index: np.ndarray, *arrays) -> list[np.ndarray]:
 
 # Regions per block of `region_blocks`.
 BLOCK = 1 << 10
+# Regions per step of the scans of their bounds (`region_blocks`, `_meeting`): a
+# multiple of BLOCK whose pages (two 192 KiB bounds arrays) and temporaries stay
+# small beside a budget of a few MiB, whatever the count of regions.
+SCAN = 1 << 14
 
 
 def region_blocks(regions: schema.Regions) -> tuple[np.ndarray, np.ndarray]:
@@ -395,10 +435,10 @@ def region_blocks(regions: schema.Regions) -> tuple[np.ndarray, np.ndarray]:
     n = regions.n_regions
     lo = np.empty((-(-n // BLOCK), 3), regions.lower_lattice.dtype)
     hi = np.empty_like(lo)
-    for s in range(0, n, STEP):  # STEP is a multiple of BLOCK
+    for s in range(0, n, SCAN):  # SCAN is a multiple of BLOCK
         for bounds, out, reduce in ((regions.lower_lattice, lo, np.min),
                                     (regions.upper_lattice, hi, np.max)):
-            part = np.asarray(bounds[s:s + STEP])
+            part = np.asarray(bounds[s:s + SCAN])
             whole = len(part) // BLOCK * BLOCK
             b = s // BLOCK
             out[b:b + whole // BLOCK] = reduce(part[:whole].reshape(-1, BLOCK, 3), axis=1)
@@ -421,8 +461,8 @@ def _meeting(regions: schema.Regions, lo: np.ndarray, hi: np.ndarray, blocks=Non
                  for run in np.split(meet, breaks) if run.size]
     found = []
     for begin, end in spans:
-        for s in range(begin, end, STEP):
-            e = min(end, s + STEP)
+        for s in range(begin, end, SCAN):
+            e = min(end, s + SCAN)
             low, up = regions.lower_lattice[s:e], regions.upper_lattice[s:e]
             found.append(s + np.flatnonzero(np.all(low < hi, axis=1) & np.all(up > lo, axis=1)))
             schema.release_arrays(regions.lower_lattice, regions.upper_lattice)

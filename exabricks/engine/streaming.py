@@ -28,9 +28,10 @@ import time
 import numpy as np
 
 from .. import schema
+from ..formats.memory import mapping
 from ..errors import ExabricksError
 from .device_data import DatasetScale
-from .partition import (budget_partition, eye_lattice, mib, domain_data, domain_options,
+from .partition import (GRAIN, budget_partition, eye_lattice, mib, domain_data, domain_options,
                         region_blocks)
 from .renderer import Renderer, RenderResult, over_background
 
@@ -93,14 +94,20 @@ class Budgeted:
 
     def _plan(self, scene) -> None:
         options = domain_options(self.bricks, scene)
-        fixed = image_bytes(scene, self.tile) + PER_BRICK * self.bricks.n_bricks
+        # a step of reads from a mapped file brings in one GRAIN-aligned window of
+        # folios for the first field and at most two for each other one
+        # (partition._copy_parts)
+        reads = 0
+        if mapping(self.bricks.values) is not None:
+            reads = min(GRAIN * (2 * len(self.fields) - 1), self.bricks.values.nbytes)
+        fixed = image_bytes(scene, self.tile) + PER_BRICK * self.bricks.n_bricks + reads
         room = int((self.budget - fixed) / SLACK)
         if room <= 0:
             raise ExabricksError(
                 f"a memory budget of {mib(self.budget)} leaves nothing for the data besides "
-                f"{mib(fixed)} of images and indices over the dataset's "
-                f"{self.bricks.n_bricks:,} bricks")
-        self.options = options
+                f"{mib(fixed)} of images, indices over the dataset's {self.bricks.n_bricks:,} "
+                f"bricks and reads from its files")
+        self.options, self.room = options, room
         self.partition = budget_partition(self.bricks, self.regions, room, fields=self.fields,
                                           where=self.where, grid_bytes=self.budget // 4,
                                           blocks=self.blocks, **options)
@@ -141,7 +148,7 @@ class Budgeted:
         schema.trim_heap()
         box = (self.partition.lower[index], self.partition.upper[index])
         data = domain_data(self.bricks, self.regions, *box, fields=self.fields, where=self.where,
-                          blocks=self.blocks, **self.options)
+                          blocks=self.blocks, touch=self.room // 4, **self.options)
         for whole in (self.bricks, self.regions):
             schema.release(whole)
         renderer = Renderer(*data, fields=self.fields, device=self.device,

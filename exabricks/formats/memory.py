@@ -13,8 +13,10 @@ import numpy as np
 from ..errors import ExabricksError
 
 
-# Elements per step of `reduce_chunks` (4 MiB of float32).
-CHUNK = 1 << 20
+# Elements per step of `rows` and `reduce_chunks` (1 MiB of float32): a step's
+# pages and its temporaries (a few times the step) stay small beside a memory
+# budget of a few MiB (docs/design.md, "Rendering under a memory budget").
+CHUNK = 1 << 18
 
 
 def mapping(array: np.ndarray):

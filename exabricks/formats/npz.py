@@ -34,6 +34,11 @@ class NpzArchive:
     # Stored (uncompressed, as exabricks writes them) members this large are read
     # straight into their array: one copy from the file, no chunked copies.
     DIRECT_BYTES = 1 << 20
+    # With `mapped`, stored members this large are mapped: a per-brick or
+    # per-region array of a large dataset is then paged in where it is used and
+    # handed back, however many such arrays the files hold (docs/design.md,
+    # "Rendering under a memory budget").
+    MAP_BYTES = 1 << 16
 
     def __init__(self, path, *, digest: bool = False):
         self.path = Path(path)
@@ -138,9 +143,9 @@ class NpzArchive:
         """The member's array: read (stored members checked against the CRC), or
         with `mapped` a large stored member mapped read-only from the file."""
         info = self.members[name]
+        if info.compress_type == zipfile.ZIP_STORED and mapped and info.file_size >= self.MAP_BYTES:
+            return self._map_stored(name, info)
         if info.compress_type == zipfile.ZIP_STORED and info.file_size >= self.DIRECT_BYTES:
-            if mapped:
-                return self._map_stored(name, info)
             return self._read_stored(name, info)
         try:
             with self._open_member(name) as f:
