@@ -331,17 +331,6 @@ def test_tiles_are_the_very_pixels_of_the_whole_frame(name, mode):
         np.testing.assert_array_equal(depth, whole.depth)
 
 
-class Counted(Budgeted):
-    """Budgeted, counting the domains it reads."""
-
-    reads = 0
-
-    def domain(self, index, scene):
-        if self._current[0] != index:
-            self.reads += 1
-        return super().domain(index, scene)
-
-
 @pytest.mark.parametrize("name,mode", [pytest.param("gerris", "emission", marks=pytest.mark.slow),
                                        ("amrex", "central")])
 def test_tiled_budgeted_frame_equals_the_in_memory_frame(name, mode):
@@ -349,7 +338,7 @@ def test_tiled_budgeted_frame_equals_the_in_memory_frame(name, mode):
     scene = scene_for(name, mode)
     scene = scene.replace(settings=dataclasses.replace(scene.settings, max_opacity=1.0))
     tile = (24, 16)
-    domains = Counted(built.bricks, built.regions, scene,
+    domains = Budgeted(built.bricks, built.regions, scene,
                      budget_for(name, scene, 8) - image_bytes(scene) + image_bytes(scene, tile),
                      tile=tile)
     assert domains.n_domains >= 8
@@ -365,7 +354,7 @@ def test_domains_out_of_view_are_never_read():
     name = "amrex"
     built, camera, lo, hi, _ = loaded(name)
     scene = scene_for(name, "emission")
-    domains = Counted(built.bricks, built.regions, scene, budget_for(name, scene, 16))
+    domains = Budgeted(built.bricks, built.regions, scene, budget_for(name, scene, 16))
     centre = 0.5 * (lo + hi)
     corner = camera.with_overrides(look_at=tuple(lo + 0.1 * (hi - lo)), fovy=8.0)
     near = scene.replace(camera=corner)
@@ -475,3 +464,25 @@ def test_tiled_progressive_rewrites_are_whole_images_and_a_kill_leaves_one(gerri
     image, meta = read_image(out)
     assert np.isfinite(image).all() and meta["settings"]["progress"]["complete"] is False
     assert [p.name for p in tmp_path.iterdir() if p.name.startswith(".")] == []
+
+
+def test_samples_share_a_domain_read():
+    """Without a deadline or images so far, a domain is made once for the samples a
+    quarter of the budget has images for (here all 4), not once per sample; the
+    frame is the same as drawn sample after sample."""
+    built = loaded("gerris")[0]
+    scene = scene_for("gerris", "emission")
+    scene = scene.replace(settings=dataclasses.replace(scene.settings, spp=4))
+    reference = Renderer(built.bricks, built.regions, built.bvh,
+                         fields=DATASETS["gerris"][1]).render_scene(scene)
+    budget = budget_for("gerris", scene, 4) + 3 * image_bytes(scene) // 4
+    batch = Budgeted(built.bricks, built.regions, scene, budget)
+    assert batch.samples_per_read == 4 and batch.n_domains >= 2
+    result = render_steps(batch, scene)
+    assert result.stats["domain_reads"] == batch.n_domains
+    same(result.rgba, reference.rgba)
+    stepwise = Budgeted(built.bricks, built.regions, scene, budget)
+    seen = []
+    steps = render_steps(stepwise, scene, on_image=lambda rgba, progress: seen.append(progress))
+    assert steps.stats["domain_reads"] == 4 * stepwise.n_domains and seen
+    np.testing.assert_allclose(steps.rgba, result.rgba, rtol=0, atol=1e-6)

@@ -60,6 +60,7 @@ class Resident:
     def __init__(self, renderer: Renderer):
         self.renderer = renderer
         self.n_domains = 1
+        self.samples_per_read = 1
 
     def order(self, scene) -> list[int]:
         return [0]
@@ -90,6 +91,7 @@ class Budgeted:
         self.scale = DatasetScale.of(bricks, self.fields)
         self.blocks = region_blocks(regions)
         self._current = (None, None)
+        self.reads = 0  # domains made so far
         self._plan(scene)
 
     def _plan(self, scene) -> None:
@@ -100,7 +102,14 @@ class Budgeted:
         reads = 0
         if mapping(self.bricks.values) is not None:
             reads = min(GRAIN * (2 * len(self.fields) - 1), self.bricks.values.nbytes)
-        fixed = image_bytes(scene, self.tile) + PER_BRICK * self.bricks.n_bricks + reads
+        # the samples a domain draws while it is resident, each with its own image
+        # (render_steps without a deadline or images so far): as many as a quarter
+        # of the budget holds, so that a frame of spp samples reads each domain
+        # ceil(spp / that) times instead of spp times
+        frame = image_bytes(scene, self.tile) // 4
+        self.samples_per_read = int(min(scene.settings.spp, 1 + (self.budget // 4) // max(frame, 1)))
+        fixed = (image_bytes(scene, self.tile) + (self.samples_per_read - 1) * frame
+                 + PER_BRICK * self.bricks.n_bricks + reads)
         room = int((self.budget - fixed) / SLACK)
         if room <= 0:
             raise ExabricksError(
@@ -144,6 +153,7 @@ class Budgeted:
         if self._current[0] == index:
             return self._current[1]
         self._current = (None, None)  # the previous domain goes before the next comes
+        self.reads += 1
         gc.collect()
         schema.trim_heap()
         box = (self.partition.lower[index], self.partition.upper[index])
@@ -185,7 +195,14 @@ def render_steps(domains, scene, *, band=None, tile_width=None, deadline: float 
     start = time.perf_counter()
     samples, stats, done_samples, done_domains, drawn = 0, {}, 0, 0, rows
     depth = over = None
-    for sample in range(spp):
+    group = domains.samples_per_read if deadline is None and on_image is None else 1
+    if several and group > 1:
+        for first in range(0, spp, group):
+            over, stats, n = _group(domains, scene, plain, order, meets, whole, rows, width,
+                                    range(first, min(spp, first + group)), total)
+            samples += n
+        done_samples, done_domains, drawn = spp, len(order), rows
+    for sample in range(done_samples, spp):
         if sample and deadline is not None and time.perf_counter() > deadline:
             break
         over = None
@@ -243,7 +260,37 @@ def render_steps(domains, scene, *, band=None, tile_width=None, deadline: float 
                  pieces=domains.n_domains, progress=progress)
     if isinstance(domains, Budgeted):
         stats["memory_budget"] = domains.budget
+        stats["domain_reads"] = domains.reads
     return RenderResult(rgba, depth, stats)
+
+
+def _group(domains, scene, plain, order, meets, whole, rows, width, group, total):
+    """The samples `group` of a frame drawn domain after domain, each domain made
+    once for all of them (its rays of each sample continuing that sample's image
+    in front), their images added into `total`: (the last sample's image, the
+    last stats, samples taken). No depth: a depth frame has one domain."""
+    overs = dict.fromkeys(group)
+    stats, samples = {}, 0
+    for index in order:
+        for tile in meets[index]:
+            c, _, w, _ = tile
+            for sample in group:
+                over = overs[sample]
+                front = None if over is None else (over if whole else np.ascontiguousarray(over[:, c:c + w]))
+                result = domains.domain(index, scene).render_scene(
+                    plain, window=None if whole else tile, sample=sample, front=front)
+                stats = dict(result.stats)
+                samples += stats["samples"]
+                if whole:
+                    overs[sample] = result.rgba
+                else:
+                    if over is None:
+                        overs[sample] = over = np.zeros((rows, width, 4), np.float32)
+                    over[:, c:c + w] = result.rgba
+    for over in overs.values():
+        if over is not None:
+            total += over
+    return overs[group[-1]], stats, samples
 
 
 def _tiles_met(tiles, rect) -> list:
