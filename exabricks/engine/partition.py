@@ -325,10 +325,10 @@ def domain_data(bricks: schema.Bricks, regions: schema.Regions, lower, upper, *,
 
 
 # Resident bytes a read of one value of a mapped file can bring in: Linux maps the
-# whole page-cache folio around a read fault, and since 6.16 ext4 (like xfs and
-# tmpfs) caches files in folios of up to 2 MiB, so that a brick far from the
-# previous one costs up to this much until its step's pages are handed back
-# (measured: docs/benchmarks.md, "Measurements behind design choices").
+# whole page-cache folio around a read fault, and xfs, and ext4 since Linux 6.16,
+# cache files in folios of up to 2 MiB, so that a brick far from the previous one
+# costs up to this much until its step's pages are handed back (measured:
+# docs/benchmarks.md, "The memory budget on every layout").
 GRAIN = 1 << 21
 
 
