@@ -85,7 +85,7 @@ def test_a_renderer_keeps_its_upload(plume):
 @pytest.mark.slow
 def test_the_render_job_strategies(tmp_path, plume):
     whole = eb.render(plume, field="T", **SMALL)
-    eb.render_job(plume, tmp_path / "budget.exr", field="T", memory_budget="1M", **SMALL)
+    eb.render_job(plume, tmp_path / "budget.exr", field="T", memory_budget="3M", **SMALL)
     eb.render_job(plume, tmp_path / "tiles.exr", field="T", tile=(32, 32), **SMALL)
     eb.render_job(plume, tmp_path / "progressive.exr", field="T", progressive=0.01, **SMALL)
     for name in ("budget", "tiles", "progressive"):
