@@ -258,7 +258,7 @@ def test_the_budget_holds_on_every_layout(layouts, tmp_path):
 
     from benchmarks.bench_budget import tiny_scene
 
-    @settings(max_examples=4, deadline=None, database=None,
+    @settings(max_examples=6, deadline=None, database=None,
               suppress_health_check=list(HealthCheck))
     @given(st.sampled_from(sorted(layouts)), st.integers(8, 16), st.sampled_from([160, 256]))
     def holds(name, mib, size):

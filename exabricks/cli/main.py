@@ -20,6 +20,7 @@ COMMANDS = (
     "bvh",
     "join",
     "values",
+    "surface",
     "render",
     "probe",
     "compare",
