@@ -17,6 +17,7 @@ import numpy as np
 
 from .. import schema
 from ..errors import ExabricksError
+from ..formats.memory import check_memory
 
 MAX_POINTS = 1 << 27  # grid points by default: 512 MiB of float32 samples
 SLAB_POINTS = 1 << 22  # points probed at once
@@ -81,6 +82,8 @@ def iso_mesh(bricks: schema.Bricks, regions: schema.Regions, bvh: schema.Bvh, fi
     name = bricks.fields[bricks.field_index(field)]
     level, lo, (nx, ny, nz) = sampling_level(bricks, max_points, level)
     h = float(2 ** level)
+    # the samples, their mask, and marching cubes' working copy of both
+    check_memory(10 * nx * ny * nz, f"a level-{level} grid of {nx} x {ny} x {nz} points")
     device_data = DeviceDataset(bricks, regions, bvh, field=name, device=device)
     xs = lo[0] + (np.arange(nx) + 0.5) * h
     ys = lo[1] + (np.arange(ny) + 0.5) * h
