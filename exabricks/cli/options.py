@@ -239,6 +239,13 @@ def ingest_kwargs(options: dict) -> dict:
     return kwargs
 
 
+def ingest_given(kwargs: dict) -> dict:
+    """Those of `ingest_kwargs`' keywords whose values are not the defaults: what a
+    source's build and its cache key take."""
+    defaults = ingest_defaults()
+    return {k: v for k, v in kwargs.items() if v != defaults[k]}
+
+
 def dataset_arguments(command):
     """SOURCE | BRICKS REGIONS BVH, with the ingest options and the cache's (the
     commands that take a dataset: render, probe); `dataset_from` makes it."""
@@ -265,8 +272,7 @@ def dataset_from(inputs, options: dict, desc: str = "build"):
     from ..dataset import open_dataset
 
     cache, no_cache, values = options.pop("cache"), options.pop("no_cache"), options.pop("values")
-    defaults = ingest_defaults()
-    given = {k: v for k, v in ingest_kwargs(options).items() if v != defaults[k]}
+    given = ingest_given(ingest_kwargs(options))
     if len(inputs) == 3:
         flag_of = {keyword: flags[-1] for keyword, flags, _ in _ingest_table()}
         flags = [flag_of[k] for k in given] + (["--cache"] if cache is not None else []) \

@@ -42,10 +42,10 @@ def surface(inputs, field, value, level, max_points, reconstruction, output, dev
     check_output(output, dataset.inputs)
     bricks, regions, bvh = dataset.structures()
     limit = MAX_POINTS if max_points is None else max_points
-    _, _, grid = sampling_level(bricks, limit, level)
-    with progress.bar(total=grid[0] * grid[1] * grid[2], desc="surface", unit="point") as bar:
+    grid = sampling_level(bricks, limit, level)
+    with progress.bar(total=grid[2][0] * grid[2][1] * grid[2][2], desc="surface", unit="point") as bar:
         mesh = iso_mesh(bricks, regions, bvh, field, value, level=level, max_points=limit,
-                        reconstruction=reconstruction, device=device, on_slab=bar.update)
+                        reconstruction=reconstruction, device=device, on_slab=bar.update, grid=grid)
     write_mesh(output, mesh, inputs=dataset.inputs)
     log.info("%s: %s triangles, %s vertices (level %d, a %s grid)", output, f"{len(mesh.faces):,}",
              f"{len(mesh.vertices):,}", mesh.level, " x ".join(map(str, mesh.grid)))

@@ -9,7 +9,7 @@ import click
 
 from .. import progress, schema
 from ..output import check_output
-from .options import ingest_kwargs, ingest_options, output_option
+from .options import ingest_given, ingest_kwargs, ingest_options, output_option
 
 
 @click.command()
@@ -24,14 +24,13 @@ def values(source, bricks_path, output, **options):
     cells file) in the cell order of BRICKS, built from another step of the same
     leaf cells. A step whose cells differ from the bricks' is refused: build its
     structures instead."""
-    from ..dataset import ingest_defaults, source_cells
+    from ..dataset import source_cells
     from ..structures import values_of
 
     kwargs = ingest_kwargs(options)
     scalars = list((kwargs.get("scalars") or {}).values())
     check_output(output, [source, bricks_path, *scalars])
-    defaults = ingest_defaults()
-    given = {k: v for k, v in kwargs.items() if v != defaults[k]}
+    given = ingest_given(kwargs)
     schema.prefetch_sha256([source, bricks_path, *scalars])
     with progress.bar(total=4, desc="values", unit="step") as bar:
         bricks = schema.load(bricks_path, "bricks", mapped=True, checked=True)

@@ -68,11 +68,12 @@ def sampling_level(bricks: schema.Bricks, max_points: int = MAX_POINTS, level: i
 
 def iso_mesh(bricks: schema.Bricks, regions: schema.Regions, bvh: schema.Bvh, field: str | None,
              value: float, *, level: int | None = None, max_points: int = MAX_POINTS,
-             reconstruction: str = "basis", device=None, on_slab=None) -> Mesh:
+             reconstruction: str = "basis", device=None, on_slab=None, grid=None) -> Mesh:
     """The iso-surface `field` = `value` of the dataset as a Mesh (module
-    docstring). `on_slab(points)` after each slab probed. ExabricksError when the
-    grid would be too large or too coarse, or the value is outside the sampled
-    field's range (no surface)."""
+    docstring). `on_slab(points)` after each slab probed; `grid`: the
+    `sampling_level` of these arguments, when the caller has it already.
+    ExabricksError when the grid would be too large or too coarse, or the value
+    is outside the sampled field's range (no surface)."""
     from skimage.measure import marching_cubes
 
     from ..engine.device_data import DeviceDataset
@@ -80,7 +81,7 @@ def iso_mesh(bricks: schema.Bricks, regions: schema.Regions, bvh: schema.Bvh, fi
     if not math.isfinite(value):
         raise ExabricksError(f"--value {value}: expected a finite number")
     name = bricks.fields[bricks.field_index(field)]
-    level, lo, (nx, ny, nz) = sampling_level(bricks, max_points, level)
+    level, lo, (nx, ny, nz) = grid or sampling_level(bricks, max_points, level)
     h = float(2 ** level)
     # the samples, their mask, and marching cubes' working copy of both
     check_memory(10 * nx * ny * nz, f"a level-{level} grid of {nx} x {ny} x {nz} points")
