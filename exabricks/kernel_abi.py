@@ -79,6 +79,7 @@ PARAMS = (
     ("iso_value_at", "int"), ("iso_color_at", "int"), ("slice_point_at", "int"),
     ("slice_normal_at", "int"), ("clip_planes_at", "int"),
     ("layers_at", "int"), ("iso_at", "int"), ("slices_at", "int"), ("buckets_at", "int"),
+    ("tables_at", "int"),
 ) + tuple((o.name, "float" if o.kind == "float" else "int") for o in SCENE_OPTIONS if o.kernel)
 
 _C_TYPES = {"float4": (np.float32, (4,)), "long": np.int64, "int": np.int32,

@@ -309,6 +309,97 @@ def knot_buckets(xs: np.ndarray) -> np.ndarray:
     return np.concatenate([[k, m], first]).astype(np.int32)
 
 
+# Intervals of a lookup table (lookup_table): at least TABLE_INTERVALS (64 KiB per
+# layer); knots on no lattice of at most MAX_TABLE_INTERVALS intervals get
+# IRREGULAR_TABLE_INTERVALS (256 KiB), or MAX_TABLE_INTERVALS (1 MiB) where that
+# leaves the table further than TABLE_TOLERANCE from the exact function; a renderer
+# looks a layer up exactly when its table is further than that still.
+TABLE_INTERVALS = 4096
+IRREGULAR_TABLE_INTERVALS = 16384
+MAX_TABLE_INTERVALS = 65536
+TABLE_TOLERANCE = 1.0 / 1024.0
+
+
+@dataclass(frozen=True)
+class LookupTable:
+    """A transfer function sampled for the table lookup of the kernels
+    (docs/design.md, "Transfer-function tables").
+
+    rows: float32 (K + 2, 4): a header ``(x0, K / (x_end - x0), K, 0)``, then RGBA at
+    the K + 1 evenly spaced nodes ``x0 + i (x_end - x0) / K``; between nodes the
+    kernel interpolates linearly and outside it clamps, as the exact path does.
+    error_rgb, error_alpha: the most the table's colour and opacity differ from the
+    exact piecewise-linear function at any value (float64)."""
+
+    rows: np.ndarray
+    error_rgb: float
+    error_alpha: float
+
+
+def _denominator(f: float, tol: float) -> int:
+    """The least q with some p/q within `tol` of f in [0, 1], from f's continued
+    fraction (its convergents are the best approximations); 0 when q would pass
+    MAX_TABLE_INTERVALS."""
+    p0, q0, p1, q1, x = 0, 1, 1, 0, f
+    while q1 <= MAX_TABLE_INTERVALS:
+        a = math.floor(x)
+        p0, q0, p1, q1 = p1, q1, a * p1 + p0, a * q1 + q0
+        if abs(f - p1 / q1) <= tol:
+            return q1 if q1 <= MAX_TABLE_INTERVALS else 0
+        if x == a:
+            break
+        x = 1.0 / (x - a)
+    return 0
+
+
+def _knot_lattice(xs: np.ndarray) -> int | None:
+    """The fewest even intervals over [xs[0], xs[-1]] (float64 knots), at most
+    MAX_TABLE_INTERVALS, whose nodes hold every knot to 1e-9 of the span (the
+    rounding of a preset rescaled to any range), or None."""
+    k = 1
+    for f in (xs[1:-1] - xs[0]) / (xs[-1] - xs[0]):
+        q = _denominator(float(f), 1e-9)
+        k = k * q // math.gcd(k, q) if q else 0
+        if not 0 < k <= MAX_TABLE_INTERVALS:
+            return None
+    return k
+
+
+def lookup_table(xs: np.ndarray, rgba: np.ndarray) -> LookupTable:
+    """The lookup table of the merged knots `xs` (strictly increasing) and `rgba`,
+    in float64 (`TransferFunction.merged_knots(np.float64)`).
+
+    Knots on a lattice (a colormap's 256 even knots, opacity knots at round
+    fractions of the range: every built-in preset) all fall on nodes: K is a
+    multiple of the lattice, and the table is the exact function up to float
+    rounding. Otherwise only a table interval with a knot strictly inside differs
+    from the exact function; the two are linear on either side of each such knot,
+    so the largest difference is at one of them, where it is measured (and K
+    grows once where that is above TABLE_TOLERANCE)."""
+    xs = np.asarray(xs, np.float64)
+    rgba = np.asarray(rgba, np.float64)
+    n = len(xs)
+    if n < 2:
+        rows = np.concatenate([[[xs[0], 0.0, 1.0, 0.0]], rgba[:1], rgba[:1]])
+        return LookupTable(rows.astype(np.float32), 0.0, 0.0)
+    x0, span = xs[0], xs[-1] - xs[0]
+    lattice = _knot_lattice(xs)
+    sizes = (lattice,) if lattice else (IRREGULAR_TABLE_INTERVALS, MAX_TABLE_INTERVALS)
+    for k in sizes:
+        nodes = x0 + span * (np.arange(k + 1) / k)
+        table = np.stack([np.interp(nodes, xs, rgba[:, c]) for c in range(4)], axis=1)
+        # Each inner knot against the chord of the table interval that holds it.
+        at = (xs[1:-1] - x0) * (k / span)
+        cell = np.clip(np.floor(at).astype(np.int64), 0, k - 1)
+        t = (at - cell)[:, None]
+        off = np.abs((1.0 - t) * table[cell] + t * table[cell + 1] - rgba[1:-1])
+        error_rgb, error_alpha = float(off[:, :3].max(initial=0.0)), float(off[:, 3].max(initial=0.0))
+        if max(error_rgb, error_alpha) <= TABLE_TOLERANCE:
+            break
+    rows = np.concatenate([[[x0, k / span, float(k), 0.0]], table]).astype(np.float32)
+    return LookupTable(rows, error_rgb, error_alpha)
+
+
 def _range(value_range, what: str) -> tuple[float, float]:
     try:
         lo, hi = (float(v) for v in value_range)

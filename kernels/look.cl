@@ -15,8 +15,10 @@
 /* The frame's look: every transfer function and colour map as merged knots
  * (exabricks.transfer_function.TransferFunction.merged_knots) one after the
  * other, each volume layer's knot index (knot_buckets, for the packet
- * lookup of packet.cl), and the volume layers (field, first knot, knot count,
- * offset of the knot index). */
+ * lookup of packet.cl), the volume layers (field, first knot, knot count,
+ * offset of the knot index), and each volume layer's lookup table
+ * (transfer_function.lookup_table; docs/design.md, "Transfer-function
+ * tables"): its offset in `tables`, -1 where the layer is looked up exactly. */
 typedef struct {
     __global const float *xs;
     __global const float4 *rgba;
@@ -24,8 +26,12 @@ typedef struct {
     __global const int4 *layers;
     int n_layers;
     /* Private copies of what every sample reads (kept out of global memory):
-     * the first layer, and per field the lattice -> world gradient factor. */
+     * the first layer and its table, and per field the lattice -> world
+     * gradient factor. */
     int4 layer0;
+    __global const float4 *tables;
+    __global const int *table_at;
+    int table0;
     float3 gradient_scale[EB_N_FIELDS];
 } eb_look;
 
@@ -33,6 +39,14 @@ typedef struct {
 EB_INLINE float4 eb_lookup(eb_look look, int first, int n, float value)
 {
     return eb_transfer_function(value, look.xs + first, look.rgba + first, n);
+}
+
+/* Volume layer `layer` (its table at offset `table`, or -1) at `value`. */
+EB_INLINE float4 eb_layer_lookup(eb_look look, int4 layer, int table, float value)
+{
+    if (table >= 0)
+        return eb_table_lookup(look.tables + table, value);
+    return eb_lookup(look, layer.y, layer.z, value);
 }
 
 /* Headlight factor of a world-direction gradient g (any scale) seen along dir. */

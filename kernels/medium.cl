@@ -21,7 +21,7 @@ EB_INLINE float4 eb_medium_step(eb_frame *fr, eb_basis_sums *s, float3 p, int le
     eb_look look = fr->look;
     if (look.n_layers == 1) {
         int4 layer = look.layer0;
-        float4 c = eb_lookup(look, layer.y, layer.z, value[layer.x]);
+        float4 c = eb_layer_lookup(look, layer, look.table0, value[layer.x]);
         if (!(c.w > 0.0f))
             return (float4)(0.0f);
         float a = eb_opacity_correct(c.w, len, fr->inv_unit_distance);
@@ -35,7 +35,7 @@ EB_INLINE float4 eb_medium_step(eb_frame *fr, eb_basis_sums *s, float3 p, int le
     int opaque = 0;
     for (int i = 0; i < look.n_layers; ++i) {
         int4 layer = look.layers[i];
-        float4 c = eb_lookup(look, layer.y, layer.z, value[layer.x]);
+        float4 c = eb_layer_lookup(look, layer, look.table_at[i], value[layer.x]);
         if (!(c.w > 0.0f))
             continue;
         float3 ci = c.xyz;

@@ -272,6 +272,30 @@ EB_INLINE void eb_packet_lookup(eb_vf value, __global const float *xs,
     *a = mix(a0, EB_GATHER(c, h4 + 3), f);
 }
 
+/* eb_table_lookup (transfer_function.cl) at W values: each lane's two nodes are
+ * one row of eight floats, loaded whole and transposed, which PoCL runs faster
+ * than eight gathers of one channel each (docs/design.md, "Transfer-function
+ * tables"). */
+EB_INLINE void eb_packet_table(eb_vf value, __global const float4 *t,
+                               eb_vf *r, eb_vf *g, eb_vf *b, eb_vf *a)
+{
+    float4 h = t[0];
+    eb_vf x = fmin(fmax((value - h.x) * h.y, 0.0f), h.z);
+    eb_vi i = min(eb_convert_vi(x), (int)h.z - 1);  /* x >= 0: truncation is floor */
+    eb_vf f = x - eb_convert_vf(i);
+    __global const float *c = (__global const float *)(t + 1);
+    float8 n0 = vload8(0, c + 4 * i.s0), n1 = vload8(0, c + 4 * i.s1);
+    float8 n2 = vload8(0, c + 4 * i.s2), n3 = vload8(0, c + 4 * i.s3);
+    float8 n4 = vload8(0, c + 4 * i.s4), n5 = vload8(0, c + 4 * i.s5);
+    float8 n6 = vload8(0, c + 4 * i.s6), n7 = vload8(0, c + 4 * i.s7);
+#define EB_TABLE_LANES(q) ((eb_vf)(n0.q, n1.q, n2.q, n3.q, n4.q, n5.q, n6.q, n7.q))
+    *r = mix(EB_TABLE_LANES(s0), EB_TABLE_LANES(s4), f);
+    *g = mix(EB_TABLE_LANES(s1), EB_TABLE_LANES(s5), f);
+    *b = mix(EB_TABLE_LANES(s2), EB_TABLE_LANES(s6), f);
+    *a = mix(EB_TABLE_LANES(s3), EB_TABLE_LANES(s7), f);
+#undef EB_TABLE_LANES
+}
+
 /* eb_log2_positive and eb_exp2_nonpositive (transfer_function.cl) at W values. */
 EB_INLINE eb_vf eb_packet_log2_positive(eb_vf x)
 {
@@ -303,8 +327,11 @@ EB_INLINE void eb_packet_medium(eb_frame *fr, eb_packet_sums *s, eb_vf len, floa
     eb_vf w = s->weight;
     eb_vf value = select((eb_vf)(0.0f), s->weighted[f] / w, w > 0.0f);
     eb_vf alpha;
-    eb_packet_lookup(value, fr->look.xs + layer.y, fr->look.rgba + layer.y, layer.z,
-                     fr->look.buckets + layer.w, r, g, b, &alpha);
+    if (fr->look.table0 >= 0)
+        eb_packet_table(value, fr->look.tables + fr->look.table0, r, g, b, &alpha);
+    else
+        eb_packet_lookup(value, fr->look.xs + layer.y, fr->look.rgba + layer.y, layer.z,
+                         fr->look.buckets + layer.w, r, g, b, &alpha);
     eb_vi visible = (w > 0.0f) & (alpha > 0.0f);
     eb_vf y = eb_packet_log2_positive(1.0f - select((eb_vf)(0.5f), alpha, visible))
               * (len * fr->inv_unit_distance);

@@ -69,6 +69,9 @@ __kernel void eb_render(__constant eb_params *P, int4 band, int sample_index,
 
     for (int f = 0; f < EB_N_FIELDS; ++f)
         fr.look.gradient_scale[f] = look_f4[P->gradient_scale_at / 4 + f].xyz;
+    fr.look.tables = look_f4;
+    fr.look.table_at = look_i + P->tables_at;
+    fr.look.table0 = fr.look.table_at[0];
 
     float jx = 0.5f, jy = 0.5f;
     if (spp > 1) {

@@ -1,7 +1,8 @@
 /* The transfer function as the merged knots of exabricks.transfer_function.
  * TransferFunction.merged_knots: RGBA is linear between consecutive knots xs[i]
  * (strictly increasing) and clamps outside [xs[0], xs[n-1]], so this lookup is
- * the exact piecewise-linear function of the preset (no lookup table). */
+ * the exact piecewise-linear function of the preset; eb_table_lookup reads its
+ * lookup table instead. */
 #pragma once
 #include "common.h"
 
@@ -23,6 +24,19 @@ EB_INLINE float4 eb_transfer_function(float value, __global const float *xs,
     }
     float f = (value - xs[lo]) / (xs[hi] - xs[lo]);
     return mix(rgba[lo], rgba[hi], f);
+}
+
+/* The same function from its lookup table (exabricks.transfer_function.lookup_table):
+ * t[0] = (x0, K / (x_end - x0), K, 0), then RGBA at K + 1 even nodes; linear
+ * between nodes, clamped outside (a NaN value takes node 0, as above). Equal to
+ * the knots' function wherever the table interval holds no knot strictly inside
+ * (docs/design.md, "Transfer-function tables"). */
+EB_INLINE float4 eb_table_lookup(__global const float4 *t, float value)
+{
+    float4 h = t[0];
+    float x = fmin(fmax((value - h.x) * h.y, 0.0f), h.z);
+    int i = min((int)x, (int)h.z - 1);  /* x >= 0: truncation is floor */
+    return mix(t[1 + i], t[2 + i], x - (float)i);
 }
 
 /* The polynomials of eb_log2_positive and eb_exp2_nonpositive in Horner form,

@@ -60,7 +60,7 @@ from ..constants import MAX_SAMPLES_PER_RAY
 from ..kernel_abi import LOD_LEVELS, PACKET_WIDTH
 from ..errors import ExabricksError
 from ..scene import Lighting, Scene, Settings, VolumeLayer
-from ..transfer_function import knot_buckets
+from ..transfer_function import TABLE_TOLERANCE, knot_buckets, lookup_table
 from .device_data import DatasetScale, DeviceDataset
 from .grouped import Grouped
 
@@ -291,7 +291,7 @@ class Renderer:
         ao_distance = lighting.ao_distance or AO_DISTANCE_CELLS * s.finest_width_world
         args, layout = s.dataset_args(up(q, s.flags_for(node_vis, region_vis)), cfg.reconstruction,
                                       lod, self.lookup == "cell-location")
-        look, look_params = frame_arrays(scene, s)
+        look, look_params, stats["transfer_function_tables"] = frame_arrays(scene, s)
         params = up(q, s.params(
             **layout, **look_params, **kernel_abi.option_params(scene), width=width, height=height, spp=spp,
             seed=int(cfg.seed) & 0xFFFFFFFF, jitter=bool(cfg.jitter),
@@ -442,12 +442,15 @@ AO_DISTANCE_CELLS = 10.0
 ISO_TOLERANCE_CELLS = 1e-3
 
 
-def frame_arrays(scene: Scene, device_dataset: DeviceDataset) -> tuple[tuple, dict]:
+def frame_arrays(scene: Scene, device_dataset: DeviceDataset) -> tuple[tuple, dict, list]:
     """The look of `scene` as the render kernel takes it: its float and int arrays
-    (look_f, look_i of kernels/render.cl) and their eb_params members. Every
+    (look_f, look_i of kernels/render.cl), their eb_params members, and how each
+    volume layer is looked up (the stats' "transfer_function_tables"). Every
     transfer function and colour map as merged knots one after the other (and
-    each volume layer's knot index, transfer_function.knot_buckets), the volume
-    layers, iso-surfaces and slices by field index on the device, and clipping."""
+    each volume layer's knot index, transfer_function.knot_buckets, and lookup
+    table, transfer_function.lookup_table, unless --tf-lookup exact or the table
+    is further than TABLE_TOLERANCE from the knots), the volume layers,
+    iso-surfaces and slices by field index on the device, and clipping."""
     index = {name: i for i, name in enumerate(device_dataset.fields)}
     xs, rgba = [], []
 
@@ -459,11 +462,20 @@ def frame_arrays(scene: Scene, device_dataset: DeviceDataset) -> tuple[tuple, di
         return first, len(x)
 
     buckets = []  # each volume layer's knot index (knot_buckets), its offset in layer.w
+    floats, ints = Grouped(np.float32), Grouped(np.int32)
+    tables, table_at = [], []  # each volume layer's lookup table (stats) and its float4 offset
 
     def layer(volume) -> tuple[int, int, int, int]:
         first, n = knots(volume.transfer_function)
         offset = sum(len(b) for b in buckets)
         buckets.append(knot_buckets(xs[-1]))
+        table = (lookup_table(*volume.transfer_function.merged_knots(np.float64))
+                 if scene.settings.tf_lookup == "table" else None)
+        exact = table is None or max(table.error_rgb, table.error_alpha) > TABLE_TOLERANCE
+        table_at.append(-1 if exact else floats.add(table.rows, 4) // 4)
+        tables.append({"lookup": "exact"} if exact else
+                      {"lookup": "table", "intervals": len(table.rows) - 2,
+                       "error_rgb": table.error_rgb, "error_alpha": table.error_alpha})
         return index[volume.field], first, n, offset
 
     layers = [layer(v) for v in scene.volumes]
@@ -486,7 +498,6 @@ def frame_arrays(scene: Scene, device_dataset: DeviceDataset) -> tuple[tuple, di
               for p in (point, np.asarray(normal, np.float64) / np.linalg.norm(normal))]
     cat = lambda parts, shape: np.concatenate(parts) if parts else np.zeros(shape, np.float32)
     rows = lambda r, dtype: np.asarray(r, dtype).reshape(-1, 4)
-    floats, ints = Grouped(np.float32), Grouped(np.int32)
     params = {
         "tf_xs_at": floats.add(cat(xs, (1,))), "tf_rgba_at": floats.add(cat(rgba, (1, 4)), 4),
         "gradient_scale_at": floats.add(device_dataset.gradient_scales, 4),
@@ -498,12 +509,13 @@ def frame_arrays(scene: Scene, device_dataset: DeviceDataset) -> tuple[tuple, di
         "layers_at": ints.add(rows(layers or [(0, 0, 0, 0)], np.int32), 4),
         "iso_at": ints.add(rows(iso, np.int32), 4), "slices_at": ints.add(rows(slices, np.int32), 4),
         "buckets_at": ints.add(np.concatenate(buckets) if buckets else np.zeros(0, np.int32)),
+        "tables_at": ints.add(np.asarray(table_at or [-1], np.int32)),
         "n_layers": len(layers), "n_iso": len(iso), "n_slices": len(slices),
         "iso_tolerance": ISO_TOLERANCE_CELLS * device_dataset.finest_width_world,
         "clip_box": clip.box is not None, "clip_lower": (*box[0], 0.0),
         "clip_upper": (*box[1], 0.0), "n_clip_planes": len(clip.planes),
     }
-    return (floats.array(), ints.array()), params
+    return (floats.array(), ints.array()), params, tables
 
 
 def over_background(rgba: np.ndarray, background) -> np.ndarray:

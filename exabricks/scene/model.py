@@ -21,6 +21,9 @@ GRADIENTS = ("analytic", "central")
 # How a point's value comes from the cells (docs/design.md, "Reconstructions: basis, nearest,
 # vertex").
 RECONSTRUCTIONS = ("basis", "nearest", "vertex")
+# How a volume layer's transfer function is read per sample (docs/design.md,
+# "Transfer-function tables"): from a lookup table, or from its knots.
+TF_LOOKUPS = ("table", "exact")
 
 # Limits of one frame (the kernels keep these in private arrays).
 MAX_VOLUMES = 8
@@ -116,6 +119,7 @@ class Settings:
     depth: bool = False
     reconstruction: str = "basis"
     lod: float = 0.0
+    tf_lookup: str = "table"
 
 
 @dataclass(frozen=True)
@@ -156,6 +160,9 @@ class Scene:
         if self.settings.reconstruction not in RECONSTRUCTIONS:
             raise ExabricksError(f"unknown reconstruction {self.settings.reconstruction!r} "
                                  f"(one of {', '.join(RECONSTRUCTIONS)})")
+        if self.settings.tf_lookup not in TF_LOOKUPS:
+            raise ExabricksError(f"unknown transfer-function lookup {self.settings.tf_lookup!r} "
+                                 f"(one of {', '.join(TF_LOOKUPS)})")
         if not (np.isfinite(self.settings.lod) and self.settings.lod >= 0):
             raise ExabricksError(f"--lod must be 0 (off) or a positive number of pixels, "
                                  f"got {self.settings.lod}")

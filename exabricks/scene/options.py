@@ -14,7 +14,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from ..errors import ExabricksError
-from .model import GRADIENTS, MAX_AO_SAMPLES, RECONSTRUCTIONS, SHADING_MODES
+from .model import GRADIENTS, MAX_AO_SAMPLES, RECONSTRUCTIONS, SHADING_MODES, TF_LOOKUPS
 
 
 @dataclass(frozen=True)
@@ -265,6 +265,10 @@ SCENE_OPTIONS = (
     _setting("lod", "Level of detail: sample each region at the coarsest level whose cells "
              "project to at most PIXELS pixels (default 0: full resolution).", low=0.0,
              metavar="PIXELS", description="a number of pixels >= 0 (0: full resolution)"),
+    _setting("tf_lookup", "table (default): volume transfer functions read from tables of 4096 "
+             "or more intervals, exact where the knots fall on the table's nodes (every "
+             "built-in and colormap preset) and otherwise within 1/1024; exact: from the knots.",
+             kind="choice", choices=TF_LOOKUPS),
     _light("gradient", "Normals from the analytic gradient (default) or central differences.",
            kind="choice", choices=GRADIENTS),
     _light("iso_gradient", "Normals of iso-surfaces from central differences of the "
