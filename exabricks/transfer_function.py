@@ -309,12 +309,11 @@ def knot_buckets(xs: np.ndarray) -> np.ndarray:
     return np.concatenate([[k, m], first]).astype(np.int32)
 
 
-# Intervals of a lookup table (lookup_table): at least TABLE_INTERVALS (64 KiB per
-# layer); knots on no lattice of at most MAX_TABLE_INTERVALS intervals get
-# IRREGULAR_TABLE_INTERVALS (256 KiB), or MAX_TABLE_INTERVALS (1 MiB) where that
-# leaves the table further than TABLE_TOLERANCE from the exact function; a renderer
-# looks a layer up exactly when its table is further than that still.
-TABLE_INTERVALS = 4096
+# Intervals of a lookup table (lookup_table): the knots' lattice where they have one
+# of at most MAX_TABLE_INTERVALS intervals; else IRREGULAR_TABLE_INTERVALS (256 KiB),
+# or MAX_TABLE_INTERVALS (1 MiB) where that leaves the table further than
+# TABLE_TOLERANCE from the exact function; a renderer looks a layer up exactly when
+# its table is further than that still.
 IRREGULAR_TABLE_INTERVALS = 16384
 MAX_TABLE_INTERVALS = 65536
 TABLE_TOLERANCE = 1.0 / 1024.0
@@ -370,12 +369,12 @@ def lookup_table(xs: np.ndarray, rgba: np.ndarray) -> LookupTable:
     in float64 (`TransferFunction.merged_knots(np.float64)`).
 
     Knots on a lattice (a colormap's 256 even knots, opacity knots at round
-    fractions of the range: every built-in preset) all fall on nodes: K is a
-    multiple of the lattice, and the table is the exact function up to float
-    rounding. Otherwise only a table interval with a knot strictly inside differs
-    from the exact function; the two are linear on either side of each such knot,
-    so the largest difference is at one of them, where it is measured (and K
-    grows once where that is above TABLE_TOLERANCE)."""
+    fractions of the range: every built-in preset) all fall on nodes: K is the
+    lattice, and the table is the exact function up to float rounding. Otherwise
+    only a table interval with a knot strictly inside differs from the exact
+    function; the two are linear on either side of each such knot, so the largest
+    difference is at one of them, where it is measured (and K grows once where
+    that is above TABLE_TOLERANCE)."""
     xs = np.asarray(xs, np.float64)
     rgba = np.asarray(rgba, np.float64)
     n = len(xs)

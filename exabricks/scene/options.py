@@ -265,9 +265,9 @@ SCENE_OPTIONS = (
     _setting("lod", "Level of detail: sample each region at the coarsest level whose cells "
              "project to at most PIXELS pixels (default 0: full resolution).", low=0.0,
              metavar="PIXELS", description="a number of pixels >= 0 (0: full resolution)"),
-    _setting("tf_lookup", "table (default): volume transfer functions read from tables of 4096 "
-             "or more intervals, exact where the knots fall on the table's nodes (every "
-             "built-in and colormap preset) and otherwise within 1/1024; exact: from the knots.",
+    _setting("tf_lookup", "table (default): volume transfer functions read from a table, the "
+             "exact function where the knots lie on its nodes (every built-in preset and "
+             "colormap), else within 1/1024 (docs/design.md); exact: from the knots.",
              kind="choice", choices=TF_LOOKUPS),
     _light("gradient", "Normals from the analytic gradient (default) or central differences.",
            kind="choice", choices=GRADIENTS),
