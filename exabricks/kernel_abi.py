@@ -19,7 +19,7 @@ from __future__ import annotations
 import numpy as np
 
 from .constants import MAX_SAMPLES_PER_RAY, MAX_TREE_DEPTH
-from .scene.model import MAX_ISOSURFACES, MAX_SLICES
+from .scene.model import MAX_ISOSURFACES, MAX_MESH_HITS, MAX_SLICES
 from .scene.options import SCENE_OPTIONS
 
 # Samples a ray reconstructs at once on CPU devices (kernels/packet.cl): sixteen
@@ -35,6 +35,7 @@ LIMITS = {
     "EB_MAX_SAMPLES": MAX_SAMPLES_PER_RAY,  # samples of one ray: larger rates are refused
     "EB_MAX_ISO": MAX_ISOSURFACES,          # iso-surfaces of a frame
     "EB_MAX_SLICES": MAX_SLICES,            # slices of a frame
+    "EB_MAX_MESH_HITS": MAX_MESH_HITS,      # mesh hits a ray composites (the nearest)
     "EB_LOD_LEVELS": LOD_LEVELS,
     "EB_MAX_MIP": MAX_MIP,
 }
@@ -79,7 +80,9 @@ PARAMS = (
     ("iso_value_at", "int"), ("iso_color_at", "int"), ("slice_point_at", "int"),
     ("slice_normal_at", "int"), ("clip_planes_at", "int"),
     ("layers_at", "int"), ("iso_at", "int"), ("slices_at", "int"), ("buckets_at", "int"),
-    ("tables_at", "int"),
+    ("tables_at", "int"), ("mesh_colors_at", "int"), ("mesh_info_at", "int"), ("n_meshes", "int"),
+    # the meshes' buffer (exabricks.mesh.MeshSet): float4 offsets
+    ("mesh_tris_at", "int"), ("mesh_nodes_at", "int"),
 ) + tuple((o.name, "float" if o.kind == "float" else "int") for o in SCENE_OPTIONS if o.kernel)
 
 _C_TYPES = {"float4": (np.float32, (4,)), "long": np.int64, "int": np.int32,

@@ -170,6 +170,8 @@ def needs_image_mode(scene) -> str | None:
     """Why a frame cannot be split by space (None if it can)."""
     if scene.isosurfaces:
         return "iso-surfaces"
+    if scene.meshes:  # a mesh reaches beyond the data, where no domain is
+        return "meshes"
     if scene.lighting.ao_samples:
         return "ambient occlusion"
     if scene.settings.depth:

@@ -8,6 +8,7 @@
 #include "reconstruction.cl"
 #include "look.cl"
 #include "clipping.cl"
+#include "mesh.cl"
 
 /* What a sample reconstructs from: the region's brick list (paper §3.2) or,
  * built with -DEB_CELL_LOCATION, a per-sample descent of a tree over the brick
@@ -30,6 +31,7 @@ typedef struct {
     __global const float4 *slice_normal;  /* world unit normal */
     int n_slices;
     float tolerance;                   /* iso-hit refinement, world units */
+    eb_meshes mesh;                    /* triangle meshes (mesh.cl) */
 } eb_surfaces;
 
 typedef struct {

@@ -83,8 +83,8 @@ EB_INLINE float4 eb_integrate(eb_frame *fr, eb_ray *ray, const int shade, const 
     eb_level_samples_clear(&st);
     float2 keep = eb_clip_interval(fr->clip, ray->org_world, ray->dir_world, 0.0f);
     int done = !(keep.y > keep.x) || front.w >= fr->max_opacity;
-    if (!done)
-        eb_slices_start(fr, ray, keep.x, keep.y, &st);
+    if (!done)  /* an opaque mesh ends the volume exactly where it is hit */
+        keep.y = fmin(keep.y, eb_slices_start(fr, ray, keep.x, keep.y, &st));
     eb_walk w;
     eb_walk_start(&w, fr->bvh, ray->org, ray->inv_dir, keep.x, keep.y, ordered);
     float t_in, t_out;

@@ -1,7 +1,7 @@
 /* Ambient occlusion of surface hits (iso-surfaces and slices): `ao_samples`
  * cosine-weighted rays from the hit, each of length `ao_distance` (world),
  * whose visibility is the transmittance of the volume layers along them times
- * (1 - opacity) of every iso-surface and slice they cross, inside the clip
+ * (1 - opacity) of every iso-surface, slice and mesh they cross, inside the clip
  * interval. The rays' directions are seeded hashes of (pixel, sample), so
  * the result is reproducible and converges with --spp. (ExaBricks lets only
  * surfaces occlude; the volume's opacity occludes here too.) */
@@ -38,6 +38,25 @@ EB_INLINE float eb_crossings(eb_frame *fr, const float *a, float3 p)
     return eb_transmittance_of_crossings(fr, a, b);
 }
 
+/* (1 - opacity) of every mesh hit along world ray org_world + t dir_world, t in
+ * (t_min, t_max] (the walk ends once the ray is blocked). */
+EB_INLINE float eb_mesh_transmittance(eb_frame *fr, float3 org_world, float3 dir_world,
+                                      float t_min, float t_max)
+{
+    eb_meshes *m = &fr->surf.mesh;
+    if (m->n_meshes == 0)
+        return 1.0f;
+    eb_mesh_ray r = eb_mesh_ray_of(org_world, dir_world);
+    float vis = 1.0f, far = t_max;
+#define EB_MESH_DIM(i, t)                                                       \
+    vis *= 1.0f - m->color[eb_triangle_mesh(m, (i))].w;                         \
+    if (!(vis > EB_AO_CUTOFF))                                                  \
+        far = -EB_INF;
+    EB_MESH_WALK(m, &r, t_min, &far, EB_MESH_DIM);
+#undef EB_MESH_DIM
+    return vis;
+}
+
 /* Visibility along world ray org_world + t dir_world, t in [t_min, t_max]. */
 EB_INLINE float eb_visibility(eb_frame *fr, float3 org_world, float3 dir_world,
                               float t_min, float t_max, float rho)
@@ -47,7 +66,7 @@ EB_INLINE float eb_visibility(eb_frame *fr, float3 org_world, float3 dir_world,
     t_max = fmin(t_max, keep.y);
     if (!(t_max > t_min))
         return 1.0f;
-    float vis = 1.0f;
+    float vis = eb_mesh_transmittance(fr, org_world, dir_world, t_min, t_max);
     /* Slices: crossed where the plane meets the segment and the field has data. */
     for (int k = 0; k < fr->surf.n_slices; ++k) {
         float3 n = fr->surf.slice_normal[k].xyz;

@@ -27,9 +27,10 @@ typedef struct {
     float prev_t;
     float prev[EB_N_FIELDS];
     float last_exit;               /* where the last region ended (a gap resets prev) */
-    /* slices the ray crosses inside its clip interval, by distance */
-    float slice_t[EB_MAX_SLICES];
-    int slice_k[EB_MAX_SLICES];
+    /* slices and mesh hits along the ray inside its clip interval, by distance
+     * (slice_k: a slice's index, or -1 - a mesh triangle's) */
+    float slice_t[EB_MAX_SLICES + EB_MAX_MESH_HITS];
+    int slice_k[EB_MAX_SLICES + EB_MAX_MESH_HITS];
     int n_slices, next_slice;
 } eb_ray_state;
 

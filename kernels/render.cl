@@ -30,8 +30,8 @@
  * samples[pixel] and depth[pixel] collect the reconstruction count and the
  * smallest depth over the pixel's samples. */
 __kernel void eb_render(__constant eb_params *P, int4 band, int sample_index,
-                        EB_DATASET_ARGS, __global const float *look_f, __global const int *look_i
-                        EB_DOMAIN_ARGS, __global float4 *rgba, __global float *depth,
+                        EB_DATASET_ARGS, __global const float *look_f, __global const int *look_i,
+                        __global const float4 *meshes EB_DOMAIN_ARGS, __global float4 *rgba, __global float *depth,
                         __global uint *samples, __global uint *level_samples)
 {
     int band_col = get_global_id(0), band_row = get_global_id(1);
@@ -69,6 +69,11 @@ __kernel void eb_render(__constant eb_params *P, int4 band, int sample_index,
 
     for (int f = 0; f < EB_N_FIELDS; ++f)
         fr.look.gradient_scale[f] = look_f4[P->gradient_scale_at / 4 + f].xyz;
+    fr.surf.mesh.tri = meshes + P->mesh_tris_at;
+    fr.surf.mesh.node = meshes + P->mesh_nodes_at;
+    fr.surf.mesh.color = look_f4 + P->mesh_colors_at / 4;
+    fr.surf.mesh.info = (__global const int4 *)(look_i + P->mesh_info_at);
+    fr.surf.mesh.n_meshes = P->n_meshes;
     fr.look.tables = look_f4;
     fr.look.table_at = look_i + P->tables_at;
     fr.look.table0 = fr.look.table_at[0];

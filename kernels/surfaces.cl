@@ -32,8 +32,77 @@
 /* Bisection steps at most: from any sample step down to the tolerance. */
 #define EB_REFINE_STEPS 40
 
-/* The slices the ray crosses inside [t0, t1], sorted by distance into `st`. */
-EB_INLINE void eb_slices_start(eb_frame *fr, eb_ray *ray, float t0, float t1, eb_ray_state *st)
+/* Insert a hit at distance t (slice k >= 0, or mesh triangle -1 - k) into the
+ * ray's list, kept sorted by distance; when it holds `most`, the farthest goes. */
+EB_INLINE void eb_hit_insert(eb_ray_state *st, float t, int k, int most)
+{
+    int i;
+    if (st->n_slices < most)
+        i = st->n_slices++;
+    else if (t < st->slice_t[most - 1])
+        i = most - 1;
+    else
+        return;
+    for (; i > 0 && st->slice_t[i - 1] > t; --i) {
+        st->slice_t[i] = st->slice_t[i - 1];
+        st->slice_k[i] = st->slice_k[i - 1];
+    }
+    st->slice_t[i] = t;
+    st->slice_k[i] = k;
+}
+
+/* Whether the list already holds a hit of the same mesh at the same distance
+ * (to 1e-6 of it): a ray through an edge or a vertex hits every triangle there
+ * (the test is watertight), and one surface is crossed once. */
+EB_INLINE int eb_mesh_seen(eb_ray_state *st, eb_meshes *m, int i, float t)
+{
+    int mesh = eb_triangle_mesh(m, i);
+    for (int h = 0; h < st->n_slices; ++h) {
+        int k = st->slice_k[h];
+        if (k < 0 && fabs(st->slice_t[h] - t) <= 1e-6f * t && eb_triangle_mesh(m, -1 - k) == mesh)
+            return 1;
+    }
+    return 0;
+}
+
+/* The nearest EB_MAX_MESH_HITS mesh hits inside (t0, t1] (in a domain's frame,
+ * those inside the domain), into the ray's list after its slices: the walk is
+ * pruned beyond the farthest kept hit once the list is full, and beyond the
+ * first opaque hit, whose distance it returns (+inf: none). */
+EB_INLINE float eb_mesh_hits(eb_frame *fr, eb_ray *ray, float t0, float t1, eb_ray_state *st)
+{
+    eb_meshes *m = &fr->surf.mesh;
+    float opaque = EB_INF;
+    if (m->n_meshes == 0)
+        return opaque;
+    int most = st->n_slices + EB_MAX_MESH_HITS;
+    eb_mesh_ray r = eb_mesh_ray_of(ray->org_world, ray->dir_world);
+    float far = t1;
+#ifdef EB_DOMAIN
+#define EB_MESH_KEEP(i, t) eb_in_domain(fr, ray->org + (t) * ray->dir)
+#else
+#define EB_MESH_KEEP(i, t) 1
+#endif
+#define EB_MESH_TAKE(i, t)                                                      \
+    if (EB_MESH_KEEP(i, t) && !eb_mesh_seen(st, m, (i), (t))) {                 \
+        eb_hit_insert(st, (t), -1 - (i), most);                                 \
+        if (m->color[eb_triangle_mesh(m, (i))].w >= 1.0f) {                     \
+            far = fmin(far, (t));                                               \
+            opaque = fmin(opaque, (t));                                         \
+        }                                                                       \
+        if (st->n_slices == most)                                               \
+            far = fmin(far, st->slice_t[most - 1]);                             \
+    }
+    EB_MESH_WALK(m, &r, t0, &far, EB_MESH_TAKE);
+#undef EB_MESH_TAKE
+#undef EB_MESH_KEEP
+    return opaque;
+}
+
+/* The slices the ray crosses inside [t0, t1] and its nearest mesh hits, sorted
+ * by distance into `st`; returns the distance of the first opaque mesh hit
+ * (+inf: none), where the volume behind it ends. */
+EB_INLINE float eb_slices_start(eb_frame *fr, eb_ray *ray, float t0, float t1, eb_ray_state *st)
 {
     st->n_slices = 0;
     st->next_slice = 0;
@@ -49,14 +118,9 @@ EB_INLINE void eb_slices_start(eb_frame *fr, eb_ray *ray, float t0, float t1, eb
         if (!eb_in_domain(fr, ray->org + t * ray->dir))
             continue;  /* another domain's hit */
 #endif
-        int i = st->n_slices++;
-        for (; i > 0 && st->slice_t[i - 1] > t; --i) {
-            st->slice_t[i] = st->slice_t[i - 1];
-            st->slice_k[i] = st->slice_k[i - 1];
-        }
-        st->slice_t[i] = t;
-        st->slice_k[i] = k;
+        eb_hit_insert(st, t, k, EB_MAX_SLICES);
     }
+    return eb_mesh_hits(fr, ray, t0, t1, st);
 }
 
 /* Where field f crosses iso between ta and tb, given da = B(ta) - iso and
@@ -84,32 +148,11 @@ EB_COLD float eb_refine_crossing(eb_frame *fr, eb_ray *ray, int f, float iso,
     return da != db ? ta + (tb - ta) * (da / (da - db)) : 0.5f * (ta + tb);
 }
 
-/* Shade and composite one surface hit at distance t: iso-surface j (k < 0) or
- * slice k (j < 0). Returns 1 once the ray is opaque enough to stop. */
-EB_COLD int eb_surface_hit(eb_frame *fr, eb_ray *ray, eb_ray_state *st, float t, int j, int k)
+/* Composite a surface hit at distance t of normal n (any length and side),
+ * colour rgb and opacity a: headlight and specular, ambient occlusion. */
+EB_INLINE int eb_shade_hit(eb_frame *fr, eb_ray *ray, eb_ray_state *st, float t, float3 n,
+                           float3 rgb, float a)
 {
-    float3 p = ray->org + t * ray->dir;
-    int level;
-    eb_basis_sums s = eb_evaluate_at(fr, p, 1, &level);
-    if (!(s.weight > 0.0f))
-        return 0;  /* no data here: nothing to draw */
-    float value[EB_N_FIELDS];
-    eb_fields(s, value);
-    float3 n, rgb;
-    float a;
-    if (j >= 0) {
-        int4 iso = fr->surf.iso[j];
-        n = eb_field_gradient_by(fr, &s, p, level, iso.x,
-                                 fr->central || fr->P->iso_gradient == EB_ISO_GRADIENT_CENTRAL);
-        rgb = iso.y >= 0 ? eb_lookup(fr->look, iso.z, iso.w, value[iso.y]).xyz
-                         : fr->surf.iso_color[j].xyz;
-        a = fr->surf.iso_value[j].y;
-    } else {
-        int4 slice = fr->surf.slice[k];
-        n = fr->surf.slice_normal[k].xyz;
-        rgb = eb_lookup(fr->look, slice.y, slice.z, value[slice.x]).xyz;
-        a = fr->surf.slice_point[k].w;
-    }
     if (!(a > 0.0f))
         return 0;
     float n2 = dot(n, n);
@@ -128,6 +171,57 @@ EB_COLD int eb_surface_hit(eb_frame *fr, eb_ray *ray, eb_ray_state *st, float t,
     if (a >= 1.0f && st->t_opaque == EB_INF)
         st->t_opaque = t;
     return eb_composite(st, a, rgb, t, fr->max_opacity);
+}
+
+/* Colour, opacity and normal of mesh triangle i hit at lattice point p: the
+ * mesh's colour, or its colour map of a field where that field has data. */
+EB_INLINE float4 eb_mesh_look(eb_frame *fr, int i, float3 p, float3 *n)
+{
+    eb_meshes *m = &fr->surf.mesh;
+    int k = eb_triangle_mesh(m, i);
+    float4 c = m->color[k];
+    int4 info = m->info[k];
+    *n = eb_triangle_normal(m, i);
+    if (info.x >= 0) {
+        eb_basis_sums s = eb_evaluate(fr, p, 0);
+        if (s.weight > 0.0f)
+            c.xyz = eb_lookup(fr->look, info.y, info.z, eb_basis_value(s, info.x)).xyz;
+    }
+    return c;
+}
+
+/* Shade and composite one surface hit at distance t: iso-surface j (k < 0),
+ * slice k (j < 0), or mesh triangle -1 - k (j < 0, k < 0). Returns 1 once the
+ * ray is opaque enough to stop. */
+EB_COLD int eb_surface_hit(eb_frame *fr, eb_ray *ray, eb_ray_state *st, float t, int j, int k)
+{
+    float3 p = ray->org + t * ray->dir;
+    float3 n, rgb;
+    float a;
+    if (j < 0 && k < 0) {
+        float4 c = eb_mesh_look(fr, -1 - k, p, &n);
+        return eb_shade_hit(fr, ray, st, t, n, c.xyz, c.w);
+    }
+    int level;
+    eb_basis_sums s = eb_evaluate_at(fr, p, 1, &level);
+    if (!(s.weight > 0.0f))
+        return 0;  /* no data here: nothing to draw */
+    float value[EB_N_FIELDS];
+    eb_fields(s, value);
+    if (j >= 0) {
+        int4 iso = fr->surf.iso[j];
+        n = eb_field_gradient_by(fr, &s, p, level, iso.x,
+                                 fr->central || fr->P->iso_gradient == EB_ISO_GRADIENT_CENTRAL);
+        rgb = iso.y >= 0 ? eb_lookup(fr->look, iso.z, iso.w, value[iso.y]).xyz
+                         : fr->surf.iso_color[j].xyz;
+        a = fr->surf.iso_value[j].y;
+    } else {
+        int4 slice = fr->surf.slice[k];
+        n = fr->surf.slice_normal[k].xyz;
+        rgb = eb_lookup(fr->look, slice.y, slice.z, value[slice.x]).xyz;
+        a = fr->surf.slice_point[k].w;
+    }
+    return eb_shade_hit(fr, ray, st, t, n, rgb, a);
 }
 
 /* Composite every surface hit before distance t_limit: iso crossings between
@@ -218,8 +312,9 @@ EB_INLINE int eb_surfaces_enter_region(eb_frame *fr, eb_ray *ray, int r, float t
 #else
 /* A frame without iso-surfaces or slices (no -DEB_SURFACES): nothing to do, and
  * the compiler drops the calls. */
-EB_INLINE void eb_slices_start(eb_frame *fr, eb_ray *ray, float t0, float t1, eb_ray_state *st)
+EB_INLINE float eb_slices_start(eb_frame *fr, eb_ray *ray, float t0, float t1, eb_ray_state *st)
 {
+    return EB_INF;
 }
 
 EB_INLINE int eb_surfaces_until(eb_frame *fr, eb_ray *ray, eb_ray_state *st, float t_limit,

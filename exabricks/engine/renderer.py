@@ -59,6 +59,7 @@ from .. import interrupt, kernel_abi, opencl, schema
 from ..constants import MAX_SAMPLES_PER_RAY
 from ..kernel_abi import LOD_LEVELS, PACKET_WIDTH
 from ..errors import ExabricksError
+from ..mesh import mesh_set
 from ..scene import Lighting, Scene, Settings, VolumeLayer
 from ..transfer_function import TABLE_TOLERANCE, knot_buckets, lookup_table
 from .device_data import DatasetScale, DeviceDataset
@@ -137,6 +138,8 @@ class Renderer:
         self._use(lookup)
         # Sample packets: on CPU devices unless asked otherwise (both give the same image).
         self.packets = opencl.is_cpu(self.dataset.device) if packets is None else bool(packets)
+        self._mesh_upload = None  # (mesh files, device buffers, their eb_params)
+        self._mesh_set = None
 
     def _use(self, lookup: str) -> None:
         _check_lookup(lookup)
@@ -260,7 +263,7 @@ class Renderer:
         rgba = _host_image(cols, n_rows, 4, "the image")
         d = _host_image(cols, n_rows, 1, "the depth image")[..., 0] if cfg.depth else None
         spans = [(0, n_rows)] if rows is None else [(int(a), int(n)) for a, n in rows]
-        nothing = s.empty or not (node_vis[0] or scene.slices)
+        nothing = s.empty or not (node_vis[0] or scene.slices or scene.meshes)
         if rows is not None or nothing or deadline is not None:  # rows not rendered
             rgba[:] = 0.0 if front is None else front
             if d is not None:
@@ -281,7 +284,8 @@ class Renderer:
         samples_buf = opencl.empty_buffer(q, band_pixels * 4)
         samples = np.empty(band_pixels, np.uint32)
         lod = cfg.lod > 0
-        kernel = self._kernel(bool(scene.isosurfaces or scene.slices), cfg.reconstruction, lod)
+        kernel = self._kernel(bool(scene.isosurfaces or scene.slices or scene.meshes),
+                              cfg.reconstruction, lod)
         level_samples = np.zeros(LOD_LEVELS, np.uint32)
         level_buf = opencl.to_device(q, level_samples, writable=True)
         # Pixels of a cell of width w at distance t: w / (t * 2 tan(fovy / 2) / H).
@@ -292,8 +296,12 @@ class Renderer:
         args, layout = s.dataset_args(up(q, s.flags_for(node_vis, region_vis)), cfg.reconstruction,
                                       lod, self.lookup == "cell-location")
         look, look_params, stats["transfer_function_tables"] = frame_arrays(scene, s)
+        mesh_args, mesh_params = self._meshes(scene)
+        if scene.meshes:
+            stats["meshes"] = self._mesh_set.stats()
         params = up(q, s.params(
-            **layout, **look_params, **kernel_abi.option_params(scene), width=width, height=height, spp=spp,
+            **layout, **look_params, **mesh_params, **kernel_abi.option_params(scene), width=width,
+            height=height, spp=spp,
             seed=int(cfg.seed) & 0xFFFFFFFF, jitter=bool(cfg.jitter),
             cam_origin=(*origin, 0), cam_forward=(*forward, 0), cam_du=(*du, 0), cam_dv=(*dv, 0),
             step_base=s.min_spacing_world / cfg.sampling_rate, inv_unit_distance=1.0 / unit,
@@ -303,7 +311,7 @@ class Renderer:
             ao_samples=lighting.ao_samples, ao_distance=ao_distance, lod_scale=lod_scale,
             **(dict(domain_lower=self.domain[0], domain_upper=self.domain[1],
                     use_front=front is not None) if self.domain else {})))
-        fixed = [*args, *(up(q, a) for a in look),
+        fixed = [*args, *(up(q, a) for a in look), *mesh_args,
                  *((front_buf,) if self.domain else ()), rgba_buf, depth_buf, samples_buf, level_buf]
         q.finish()
         start = time.perf_counter()
@@ -349,6 +357,22 @@ class Renderer:
         stats.update(rows=drawn, samples=total, ms=1e3 * seconds / (spp if sample is None else 1),
                      samples_per_second=total / seconds if seconds > 0 else 0.0)
         return RenderResult(over_background(rgba, scene.background), d, stats)
+
+    def _meshes(self, scene: Scene) -> tuple[tuple, dict]:
+        """The mesh buffer of `scene` (kernels/render.cl `meshes`) and its eb_params:
+        the MeshSet of its mesh files (exabricks.mesh.mesh_set), uploaded once for as
+        long as the frames draw the same files."""
+        paths = tuple(m.path for m in scene.meshes)
+        if self._mesh_upload is None or self._mesh_upload[0] != paths:
+            self._mesh_upload = None  # the old buffer goes before the new one comes
+            meshes = mesh_set(paths) if paths else None
+            words = (np.zeros(4, np.float32) if meshes is None else
+                     np.concatenate([meshes.triangles.reshape(-1, 4), meshes.nodes.reshape(-1, 4)]))
+            buffers = (opencl.to_device(self.dataset.queue, words),)
+            at = {} if meshes is None else {"mesh_tris_at": 0, "mesh_nodes_at": 3 * meshes.n_triangles}
+            self._mesh_set = meshes
+            self._mesh_upload = (paths, buffers, at)
+        return self._mesh_upload[1], self._mesh_upload[2]
 
     def _check_samples_per_ray(self, sampling_rate: float) -> None:
         """Refuse a sampling rate that would take more than MAX_SAMPLES_PER_RAY samples
@@ -486,6 +510,11 @@ def frame_arrays(scene: Scene, device_dataset: DeviceDataset) -> tuple[tuple, di
         iso.append((index[surface.field], color_field, first, n))
         iso_value.append((surface.value, surface.opacity, 0.0, 0.0))
         iso_color.append((*surface.color, 0.0))
+    mesh_color, mesh_info = [], []
+    for mesh in scene.meshes:
+        first, n = knots(mesh.colormap) if mesh.colormap is not None else (0, 0)
+        mesh_color.append((*mesh.color, mesh.opacity))
+        mesh_info.append((index[mesh.color_field] if mesh.color_field else -1, first, n, 0))
     slices, slice_point, slice_normal = [], [], []
     for plane in scene.slices:
         slices.append((index[plane.field], *knots(plane.colormap), 0))
@@ -508,6 +537,8 @@ def frame_arrays(scene: Scene, device_dataset: DeviceDataset) -> tuple[tuple, di
         "clip_planes_at": floats.add(rows(planes, np.float32), 4),
         "layers_at": ints.add(rows(layers or [(0, 0, 0, 0)], np.int32), 4),
         "iso_at": ints.add(rows(iso, np.int32), 4), "slices_at": ints.add(rows(slices, np.int32), 4),
+        "mesh_colors_at": floats.add(rows(mesh_color, np.float32), 4),
+        "mesh_info_at": ints.add(rows(mesh_info, np.int32), 4), "n_meshes": len(mesh_color),
         "buckets_at": ints.add(np.concatenate(buckets) if buckets else np.zeros(0, np.int32)),
         "tables_at": ints.add(np.asarray(table_at or [-1], np.int32)),
         "n_layers": len(layers), "n_iso": len(iso), "n_slices": len(slices),

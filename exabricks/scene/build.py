@@ -18,8 +18,8 @@ from ..camera import Camera
 from ..errors import ExabricksError
 from ..transfer_function import TransferFunction
 from .file import SceneFile, shown
-from .model import (DEFAULT_COLORMAP, DEFAULT_FOVY, Clip, IsoSurface, Lighting, Scene, Settings,
-                    Slice, VolumeLayer)
+from .model import (DEFAULT_COLORMAP, DEFAULT_FOVY, Clip, IsoSurface, Lighting, MeshLayer, Scene,
+                    Settings, Slice, VolumeLayer)
 from .options import SCENE_OPTIONS, VOLUME_FLAGS, check_flags, flag_name, normalised_flags
 
 
@@ -237,6 +237,35 @@ def _isosurfaces(bricks, file: SceneFile, f, base: str, base_at: str) -> tuple[I
     return tuple(surfaces)
 
 
+def _meshes(bricks, file: SceneFile, f) -> tuple[MeshLayer, ...]:
+    # (path, colour: RGB tuple or _Colour, opacity) before flags modify them
+    if f["mesh"] is not None:
+        specs = [[str(path), MeshLayer.color, MeshLayer.opacity] for path in f["mesh"]]
+    else:
+        specs = []
+        for i, e in enumerate(file.get("meshes", default=[])):
+            colour = e.get("color", MeshLayer.color)
+            colour = (_file_colour(file, colour, "meshes", i, "color") if isinstance(colour, dict)
+                      else tuple(float(c) for c in colour))
+            specs.append([str(file.mesh_file(i)), colour, float(e.get("opacity", MeshLayer.opacity))])
+    for name in ("mesh_color", "mesh_opacity"):
+        if f[name] is not None and not specs:
+            raise ExabricksError(f"{flag_name(name)}: there is no mesh to apply it to "
+                                 "(give --mesh FILE, or meshes in the scene file)")
+    out = []
+    for path, colour, opacity in specs:
+        if f["mesh_opacity"] is not None:
+            opacity = float(f["mesh_opacity"])
+        if f["mesh_color"] is not None:
+            colour = tuple(float(c) for c in f["mesh_color"])
+        if isinstance(colour, _Colour):
+            field, colormap = colour.build(bricks)
+            out.append(MeshLayer(path, opacity=opacity, color_field=field, colormap=colormap))
+        else:
+            out.append(MeshLayer(path, color=colour, opacity=opacity))
+    return tuple(out)
+
+
 def _slices(bricks, file: SceneFile, f, base: str, base_at: str) -> tuple[Slice, ...]:
     # (point, normal, where, _Colour, opacity)
     if f["slice"] is not None:
@@ -350,6 +379,7 @@ def scene_from_options(bricks, *, scene_path=None, camera_path=None, flags: dict
         volumes=_volumes(bricks, file, f, base, base_at),
         isosurfaces=_isosurfaces(bricks, file, f, base, base_at),
         slices=_slices(bricks, file, f, base, base_at),
+        meshes=_meshes(bricks, file, f),
         clip=_clip(file, f),
         lighting=_lighting(file, f),
         background=_background(file, f),

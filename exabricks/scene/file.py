@@ -231,13 +231,24 @@ class SceneFile:
             f"(found {shown(value)}: {problem}: {file}, nor a built-in preset: "
             f"{', '.join(builtin_presets())})")
 
+    def mesh_file(self, i: int) -> Path:
+        """The file of mesh i, relative to the scene file's folder."""
+        value = self.doc["meshes"][i]["file"]
+        path = self.folder / value
+        problem = not_regular(path)
+        if problem:
+            raise ExabricksError(f"{self.at('meshes', i, 'file')}: expected a mesh file (found "
+                                 f"{shown(value)}: {problem}: {path})")
+        return path
+
     def references(self) -> list[Path]:
-        """Every file the scene names (camera, preset files), each checked to exist."""
+        """Every file the scene names (camera, preset and mesh files), each checked to exist."""
         files = [self.camera_file()]
         for i, volume in enumerate(self.doc.get("volumes", [])):
             tf = volume.get("transfer_function")
             if isinstance(tf, str):
                 files.append(self.preset_file(tf, "volumes", i, "transfer_function"))
+        files += [self.mesh_file(i) for i in range(len(self.doc.get("meshes", [])))]
         return [f for f in files if f is not None]
 
 

@@ -31,6 +31,9 @@ MAX_ISOSURFACES = 32
 MAX_SLICES = 8
 MAX_CLIP_PLANES = 16
 MAX_AO_SAMPLES = 256
+MAX_MESHES = 16
+# Mesh hits a ray composites, the nearest (kernels/mesh.cl).
+MAX_MESH_HITS = 8
 
 DEFAULT_COLORMAP = "viridis"
 DEFAULT_FOVY = 30.0
@@ -70,6 +73,19 @@ class Slice:
     field: str
     colormap: TransferFunction
     opacity: float = 1.0
+
+
+@dataclass(frozen=True)
+class MeshLayer:
+    """A triangle mesh file (OBJ, PLY, STL; world units; exabricks.mesh) drawn with
+    `opacity`, in the fixed RGB `color`, or with `colormap` of `color_field` at
+    the hit where that field has data."""
+
+    path: str
+    color: tuple[float, float, float] = (0.8, 0.8, 0.8)
+    opacity: float = 1.0
+    color_field: str | None = None
+    colormap: TransferFunction | None = None
 
 
 @dataclass(frozen=True)
@@ -128,6 +144,7 @@ class Scene:
     volumes: tuple[VolumeLayer, ...] = ()
     isosurfaces: tuple[IsoSurface, ...] = ()
     slices: tuple[Slice, ...] = ()
+    meshes: tuple[MeshLayer, ...] = ()
     clip: Clip = Clip()
     lighting: Lighting = Lighting()
     background: tuple[float, float, float, float] = (0.0, 0.0, 0.0, 0.0)
@@ -140,6 +157,7 @@ class Scene:
         for s in self.isosurfaces:
             names += [s.field] + ([s.color_field] if s.color_field else [])
         names += [s.field for s in self.slices]
+        names += [m.color_field for m in self.meshes if m.color_field]
         return tuple(dict.fromkeys(names))
 
     def replace(self, **changes) -> "Scene":
@@ -150,6 +168,7 @@ class Scene:
         lim = ((self.volumes, MAX_VOLUMES, "volume layers"),
                (self.isosurfaces, MAX_ISOSURFACES, "iso-surfaces"),
                (self.slices, MAX_SLICES, "slices"),
+               (self.meshes, MAX_MESHES, "meshes"),
                (self.clip.planes, MAX_CLIP_PLANES, "clip planes"))
         for items, most, what in lim:
             if len(items) > most:
@@ -187,6 +206,13 @@ class Scene:
                 raise ExabricksError(f"slice of {s.field!r} needs a finite point and a non-zero normal")
             if not 0.0 <= s.opacity <= 1.0:
                 raise ExabricksError(f"slice opacity must lie in [0, 1], got {s.opacity}")
+        for m in self.meshes:
+            if not 0.0 <= m.opacity <= 1.0:
+                raise ExabricksError(f"{m.path}: mesh opacity must lie in [0, 1], got {m.opacity}")
+            if not all(0.0 <= c <= 1.0 for c in m.color) or len(m.color) != 3:
+                raise ExabricksError(f"{m.path}: mesh colour must be three numbers in [0, 1]")
+            if (m.color_field is None) != (m.colormap is None):
+                raise ExabricksError("a mesh colour field needs a colour map and vice versa")
         for p, n in self.clip.planes:
             n = np.asarray(n, float)
             if not (np.all(np.isfinite(p)) and np.all(np.isfinite(n)) and n @ n > 0):

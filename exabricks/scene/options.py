@@ -254,6 +254,11 @@ SCENE_OPTIONS = (
            metavar="NAME"),
     _vector("slice_range", "Data range of --slice-colormap (default: the slice field's range).",
             nargs=2, metavar="LO HI"),
+    Option("mesh", "A triangle mesh (OBJ, PLY or STL, world units) drawn with the volume; "
+           "repeatable; replaces the scene's meshes.", kind="file", multiple=True, metavar="FILE"),
+    Option("mesh_color", "Colour of the meshes, in [0, 1] (default 0.8,0.8,0.8).",
+           kind="numbers", counts=(3,), metavar="R,G,B"),
+    Option("mesh_opacity", "Opacity of the meshes (default 1).", low=0.0, high=1.0, metavar="A"),
     _vector("clip_box", "Keep only the inside of this box.", nargs=6, metavar="X0 Y0 Z0 X1 Y1 Z1"),
     _vector("clip_plane", "Keep only the half-space (p - P).N >= 0; repeatable; replaces the "
             "scene's planes.", nargs=6, metavar="PX PY PZ NX NY NZ", multiple=True),

@@ -1,0 +1,56 @@
+"""The pictures of docs/design.md "Meshes" and docs/gallery.md "Meshes": meshes
+drawn with the volume by `exabricks render --mesh`, each mesh made by
+`exabricks surface` from the data itself (the shared datasets hold no
+embedded-boundary body).
+
+    .venv/bin/python docs/pictures/mesh_pictures.py
+
+Writes into docs/images/mesh/:
+
+- amrex-body.png: the AMReX advection plotfile; its phi = 1.2 surface as an
+  opaque grey body, inside the faint volume, with ambient occlusion, the front
+  quarter clipped away by a plane;
+- gerris-shell.png: the Gerris plume; its T = 0.25 surface as a translucent
+  shell coloured by the vertical velocity V, around the volume of T.
+"""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+import tempfile
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[2]
+OUT = ROOT / "docs" / "images" / "mesh"
+sys.path.insert(0, str(ROOT / "tests"))
+from conftest import AMREX, GERRIS  # noqa: E402
+
+
+def exabricks(*args) -> None:
+    subprocess.run([sys.executable, "-m", "exabricks.cli.main", *map(str, args)], check=True)
+
+
+def main() -> int:
+    OUT.mkdir(parents=True, exist_ok=True)
+    with tempfile.TemporaryDirectory() as tmp:
+        body = Path(tmp) / "body.ply"
+        exabricks("surface", AMREX, "--field", "phi", "--value", 1.2, "-o", body)
+        exabricks("render", AMREX, "--field", "phi", "--colormap", "viridis", "--opacity", "0,0.08",
+                  "--mesh", body, "--mesh-color", "0.75,0.75,0.78", "--ao-samples", 16,
+                  "--ao-distance", 0.15, "--specular", 0.3, "--clip-plane", 0.5, 0.5, 0.5, -1, 0, -1,
+                  "--size", 640, 640, "--spp", 4, "--background", "1,1,1",
+                  "-o", OUT / "amrex-body.png")
+        shell = Path(tmp) / "shell.ply"
+        exabricks("surface", GERRIS, "--field", "T", "--value", 0.25, "-o", shell)
+        scene = Path(tmp) / "scene.json"
+        scene.write_text('{"volumes": [{"field": "T", "transfer_function": {"colormap": "inferno", '
+                         '"opacity": [0, 0.3]}}], "meshes": [{"file": "shell.ply", "opacity": 0.35, '
+                         '"color": {"field": "V", "colormap": "coolwarm"}}]}')
+        exabricks("render", GERRIS, "--scene", scene, "--size", 640, 640, "--spp", 4,
+                  "--background", "1,1,1", "-o", OUT / "gerris-shell.png")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,232 @@
+"""Triangle meshes drawn with the volume (`--mesh FILE`, the scene key `meshes`;
+docs/design.md, "Meshes").
+
+A mesh file (OBJ, PLY or STL, world units) is read by trimesh and checked:
+finite vertices, vertex indices in range, at least one triangle with area.
+Triangles without area are dropped (marching cubes makes some; they cannot be
+hit). The meshes of a frame are merged into one `MeshSet`: their triangles,
+each tagged with its mesh, under one binned-SAH BVH (stages.bvh.build_tree,
+the builder of the regions' BVH, over the triangles' boxes), which the kernels
+walk for every ray (kernels/mesh.cl). A MeshSet is built once per process for
+the same files (`mesh_set`).
+"""
+
+from __future__ import annotations
+
+import functools
+import os
+import struct
+from dataclasses import dataclass
+from pathlib import Path
+
+import numba
+import numpy as np
+
+from .constants import MAX_TREE_DEPTH
+from .errors import ExabricksError
+from .formats.memory import check_memory
+
+SUFFIXES = (".obj", ".ply", ".stl")
+# Triangles of all the meshes of a frame: the ExaJet's surface is 63.2 M.
+MAX_TRIANGLES = 1 << 26
+# Bytes a mesh file may hold (a binary STL of MAX_TRIANGLES is 3.4 GB).
+MAX_FILE_BYTES = 1 << 33
+
+
+@dataclass(frozen=True)
+class Mesh:
+    """vertices: float32 (V, 3) world units; faces: int32 (F, 3), every triangle with area."""
+
+    path: str
+    vertices: np.ndarray
+    faces: np.ndarray
+    dropped: int  # triangles without area left out
+
+
+def read_mesh(path) -> Mesh:
+    """The mesh in `path` (OBJ, PLY, STL), checked; ExabricksError naming the file."""
+    path = Path(path)
+    where = str(path)
+    if path.suffix.lower() not in SUFFIXES:
+        raise ExabricksError(f"{where}: a mesh must be an OBJ, PLY or STL file "
+                             f"(found the suffix {path.suffix or 'none'!r})")
+    try:
+        size = path.stat().st_size
+        if not path.is_file():
+            raise ExabricksError(f"{where}: not a regular file")
+    except OSError as e:
+        raise ExabricksError(f"{where}: cannot read the mesh: {e.strerror or e}") from None
+    if size > MAX_FILE_BYTES:
+        raise ExabricksError(f"{where}: {size:,} bytes, more than a mesh may hold "
+                             f"({MAX_FILE_BYTES:,})")
+    if path.suffix.lower() == ".stl":
+        _check_binary_stl(path, size)
+    check_memory(6 * size, where)  # the parser's text and its float64 arrays
+    import trimesh
+
+    try:
+        loaded = trimesh.load(str(path), force="mesh", process=False, skip_materials=True)
+        vertices = np.asarray(loaded.vertices, np.float64)
+        faces = np.asarray(loaded.faces)
+    except ExabricksError:
+        raise
+    except Exception as e:  # noqa: BLE001 - a parser's error on a hostile file, whatever it is
+        raise ExabricksError(f"{where}: not a readable mesh ({type(e).__name__}: {e})") from None
+    return _checked(where, vertices, faces)
+
+
+def _check_binary_stl(path: Path, size: int) -> None:
+    """A binary STL's triangle count must match its size (a lying count would make
+    the parser read past the file or allocate for triangles that are not there)."""
+    with open(path, "rb") as f:
+        head = f.read(84)
+    if head[:5].lower() == b"solid" and b"\0" not in head[:80]:
+        return  # ASCII STL
+    if len(head) < 84:
+        raise ExabricksError(f"{path}: a binary STL needs an 84-byte header, the file has {size} bytes")
+    (count,) = struct.unpack("<I", head[80:84])
+    if 84 + 50 * count != size:
+        raise ExabricksError(f"{path}: the binary STL says it holds {count:,} triangles, which "
+                             f"take {84 + 50 * count:,} bytes, but the file has {size:,}")
+    if count > MAX_TRIANGLES:
+        raise ExabricksError(f"{path}: {count:,} triangles, more than {MAX_TRIANGLES:,}")
+
+
+def _checked(where: str, vertices: np.ndarray, faces: np.ndarray) -> Mesh:
+    if faces.ndim != 2 or faces.shape[1] != 3 or len(faces) == 0:
+        raise ExabricksError(f"{where}: the mesh has no triangles")
+    if len(faces) > MAX_TRIANGLES:
+        raise ExabricksError(f"{where}: {len(faces):,} triangles, more than {MAX_TRIANGLES:,}")
+    if vertices.ndim != 2 or vertices.shape[1] != 3 or len(vertices) == 0:
+        raise ExabricksError(f"{where}: the mesh has no vertices")
+    bad = ~np.isfinite(vertices).all(axis=1)
+    if bad.any():
+        raise ExabricksError(f"{where}: vertex {int(np.flatnonzero(bad)[0])} is not finite "
+                             f"({vertices[np.flatnonzero(bad)[0]].tolist()})")
+    if not np.issubdtype(faces.dtype, np.integer):
+        raise ExabricksError(f"{where}: vertex indices must be integers")
+    out = (faces < 0) | (faces >= len(vertices))
+    if out.any():
+        t = int(np.flatnonzero(out.any(axis=1))[0])
+        raise ExabricksError(f"{where}: triangle {t} refers to vertex {int(faces[t][out[t]][0])}, "
+                             f"but the mesh has {len(vertices):,} vertices")
+    if np.abs(vertices).max() > 1e30:
+        raise ExabricksError(f"{where}: vertex coordinates beyond 1e30 do not fit float32 arithmetic")
+    v = vertices.astype(np.float32)
+    f = faces.astype(np.int32)
+    a, b, c = v[f[:, 0]], v[f[:, 1]], v[f[:, 2]]
+    area = np.cross((b - a).astype(np.float64), (c - a).astype(np.float64))
+    keep = (area != 0.0).any(axis=1)
+    if not keep.any():
+        raise ExabricksError(f"{where}: every one of its {len(f):,} triangles is degenerate "
+                             "(no area)")
+    return Mesh(where, v, f[keep], int((~keep).sum()))
+
+
+@dataclass(frozen=True)
+class MeshSet:
+    """The triangles of a frame's meshes under one BVH, as the kernels read them.
+
+    triangles: float32 (T, 3, 4), the three vertices of each triangle in BVH
+    order (w of the first: the mesh index, as float); nodes: float32 (M, 2, 4),
+    each node's lower and upper corner (world), their w the int32 bits of the
+    node's (first, count): an inner node (count 0) has its children at first and
+    first + 1, a leaf holds triangles first .. first + count - 1."""
+
+    paths: tuple[str, ...]
+    triangles: np.ndarray
+    nodes: np.ndarray
+    dropped: int
+
+    @property
+    def links(self) -> np.ndarray:
+        """int32 (M, 2): each node's (first, count)."""
+        return np.ascontiguousarray(self.nodes[:, :, 3]).view(np.int32)
+
+    @property
+    def n_triangles(self) -> int:
+        return len(self.triangles)
+
+    def stats(self) -> dict:
+        return {"meshes": len(self.paths), "triangles": self.n_triangles,
+                "degenerate_dropped": self.dropped, "bvh_nodes": len(self.nodes)}
+
+
+def build_mesh_set(meshes) -> MeshSet:
+    """One MeshSet of `meshes` (Mesh), mesh k's triangles tagged k."""
+    from .stages.bvh import build_tree, tree_bounds, tree_depths
+
+    total = sum(len(m.faces) for m in meshes)
+    if total > MAX_TRIANGLES:
+        raise ExabricksError(f"the meshes hold {total:,} triangles together, more than "
+                             f"{MAX_TRIANGLES:,}")
+    if len(meshes) == 1:
+        vertices, faces = meshes[0].vertices, meshes[0].faces
+    else:
+        offsets = np.cumsum([0] + [len(m.vertices) for m in meshes[:-1]])
+        vertices = np.concatenate([m.vertices for m in meshes])
+        faces = np.concatenate([m.faces + o for m, o in zip(meshes, offsets)])
+    owner = np.concatenate([np.full(len(m.faces), k, np.float32) for k, m in enumerate(meshes)])
+    # a triangle in an axis plane has a flat box: the tree needs volume
+    pad = np.float32(1e-6) * np.float32(max(float(np.abs(vertices).max()), 1e-30))
+    lo, hi = _boxes(vertices, faces, pad)
+    first, count, order, _ = build_tree(lo, hi, leaf_size=4, item="triangle")
+    depth = int(tree_depths(first, count).max()) + 1
+    if depth > MAX_TREE_DEPTH:
+        raise ExabricksError(f"the meshes' BVH is {depth} levels deep, more than the kernels' "
+                             f"{MAX_TREE_DEPTH}")
+    node_lo, node_hi = tree_bounds(first, count, order, lo, hi)
+    triangles = _in_order(vertices, faces, owner, order)
+    nodes = np.zeros((len(first), 2, 4), np.float32)
+    nodes[:, 0, :3], nodes[:, 1, :3] = node_lo, node_hi
+    nodes[:, :, 3] = np.stack([first, count], axis=1).astype(np.int32).view(np.float32)
+    return MeshSet(tuple(m.path for m in meshes), triangles, nodes, sum(m.dropped for m in meshes))
+
+
+@numba.njit(cache=True, parallel=True)
+def _boxes(vertices, faces, pad):
+    """Each triangle's box, float32 (T, 3) lower and upper, at least `pad` thick."""
+    n = faces.shape[0]
+    lo = np.empty((n, 3), np.float32)
+    hi = np.empty((n, 3), np.float32)
+    for i in numba.prange(n):
+        for a in range(3):
+            x0 = vertices[faces[i, 0], a]
+            x1 = vertices[faces[i, 1], a]
+            x2 = vertices[faces[i, 2], a]
+            low = min(x0, min(x1, x2))
+            lo[i, a] = low
+            hi[i, a] = max(max(x0, max(x1, x2)), low + pad)
+    return lo, hi
+
+
+@numba.njit(cache=True, parallel=True)
+def _in_order(vertices, faces, owner, order):
+    """MeshSet.triangles: triangle order[k] at k, its mesh in the first vertex's w."""
+    n = order.shape[0]
+    out = np.zeros((n, 3, 4), np.float32)
+    for k in numba.prange(n):
+        t = order[k]
+        for j in range(3):
+            for a in range(3):
+                out[k, j, a] = vertices[faces[t, j], a]
+        out[k, 0, 3] = owner[t]
+    return out
+
+
+def mesh_set(paths) -> MeshSet:
+    """The MeshSet of the mesh files `paths`, built once per process for files whose
+    size and modification time have not changed."""
+    keys = []
+    for p in paths:
+        try:
+            st = os.stat(p)
+            keys.append((str(Path(p).resolve()), st.st_size, st.st_mtime_ns))
+        except OSError as e:
+            raise ExabricksError(f"{p}: cannot read the mesh: {e.strerror or e}") from None
+    return _mesh_set(tuple(keys))
+
+
+@functools.lru_cache(maxsize=4)
+def _mesh_set(keys) -> MeshSet:
+    return build_mesh_set([read_mesh(k[0]) for k in keys])

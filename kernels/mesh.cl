@@ -1,0 +1,134 @@
+/* Triangle meshes (exabricks.mesh.MeshSet; docs/design.md, "Meshes"): the
+ * triangles of a frame's meshes under one BVH in world units, walked once per
+ * ray for the nearest EB_MAX_MESH_HITS hits inside the ray's interval (the
+ * surfaces of surfaces.cl composite them in distance order with the volume),
+ * and once per ambient-occlusion ray for the transmittance of every hit.
+ *
+ * Ray-triangle test: watertight (Woop, Benthin and Wald, JCGT 2013): the
+ * triangle is sheared into the ray's frame, where the edge functions U, V, W
+ * decide the hit; a zero counts as inside for both triangles of an edge, so a
+ * ray through an edge or a vertex of a closed mesh hits it and never slips
+ * through. Distances are world distances along dir_world (unit length). */
+#pragma once
+#include "common.h"
+
+/* The meshes of a frame (exabricks.mesh.MeshSet and frame_arrays). */
+typedef struct {
+    __global const float4 *tri;    /* 3 per triangle; tri[3i].w: its mesh */
+    __global const float4 *node;   /* 2 per node: lower and upper corner, their w the
+                                      bits of (first, count): inner nodes count 0 */
+    __global const float4 *color;  /* per mesh: r, g, b, opacity */
+    __global const int4 *info;     /* per mesh: colour field or -1, first knot, knot count */
+    int n_meshes;
+} eb_meshes;
+
+/* A ray in the shear frame of the watertight test. */
+typedef struct {
+    float3 org, inv_dir;
+    int kx, ky, kz;
+    float sx, sy, sz;
+} eb_mesh_ray;
+
+EB_INLINE float eb_axis(float3 v, int k)
+{
+    return k == 0 ? v.x : (k == 1 ? v.y : v.z);
+}
+
+EB_INLINE eb_mesh_ray eb_mesh_ray_of(float3 org, float3 dir)
+{
+    eb_mesh_ray r;
+    r.org = org;
+    r.inv_dir = 1.0f / dir;
+    float3 a = fabs(dir);
+    r.kz = a.x >= a.y ? (a.x >= a.z ? 0 : 2) : (a.y >= a.z ? 1 : 2);
+    r.kx = r.kz == 2 ? 0 : r.kz + 1;
+    r.ky = r.kx == 2 ? 0 : r.kx + 1;
+    float dz = eb_axis(dir, r.kz);
+    if (dz < 0.0f) {  /* keep the winding */
+        int k = r.kx;
+        r.kx = r.ky;
+        r.ky = k;
+    }
+    r.sx = eb_axis(dir, r.kx) / dz;
+    r.sy = eb_axis(dir, r.ky) / dz;
+    r.sz = 1.0f / dz;
+    return r;
+}
+
+/* Distance to triangle i if the ray hits it inside (t0, t1], else +inf. */
+EB_INLINE float eb_triangle_hit(eb_meshes *m, int i, eb_mesh_ray *r, float t0, float t1)
+{
+    /* No fused multiply-adds here: an edge's function must come out as exactly
+     * the negative in the triangle on its other side (watertightness). */
+#pragma OPENCL FP_CONTRACT OFF
+    float3 a = m->tri[3 * i].xyz - r->org;
+    float3 b = m->tri[3 * i + 1].xyz - r->org;
+    float3 c = m->tri[3 * i + 2].xyz - r->org;
+    float az = eb_axis(a, r->kz), bz = eb_axis(b, r->kz), cz = eb_axis(c, r->kz);
+    float ax = eb_axis(a, r->kx) - r->sx * az, ay = eb_axis(a, r->ky) - r->sy * az;
+    float bx = eb_axis(b, r->kx) - r->sx * bz, by = eb_axis(b, r->ky) - r->sy * bz;
+    float cx = eb_axis(c, r->kx) - r->sx * cz, cy = eb_axis(c, r->ky) - r->sy * cz;
+    float u = cx * by - cy * bx;
+    float v = ax * cy - ay * cx;
+    float w = bx * ay - by * ax;
+    if ((u < 0.0f || v < 0.0f || w < 0.0f) && (u > 0.0f || v > 0.0f || w > 0.0f))
+        return EB_INF;
+    float det = u + v + w;
+    if (det == 0.0f)
+        return EB_INF;
+    float t = (u * az + v * bz + w * cz) * r->sz / det;
+    return t > t0 && t <= t1 ? t : EB_INF;
+}
+
+/* The unit geometric normal of triangle i (world; either side). */
+EB_INLINE float3 eb_triangle_normal(eb_meshes *m, int i)
+{
+    float3 a = m->tri[3 * i].xyz;
+    return normalize(cross(m->tri[3 * i + 1].xyz - a, m->tri[3 * i + 2].xyz - a));
+}
+
+EB_INLINE int eb_triangle_mesh(eb_meshes *m, int i)
+{
+    return (int)m->tri[3 * i].w;
+}
+
+/* The BVH walk: calls HIT(i, t) for every triangle i the ray hits inside
+ * (t0, *t1], nearest subtrees first; HIT may lower *t1 to prune. */
+#define EB_MESH_WALK(m, r, t0, t1, HIT)                                                   \
+    do {                                                                                  \
+        int stack_[EB_STACK_SIZE];                                                        \
+        int top_ = 0, node_ = 0;                                                          \
+        for (;;) {                                                                        \
+            int2 l_ = (int2)(as_int((m)->node[2 * node_].w), as_int((m)->node[2 * node_ + 1].w)); \
+            if (l_.y > 0) {                                                               \
+                for (int i_ = l_.x; i_ < l_.x + l_.y; ++i_) {                             \
+                    float th_ = eb_triangle_hit((m), i_, (r), (t0), *(t1));               \
+                    if (th_ < EB_INF) {                                                   \
+                        HIT(i_, th_);                                                     \
+                    }                                                                     \
+                }                                                                         \
+            } else {                                                                      \
+                int c_ = l_.x;                                                            \
+                float2 n0_ = eb_box_interval((m)->node[2 * c_].xyz, (m)->node[2 * c_ + 1].xyz, \
+                                             (r)->org, (r)->inv_dir);                     \
+                float2 n1_ = eb_box_interval((m)->node[2 * c_ + 2].xyz,                   \
+                                             (m)->node[2 * c_ + 3].xyz, (r)->org, (r)->inv_dir); \
+                int h0_ = n0_.x <= n0_.y && n0_.y > (t0) && n0_.x <= *(t1);               \
+                int h1_ = n1_.x <= n1_.y && n1_.y > (t0) && n1_.x <= *(t1);               \
+                if (h0_ && h1_) {                                                         \
+                    int near_ = n0_.x <= n1_.x ? c_ : c_ + 1;                             \
+                    if (top_ < EB_STACK_SIZE)                                             \
+                        stack_[top_++] = near_ == c_ ? c_ + 1 : c_;                       \
+                    node_ = near_;                                                        \
+                    continue;                                                             \
+                }                                                                         \
+                if (h0_ || h1_) {                                                         \
+                    node_ = h0_ ? c_ : c_ + 1;                                            \
+                    continue;                                                             \
+                }                                                                         \
+            }                                                                             \
+            if (top_ == 0)                                                                \
+                break;                                                                    \
+            node_ = stack_[--top_];                                                       \
+        }                                                                                 \
+    } while (0)

@@ -1,0 +1,318 @@
+"""Triangle meshes (`--mesh`, scene key `meshes`; docs/design.md, "Meshes"):
+hostile mesh files end in one error line; the kernel's watertight ray-triangle
+distances against float64; rays through a closed mesh's edges and vertices
+never slip through; an analytic sphere's depth against its icosphere mesh; an
+opaque mesh ends the volume exactly where it is hit (the frame equals the
+volume clipped there, composited over the mesh); translucent meshes composite
+in order; the scene file and its flags. Every test runs on every OpenCL device
+present."""
+
+from __future__ import annotations
+
+import json
+import struct
+
+import numpy as np
+import pytest
+import trimesh
+
+from exabricks import kernel_abi, opencl
+from exabricks.engine.renderer import Renderer
+from exabricks.errors import ExabricksError
+from exabricks.mesh import build_mesh_set, read_mesh
+from exabricks.scene.model import Clip, Lighting, MeshLayer, Scene, Settings, VolumeLayer
+from exabricks.transfer_function import TransferFunction
+
+from conftest import AMREX, GERRIS, assert_one_error_line, built_scene, device_param, run_cli
+
+
+def write_text(path, text):
+    path.write_text(text)
+    return path
+
+
+HOSTILE = {
+    "nan.obj": ("v nan 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n", "vertex 0 is not finite"),
+    "range.obj": ("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 9\n", "not a readable mesh"),
+    "degenerate.obj": ("v 0 0 0\nv 1 0 0\nv 2 0 0\nf 1 2 3\n", "degenerate"),
+    "no-faces.obj": ("v 0 0 0\nv 1 0 0\nv 2 0 0\n", "no triangles"),
+    "empty.ply": ("", "not a readable mesh"),
+    "truncated.ply": ("ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nend_header\n1 2\n",
+                      "not a readable mesh"),
+    "mesh.json": ("{}", "OBJ, PLY or STL"),
+}
+
+
+@pytest.mark.parametrize("name", [*HOSTILE, "lying.stl", "huge.stl"])
+def test_hostile_mesh_files_end_in_one_error_line(tmp_path, name):
+    path = tmp_path / name
+    if name == "lying.stl":  # says 1000 triangles, holds one
+        tri = struct.pack("<12fH", 0, 0, 1, 0, 0, 0, 1, 0, 0, 0, 1, 0, 0)
+        path.write_bytes(b"\0" * 80 + struct.pack("<I", 1000) + tri)
+        needle = "says it holds 1,000 triangles"
+    elif name == "huge.stl":  # a count beyond the cap, on a file of that size (sparse)
+        count = (1 << 26) + 1
+        with open(path, "wb") as f:
+            f.write(b"\0" * 80 + struct.pack("<I", count))
+            f.truncate(84 + 50 * count)
+        needle = "more than 67,108,864"
+    else:
+        text, needle = HOSTILE[name]
+        write_text(path, text)
+    out = tmp_path / "out.png"
+    proc = run_cli("render", GERRIS, "-o", out, "--size", 16, 16, "--mesh", path)
+    assert_one_error_line(proc, str(path), needle)
+    assert not out.exists()
+
+
+def test_degenerate_triangles_among_others_are_dropped(tmp_path):
+    path = write_text(tmp_path / "m.obj", "v 0 0 0\nv 1 0 0\nv 0 1 0\nv 2 0 0\nf 1 2 3\nf 1 2 4\n")
+    mesh = read_mesh(path)
+    assert len(mesh.faces) == 1 and mesh.dropped == 1
+    assert build_mesh_set([mesh]).stats()["degenerate_dropped"] == 1
+
+
+HIT_SOURCE = """#include "mesh.cl"
+__kernel void hits(__global const float4 *tri, int n, int each, __global const float *rays,
+                   __global float *t)
+{
+    int i = get_global_id(0);
+    eb_meshes m;
+    m.tri = tri;
+    float3 org = vload3(2 * i, rays), dir = vload3(2 * i + 1, rays);
+    eb_mesh_ray r = eb_mesh_ray_of(org, dir);
+    float best = EB_INF;
+    for (int k = each ? i : 0; k < (each ? i + 1 : n); ++k)
+        best = fmin(best, eb_triangle_hit(&m, k, &r, 0.0f, EB_INF));
+    t[i] = best;
+}
+"""
+
+
+def device_hits(device, triangles, origins, directions, each=False) -> np.ndarray:
+    """The nearest hit distance of each ray over `triangles` (T, 3, 3) by the kernel
+    (`each`: ray i against triangle i only)."""
+    import pyopencl as cl
+
+    context, queue = opencl.context_for(opencl.choose_device(device))
+    program = cl.Program(context, kernel_abi.header() + HIT_SOURCE).build(
+        options=opencl.build_options(kernel_abi.variant_defines()))
+    tri = np.zeros((len(triangles), 3, 4), np.float32)
+    tri[..., :3] = triangles
+    rays = np.stack([origins, directions], axis=1).astype(np.float32)
+    out = np.empty(len(origins), np.float32)
+    buf = opencl.empty_buffer(queue, out.nbytes)
+    opencl.kernel(program, "hits")(queue, (len(origins),), None, opencl.to_device(queue, tri),
+                                   np.int32(len(triangles)), np.int32(each),
+                                   opencl.to_device(queue, rays), buf)
+    opencl.read_back(queue, buf, out)
+    return out
+
+
+def reference_hit(tri, org, d) -> float:
+    """Möller-Trumbore in float64: the distance along d, or inf."""
+    a, b, c = (np.asarray(v, np.float64) for v in tri)
+    e1, e2 = b - a, c - a
+    p = np.cross(d, e2)
+    det = e1 @ p
+    if det == 0:
+        return np.inf
+    s = org - a
+    u = (s @ p) / det
+    q = np.cross(s, e1)
+    v = (d @ q) / det
+    t = (e2 @ q) / det
+    return t if u >= 0 and v >= 0 and u + v <= 1 and t > 0 else np.inf
+
+
+@device_param
+def test_ray_triangle_distances_match_float64(device, rng):
+    """Random triangles, each with a ray aimed near it: the kernel's distance is the
+    float64 Möller-Trumbore one, and hit or miss agree but for rays within float
+    rounding of an edge."""
+    n = 2000
+    tris = rng.uniform(-1, 1, (n, 3, 3))
+    org = rng.uniform(-3, 3, (n, 3))
+    d = tris.mean(axis=1) + rng.uniform(-0.4, 0.4, (n, 3)) - org
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    got = device_hits(device, tris, org, d, each=True)
+    want = np.array([reference_hit(tris[i], org[i], d[i]) for i in range(n)])
+    hit = np.isfinite(want)
+    assert 0.3 * n < hit.sum() < 0.95 * n
+    both = hit & np.isfinite(got)
+    np.testing.assert_allclose(got[both], want[both], rtol=1e-5, atol=1e-6)
+    assert (hit != np.isfinite(got)).sum() <= 2
+
+
+@device_param
+def test_rays_through_edges_and_vertices_of_a_closed_mesh_never_slip_through(device):
+    """Every ray from outside toward a vertex or an edge midpoint of an icosphere,
+    on the side facing it (not grazing the silhouette), hits it."""
+    sphere = trimesh.creation.icosphere(subdivisions=3)
+    tris = sphere.vertices[sphere.faces]
+    targets = np.concatenate([sphere.vertices, sphere.vertices[sphere.edges_unique].mean(axis=1)])
+    origins = np.zeros_like(targets) + [0.31, -0.17, 4.0]
+    d = targets - origins
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    facing = np.einsum("ij,ij->i", targets / np.linalg.norm(targets, axis=1, keepdims=True), d) < -0.1
+    assert facing.sum() > 500
+    t = device_hits(device, tris, origins[facing], d[facing])
+    assert np.isfinite(t).all()
+
+
+def icosphere_file(tmp_path, centre, radius, subdivisions=5):
+    sphere = trimesh.creation.icosphere(subdivisions=subdivisions, radius=radius)
+    sphere.apply_translation(centre)
+    path = tmp_path / "sphere.ply"
+    sphere.export(path)
+    return path, sphere
+
+
+def scene_of(field, camera, tf, meshes=(), clip=None, size=48, **settings):
+    return Scene(camera=camera, volumes=(VolumeLayer(field, tf),) if tf is not None else (),
+                 meshes=tuple(meshes), clip=clip or Clip(), lighting=Lighting(shading="none"),
+                 settings=Settings(width=size, height=size, jitter=False, **settings))
+
+
+@device_param
+def test_an_opaque_sphere_mesh_has_the_analytic_sphere_depth(device, tmp_path):
+    """Depth of an opaque icosphere against the exact sphere: each hit lies between
+    the sphere's and that of the sphere shrunk by the facets' largest gap to it
+    (the sagitta); rays that miss the sphere miss the mesh."""
+    bricks, regions, bvh, field, camera, tf = built_scene(GERRIS, "T")
+    lo, hi = (np.asarray(b, np.float64) for b in bricks_bounds(bricks))
+    centre, radius = (lo + hi) / 2, 0.45 * float((hi - lo).min())
+    path, sphere = icosphere_file(tmp_path, centre, radius)
+    r = Renderer(bricks, regions, bvh, field=field, device=device)
+    result = r.render_scene(scene_of(field, camera, None, [MeshLayer(str(path))], depth=True))
+    origin, forward, du, dv = (np.asarray(v, np.float64) for v in camera.frame(48, 48))
+    rows, cols = np.mgrid[0:48, 0:48]
+    u = 2 * (cols + 0.5) / 48 - 1
+    v = 1 - 2 * (rows + 0.5) / 48
+    d = forward + u[..., None] * du + v[..., None] * dv
+    d /= np.linalg.norm(d, axis=-1, keepdims=True)
+    oc = origin - centre
+    b = d @ oc
+    disc = b * b - (oc @ oc - radius * radius)
+    exact = np.where(disc >= 0, -b - np.sqrt(np.maximum(disc, 0)), np.inf)
+    inside = disc > 0
+    # a facet's farthest point from the sphere is its circumcentre
+    a, b_, c = (sphere.vertices[sphere.faces[:, k]] for k in range(3))
+    sides = [np.linalg.norm(x - y, axis=1) for x, y in ((a, b_), (b_, c), (c, a))]
+    circum = (sides[0] * sides[1] * sides[2] / (4 * sphere.area_faces)).max()
+    sagitta = radius - np.sqrt(radius ** 2 - circum ** 2)
+    # the mesh lies between the sphere and the sphere of radius - sagitta: its hit
+    # lies between the two spheres' (rays that reach the inner one)
+    inner_disc = b * b - (oc @ oc - (radius - sagitta) ** 2)
+    inside &= inner_disc > 0
+    assert inside.sum() > 300
+    inner = -b - np.sqrt(np.maximum(inner_disc, 0))
+    depth = result.depth[inside].astype(np.float64)
+    assert np.all(depth >= exact[inside] - 1e-5 * radius)
+    assert np.all(depth <= inner[inside] + 1e-5 * radius)
+    assert (depth - exact[inside]).max() > 0.3 * sagitta  # the facets show
+    assert np.isinf(result.depth[disc < -(0.05 * radius) ** 2]).all()
+    assert np.allclose(result.rgba[inside][:, 3], 1.0)
+
+
+def bricks_bounds(bricks):
+    from exabricks import schema
+
+    return schema.world_bounds(bricks)
+
+
+def plane_mesh(tmp_path, point, normal, size):
+    """Two triangles: a square of side `size` centred on `point`, normal `normal`."""
+    n = np.asarray(normal, np.float64) / np.linalg.norm(normal)
+    a = np.cross(n, [1, 0, 0] if abs(n[0]) < 0.9 else [0, 1, 0])
+    a /= np.linalg.norm(a)
+    b = np.cross(n, a)
+    corners = [point + size * (s * a + t * b) for s, t in ((-1, -1), (1, -1), (1, 1), (-1, 1))]
+    mesh = trimesh.Trimesh(vertices=corners, faces=[[0, 1, 2], [0, 2, 3]], process=False)
+    path = tmp_path / "plane.obj"
+    mesh.export(path)
+    return path
+
+
+@device_param
+@pytest.mark.parametrize("packets", [True, False])
+def test_an_opaque_mesh_ends_the_volume_where_it_is_hit(device, tmp_path, packets):
+    """The frame with an opaque plane mesh through the data equals the volume
+    clipped at that plane (the half toward the camera) composited over the mesh's
+    colour: the volume in front is integrated exactly up to the hit."""
+    bricks, regions, bvh, field, camera, tf = built_scene(AMREX, "phi")
+    lo, hi = (np.asarray(b, np.float64) for b in bricks_bounds(bricks))
+    centre = (lo + hi) / 2
+    normal = np.asarray(camera.position, np.float64) - centre  # facing the camera
+    path = plane_mesh(tmp_path, centre, normal, 10 * float((hi - lo).max()))
+    faint = TransferFunction(tf.rgb_points, tf.alpha_points * [[1, 0.3]])
+    r = Renderer(bricks, regions, bvh, field=field, device=device)
+    if r.packets != packets:
+        r = r.with_packets(packets)
+    colour = (0.2, 0.5, 0.9)
+    # no early termination: the volume alone would stop some rays before the mesh
+    got = r.render_scene(scene_of(field, camera, faint, [MeshLayer(str(path), color=colour)],
+                                  max_opacity=1.0))
+    front = r.render_scene(scene_of(field, camera, faint, max_opacity=1.0,
+                                    clip=Clip(planes=((tuple(centre), tuple(normal)),))))
+    want = front.rgba.copy()
+    want[..., :3] += (1 - front.rgba[..., 3:4]) * np.asarray(colour, np.float32)
+    want[..., 3] = 1.0
+    assert 0.05 < front.rgba[..., 3].mean() < 0.95
+    np.testing.assert_allclose(got.rgba, want, rtol=0, atol=2e-6)
+
+
+@device_param
+def test_translucent_meshes_composite_in_distance_order(device, tmp_path):
+    """Two translucent planes in front of nothing: C = a1 c1 + (1 - a1) a2 c2 with
+    the nearer first, whichever order the scene lists them in."""
+    bricks, regions, bvh, field, camera, tf = built_scene(GERRIS, "T")
+    lo, hi = (np.asarray(b, np.float64) for b in bricks_bounds(bricks))
+    centre = (lo + hi) / 2
+    towards = np.asarray(camera.position, np.float64) - centre
+    towards /= np.linalg.norm(towards)
+    big = 10 * float((hi - lo).max())
+    near = plane_mesh(tmp_path / "near", centre + 0.1 * towards, towards, big) \
+        if (tmp_path / "near").mkdir() is None else None
+    far = plane_mesh(tmp_path / "far", centre - 0.1 * towards, towards, big) \
+        if (tmp_path / "far").mkdir() is None else None
+    r = Renderer(bricks, regions, bvh, field=field, device=device)
+    layers = [MeshLayer(str(far), color=(0, 0, 1), opacity=0.5),
+              MeshLayer(str(near), color=(1, 0, 0), opacity=0.25)]
+    got = r.render_scene(scene_of(field, camera, None, layers, size=16)).rgba
+    want = np.array([0.25, 0, 0.75 * 0.5, 0.25 + 0.75 * 0.5], np.float32)
+    np.testing.assert_allclose(got.reshape(-1, 4), np.broadcast_to(want, (256, 4)), atol=1e-6)
+
+
+def test_the_scene_file_and_its_flags(tmp_path):
+    """meshes in a scene file (paths relative to it, a colour field), --mesh-color and
+    --mesh-opacity on top; the image's metadata holds the scene read back."""
+    bricks, *_ = built_scene(GERRIS, "T")
+    lo, hi = (np.asarray(b, np.float64) for b in bricks_bounds(bricks))
+    path, _ = icosphere_file(tmp_path, (lo + hi) / 2, 0.2 * float((hi - lo).min()), 3)
+    scene = tmp_path / "scene.json"
+    scene.write_text(json.dumps({"meshes": [{"file": "sphere.ply", "opacity": 0.5,
+                                             "color": {"field": "T", "colormap": "viridis"}}]}))
+    out = tmp_path / "a.png"
+    run_cli("render", GERRIS, "-o", out, "--size", 32, 32, "--scene", scene, check=0)
+    from exabricks.image import Image
+
+    meta = Image.read(out).metadata
+    assert meta["scene"]["meshes"][0]["file"] == str(path) and meta["settings"]["meshes"]["triangles"] > 0
+    run_cli("render", GERRIS, "-o", out, "--size", 32, 32, "--scene", scene, "--mesh-color",
+            "1,0,0", "--mesh-opacity", 1, check=0)
+    mesh = Image.read(out).metadata["scene"]["meshes"][0]
+    assert mesh["color"] == [1.0, 0.0, 0.0] and mesh["opacity"] == 1.0
+    scene.write_text(json.dumps({"meshes": [{"file": "nothing.ply"}]}))
+    assert_one_error_line(run_cli("render", GERRIS, "-o", out, "--scene", scene),
+                          "meshes[0].file", "nothing.ply")
+
+
+def test_meshes_beyond_the_triangle_cap_are_refused(monkeypatch):
+    import exabricks.mesh as mesh_module
+
+    sphere = trimesh.creation.icosphere(subdivisions=1)
+    mesh = mesh_module._checked("s", np.asarray(sphere.vertices), np.asarray(sphere.faces))
+    monkeypatch.setattr(mesh_module, "MAX_TRIANGLES", 100)
+    with pytest.raises(ExabricksError, match="more than 100"):
+        build_mesh_set([mesh, mesh])
