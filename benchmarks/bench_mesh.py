@@ -124,7 +124,7 @@ def main(argv=None) -> int:
              "| triangles | read s | build s | M triangles/s | nodes / depth | frame ms: no mesh | "
              "opaque (samples) | translucent 0.3 | translucent / no mesh |",
              "|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
-    for count, n, read_s, builds, nodes, depth, times, samples, base in rows:
+    for _, n, read_s, builds, nodes, depth, times, samples, base in rows:
         b = statistics.median(builds)
         lines.append(
             f"| {n:,} | {read_s:.2f} | {benchdoc.fmt_spread(builds, 's', 2)} | {n / b / 1e6:.2f} | "
