@@ -16,9 +16,9 @@
  * EB_PACKET_REGIONS consecutive region visits: a visit holds few samples on
  * octree-like data, so a packet per visit would leave lanes empty, and the
  * union of a few regions' lists reaches fewer bricks per sample than each
- * list apart (docs/design.md, "Sample packets on CPU devices"). With surfaces
- * or --lod a packet ends with its region, whose entry code must come after
- * its samples. */
+ * list apart (docs/design.md, "Sample packets on CPU devices"). With
+ * iso-surfaces or --lod a packet ends with its region, whose entry code must
+ * come after its samples. */
 typedef struct {
     float tm[EB_PACKET], len[EB_PACKET];
     int region[EB_PACKET], level[EB_PACKET];
@@ -86,6 +86,12 @@ __attribute__((noinline)) int eb_batch_take(eb_frame *fr, eb_ray *ray, eb_sample
             eb_packet_medium(fr, &ps, eb_vload(0, q->len), ray->dir_world, 0, &a, &cr_, &cg_, &cb_);
 #ifndef EB_SURFACES
         return eb_packet_composite(st, a, cr_, cg_, cb_, q->tm, m, fr->max_opacity);
+#else
+        /* no iso-surface, and no slice or mesh hit before the last lane: the
+         * packet composites as in a volume frame */
+        if (fr->surf.n_iso == 0 && (st->next_slice >= st->n_slices
+                                    || st->slice_t[st->next_slice] > q->tm[m - 1]))
+            return eb_packet_composite(st, a, cr_, cg_, cb_, q->tm, m, fr->max_opacity);
 #endif
         eb_vstore(a, 0, ca);
         eb_vstore(cr_, 0, cr);
@@ -140,8 +146,11 @@ EB_INLINE int eb_batch_interval(eb_frame *fr, eb_ray *ray, int r, int level, eb_
     while (eb_next_sample(fr, ray, it, &tm, &len))
         if (eb_batch_add(fr, q, r, level, tm, len) && eb_batch_take(fr, ray, q, shade, st))
             return 1;
-#if defined(EB_SURFACES) || defined(EB_LOD)
+#if defined(EB_LOD)
     return eb_batch_take(fr, ray, q, shade, st);
+#elif defined(EB_SURFACES)
+    /* an iso-surface's brackets start at the next region's entry: its samples first */
+    return fr->surf.n_iso > 0 ? eb_batch_take(fr, ray, q, shade, st) : 0;
 #else
     return 0;
 #endif
