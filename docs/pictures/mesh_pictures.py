@@ -8,10 +8,10 @@ embedded-boundary body).
 Writes into docs/images/mesh/:
 
 - amrex-body.png: the AMReX advection plotfile; its phi = 1.2 surface as an
-  opaque grey body, inside the faint volume, with ambient occlusion, the front
-  quarter clipped away by a plane;
-- gerris-shell.png: the Gerris plume; its T = 0.25 surface as a translucent
-  shell coloured by the vertical velocity V, around the volume of T.
+  opaque grey body inside the volume of phi, with ambient occlusion;
+- amrex-body-clipped.png: the same, the half z > 0.5 clipped away (the body too);
+- gerris-shell.png: the Gerris plume; its T = 0.1 surface as a translucent shell
+  coloured by the vertical velocity W, around the volume of T.
 """
 
 from __future__ import annotations
@@ -36,19 +36,22 @@ def main() -> int:
     with tempfile.TemporaryDirectory() as tmp:
         body = Path(tmp) / "body.ply"
         exabricks("surface", AMREX, "--field", "phi", "--value", 1.2, "-o", body)
-        exabricks("render", AMREX, "--field", "phi", "--colormap", "viridis", "--opacity", "0,0.08",
-                  "--mesh", body, "--mesh-color", "0.75,0.75,0.78", "--ao-samples", 16,
-                  "--ao-distance", 0.15, "--specular", 0.3, "--clip-plane", 0.5, 0.5, 0.5, -1, 0, -1,
-                  "--size", 640, 640, "--spp", 4, "--background", "1,1,1",
-                  "-o", OUT / "amrex-body.png")
+        look = ("--field", "phi", "--colormap", "viridis", "--opacity", "0,0.3", "--mesh", body,
+                "--mesh-color", "0.8,0.8,0.82", "--ao-samples", 16, "--ao-distance", 0.1,
+                "--specular", 0.3, "--size", 640, 640, "--spp", 4, "--background", "1,1,1")
+        exabricks("render", AMREX, *look, "-o", OUT / "amrex-body.png")
+        exabricks("render", AMREX, *look, "--clip-plane", 0.5, 0.5, 0.5, 0, 0, -1,
+                  "-o", OUT / "amrex-body-clipped.png")
         shell = Path(tmp) / "shell.ply"
-        exabricks("surface", GERRIS, "--field", "T", "--value", 0.25, "-o", shell)
+        exabricks("surface", GERRIS, "--field", "T", "--value", 0.1, "-o", shell)
         scene = Path(tmp) / "scene.json"
         scene.write_text('{"volumes": [{"field": "T", "transfer_function": {"colormap": "inferno", '
-                         '"opacity": [0, 0.3]}}], "meshes": [{"file": "shell.ply", "opacity": 0.35, '
-                         '"color": {"field": "V", "colormap": "coolwarm"}}]}')
-        exabricks("render", GERRIS, "--scene", scene, "--size", 640, 640, "--spp", 4,
-                  "--background", "1,1,1", "-o", OUT / "gerris-shell.png")
+                         '"opacity": [0, 0.5]}, "range": [0, 0.6]}], "meshes": [{"file": "shell.ply", '
+                         '"opacity": 0.35, "color": {"field": "W", "colormap": "coolwarm", '
+                         '"range": [-0.06, 0.06]}}]}')
+        exabricks("render", GERRIS, "--scene", scene, "--position", 129, 63, 148, "--look-at", 64, 33,
+                  64, "--up", 0, 1, 0, "--size", 640, 640, "--spp", 4, "--background", "1,1,1",
+                  "-o", OUT / "gerris-shell.png")
     return 0
 
 
