@@ -221,7 +221,7 @@ def mesh_set(paths) -> MeshSet:
     for p in paths:
         try:
             st = os.stat(p)
-            keys.append((str(Path(p).resolve()), st.st_size, st.st_mtime_ns))
+            keys.append((str(p), str(Path(p).resolve()), st.st_size, st.st_mtime_ns))
         except OSError as e:
             raise ExabricksError(f"{p}: cannot read the mesh: {e.strerror or e}") from None
     return _mesh_set(tuple(keys))

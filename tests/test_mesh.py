@@ -316,3 +316,22 @@ def test_meshes_beyond_the_triangle_cap_are_refused(monkeypatch):
     monkeypatch.setattr(mesh_module, "MAX_TRIANGLES", 100)
     with pytest.raises(ExabricksError, match="more than 100"):
         build_mesh_set([mesh, mesh])
+
+
+def test_a_budget_of_several_domains_refuses_meshes(tmp_path):
+    """A frame split by space cannot hold a mesh (it reaches beyond the data): one
+    error line; a budget that holds the data in one domain draws the same frame."""
+    bricks, *_ = built_scene(GERRIS, "T")
+    lo, hi = (np.asarray(b, np.float64) for b in bricks_bounds(bricks))
+    path, _ = icosphere_file(tmp_path, (lo + hi) / 2, 0.3 * float((hi - lo).min()), 3)
+    args = ["render", GERRIS, "--size", 48, 48, "--mesh", path, "--mesh-opacity", 0.5]
+    out = tmp_path / "x.png"
+    assert_one_error_line(run_cli(*args, "-o", out, "--memory-budget", "3M"),
+                          "meshes need the whole dataset at once", "domains")
+    assert not out.exists()
+    run_cli(*args, "-o", tmp_path / "a.png", check=0)
+    run_cli(*args, "-o", tmp_path / "b.png", "--memory-budget", "300M", check=0)
+    from exabricks.image import Image
+
+    np.testing.assert_array_equal(Image.read(tmp_path / "a.png").rgba,
+                                  Image.read(tmp_path / "b.png").rgba)

@@ -182,3 +182,21 @@ def test_the_library_and_a_source_under_mpiexec(tmp_path):
     subprocess.run([*EB, "render", str(GERRIS), "--field", "T", "--size", "72", "48", "--max-opacity",
                     "1", "-o", str(tmp_path / "one.exr")], check=True, env=env)
     same_image(tmp_path / "mpi.exr", tmp_path / "one.exr")
+
+
+def test_meshes_under_mpi_take_image_mode(gerris, cli, tmp_path):
+    """A frame with a mesh is split by the image (a mesh reaches beyond the data,
+    where no domain is): the same image as one process, in either mode."""
+    import trimesh
+
+    sphere = trimesh.creation.icosphere(subdivisions=3, radius=20.0)
+    sphere.apply_translation((64.0, 40.0, 64.0))
+    mesh = tmp_path / "sphere.ply"
+    sphere.export(mesh)
+    flags = [*FLAGS, "--mesh", mesh, "--mesh-opacity", 0.6, "--shading", "none"]
+    cli("render", *gerris, "-o", tmp_path / "one.exr", *flags, check=0)
+    out = tmp_path / "data.exr"
+    proc = mpirun(2, "render", *gerris, "-o", out, *flags)
+    assert proc.returncode == 0, proc.stderr
+    same_image(out, tmp_path / "one.exr", exact=True)
+    assert read_image(out)[1]["settings"]["mpi"]["image_mode_for"] == "meshes"
