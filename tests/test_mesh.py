@@ -335,3 +335,24 @@ def test_a_budget_of_several_domains_refuses_meshes(tmp_path):
 
     np.testing.assert_array_equal(Image.read(tmp_path / "a.png").rgba,
                                   Image.read(tmp_path / "b.png").rgba)
+
+
+def test_the_viewer_draws_only_the_meshes_it_was_started_with(tmp_path):
+    """A scene from the page may name no file but the viewer's own meshes: another
+    mesh file is refused with one line (the page could otherwise read any file)."""
+    import exabricks as eb
+    from exabricks.viewer.session import Session
+
+    bricks, *_ = built_scene(GERRIS, "T")
+    lo, hi = (np.asarray(b, np.float64) for b in bricks_bounds(bricks))
+    path, _ = icosphere_file(tmp_path, (lo + hi) / 2, 0.2 * float((hi - lo).min()), 2)
+    session = Session(eb.open(GERRIS), options={"mesh": [str(path)], "size": (32, 32)})
+    doc = json.loads(json.dumps(session.doc))
+    assert doc["meshes"][0]["file"] == str(path)
+    doc["meshes"][0]["opacity"] = 0.5
+    assert session.check(doc).meshes[0].opacity == 0.5
+    other = tmp_path / "other.obj"
+    write_text(other, "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n")
+    doc["meshes"][0]["file"] = str(other)
+    with pytest.raises(ExabricksError, match=r"meshes\[0\].file: the viewer draws only"):
+        session.check(doc)

@@ -8,7 +8,8 @@ Security, as a Jupyter server has it (docs/view.md):
 - the Host header must name this server (no DNS rebinding), and a websocket's
   Origin must be this server's own page;
 - nothing a page sends names a file: the page reads its assets by fixed names, and a
-  scene from the page may hold no file reference (session._no_files);
+  scene from the page may hold no file reference but the mesh files the viewer was
+  started with (session._no_files);
 - a malformed message gets an error reply on its websocket; the server goes on.
 
 Messages (JSON text; frames are PNG bytes, each after a "frame" message):

@@ -59,6 +59,7 @@ class Session:
 
         self.renderer = Renderer(dataset, device=device)
         start = self.renderer.scene(scene, **(options or {}))
+        self.meshes = {m.path for m in start.meshes}  # the only files a page may name
         self.doc = page_document(start, options or {})
         self.check(self.doc)
         self.budget, self.device = budget, device
@@ -73,7 +74,7 @@ class Session:
             raise ExabricksError("scene: expected a scene object")
         if len(json.dumps(doc)) > MAX_DOC_BYTES:
             raise ExabricksError(f"scene: larger than {MAX_DOC_BYTES} bytes")
-        _no_files(doc)
+        _no_files(doc, self.meshes)
         return self.renderer.scene(doc)
 
     def info(self) -> dict:
@@ -161,9 +162,16 @@ def _finite(doc):
     return json.loads(text)
 
 
-def _no_files(doc: dict) -> None:
-    """Refuse what would make the server read a file: a camera file, a preset file."""
+def _no_files(doc: dict, meshes=frozenset()) -> None:
+    """Refuse what would make the server read a file: a camera file, a preset file, a
+    mesh file other than `meshes` (those the viewer was started with)."""
     from ..transfer_function import builtin_presets
+
+    entries = doc.get("meshes")
+    for i, m in enumerate(entries if isinstance(entries, list) else []):
+        if isinstance(m, dict) and m.get("file") not in meshes:
+            raise ExabricksError(f"scene: meshes[{i}].file: the viewer draws only the meshes it "
+                                 "was started with (--mesh, or the scene file's meshes)")
 
     if "camera" in doc and not isinstance(doc["camera"], dict):
         raise ExabricksError("scene: camera: the viewer takes an inline camera object, not a file")
