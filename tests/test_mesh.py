@@ -43,22 +43,35 @@ HOSTILE = {
 }
 
 
-@pytest.mark.parametrize("name", [*HOSTILE, "lying.stl", "huge.stl"])
-def test_hostile_mesh_files_end_in_one_error_line(tmp_path, name):
+def hostile_file(tmp_path, name):
+    """Write hostile mesh file `name`; returns (path, what its error line says)."""
     path = tmp_path / name
     if name == "lying.stl":  # says 1000 triangles, holds one
         tri = struct.pack("<12fH", 0, 0, 1, 0, 0, 0, 1, 0, 0, 0, 1, 0, 0)
         path.write_bytes(b"\0" * 80 + struct.pack("<I", 1000) + tri)
-        needle = "says it holds 1,000 triangles"
-    elif name == "huge.stl":  # a count beyond the cap, on a file of that size (sparse)
+        return path, "says it holds 1,000 triangles"
+    if name == "huge.stl":  # a count beyond the cap, on a file of that size (sparse)
         count = (1 << 26) + 1
         with open(path, "wb") as f:
             f.write(b"\0" * 80 + struct.pack("<I", count))
             f.truncate(84 + 50 * count)
-        needle = "more than 67,108,864"
-    else:
-        text, needle = HOSTILE[name]
-        write_text(path, text)
+        return path, "more than 67,108,864"
+    text, needle = HOSTILE[name]
+    return write_text(path, text), needle
+
+
+@pytest.mark.parametrize("name", [*HOSTILE, "lying.stl", "huge.stl"])
+def test_hostile_mesh_files_are_refused_with_their_name(tmp_path, name):
+    path, needle = hostile_file(tmp_path, name)
+    with pytest.raises(ExabricksError) as e:
+        read_mesh(path)
+    assert str(path) in str(e.value) and needle in str(e.value)
+
+
+@pytest.mark.parametrize("name", ["lying.stl", pytest.param("nan.obj", marks=pytest.mark.slow),
+                                  pytest.param("truncated.ply", marks=pytest.mark.slow)])
+def test_a_hostile_mesh_file_ends_render_in_one_error_line(tmp_path, name):
+    path, needle = hostile_file(tmp_path, name)
     out = tmp_path / "out.png"
     proc = run_cli("render", GERRIS, "-o", out, "--size", 16, 16, "--mesh", path)
     assert_one_error_line(proc, str(path), needle)
@@ -235,7 +248,7 @@ def plane_mesh(tmp_path, point, normal, size):
 
 
 @device_param
-@pytest.mark.parametrize("packets", [True, False])
+@pytest.mark.parametrize("packets", [True, pytest.param(False, marks=pytest.mark.slow)])
 def test_an_opaque_mesh_ends_the_volume_where_it_is_hit(device, tmp_path, packets):
     """The frame with an opaque plane mesh through the data equals the volume
     clipped at that plane (the half toward the camera) composited over the mesh's
@@ -284,6 +297,7 @@ def test_translucent_meshes_composite_in_distance_order(device, tmp_path):
     np.testing.assert_allclose(got.reshape(-1, 4), np.broadcast_to(want, (256, 4)), atol=1e-6)
 
 
+@pytest.mark.slow
 def test_the_scene_file_and_its_flags(tmp_path):
     """meshes in a scene file (paths relative to it, a colour field), --mesh-color and
     --mesh-opacity on top; the image's metadata holds the scene read back."""
@@ -318,6 +332,7 @@ def test_meshes_beyond_the_triangle_cap_are_refused(monkeypatch):
         build_mesh_set([mesh, mesh])
 
 
+@pytest.mark.slow
 def test_a_budget_of_several_domains_refuses_meshes(tmp_path):
     """A frame split by space cannot hold a mesh (it reaches beyond the data): one
     error line; a budget that holds the data in one domain draws the same frame."""

@@ -184,6 +184,7 @@ def test_the_library_and_a_source_under_mpiexec(tmp_path):
     same_image(tmp_path / "mpi.exr", tmp_path / "one.exr")
 
 
+@pytest.mark.slow
 def test_meshes_under_mpi_take_image_mode(gerris, cli, tmp_path):
     """A frame with a mesh is split by the image (a mesh reaches beyond the data,
     where no domain is): the same image as one process, in either mode."""

@@ -171,17 +171,40 @@ def _build(lo, hi, leaf_size, bins, threads, piece=WHOLE):
     want = 1 if n < 50_000 else 64
     queue = [(0, 0, n)]  # node, start, end
     subtrees = []
-    while queue and len(queue) + len(subtrees) < want:
-        node, s, e = queue.pop(0)
-        if e - s <= leaf_size:
-            first[node], count[node] = s, e - s
-            continue
-        mid = _split_node(cen, lo, hi, order, s, e, bins)
-        left = len(first)
-        first += [0, 0]
-        count += [0, 0]
-        first[node], count[node] = left, 0
-        queue += [(left, s, mid), (left + 1, mid, e)]
+    pool = None
+    if threads > 1 and n >= 50_000:
+        from concurrent.futures import ThreadPoolExecutor
+
+        pool = ThreadPoolExecutor(max_workers=threads)
+    try:
+        while queue and len(queue) + len(subtrees) < want:
+            # One level, breadth first: the nodes split before the queue holds `want`
+            # are known in advance, and their splits (disjoint ranges) run at once.
+            level, queue, size = queue, [], len(queue) + len(subtrees)
+            taken = 0
+            for _, s, e in level:
+                if size >= want:
+                    break
+                size += -1 if e - s <= leaf_size else 1
+                taken += 1
+            inner = [(s, e) for _, s, e in level[:taken] if e - s > leaf_size]
+            split = lambda r: _split_node(cen, lo, hi, order, r[0], r[1], bins)  # noqa: E731
+            mids = iter(list(pool.map(split, inner)) if pool and len(inner) > 1
+                        else [split(r) for r in inner])
+            for node, s, e in level[:taken]:
+                if e - s <= leaf_size:
+                    first[node], count[node] = s, e - s
+                    continue
+                mid = next(mids)
+                left = len(first)
+                first += [0, 0]
+                count += [0, 0]
+                first[node], count[node] = left, 0
+                queue += [(left, s, mid), (left + 1, mid, e)]
+            queue = level[taken:] + queue
+    finally:
+        if pool is not None:
+            pool.shutdown()
     subtrees += queue
     t0, t1 = task_range([e - s for _, s, e in subtrees], piece)
     for node, s, e in subtrees[:t0] + subtrees[t1:]:
