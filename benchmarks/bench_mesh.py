@@ -38,6 +38,24 @@ of one 1024² AMReX frame (default camera, viridis with an opacity ramp 0 → 0.
 headlight shading); *opaque*: the sheet at opacity 1, which ends every ray that
 meets it (the volume behind is not sampled); *translucent*: opacity 0.3, every
 volume sample and the sheet's hit (each ray also walks the mesh BVH once).
+What it says (issue 37's targets: a 10 M-triangle mesh adds at most 30 % to a
+1024² AMReX frame; the BVH builds at 2 M triangles/s or more):
+
+- **The frame: missed for a translucent mesh, met for an opaque one.** At
+  opacity 0.3 every ray walks the mesh BVH once (26 levels at 10 M triangles)
+  and composites the hit; the surface build of the kernel alone costs 3.5 % (a
+  frame with one triangle out of view: 778 against 752 ms), so the walk is the
+  rest. An opaque sheet hides the volume behind it and the frame gets cheaper.
+  Before the sample packets learnt to composite as a vector when no surface hit
+  falls among their lanes (and to span regions when there is no iso-surface),
+  the translucent 1 M sheet cost 1.46x.
+- **The build: met at 1 M triangles, 2.5 % short at 10 M.** It is the regions'
+  binned-SAH builder: its top six levels split breadth first until there are 64
+  subtrees, now a level's nodes at once on the two threads (the same tree:
+  checked array for array), then the subtrees on the threads. At 10 M triangles
+  the first split still passes over every triangle on one thread.
+- **Reading** a 10 M-triangle binary PLY through trimesh takes longer than the
+  build (9.4 s).
 """
 
 

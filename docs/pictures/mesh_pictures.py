@@ -11,7 +11,9 @@ Writes into docs/images/mesh/:
   opaque grey body inside the volume of phi, with ambient occlusion;
 - amrex-body-clipped.png: the same, the half z > 0.5 clipped away (the body too);
 - gerris-shell.png: the Gerris plume; its T = 0.1 surface as a translucent shell
-  coloured by the vertical velocity W, around the volume of T.
+  coloured by the vertical velocity W, around the volume of T;
+- amrex-sheet.png: a wavy sheet of a million triangles (benchmarks/bench_mesh.py's)
+  at opacity 0.5 through the AMReX volume.
 """
 
 from __future__ import annotations
@@ -24,6 +26,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[2]
 OUT = ROOT / "docs" / "images" / "mesh"
 sys.path.insert(0, str(ROOT / "tests"))
+sys.path.insert(0, str(ROOT))
 from conftest import AMREX, GERRIS  # noqa: E402
 
 
@@ -52,6 +55,15 @@ def main() -> int:
         exabricks("render", GERRIS, "--scene", scene, "--position", 129, 63, 148, "--look-at", 64, 33,
                   64, "--up", 0, 1, 0, "--size", 640, 640, "--spp", 4, "--background", "1,1,1",
                   "-o", OUT / "gerris-shell.png")
+        # a million triangles: bench_mesh's wavy sheet through the AMReX data
+        import exabricks as eb
+        from benchmarks.bench_mesh import ensure_sheet
+
+        sheet = ensure_sheet(10 ** 6, *eb.open(AMREX).bounds)
+        exabricks("render", AMREX, "--field", "phi", "--colormap", "viridis", "--opacity", "0,0.3",
+                  "--mesh", sheet, "--mesh-color", "0.95,0.6,0.3", "--mesh-opacity", 0.5,
+                  "--size", 640, 640, "--spp", 4, "--background", "1,1,1",
+                  "-o", OUT / "amrex-sheet.png")
     return 0
 
 

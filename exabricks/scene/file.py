@@ -205,16 +205,19 @@ class SceneFile:
             node = node[key]
         return node
 
+    def _file(self, value: str, what: str, *path) -> Path:
+        """The regular file `value` names, relative to the scene file's folder; else
+        ExabricksError naming the key path and what was expected."""
+        file = self.folder / value
+        problem = not_regular(file)
+        if problem:
+            raise ExabricksError(f"{self.at(*path)}: expected {what} (found {shown(value)}: "
+                                 f"{problem}: {file})")
+        return file
+
     def camera_file(self) -> Path | None:
         value = self.doc.get("camera")
-        if not isinstance(value, str):
-            return None
-        path = self.folder / value
-        problem = not_regular(path)
-        if problem:
-            raise ExabricksError(f"{self.at('camera')}: expected a camera file (found {shown(value)}: "
-                                 f"{problem}: {path})")
-        return path
+        return self._file(value, "a camera file", "camera") if isinstance(value, str) else None
 
     def preset_file(self, value, *path) -> Path | None:
         """The preset file a transfer-function string names (None: a built-in name)."""
@@ -233,13 +236,7 @@ class SceneFile:
 
     def mesh_file(self, i: int) -> Path:
         """The file of mesh i, relative to the scene file's folder."""
-        value = self.doc["meshes"][i]["file"]
-        path = self.folder / value
-        problem = not_regular(path)
-        if problem:
-            raise ExabricksError(f"{self.at('meshes', i, 'file')}: expected a mesh file (found "
-                                 f"{shown(value)}: {problem}: {path})")
-        return path
+        return self._file(self.doc["meshes"][i]["file"], "a mesh file", "meshes", i, "file")
 
     def references(self) -> list[Path]:
         """Every file the scene names (camera, preset and mesh files), each checked to exist."""
