@@ -22,10 +22,12 @@ typedef struct {
     int n_meshes;
 } eb_meshes;
 
-/* A ray in the shear frame of the watertight test. */
+/* A ray in the shear frame of the watertight test: perm = (kx, ky, kz, 3) picks
+ * a vector's coordinates in that frame (kz: the ray's largest axis). */
 typedef struct {
     float3 org, inv_dir;
-    int kx, ky, kz;
+    float4 org4;
+    uint4 perm;
     float sx, sy, sz;
 } eb_mesh_ray;
 
@@ -38,19 +40,21 @@ EB_INLINE eb_mesh_ray eb_mesh_ray_of(float3 org, float3 dir)
 {
     eb_mesh_ray r;
     r.org = org;
+    r.org4 = (float4)(org, 0.0f);
     r.inv_dir = 1.0f / dir;
     float3 a = fabs(dir);
-    r.kz = a.x >= a.y ? (a.x >= a.z ? 0 : 2) : (a.y >= a.z ? 1 : 2);
-    r.kx = r.kz == 2 ? 0 : r.kz + 1;
-    r.ky = r.kx == 2 ? 0 : r.kx + 1;
-    float dz = eb_axis(dir, r.kz);
+    int kz = a.x >= a.y ? (a.x >= a.z ? 0 : 2) : (a.y >= a.z ? 1 : 2);
+    int kx = kz == 2 ? 0 : kz + 1;
+    int ky = kx == 2 ? 0 : kx + 1;
+    float dz = eb_axis(dir, kz);
     if (dz < 0.0f) {  /* keep the winding */
-        int k = r.kx;
-        r.kx = r.ky;
-        r.ky = k;
+        int k = kx;
+        kx = ky;
+        ky = k;
     }
-    r.sx = eb_axis(dir, r.kx) / dz;
-    r.sy = eb_axis(dir, r.ky) / dz;
+    r.perm = (uint4)(kx, ky, kz, 3);
+    r.sx = eb_axis(dir, kx) / dz;
+    r.sy = eb_axis(dir, ky) / dz;
     r.sz = 1.0f / dz;
     return r;
 }
@@ -61,13 +65,13 @@ EB_INLINE float eb_triangle_hit(eb_meshes *m, int i, eb_mesh_ray *r, float t0, f
     /* No fused multiply-adds here: an edge's function must come out as exactly
      * the negative in the triangle on its other side (watertightness). */
 #pragma OPENCL FP_CONTRACT OFF
-    float3 a = m->tri[3 * i].xyz - r->org;
-    float3 b = m->tri[3 * i + 1].xyz - r->org;
-    float3 c = m->tri[3 * i + 2].xyz - r->org;
-    float az = eb_axis(a, r->kz), bz = eb_axis(b, r->kz), cz = eb_axis(c, r->kz);
-    float ax = eb_axis(a, r->kx) - r->sx * az, ay = eb_axis(a, r->ky) - r->sy * az;
-    float bx = eb_axis(b, r->kx) - r->sx * bz, by = eb_axis(b, r->ky) - r->sy * bz;
-    float cx = eb_axis(c, r->kx) - r->sx * cz, cy = eb_axis(c, r->ky) - r->sy * cz;
+    /* the vertices relative to the origin, in the ray's axis order (one permute each) */
+    float4 a = shuffle(m->tri[3 * i] - r->org4, r->perm);
+    float4 b = shuffle(m->tri[3 * i + 1] - r->org4, r->perm);
+    float4 c = shuffle(m->tri[3 * i + 2] - r->org4, r->perm);
+    float ax = a.x - r->sx * a.z, ay = a.y - r->sy * a.z;
+    float bx = b.x - r->sx * b.z, by = b.y - r->sy * b.z;
+    float cx = c.x - r->sx * c.z, cy = c.y - r->sy * c.z;
     float u = cx * by - cy * bx;
     float v = ax * cy - ay * cx;
     float w = bx * ay - by * ax;
@@ -76,7 +80,7 @@ EB_INLINE float eb_triangle_hit(eb_meshes *m, int i, eb_mesh_ray *r, float t0, f
     float det = u + v + w;
     if (det == 0.0f)
         return EB_INF;
-    float t = (u * az + v * bz + w * cz) * r->sz / det;
+    float t = (u * a.z + v * b.z + w * c.z) * r->sz / det;
     return t > t0 && t <= t1 ? t : EB_INF;
 }
 
