@@ -305,21 +305,21 @@ def test_the_scene_file_and_its_flags(tmp_path):
     lo, hi = (np.asarray(b, np.float64) for b in bricks_bounds(bricks))
     path, _ = icosphere_file(tmp_path, (lo + hi) / 2, 0.2 * float((hi - lo).min()), 3)
     scene = tmp_path / "scene.json"
-    scene.write_text(json.dumps({"meshes": [{"file": "sphere.ply", "opacity": 0.5,
+    scene.write_text(json.dumps({"meshes": [{"path": "sphere.ply", "opacity": 0.5,
                                              "color": {"field": "T", "colormap": "viridis"}}]}))
     out = tmp_path / "a.png"
     run_cli("render", GERRIS, "-o", out, "--size", 32, 32, "--scene", scene, check=0)
     from exabricks.image import Image
 
     meta = Image.read(out).metadata
-    assert meta["scene"]["meshes"][0]["file"] == str(path) and meta["settings"]["meshes"]["triangles"] > 0
+    assert meta["scene"]["meshes"][0]["path"] == str(path) and meta["settings"]["meshes"]["triangles"] > 0
     run_cli("render", GERRIS, "-o", out, "--size", 32, 32, "--scene", scene, "--mesh-color",
             "1,0,0", "--mesh-opacity", 1, check=0)
     mesh = Image.read(out).metadata["scene"]["meshes"][0]
     assert mesh["color"] == [1.0, 0.0, 0.0] and mesh["opacity"] == 1.0
-    scene.write_text(json.dumps({"meshes": [{"file": "nothing.ply"}]}))
+    scene.write_text(json.dumps({"meshes": [{"path": "nothing.ply"}]}))
     assert_one_error_line(run_cli("render", GERRIS, "-o", out, "--scene", scene),
-                          "meshes[0].file", "nothing.ply")
+                          "meshes[0].path", "nothing.ply")
 
 
 def test_meshes_beyond_the_triangle_cap_are_refused(monkeypatch):
@@ -363,11 +363,47 @@ def test_the_viewer_draws_only_the_meshes_it_was_started_with(tmp_path):
     path, _ = icosphere_file(tmp_path, (lo + hi) / 2, 0.2 * float((hi - lo).min()), 2)
     session = Session(eb.open(GERRIS), options={"mesh": [str(path)], "size": (32, 32)})
     doc = json.loads(json.dumps(session.doc))
-    assert doc["meshes"][0]["file"] == str(path)
+    assert doc["meshes"][0]["path"] == str(path)
     doc["meshes"][0]["opacity"] = 0.5
     assert session.check(doc).meshes[0].opacity == 0.5
     other = tmp_path / "other.obj"
     write_text(other, "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n")
-    doc["meshes"][0]["file"] = str(other)
-    with pytest.raises(ExabricksError, match=r"meshes\[0\].file: the viewer draws only"):
+    doc["meshes"][0]["path"] = str(other)
+    with pytest.raises(ExabricksError, match=r"meshes\[0\].path: the viewer draws only"):
         session.check(doc)
+
+
+@device_param
+def test_a_mesh_coloured_by_a_field_shows_the_field_at_the_hit(device, tmp_path):
+    """--mesh-color-field: an opaque plane through the Gerris data, unshaded, shows at
+    each pixel the colour map of T probed where its ray meets the plane (and the
+    fixed colour where T has no data)."""
+    import exabricks as eb
+    from exabricks.scene import scene_from_options
+
+    bricks, regions, bvh, field, camera, tf = built_scene(GERRIS, "T")
+    lo, hi = (np.asarray(b, np.float64) for b in bricks_bounds(bricks))
+    centre = (lo + hi) / 2
+    normal = np.asarray(camera.position, np.float64) - centre
+    path = plane_mesh(tmp_path, centre, normal, 10 * float((hi - lo).max()))
+    scene = scene_from_options(bricks, flags={
+        "mesh": [str(path)], "mesh_color_field": "T", "volume": False, "shading": "none",
+        "size": (40, 40), "jitter": False, "position": camera.position,
+        "look_at": camera.look_at, "up": camera.up, "fovy": camera.fovy})
+    mesh = scene.meshes[0]
+    assert mesh.color_field == "T" and mesh.color == (0.9, 0.9, 0.9)
+    got = Renderer(bricks, regions, bvh, field=field, device=device).render_scene(scene).rgba
+    origin, forward, du, dv = (np.asarray(v, np.float64) for v in camera.frame(40, 40))
+    rows, cols = np.mgrid[0:40, 0:40]
+    d = (forward + (2 * (cols + 0.5) / 40 - 1)[..., None] * du
+         + (1 - 2 * (rows + 0.5) / 40)[..., None] * dv)
+    d /= np.linalg.norm(d, axis=-1, keepdims=True)
+    t = ((centre - origin) @ normal) / (d @ normal)
+    hits = origin + t[..., None] * d
+    value = eb.probe(GERRIS, hits.reshape(-1, 3), "T", device=device).reshape(40, 40)
+    has = np.isfinite(value)
+    assert 0.2 < has.mean() < 1.0
+    want = np.where(has[..., None], mesh.colormap.evaluate(np.where(has, value, 0))[..., :3], 0.9)
+    # float32 hit points against float64 ones, through T's gradient and the colour map
+    np.testing.assert_allclose(got[..., :3], want, rtol=0, atol=5e-5)
+    assert np.allclose(got[..., 3], 1.0)

@@ -49,7 +49,7 @@ def main() -> int:
         exabricks("surface", GERRIS, "--field", "T", "--value", 0.1, "-o", shell)
         scene = Path(tmp) / "scene.json"
         scene.write_text('{"volumes": [{"field": "T", "transfer_function": {"colormap": "inferno", '
-                         '"opacity": [0, 0.5]}, "range": [0, 0.6]}], "meshes": [{"file": "shell.ply", '
+                         '"opacity": [0, 0.5]}, "range": [0, 0.6]}], "meshes": [{"path": "shell.ply", '
                          '"opacity": 0.35, "color": {"field": "W", "colormap": "coolwarm", '
                          '"range": [-0.06, 0.06]}}]}')
         exabricks("render", GERRIS, "--scene", scene, "--position", 129, 63, 148, "--look-at", 64, 33,

@@ -248,7 +248,7 @@ def _meshes(bricks, file: SceneFile, f) -> tuple[MeshLayer, ...]:
             colour = (_file_colour(file, colour, "meshes", i, "color") if isinstance(colour, dict)
                       else tuple(float(c) for c in colour))
             specs.append([str(file.mesh_file(i)), colour, float(e.get("opacity", MeshLayer.opacity))])
-    for name in ("mesh_color", "mesh_opacity"):
+    for name in ("mesh_color", "mesh_color_field", "mesh_opacity"):
         if f[name] is not None and not specs:
             raise ExabricksError(f"{flag_name(name)}: there is no mesh to apply it to "
                                  "(give --mesh FILE, or meshes in the scene file)")
@@ -258,6 +258,8 @@ def _meshes(bricks, file: SceneFile, f) -> tuple[MeshLayer, ...]:
             opacity = float(f["mesh_opacity"])
         if f["mesh_color"] is not None:
             colour = tuple(float(c) for c in f["mesh_color"])
+        if f["mesh_color_field"] is not None:
+            colour = _Colour(f["mesh_color_field"], "--mesh-color-field")
         if isinstance(colour, _Colour):
             field, colormap = colour.build(bricks)
             out.append(MeshLayer(path, opacity=opacity, color_field=field, colormap=colormap))

@@ -236,7 +236,7 @@ class SceneFile:
 
     def mesh_file(self, i: int) -> Path:
         """The file of mesh i, relative to the scene file's folder."""
-        return self._file(self.doc["meshes"][i]["file"], "a mesh file", "meshes", i, "file")
+        return self._file(self.doc["meshes"][i]["path"], "a mesh file", "meshes", i, "path")
 
     def references(self) -> list[Path]:
         """Every file the scene names (camera, preset and mesh files), each checked to exist."""

@@ -82,7 +82,7 @@ class MeshLayer:
     the hit where that field has data."""
 
     path: str
-    color: tuple[float, float, float] = (0.8, 0.8, 0.8)
+    color: tuple[float, float, float] = (0.9, 0.9, 0.9)
     opacity: float = 1.0
     color_field: str | None = None
     colormap: TransferFunction | None = None

@@ -256,8 +256,10 @@ SCENE_OPTIONS = (
             nargs=2, metavar="LO HI"),
     Option("mesh", "A triangle mesh (OBJ, PLY or STL, world units) drawn with the volume; "
            "repeatable; replaces the scene's meshes.", kind="file", multiple=True, metavar="FILE"),
-    Option("mesh_color", "Colour of the meshes, in [0, 1] (default 0.8,0.8,0.8).",
+    Option("mesh_color", "Colour of the meshes, in [0, 1] (default 0.9,0.9,0.9).",
            kind="numbers", counts=(3,), metavar="R,G,B"),
+    Option("mesh_color_field", "Colour the meshes by this field at the hit (viridis over its "
+           "range; the fixed colour where it has no data).", kind="text", metavar="NAME"),
     Option("mesh_opacity", "Opacity of the meshes (default 1).", low=0.0, high=1.0, metavar="A"),
     _vector("clip_box", "Keep only the inside of this box.", nargs=6, metavar="X0 Y0 Z0 X1 Y1 Z1"),
     _vector("clip_plane", "Keep only the half-space (p - P).N >= 0; repeatable; replaces the "
@@ -382,6 +384,8 @@ def check_flags(flags: dict) -> None:
                 raise ExabricksError(f"{flag_name(name)} describes a volume layer, but --no-volume draws none")
     if f["iso_color"] is not None and f["iso_color_field"] is not None:
         raise ExabricksError("give --iso-color or --iso-color-field, not both")
+    if f["mesh_color"] is not None and f["mesh_color_field"] is not None:
+        raise ExabricksError("give --mesh-color or --mesh-color-field, not both")
     for name in ("iso_colormap", "iso_range"):
         if f[name] is not None and f["iso_color"] is not None:
             raise ExabricksError(f"{flag_name(name)} goes with --iso-color-field, not --iso-color")

@@ -28,7 +28,7 @@ def scene_to_dict(scene: Scene) -> dict:
         "slices": [{"point": list(sl.point), "normal": list(sl.normal), "field": sl.field,
                     "colormap": sl.colormap.to_paraview_dict(), "opacity": sl.opacity}
                    for sl in scene.slices],
-        "meshes": [{"file": m.path, "opacity": m.opacity,
+        "meshes": [{"path": m.path, "opacity": m.opacity,
                     "color": ({"field": m.color_field, "colormap": m.colormap.to_paraview_dict()}
                               if m.color_field else list(m.color))} for m in scene.meshes],
         "clip": clip,

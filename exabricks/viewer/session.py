@@ -169,8 +169,8 @@ def _no_files(doc: dict, meshes=frozenset()) -> None:
 
     entries = doc.get("meshes")
     for i, m in enumerate(entries if isinstance(entries, list) else []):
-        if isinstance(m, dict) and m.get("file") not in meshes:
-            raise ExabricksError(f"scene: meshes[{i}].file: the viewer draws only the meshes it "
+        if isinstance(m, dict) and m.get("path") not in meshes:
+            raise ExabricksError(f"scene: meshes[{i}].path: the viewer draws only the meshes it "
                                  "was started with (--mesh, or the scene file's meshes)")
 
     if "camera" in doc and not isinstance(doc["camera"], dict):
