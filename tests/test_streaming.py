@@ -466,6 +466,7 @@ def test_tiled_progressive_rewrites_are_whole_images_and_a_kill_leaves_one(gerri
     assert [p.name for p in tmp_path.iterdir() if p.name.startswith(".")] == []
 
 
+@pytest.mark.slow
 def test_samples_share_a_domain_read():
     """Without a deadline or images so far, a domain is made once for the samples a
     quarter of the budget has images for (here all 4), not once per sample; the
