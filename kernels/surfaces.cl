@@ -65,10 +65,11 @@ EB_INLINE int eb_mesh_seen(eb_ray_state *st, eb_meshes *m, int i, float t)
     return 0;
 }
 
-/* The nearest EB_MAX_MESH_HITS mesh hits inside (t0, t1] (in a domain's frame,
- * those inside the domain), into the ray's list after its slices: the walk is
- * pruned beyond the farthest kept hit once the list is full, and beyond the
- * first opaque hit, whose distance it returns (+inf: none). */
+/* The nearest EB_MAX_MESH_HITS mesh hits inside (t0, t1] into the ray's list
+ * after its slices: the walk is pruned beyond the farthest kept hit once the
+ * list is full, and beyond the first opaque hit, whose distance it returns
+ * (+inf: none). A frame split by space has no meshes (the host refuses them,
+ * exabricks.parallel.needs_image_mode), so no hit is another domain's. */
 EB_INLINE float eb_mesh_hits(eb_frame *fr, eb_ray *ray, float t0, float t1, eb_ray_state *st)
 {
     eb_meshes *m = &fr->surf.mesh;
@@ -78,13 +79,8 @@ EB_INLINE float eb_mesh_hits(eb_frame *fr, eb_ray *ray, float t0, float t1, eb_r
     int most = st->n_slices + EB_MAX_MESH_HITS;
     eb_mesh_ray r = eb_mesh_ray_of(ray->org_world, ray->dir_world);
     float far = t1;
-#ifdef EB_DOMAIN
-#define EB_MESH_KEEP(i, t) eb_in_domain(fr, ray->org + (t) * ray->dir)
-#else
-#define EB_MESH_KEEP(i, t) 1
-#endif
 #define EB_MESH_TAKE(i, t)                                                      \
-    if (EB_MESH_KEEP(i, t) && !eb_mesh_seen(st, m, (i), (t))) {                 \
+    if (!eb_mesh_seen(st, m, (i), (t))) {                                       \
         eb_hit_insert(st, (t), -1 - (i), most);                                 \
         if (m->color[eb_triangle_mesh(m, (i))].w >= 1.0f) {                     \
             far = fmin(far, (t));                                               \
@@ -95,7 +91,6 @@ EB_INLINE float eb_mesh_hits(eb_frame *fr, eb_ray *ray, float t0, float t1, eb_r
     }
     EB_MESH_WALK(m, &r, t0, &far, EB_MESH_TAKE);
 #undef EB_MESH_TAKE
-#undef EB_MESH_KEEP
     return opaque;
 }
 
