@@ -172,6 +172,8 @@ def needs_image_mode(scene) -> str | None:
         return "iso-surfaces"
     if scene.meshes:  # a mesh reaches beyond the data, where no domain is
         return "meshes"
+    if scene.instances:  # each copy is drawn from the whole dataset
+        return "instances"
     if scene.lighting.ao_samples:
         return "ambient occlusion"
     if scene.settings.depth:

@@ -201,3 +201,16 @@ def test_meshes_under_mpi_take_image_mode(gerris, cli, tmp_path):
     assert proc.returncode == 0, proc.stderr
     same_image(out, tmp_path / "one.exr", exact=True)
     assert read_image(out)[1]["settings"]["mpi"]["image_mode_for"] == "meshes"
+
+
+@pytest.mark.slow
+def test_instances_under_mpi_take_image_mode(gerris, cli, tmp_path):
+    """A frame with a mirrored copy is split by the image (each copy is drawn from
+    the whole dataset): the same image as one process."""
+    flags = [*FLAGS, "--mirror", "x", 0, "--shading", "none"]
+    cli("render", *gerris, "-o", tmp_path / "one.exr", *flags, check=0)
+    out = tmp_path / "data.exr"
+    proc = mpirun(2, "render", *gerris, "-o", out, *flags)
+    assert proc.returncode == 0, proc.stderr
+    same_image(out, tmp_path / "one.exr", exact=True)
+    assert read_image(out)[1]["settings"]["mpi"]["image_mode_for"] == "instances"

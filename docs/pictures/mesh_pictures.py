@@ -10,6 +10,8 @@ Writes into docs/images/mesh/:
 - amrex-body.png: the AMReX advection plotfile; its phi = 1.2 surface as an
   opaque grey body inside the volume of phi, with ambient occlusion;
 - amrex-body-clipped.png: the same, the half z > 0.5 clipped away (the body too);
+- amrex-mirrored.png: the same body and volume with their mirror image across
+  the data's face y = 0 (`--mirror y 0`);
 - gerris-shell.png: the Gerris plume; its T = 0.1 surface as a translucent shell
   coloured by the vertical velocity W, around the volume of T;
 - amrex-sheet.png: a wavy sheet of a million triangles (benchmarks/bench_mesh.py's)
@@ -45,6 +47,9 @@ def main() -> int:
         exabricks("render", AMREX, *look, "-o", OUT / "amrex-body.png")
         exabricks("render", AMREX, *look, "--clip-plane", 0.5, 0.5, 0.5, 0, 0, -1,
                   "-o", OUT / "amrex-body-clipped.png")
+        exabricks("render", AMREX, *look, "--mirror", "y", 0, "--position", 3.2, -2.6, 2.3,
+                  "--look-at", 0.45, 0, 0.4, "--up", 0, 0, 1, "--size", 640, 480,
+                  "-o", OUT / "amrex-mirrored.png")
         shell = Path(tmp) / "shell.ply"
         exabricks("surface", GERRIS, "--field", "T", "--value", 0.1, "-o", shell)
         scene = Path(tmp) / "scene.json"

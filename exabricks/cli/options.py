@@ -7,6 +7,7 @@ import math
 import click
 
 from ..errors import ExabricksError
+from ..scene.model import AXES
 from ..scene.options import SCENE_OPTIONS
 
 output_option = click.option(
@@ -113,6 +114,9 @@ def _click_option(o):
     elif o.kind == "choice":
         kw["type"] = click.Choice(o.choices)
         kw["show_default"] = o.default is not None
+    elif o.kind == "plane":
+        kw["type"] = (click.Choice(AXES), float)
+        kw["callback"] = finite
     elif o.kind == "numbers":
         kw["callback"] = numbers(o.counts)
     elif o.kind == "size":

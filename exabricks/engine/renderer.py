@@ -62,6 +62,7 @@ from ..errors import ExabricksError
 from ..mesh import mesh_set
 from ..scene import Lighting, Scene, Settings, VolumeLayer
 from ..transfer_function import TABLE_TOLERANCE, knot_buckets, lookup_table
+from . import instances
 from .device_data import DatasetScale, DeviceDataset
 from .grouped import Grouped
 
@@ -140,6 +141,7 @@ class Renderer:
         self.packets = opencl.is_cpu(self.dataset.device) if packets is None else bool(packets)
         self._mesh_upload = None  # (mesh files, device buffers, their eb_params)
         self._mesh_set = None
+        self._whole = None  # _everywhere's
 
     def _use(self, lookup: str) -> None:
         _check_lookup(lookup)
@@ -227,6 +229,13 @@ class Renderer:
         scene.check()
         cfg = scene.settings
         _check_settings(cfg, traversal)
+        if scene.instances:
+            if self.domain is not None:
+                raise ExabricksError("instances need the whole dataset: a domain's frame holds none")
+            rgba, d, stats = instances.render(
+                self._everywhere(), scene, self._object_box(scene), traversal=traversal, rows=rows,
+                window=window, sample=sample, deadline=deadline)
+            return RenderResult(over_background(rgba, scene.background), d, stats)
         width, height, spp = int(cfg.width), int(cfg.height), int(cfg.spp)
         col0, tile_row0, cols, n_rows = _window(window, width, height)
         if window is not None and rows is not None:
@@ -373,6 +382,23 @@ class Renderer:
             self._mesh_set = meshes
             self._mesh_upload = (paths, buffers, at)
         return self._mesh_upload[1], self._mesh_upload[2]
+
+    def _everywhere(self) -> "Renderer":
+        """This Renderer of the same upload, as the one domain of all of space: its
+        frames continue an image in front (an instance's frame)."""
+        if self._whole is None:
+            self._whole = copy.copy(self)
+            self._whole.domain = instances.EVERYWHERE
+        self._whole.lookup, self._whole.packets = self.lookup, self.packets
+        return self._whole
+
+    def _object_box(self, scene: Scene):
+        """The world box of the data's cells and `scene`'s meshes (instances.object_box)."""
+        s = self.dataset
+        lower, upper = (None, None) if s.empty else schema.world_bounds(s.bricks)
+        meshes = mesh_set(tuple(m.path for m in scene.meshes)) if scene.meshes else None
+        return instances.object_box(lower, upper,
+                                    None if meshes is None else meshes.nodes[0, :, :3])
 
     def _check_samples_per_ray(self, sampling_rate: float) -> None:
         """Refuse a sampling rate that would take more than MAX_SAMPLES_PER_RAY samples

@@ -18,7 +18,7 @@ from ..camera import Camera
 from ..errors import ExabricksError
 from ..transfer_function import TransferFunction
 from .file import SceneFile, shown
-from .model import (DEFAULT_COLORMAP, DEFAULT_FOVY, Clip, IsoSurface, Lighting, MeshLayer, Scene,
+from .model import (DEFAULT_COLORMAP, DEFAULT_FOVY, Clip, Instance, IsoSurface, Lighting, MeshLayer, Scene,
                     Settings, Slice, VolumeLayer)
 from .options import SCENE_OPTIONS, VOLUME_FLAGS, check_flags, flag_name, normalised_flags
 
@@ -134,7 +134,7 @@ def _file_colour(file: SceneFile, spec: dict, *path) -> _Colour:
                    spec.get("range"), file.at(*path, "range"))
 
 
-def _camera(bricks, file: SceneFile, camera_path, f) -> Camera:
+def _camera(bricks, file: SceneFile, camera_path, f, instances=()) -> Camera:
     from .. import schema
     from ..camera import default_camera
 
@@ -146,7 +146,11 @@ def _camera(bricks, file: SceneFile, camera_path, f) -> Camera:
     elif inline is not None:
         camera = _within(file.at("camera"), Camera.from_json, file.camera_file())
     else:
-        camera = default_camera(*schema.world_bounds(bricks))
+        lo, hi = (np.asarray(b, np.float64) for b in schema.world_bounds(bricks))
+        corners = np.array([[(lo, hi)[(k >> a) & 1][a] for a in range(3)] for k in range(8)])
+        placed = np.concatenate([corners] + [corners @ r.T + t for r, t in
+                                             (i.affine() for i in instances)])
+        camera = default_camera(placed.min(0), placed.max(0))  # on every copy
     return camera.with_overrides(position=f["position"], look_at=f["look_at"], up=f["up"], fovy=f["fovy"])
 
 
@@ -313,6 +317,20 @@ def _clip(file: SceneFile, f) -> Clip:
     return Clip(box, planes)
 
 
+def _instances(file: SceneFile, f) -> tuple[Instance, ...]:
+    if f["mirror"] is not None:
+        option = next(o for o in SCENE_OPTIONS if o.name == "mirror")
+        return tuple(Instance(mirror=plane) for plane in option.coerce(f["mirror"]))
+    out = []
+    for i, e in enumerate(file.get("instances", default=[])):
+        mirror = e.get("mirror")
+        out.append(Instance(mirror=None if mirror is None else (mirror[0], float(mirror[1])),
+                            rotate=None if "rotate" not in e else tuple(map(float, e["rotate"])),
+                            translate=tuple(map(float, e.get("translate", Instance.translate)))))
+        _within(file.at("instances", i), out[-1].check)
+    return tuple(out)
+
+
 def _pick(f, flag: str, file: SceneFile, path, default):
     """The flag's value if given, else the scene file's, else `default`."""
     if f[flag] is not None:
@@ -376,12 +394,14 @@ def scene_from_options(bricks, *, scene_path=None, camera_path=None, flags: dict
     else:
         base, base_at = bricks.fields[0], "the first field"
     base = _field(bricks, base, base_at)
+    instances = _instances(file, f)
     scene = Scene(
-        camera=_camera(bricks, file, camera_path, f),
+        camera=_camera(bricks, file, camera_path, f, instances),
         volumes=_volumes(bricks, file, f, base, base_at),
         isosurfaces=_isosurfaces(bricks, file, f, base, base_at),
         slices=_slices(bricks, file, f, base, base_at),
         meshes=_meshes(bricks, file, f),
+        instances=instances,
         clip=_clip(file, f),
         lighting=_lighting(file, f),
         background=_background(file, f),

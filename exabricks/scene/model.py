@@ -32,6 +32,9 @@ MAX_SLICES = 8
 MAX_CLIP_PLANES = 16
 MAX_AO_SAMPLES = 256
 MAX_MESHES = 16
+# Instances besides the identity (exabricks.engine.instances).
+MAX_INSTANCES = 7
+AXES = ("x", "y", "z")
 # Mesh hits a ray composites, the nearest (kernels/mesh.cl).
 MAX_MESH_HITS = 8
 
@@ -86,6 +89,46 @@ class MeshLayer:
     opacity: float = 1.0
     color_field: str | None = None
     colormap: TransferFunction | None = None
+
+
+@dataclass(frozen=True)
+class Instance:
+    """A copy of the data and the meshes drawn besides them (docs/design.md,
+    "Instances"): mirrored across the plane `mirror` = (axis, position), then
+    rotated by `rotate` = (x, y, z, degrees) about that axis through the origin
+    (right-handed), then moved by `translate`. World units."""
+
+    mirror: tuple[str, float] | None = None
+    rotate: tuple[float, float, float, float] | None = None
+    translate: tuple[float, float, float] = (0.0, 0.0, 0.0)
+
+    def affine(self) -> tuple[np.ndarray, np.ndarray]:
+        """(R, t), float64: a point x of the data is drawn at R @ x + t (R orthogonal)."""
+        m, t = np.eye(3), np.zeros(3)
+        if self.mirror is not None:
+            a = AXES.index(self.mirror[0])
+            m[a, a], t[a] = -1.0, 2.0 * float(self.mirror[1])
+        if self.rotate is not None:
+            axis = np.asarray(self.rotate[:3], np.float64)
+            x, y, z = axis / np.linalg.norm(axis)
+            angle = np.radians(float(self.rotate[3]))
+            k = np.array([[0.0, -z, y], [z, 0.0, -x], [-y, x, 0.0]])
+            r = np.eye(3) + np.sin(angle) * k + (1.0 - np.cos(angle)) * (k @ k)  # Rodrigues
+            m, t = r @ m, r @ t
+        return m, t + np.asarray(self.translate, np.float64)
+
+    def check(self) -> None:
+        if self.mirror is not None and (self.mirror[0] not in AXES
+                                        or not np.isfinite(float(self.mirror[1]))):
+            raise ExabricksError(f"a mirror is an axis (x, y or z) and a finite position, "
+                                 f"got {list(self.mirror)}")
+        if self.rotate is not None:
+            r = np.asarray(self.rotate, np.float64)
+            if not (r.shape == (4,) and np.all(np.isfinite(r)) and r[:3] @ r[:3] > 0):
+                raise ExabricksError(f"a rotation is a non-zero axis x, y, z and an angle in "
+                                     f"degrees, all finite, got {list(self.rotate)}")
+        if not (len(self.translate) == 3 and np.all(np.isfinite(self.translate))):
+            raise ExabricksError(f"a translation is three finite numbers, got {list(self.translate)}")
 
 
 @dataclass(frozen=True)
@@ -145,6 +188,7 @@ class Scene:
     isosurfaces: tuple[IsoSurface, ...] = ()
     slices: tuple[Slice, ...] = ()
     meshes: tuple[MeshLayer, ...] = ()
+    instances: tuple[Instance, ...] = ()  # besides the identity, which is implied
     clip: Clip = Clip()
     lighting: Lighting = Lighting()
     background: tuple[float, float, float, float] = (0.0, 0.0, 0.0, 0.0)
@@ -169,6 +213,7 @@ class Scene:
                (self.isosurfaces, MAX_ISOSURFACES, "iso-surfaces"),
                (self.slices, MAX_SLICES, "slices"),
                (self.meshes, MAX_MESHES, "meshes"),
+               (self.instances, MAX_INSTANCES, "instances besides the identity"),
                (self.clip.planes, MAX_CLIP_PLANES, "clip planes"))
         for items, most, what in lim:
             if len(items) > most:
@@ -213,6 +258,8 @@ class Scene:
                 raise ExabricksError(f"{m.path}: mesh colour must be three numbers in [0, 1]")
             if (m.color_field is None) != (m.colormap is None):
                 raise ExabricksError("a mesh colour field needs a colour map and vice versa")
+        for instance in self.instances:
+            instance.check()
         for p, n in self.clip.planes:
             n = np.asarray(n, float)
             if not (np.all(np.isfinite(p)) and np.all(np.isfinite(n)) and n @ n > 0):

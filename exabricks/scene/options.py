@@ -14,7 +14,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from ..errors import ExabricksError
-from .model import GRADIENTS, MAX_AO_SAMPLES, RECONSTRUCTIONS, SHADING_MODES, TF_LOOKUPS
+from .model import AXES, GRADIENTS, MAX_AO_SAMPLES, RECONSTRUCTIONS, SHADING_MODES, TF_LOOKUPS
 
 
 @dataclass(frozen=True)
@@ -22,7 +22,7 @@ class Option:
     """One render option.
 
     kind: "float", "int", "text", "file" (an existing file), "choice" (one of
-    `choices`), "numbers" (comma-separated numbers in [0, 1], as many as one of
+    `choices`), "plane" (an axis x, y or z and a finite position, nargs 2), "numbers" (comma-separated numbers in [0, 1], as many as one of
     `counts`, or any number), "flag" (--name/--no-name), "size" (bytes: 2G,
     512MiB). `low`/`high` bound a float or int (open bounds when `low_open`,
     `high_open`); floats must be finite unless `finite` is False (the camera
@@ -91,10 +91,24 @@ class Option:
         """Whether `value` is one value of a repeatable option (not a list of them)."""
         if isinstance(value, (str, bytes)) or not hasattr(value, "__len__"):
             return True
+        if self.kind == "plane":  # ("y", 0.0)
+            return len(value) == 2 and isinstance(value[0], str)
         return self.nargs > 1 and len(value) == self.nargs and all(
             not hasattr(v, "__len__") for v in value)
 
     def _one(self, value):
+        if self.kind == "plane":
+            import math
+
+            try:
+                axis, position = value
+                position = float(position)
+            except (TypeError, ValueError):
+                axis = position = None
+            if axis not in AXES or position is None or not math.isfinite(position):
+                raise ExabricksError(f"{self.keyword}: expected an axis (x, y or z) and a finite "
+                                     f"position, got {value!r}")
+            return axis, position
         if self.nargs > 1:
             if isinstance(value, (str, bytes)) or not hasattr(value, "__len__") \
                     or len(value) != self.nargs:
@@ -161,6 +175,8 @@ class Option:
             return _one_of(self.choices)
         if self.kind == "flag":
             return "True or False"
+        if self.kind == "plane":
+            return "an axis (x, y or z) and a finite position"
         if self.kind == "numbers":
             n = " or ".join(map(str, self.counts)) if self.counts else "any number of"
             return f"{n} numbers in [0, 1]"
@@ -261,6 +277,9 @@ SCENE_OPTIONS = (
     Option("mesh_color_field", "Colour the meshes by this field at the hit (viridis over its "
            "range; the fixed colour where it has no data).", kind="text", metavar="NAME"),
     Option("mesh_opacity", "Opacity of the meshes (default 1).", low=0.0, high=1.0, metavar="A"),
+    Option("mirror", "Draw the data and the meshes with their mirror image across the plane "
+           "AXIS = POSITION (AXIS: x, y or z; world units); repeatable; replaces the scene's "
+           "instances.", kind="plane", nargs=2, multiple=True, metavar="AXIS POSITION"),
     _vector("clip_box", "Keep only the inside of this box.", nargs=6, metavar="X0 Y0 Z0 X1 Y1 Z1"),
     _vector("clip_plane", "Keep only the half-space (p - P).N >= 0; repeatable; replaces the "
             "scene's planes.", nargs=6, metavar="PX PY PZ NX NY NZ", multiple=True),

@@ -31,6 +31,7 @@ def scene_to_dict(scene: Scene) -> dict:
         "meshes": [{"path": m.path, "opacity": m.opacity,
                     "color": ({"field": m.color_field, "colormap": m.colormap.to_paraview_dict()}
                               if m.color_field else list(m.color))} for m in scene.meshes],
+        "instances": [_instance(i) for i in scene.instances],
         "clip": clip,
         "lighting": {},
         "background": list(scene.background),
@@ -44,4 +45,13 @@ def scene_to_dict(scene: Scene) -> dict:
                 for key in option.key[:-1]:
                     node = node.setdefault(key, {})
                 node[option.key[-1]] = value
+    return out
+
+
+def _instance(instance) -> dict:
+    out = {"translate": list(instance.translate)}
+    if instance.mirror is not None:
+        out["mirror"] = list(instance.mirror)
+    if instance.rotate is not None:
+        out["rotate"] = list(instance.rotate)
     return out

@@ -1,0 +1,201 @@
+"""Instances: the data and the meshes drawn again, mirrored or moved
+(docs/design.md, "Instances"; the paper mirrors the ExaJet so).
+
+Instance i draws a data point x at R_i x + t_i (R_i orthogonal: a mirror, a
+rotation, or both), the identity being instance 0. Such a map keeps distances,
+so a ray of the frame is, in an instance's own (object) space, a ray with the
+same distances t along it: an instance's picture is the frame of the untouched
+dataset seen by the camera taken into object space (`ObjectCamera`), with the
+scene's planes and boxes taken there too (`object_scene`).
+
+Each instance draws only inside its world box: the box of the data's cells
+and the meshes' bounds, placed by its map (the basis reconstruction's half
+cell beyond the data's faces is cut, so that a mirror on a face joins the
+copies without overlap). Where those boxes do not overlap, every ray
+crosses them one after the other, in an order that a plane between each two
+boxes fixes for the whole frame (the side of the eye comes first;
+`visibility_order`). The frame is then each instance's frame in that order, each
+one's rays continuing from the image composited in front of it (the domain
+frames of exabricks.engine.streaming, one whole dataset per domain), sample by
+sample: the same image, early ray termination and depth as one scene holding
+every copy. Boxes that overlap would mix their media; they are refused.
+"""
+
+from __future__ import annotations
+
+import time
+from itertools import combinations
+
+import numpy as np
+
+from ..camera import Camera
+from ..errors import ExabricksError
+from ..scene.model import MAX_CLIP_PLANES, Clip, Scene
+
+# The lattice box of an instance's frame: all of it (kernels/frame.cl eb_in_domain).
+EVERYWHERE = ((-1e30,) * 3 + (0.0,), (1e30,) * 3 + (0.0,))
+# Boxes closer than this (times their size) count as touching, not overlapping:
+# a mirror through a face of the data.
+TOUCH = 1e-9
+
+
+def transforms(scene: Scene) -> list[tuple[np.ndarray, np.ndarray]]:
+    """(R, t) of every instance of `scene`, the identity first."""
+    return [(np.eye(3), np.zeros(3))] + [i.affine() for i in scene.instances]
+
+
+class ObjectCamera:
+    """`camera` seen from the object space of an instance drawn at R x + t: the same
+    pixels look along the same rays, taken back by the instance's map (a mirror
+    keeps the image's columns where they were, which a camera of position,
+    look_at and up could not)."""
+
+    def __init__(self, camera: Camera, r: np.ndarray, t: np.ndarray):
+        self.camera, self.r, self.t = camera, r, t
+        self.fovy = camera.fovy
+        self.position = tuple(r.T @ (np.asarray(camera.position, np.float64) - t))
+
+    def frame(self, width: int, height: int):
+        origin, forward, du, dv = self.camera.frame(width, height)
+        back = self.r.T
+        return back @ (origin - self.t), back @ forward, back @ du, back @ dv
+
+    footprint = Camera.footprint
+    rays = Camera.rays
+
+
+def object_scene(scene: Scene, r: np.ndarray, t: np.ndarray, box) -> Scene:
+    """`scene`'s frame of the instance at (r, t), in its object space, without
+    instances or background: the camera, the slices and the clip planes taken
+    back, and the clip box too (as six planes where the map turns it off the
+    axes); everything cut at the object-space `box` ((2, 3) or None)."""
+    back = r.T
+
+    def plane(point, normal):
+        return (tuple(back @ (np.asarray(point, np.float64) - t)),
+                tuple(back @ np.asarray(normal, np.float64)))
+
+    planes = [plane(p, n) for p, n in scene.clip.planes]
+    cut = None if box is None else np.array(box, np.float64)
+    if scene.clip.box is not None:
+        lo, hi = (np.asarray(b, np.float64) for b in scene.clip.box)
+        if np.allclose(np.abs(r), np.round(np.abs(r)), atol=1e-12):  # axes onto axes
+            corners = (np.round(back, 12) @ (np.stack([lo, hi]) - t).T).T
+            user = np.stack([corners.min(0), corners.max(0)])
+            cut = user if cut is None else np.stack([np.maximum(cut[0], user[0]),
+                                                     np.minimum(cut[1], user[1])])
+            cut[1] = np.maximum(cut[0], cut[1])  # none of it left: an empty box
+        else:
+            eye = np.eye(3)
+            planes += [plane(lo, eye[a]) for a in range(3)] + [plane(hi, -eye[a]) for a in range(3)]
+            if len(planes) > MAX_CLIP_PLANES:
+                raise ExabricksError(f"a rotated instance takes the clip box as six planes: with "
+                                     f"{len(scene.clip.planes)} more, over the {MAX_CLIP_PLANES} "
+                                     "a frame can hold")
+    slices = tuple(s.__class__(*plane(s.point, s.normal), s.field, s.colormap, s.opacity)
+                   for s in scene.slices)
+    clip = Clip(None if cut is None else (tuple(cut[0]), tuple(cut[1])), tuple(planes))
+    return scene.replace(camera=ObjectCamera(scene.camera, r, t), slices=slices, clip=clip,
+                         instances=(), background=(0.0, 0.0, 0.0, 0.0))
+
+
+def object_box(lower, upper, mesh_bounds=None) -> np.ndarray:
+    """float64 (2, 3): the box (object space) of the data's cells [lower, upper]
+    and the meshes' (lower, upper), either of which may be None; None for neither."""
+    boxes = [np.asarray(b, np.float64) for b in ((lower, upper), mesh_bounds) if b is not None
+             and b[0] is not None]
+    if not boxes:
+        return None
+    return np.stack([np.min([b[0] for b in boxes], 0), np.max([b[1] for b in boxes], 0)])
+
+
+def visibility_order(box, maps, eye) -> list[int]:
+    """The instances (`maps`: (R, t) each) front to back from the world point `eye`,
+    whose copies of the object-space `box` ((2, 3)) each lie on one side of a
+    plane from each other (separating axes of two boxes: their faces' normals and
+    the cross products of their edges). ExabricksError for two that overlap, or
+    a cycle no single order can draw."""
+    if box is None:
+        return list(range(len(maps)))
+    corners = np.array([[box[(k >> a) & 1][a] for a in range(3)] for k in range(8)])
+    placed = [corners @ r.T + t for r, t in maps]
+    size = float(np.abs(np.concatenate(placed)).max()) or 1.0
+    eye = np.asarray(eye, np.float64)
+    before = {i: set() for i in range(len(maps))}  # before[j]: those in front of j
+    for i, j in combinations(range(len(maps)), 2):
+        (ri, _), (rj, _) = maps[i], maps[j]
+        axes = [*ri.T, *rj.T] + [np.cross(a, b) for a in ri.T for b in rj.T]
+        for axis in axes:
+            n = float(np.linalg.norm(axis))
+            if n < 1e-9:
+                continue
+            pi, pj = placed[i] @ (axis / n), placed[j] @ (axis / n)
+            if pi.max() <= pj.min() + TOUCH * size:
+                low, high, cut = i, j, 0.5 * (pi.max() + pj.min())
+            elif pj.max() <= pi.min() + TOUCH * size:
+                low, high, cut = j, i, 0.5 * (pj.max() + pi.min())
+            else:
+                continue
+            front, back = (low, high) if eye @ (axis / n) <= cut else (high, low)
+            before[back].add(front)
+            break
+        else:
+            raise ExabricksError(
+                f"instances {i} and {j} overlap (0 is the data itself): their media would mix, "
+                "which exabricks does not draw; place the copies apart (a mirror plane outside "
+                "the data or on its face)")
+    order, placing = [], set()
+
+    def place(k):
+        if k in order:
+            return
+        if k in placing:
+            raise ExabricksError("the instances have no order front to back from this eye: "
+                                 "move the camera or the copies")
+        placing.add(k)
+        for f in sorted(before[k]):
+            place(f)
+        order.append(k)
+
+    for k in range(len(maps)):
+        place(k)
+    return order
+
+
+def render(inner, scene: Scene, box, *, traversal, rows, window, sample, deadline):
+    """The frame of `scene` with its instances: (premultiplied rgba without the
+    background, depth or None, stats). `inner` renders one frame of the
+    untouched dataset continuing an image in front (a Renderer over EVERYWHERE);
+    `box` is object_box's; the other arguments are Renderer.render_scene's, whose
+    deadline applies to the first instance's first sample alone (those after it
+    draw the rows it drew)."""
+    maps = transforms(scene)
+    order = visibility_order(box, maps, scene.camera.position)
+    scenes = [object_scene(scene, r, t, box) for r, t in maps]
+    spp = int(scene.settings.spp)
+    samples = range(spp) if sample is None and spp > 1 else (sample,)
+    total = depth = stats = drawn = None
+    count, spans = 0, rows
+    start = time.perf_counter()
+    for k in samples:
+        over = None
+        for i in order:
+            result = inner.render_scene(scenes[i], traversal=traversal, rows=spans, window=window,
+                                        sample=k, front=over, deadline=deadline)
+            over, stats = result.rgba, result.stats
+            count += stats["samples"]
+            if result.depth is not None:
+                depth = result.depth if depth is None else np.minimum(depth, result.depth)
+            if deadline is not None:  # the rows above it, for every later frame
+                deadline, drawn = None, stats["rows"]
+                spans = [(a, min(a + n, drawn) - a) for a, n in (rows or [(0, len(over))])
+                         if a < drawn] or [(0, 0)]
+        total = over if total is None else total + over
+    if len(samples) > 1:
+        total /= np.float32(len(samples))
+    seconds = time.perf_counter() - start
+    stats = dict(stats, rows=stats["rows"] if drawn is None else drawn, samples=count, instances=len(maps), instance_order=order,
+                 spp=spp, ms=1e3 * seconds / (spp if sample is None else 1),
+                 samples_per_second=count / seconds if seconds > 0 else 0.0)
+    return total, depth, stats
+

@@ -1,0 +1,205 @@
+"""Instances (`--mirror AXIS POSITION`, scene key `instances`; docs/design.md,
+"Instances"): a mirrored or moved copy of the data and the meshes is exactly
+the frame of the untouched data seen by the camera taken back by its map (for a
+mirror, a camera whose image is the columns reversed), composited in
+visibility order; copies that overlap, and frames split by space, are refused
+with one line; the flag and the scene key. Every frame test runs on every
+OpenCL device present."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from exabricks import schema
+from exabricks.camera import Camera
+from exabricks.engine import instances
+from exabricks.engine.renderer import Renderer
+from exabricks.errors import ExabricksError
+from exabricks.parallel import needs_image_mode
+from exabricks.scene import scene_from_options, scene_to_dict
+from exabricks.scene.model import Clip, Instance, Lighting, MeshLayer, Scene, Settings, VolumeLayer
+
+from conftest import AMREX, GERRIS, assert_one_error_line, built_scene, device_param, run_cli
+from test_mesh import icosphere_file
+
+SIZE = 64  # a power of two: the columns u and -u of a reversed frame are exact
+
+
+@pytest.fixture(scope="module")
+def amrex():
+    bricks, regions, bvh, field, _, tf = built_scene(AMREX, "phi")
+    lo, hi = (np.asarray(b, np.float64) for b in schema.world_bounds(bricks))
+    return bricks, regions, bvh, field, tf, lo, hi
+
+
+def over(front, back):
+    return front + (1.0 - front[..., 3:4]) * back
+
+
+def frame(renderer, camera, field, tf, *, meshes=(), clip=Clip(), inst=(), spp=1, sample=None,
+          depth=False):
+    scene = Scene(camera=camera, volumes=(VolumeLayer(field, tf),), meshes=tuple(meshes), clip=clip,
+                  instances=tuple(inst), lighting=Lighting(shading="headlight", specular=0.3),
+                  settings=Settings(width=SIZE, height=SIZE, jitter=False, max_opacity=1.0, spp=spp,
+                                    depth=depth))
+    return renderer.render_scene(scene, sample=sample)
+
+
+def cells_box(lo, hi):
+    return Clip(box=(tuple(lo), tuple(hi)))
+
+
+@device_param
+@pytest.mark.parametrize("with_mesh", [False, True])
+def test_a_mirror_is_the_frame_of_the_mirrored_camera_reversed(amrex, device, with_mesh, tmp_path):
+    """The data mirrored across its face x = 0, seen from the data's side: the frame
+    of the data (cut at its cells' box) over the frame of the mirrored camera with
+    its columns reversed; with a translucent mesh too (ambient occlusion draws its rays from the pixel:
+    a reversed frame draws other ones)."""
+    bricks, regions, bvh, field, tf, lo, hi = amrex
+    renderer = Renderer(bricks, regions, bvh, field=field, device=device)
+    meshes = ()
+    if with_mesh:
+        path, _ = icosphere_file(tmp_path, (lo + hi) / 2, 0.3 * float((hi - lo).min()), 3)
+        meshes = (MeshLayer(str(path), opacity=0.6),)
+    c, e = (lo + hi) / 2, float((hi - lo).max())
+    cam = Camera(position=tuple(c + np.array([0.4, -2.8, 1.4]) * e),
+                 look_at=tuple(c - [0.5 * e, 0.0, 0.0]), up=(0, 0, 1), fovy=40)
+    mirror = Instance(mirror=("x", float(lo[0])))
+    got = frame(renderer, cam, field, tf, meshes=meshes, inst=[mirror], depth=True)
+    m = np.diag([-1.0, 1.0, 1.0])
+    flip = lambda p: tuple(m @ (np.asarray(p) - lo) + lo)
+    mirrored = Camera(position=flip(cam.position), look_at=flip(cam.look_at), up=(0, 0, 1), fovy=40)
+    front = frame(renderer, cam, field, tf, meshes=meshes, clip=cells_box(lo, hi), depth=True)
+    back = frame(renderer, mirrored, field, tf, meshes=meshes, clip=cells_box(lo, hi), depth=True)
+    want = over(front.rgba, back.rgba[:, ::-1])
+    assert got.stats["instance_order"] == [0, 1]
+    assert front.rgba[..., 3].max() > 0.3 and back.rgba[..., 3].max() > 0.3
+    # some pixels see both copies, one behind the other
+    assert ((front.rgba[..., 3] > 0.05) & (back.rgba[:, ::-1, 3] > 0.05)).any()
+    np.testing.assert_allclose(got.rgba, want, atol=2e-5)
+    # depth: where the copy in front shows nothing, the copy behind's
+    empty = front.rgba[..., 3] == 0.0
+    np.testing.assert_allclose(got.depth[empty], back.depth[:, ::-1][empty], rtol=1e-5)
+    assert got.stats["samples"] == front.stats["samples"] + back.stats["samples"]
+
+
+@device_param
+def test_a_rigid_copy_is_the_frame_of_the_camera_moved_back(amrex, device):
+    """A copy turned 40 degrees about (1, 2, 3) and moved off the data: the frame
+    of the camera taken back by that map (the same pixels, no reversal), composited
+    in the order that the plane between the copies gives from the eye; sample by
+    sample with spp = 2; with a world clip box, which the turned copy takes as planes."""
+    bricks, regions, bvh, field, tf, lo, hi = amrex
+    renderer = Renderer(bricks, regions, bvh, field=field, device=device)
+    copy = Instance(rotate=(1.0, 2.0, 3.0, 40.0), translate=(2.2, 0.0, 0.0))
+    r, t = copy.affine()
+    cam = Camera(position=(4.0, -3.5, 1.8), look_at=(1.3, 0.5, 0.5), up=(0, 0, 1), fovy=45)
+    world_clip = Clip(box=((-1.0, 0.1, -1.0), (4.0, 0.8, 2.0)))
+    got = frame(renderer, cam, field, tf, inst=[copy], clip=world_clip, spp=2)
+    back = lambda p: tuple(r.T @ (np.asarray(p) - t))
+    moved = Camera(position=back(cam.position), look_at=back(cam.look_at),
+                   up=tuple(r.T @ np.array([0.0, 0.0, 1.0])), fovy=45)
+    order = got.stats["instance_order"]
+    assert order == [1, 0]  # the eye is on the copy's side
+    turned = instances.object_scene(Scene(camera=cam, clip=world_clip), r, t, None).clip
+    assert turned.box is None and len(turned.planes) == 6
+    samples = []
+    for k in range(2):
+        mine = frame(renderer, cam, field, tf, clip=Clip(box=((lo[0], 0.1, lo[2]), (hi[0], 0.8, hi[2]))),
+                     spp=2, sample=k)
+        theirs = frame(renderer, moved, field, tf,
+                       clip=Clip(box=(tuple(lo), tuple(hi)), planes=turned.planes), spp=2, sample=k)
+        assert mine.rgba[..., 3].max() > 0.1 and theirs.rgba[..., 3].max() > 0.1
+        samples.append(over(theirs.rgba, mine.rgba))
+    np.testing.assert_allclose(got.rgba, np.mean(samples, axis=0), atol=2e-5)
+
+
+def test_a_tile_of_an_instanced_frame_is_that_part_of_it(amrex):
+    bricks, regions, bvh, field, tf, lo, hi = amrex
+    renderer = Renderer(bricks, regions, bvh, field=field)
+    cam = Camera(position=(0.5, -3.0, 1.5), look_at=(0.0, 0.5, 0.5), up=(0, 0, 1), fovy=45)
+    scene = Scene(camera=cam, volumes=(VolumeLayer(field, tf),),
+                  instances=(Instance(mirror=("x", 0.0)),),
+                  settings=Settings(width=SIZE, height=SIZE))
+    whole = renderer.render_scene(scene).rgba
+    tile = renderer.render_scene(scene, window=(8, 16, 24, 20)).rgba
+    np.testing.assert_array_equal(tile, whole[16:36, 8:32])
+
+
+def test_copies_that_overlap_are_refused(amrex):
+    """A mirror through the middle of the data would mix two media: one error
+    naming the two instances."""
+    bricks, regions, bvh, field, tf, lo, hi = amrex
+    renderer = Renderer(bricks, regions, bvh, field=field)
+    cam = Camera(position=(0.5, -3.0, 1.5), look_at=(0.5, 0.5, 0.5), up=(0, 0, 1))
+    with pytest.raises(ExabricksError, match="instances 0 and 1 overlap"):
+        frame(renderer, cam, field, tf, inst=[Instance(mirror=("y", 0.5))])
+
+
+def test_visibility_order_puts_the_eye_side_first_and_refuses_cycles():
+    box = np.array([[0.0, 0.0, 0.0], [1.0, 1.0, 1.0]])
+    maps = [(np.eye(3), np.zeros(3)), Instance(mirror=("z", 0.0)).affine(),
+            Instance(translate=(0.0, 0.0, 3.0)).affine()]
+    assert instances.visibility_order(box, maps, (0.5, 0.5, 10.0)) == [2, 0, 1]
+    assert instances.visibility_order(box, maps, (0.5, 0.5, -10.0)) == [1, 0, 2]
+    # three tilted rods around the z axis, each over the next: no order from above
+    rod = np.array([[-1.0, -0.1, -0.1], [1.0, 0.1, 0.1]])
+    ring = []
+    for k in range(3):
+        turn, _ = Instance(rotate=(0.0, 0.0, 1.0, 120.0 * k)).affine()
+        tilt, _ = Instance(rotate=(0.0, 1.0, 0.0, 15.0)).affine()
+        ring.append((turn @ tilt, turn @ np.array([0.0, -0.5, 0.0])))
+    with pytest.raises(ExabricksError, match="no order front to back"):
+        instances.visibility_order(rod, ring, (0.0, 0.0, 10.0))
+    assert instances.visibility_order(rod, ring, (10.0, 0.0, 0.0)) is not None  # from the side
+
+
+def test_the_flag_and_the_scene_key(tmp_path):
+    bricks, *_ = built_scene(GERRIS, "T")
+    scene = scene_from_options(bricks, flags={"mirror": [("y", "0"), ("z", "-1.5")]})
+    assert scene.instances == (Instance(mirror=("y", 0.0)), Instance(mirror=("z", -1.5)))
+    doc = scene_to_dict(scene.replace(instances=(
+        Instance(mirror=("x", 2.0), rotate=(0.0, 0.0, 1.0, 90.0), translate=(1.0, 2.0, 3.0)),)))
+    path = tmp_path / "scene.json"
+    import json
+
+    path.write_text(json.dumps(doc))
+    again = scene_from_options(bricks, scene_path=path)
+    assert again.instances == (Instance(mirror=("x", 2.0), rotate=(0.0, 0.0, 1.0, 90.0),
+                                        translate=(1.0, 2.0, 3.0)),)
+    with pytest.raises(ExabricksError, match="mirror: expected an axis"):
+        scene_from_options(bricks, flags={"mirror": [("w", "0")]})
+    with pytest.raises(ExabricksError, match="mirror: expected an axis"):
+        scene_from_options(bricks, flags={"mirror": [("x", "nan")]})
+    path.write_text(json.dumps({"instances": [{"rotate": [0, 0, 0, 30]}]}))
+    with pytest.raises(ExabricksError, match=r"instances\[0\].*non-zero axis"):
+        scene_from_options(bricks, scene_path=path)
+    path.write_text(json.dumps({"instances": [{"mirror": ["q", 0]}]}))
+    with pytest.raises(ExabricksError, match=r"instances\[0\]"):
+        scene_from_options(bricks, scene_path=path)
+    assert needs_image_mode(scene) == "instances"
+    # the Python API's keyword: one plane, or a list of them
+    from exabricks.scene import SCENE_OPTIONS
+
+    option = next(o for o in SCENE_OPTIONS if o.name == "mirror")
+    assert option.coerce(("y", 0)) == (("y", 0.0),)
+    assert option.coerce([("y", 0), ("x", "2")]) == (("y", 0.0), ("x", 2.0))
+
+
+@pytest.mark.slow
+def test_render_mirror_and_a_budget_of_several_domains(tmp_path):
+    """`render --mirror` writes the instances into the image's scene; a budget that
+    splits the data by space refuses them with one line and writes nothing."""
+    from exabricks.image import Image
+
+    out = tmp_path / "m.png"
+    args = ["render", GERRIS, "--size", 48, 48, "--mirror", "x", 0]
+    run_cli(*args, "-o", out, check=0)
+    assert Image.read(out).metadata["scene"]["instances"] == [
+        {"translate": [0.0, 0.0, 0.0], "mirror": ["x", 0.0]}]
+    bad = tmp_path / "b.png"
+    assert_one_error_line(run_cli(*args, "-o", bad, "--memory-budget", "3M"),
+                          "instances need the whole dataset at once", "domains")
+    assert not bad.exists()
