@@ -1,8 +1,9 @@
 """The cache of built structures: the bricks, regions and BVH that a source-taking
-`render`, `probe` or `eb.open` built from a source, kept by content.
+`render`, `probe` or `eb.open` built from a source, and the BVHs of mesh files
+(exabricks.mesh), kept by content.
 
-An entry is a directory `<root>/<key>/` with the three structure files and
-`entry.json` (what it was built from). The key is the sha256 of the source's
+An entry is a directory `<root>/<key>/` with its files (the three structure
+files, or MESH_FILES) and `entry.json` (what it was built from). The key is the sha256 of the source's
 content (`source_digest`), of the build options, and of this exabricks' own
 code (`code_digest`), so an entry can only be found by the inputs and the
 parameters that built it, and a changed file or a new exabricks misses.
@@ -34,6 +35,7 @@ from .errors import ExabricksError
 log = logging.getLogger(__name__)
 
 FILES = ("bricks.npz", "regions.npz", "bvh.npz")
+MESH_FILES = ("meshes.npz",)
 ENTRY = "entry.json"
 _KEY = re.compile(r"[0-9a-f]{64}")
 _BUILDING = ".eb-build-"
@@ -99,23 +101,32 @@ def key(source: str | os.PathLike, options: dict) -> str:
     return hashlib.sha256(json.dumps(material, sort_keys=True, default=str).encode()).hexdigest()
 
 
+def mesh_key(paths) -> str:
+    """The entry key of the BVH of the mesh files `paths` (in order), by content."""
+    from .formats.provenance import sha256_file
+
+    material = {"cache": 1, "kind": "meshes", "code": code_digest(),
+                "files": [sha256_file(p) for p in paths]}
+    return hashlib.sha256(json.dumps(material, sort_keys=True).encode()).hexdigest()
+
+
 @dataclass(frozen=True)
 class Cache:
     """The entries under `root`."""
 
     root: Path
 
-    def paths(self, k: str) -> tuple[Path, Path, Path] | None:
-        """The three files of entry `k`, or None where there is none."""
+    def paths(self, k: str, files=FILES) -> tuple[Path, ...] | None:
+        """The `files` of entry `k`, or None where there is none."""
         entry = self.root / k
-        if not (entry / ENTRY).is_file() or not all((entry / f).is_file() for f in FILES):
+        if not (entry / ENTRY).is_file() or not all((entry / f).is_file() for f in files):
             return None
-        return tuple(entry / f for f in FILES)
+        return tuple(entry / f for f in files)
 
-    def put(self, k: str, write, about: dict) -> tuple[Path, Path, Path]:
-        """Entry `k` made by `write(directory)` (which writes the three files into a
-        private directory), renamed into place; an entry that another process put
-        there first is kept and ours dropped."""
+    def put(self, k: str, write, about: dict, files=FILES) -> tuple[Path, ...]:
+        """Entry `k` made by `write(directory)` (which writes `files` into a private
+        directory), renamed into place; an entry that another process put there
+        first is kept and ours dropped."""
         try:
             self.root.mkdir(parents=True, exist_ok=True)
             building = Path(tempfile.mkdtemp(prefix=_BUILDING, dir=self.root))
@@ -130,12 +141,12 @@ class Cache:
             try:
                 os.rename(building, self.root / k)
             except OSError:
-                if self.paths(k) is None:
+                if self.paths(k, files) is None:
                     raise
                 log.debug("%s: another process built this entry first", self.root / k)
         finally:
             shutil.rmtree(building, ignore_errors=True)
-        return self.paths(k)
+        return self.paths(k, files)
 
     def drop(self, k: str) -> None:
         """Remove entry `k` (a damaged one)."""

@@ -8,14 +8,18 @@ equals the iso-value; they cannot be hit). The meshes of a frame are merged into
 each tagged with its mesh, under one binned-SAH BVH (stages.bvh.build_tree,
 the builder of the regions' BVH, over the triangles' boxes), which the kernels
 walk for every ray (kernels/mesh.cl). A MeshSet is built once per process for
-the same files (`mesh_set`).
+the same files (`mesh_set`), and kept in the cache of built structures
+(exabricks.cache) by the files' content, checked like any input when it is
+read back (`load_mesh_set`).
 """
 
 from __future__ import annotations
 
 import functools
+import logging
 import os
 import struct
+import zipfile
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -26,11 +30,17 @@ from .constants import MAX_TREE_DEPTH
 from .errors import ExabricksError
 from .formats.memory import check_memory
 
+log = logging.getLogger(__name__)
+
 SUFFIXES = (".obj", ".ply", ".stl")
 # Triangles of all the meshes of a frame: the ExaJet's surface is 63.2 M.
 MAX_TRIANGLES = 1 << 26
 # Bytes a mesh file may hold (a binary STL of MAX_TRIANGLES is 3.4 GB).
 MAX_FILE_BYTES = 1 << 33
+# Coordinates a mesh may hold (beyond, float32 ray arithmetic overflows).
+MAX_COORDINATE = 1e30
+# The format of a cached MeshSet (save_mesh_set).
+MESH_SET_VERSION = 1
 
 
 @dataclass(frozen=True)
@@ -45,20 +55,8 @@ class Mesh:
 
 def read_mesh(path) -> Mesh:
     """The mesh in `path` (OBJ, PLY, STL), checked; ExabricksError naming the file."""
-    path = Path(path)
+    path, size = _mesh_file(path)
     where = str(path)
-    if path.suffix.lower() not in SUFFIXES:
-        raise ExabricksError(f"{where}: a mesh must be an OBJ, PLY or STL file "
-                             f"(found the suffix {path.suffix or 'none'!r})")
-    try:
-        size = path.stat().st_size
-        if not path.is_file():
-            raise ExabricksError(f"{where}: not a regular file")
-    except OSError as e:
-        raise ExabricksError(f"{where}: cannot read the mesh: {e.strerror or e}") from None
-    if size > MAX_FILE_BYTES:
-        raise ExabricksError(f"{where}: {size:,} bytes, more than a mesh may hold "
-                             f"({MAX_FILE_BYTES:,})")
     if path.suffix.lower() == ".stl":
         _check_binary_stl(path, size)
     check_memory(6 * size, where)  # the parser's text and its float64 arrays
@@ -73,6 +71,25 @@ def read_mesh(path) -> Mesh:
     except Exception as e:  # noqa: BLE001 - a parser's error on a hostile file, whatever it is
         raise ExabricksError(f"{where}: not a readable mesh ({type(e).__name__}: {e})") from None
     return _checked(where, vertices, faces)
+
+
+def _mesh_file(path) -> tuple[Path, int]:
+    """(path, size) of a mesh file that may be read: its suffix, a regular file, its size."""
+    path = Path(path)
+    where = str(path)
+    if path.suffix.lower() not in SUFFIXES:
+        raise ExabricksError(f"{where}: a mesh must be an OBJ, PLY or STL file "
+                             f"(found the suffix {path.suffix or 'none'!r})")
+    try:
+        size = path.stat().st_size
+        if not path.is_file():
+            raise ExabricksError(f"{where}: not a regular file")
+    except OSError as e:
+        raise ExabricksError(f"{where}: cannot read the mesh: {e.strerror or e}") from None
+    if size > MAX_FILE_BYTES:
+        raise ExabricksError(f"{where}: {size:,} bytes, more than a mesh may hold "
+                             f"({MAX_FILE_BYTES:,})")
+    return path, size
 
 
 def _check_binary_stl(path: Path, size: int) -> None:
@@ -110,7 +127,7 @@ def _checked(where: str, vertices: np.ndarray, faces: np.ndarray) -> Mesh:
         t = int(np.flatnonzero(out.any(axis=1))[0])
         raise ExabricksError(f"{where}: triangle {t} refers to vertex {int(faces[t][out[t]][0])}, "
                              f"but the mesh has {len(vertices):,} vertices")
-    if np.abs(vertices).max() > 1e30:
+    if np.abs(vertices).max() > MAX_COORDINATE:
         raise ExabricksError(f"{where}: vertex coordinates beyond 1e30 do not fit float32 arithmetic")
     v = vertices.astype(np.float32)
     f = faces.astype(np.int32)
@@ -229,4 +246,78 @@ def mesh_set(paths) -> MeshSet:
 
 @functools.lru_cache(maxsize=4)
 def _mesh_set(keys) -> MeshSet:
-    return build_mesh_set([read_mesh(k[0]) for k in keys])
+    from . import cache
+
+    paths = [_mesh_file(k[0])[0] for k in keys]
+    store = cache.Cache(cache.default_root())
+    k = cache.mesh_key(paths)
+    found = store.paths(k, cache.MESH_FILES)
+    if found is not None:
+        try:
+            meshes = load_mesh_set(found[0], paths)
+            log.debug("%s: the meshes' BVH from the cache", found[0])
+            return meshes
+        except ExabricksError as e:
+            log.warning("a damaged cache entry of meshes (%s): building it again", e)
+            store.drop(k)
+    meshes = build_mesh_set([read_mesh(p) for p in paths])
+    about = {"path": ", ".join(str(p.resolve()) for p in paths),
+             "options": {"kind": "meshes", "triangles": meshes.n_triangles}}
+    try:
+        store.put(k, lambda d: save_mesh_set(meshes, d / cache.MESH_FILES[0]), about,
+                  cache.MESH_FILES)
+    except (ExabricksError, OSError) as e:  # the frame goes on without the cache
+        log.warning("the meshes' BVH is not cached: %s", e)
+    return meshes
+
+
+def save_mesh_set(meshes: MeshSet, path: Path) -> None:
+    """`meshes` as an uncompressed .npz (MESH_SET_VERSION)."""
+    with open(path, "wb") as f:
+        np.savez(f, version=np.int64(MESH_SET_VERSION), triangles=meshes.triangles,
+                 nodes=meshes.nodes, dropped=np.int64(meshes.dropped))
+
+
+def load_mesh_set(path: Path, paths) -> MeshSet:
+    """The MeshSet of the mesh files `paths` that save_mesh_set wrote to `path`,
+    checked as any input a kernel walks (ExabricksError naming `path`): stored,
+    not compressed, arrays no larger than the file; finite triangles of known
+    meshes; a tree over them (formats.checks.check_tree) with finite boxes."""
+    from .formats.checks import check_tree
+
+    where = str(path)
+    try:
+        size = os.path.getsize(path)
+        with zipfile.ZipFile(path) as z:
+            members = z.infolist()
+        if (any(m.compress_type != zipfile.ZIP_STORED for m in members)
+                or sum(m.file_size for m in members) > size):
+            raise ExabricksError(f"{where}: not a stored .npz of meshes")
+        with np.load(path, allow_pickle=False) as npz:
+            if sorted(npz.files) != ["dropped", "nodes", "triangles", "version"]:
+                raise ExabricksError(f"{where}: holds {sorted(npz.files)}, not a mesh set")
+            version, triangles, nodes, dropped = (npz[n] for n in
+                                                  ("version", "triangles", "nodes", "dropped"))
+    except (OSError, ValueError, zipfile.BadZipFile, EOFError) as e:
+        raise ExabricksError(f"{where}: not a readable mesh set ({e})") from None
+    if version.shape != () or int(version) != MESH_SET_VERSION:
+        raise ExabricksError(f"{where}: mesh set version {version}, expected {MESH_SET_VERSION}")
+    t = triangles.shape[0] if triangles.ndim == 3 else 0
+    if (triangles.dtype != np.float32 or triangles.shape != (t, 3, 4) or not 1 <= t <= MAX_TRIANGLES
+            or nodes.dtype != np.float32 or nodes.ndim != 3 or nodes.shape[1:] != (2, 4)
+            or not 1 <= nodes.shape[0] <= 2 * t or dropped.shape != () or int(dropped) < 0):
+        raise ExabricksError(f"{where}: arrays of shapes {triangles.shape}, {nodes.shape} are not "
+                             "a mesh set")
+    xyz = triangles[:, :, :3]
+    owner = triangles[:, 0, 3]
+    if not (np.all(np.abs(xyz) <= MAX_COORDINATE) and np.all(owner == np.round(owner))
+            and owner.min() >= 0 and owner.max() < len(paths)):
+        raise ExabricksError(f"{where}: triangles with coordinates that are not finite or meshes "
+                             f"other than the {len(paths)} asked for")
+    box = nodes[:, :, :3]
+    if not (np.all(np.abs(box) <= np.float32(np.finfo(np.float32).max))
+            and np.all(box[:, 0] <= box[:, 1])):
+        raise ExabricksError(f"{where}: mesh BVH boxes that are not finite or are inverted")
+    links = np.ascontiguousarray(nodes[:, :, 3]).view(np.int32)
+    check_tree(links[:, 0], links[:, 1], t, where, "mesh BVH", "triangle")
+    return MeshSet(tuple(str(p) for p in paths), triangles, nodes, int(dropped))

@@ -407,3 +407,65 @@ def test_a_mesh_coloured_by_a_field_shows_the_field_at_the_hit(device, tmp_path)
     # float32 hit points against float64 ones, through T's gradient and the colour map
     np.testing.assert_allclose(got[..., :3], want, rtol=0, atol=5e-5)
     assert np.allclose(got[..., 3], 1.0)
+
+
+def test_the_bvh_is_cached_by_content_and_checked_when_read_back(tmp_path, monkeypatch, caplog):
+    """A second process (here: the in-process memo cleared) reads the meshes' BVH
+    from the cache: the same arrays, nothing built. A damaged or crafted entry
+    (truncated, compressed, a child out of range, a mesh not asked for) is
+    refused by its checks, with a warning, and built again; a changed file misses."""
+    import zipfile
+
+    from exabricks import cache, mesh
+
+    monkeypatch.setenv("EXABRICKS_CACHE", str(tmp_path / "cache"))
+    path, _ = icosphere_file(tmp_path, (0.0, 0.0, 0.0), 1.0, 3)
+    mesh._mesh_set.cache_clear()
+    built = mesh.mesh_set((str(path),))
+    entry = cache.Cache(tmp_path / "cache").paths(cache.mesh_key([path]), cache.MESH_FILES)[0]
+
+    def again():
+        mesh._mesh_set.cache_clear()
+        return mesh.mesh_set((str(path),))
+
+    def same(a, b):
+        np.testing.assert_array_equal(a.triangles, b.triangles)
+        np.testing.assert_array_equal(a.nodes, b.nodes)
+        assert a.dropped == b.dropped
+
+    with monkeypatch.context() as m:
+        m.setattr(mesh, "build_mesh_set", lambda meshes: pytest.fail("built again"))
+        same(again(), built)
+    good = entry.read_bytes()
+
+    def crafted(**change):
+        arrays = {"version": np.int64(1), "triangles": built.triangles, "nodes": built.nodes,
+                  "dropped": np.int64(0), **change}
+        with open(entry, "wb") as f:
+            np.savez(f, **arrays)
+
+    nodes = built.nodes.copy()
+    nodes[0, 1, 3] = np.int32(0).view(np.float32)  # the root an inner node ...
+    nodes[0, 0, 3] = np.int32(len(nodes)).view(np.float32)  # ... with children beyond the tree
+    stranger = built.triangles.copy()
+    stranger[5, 0, 3] = 3.0  # a mesh not asked for
+    damage = [lambda: entry.write_bytes(good[: len(good) // 2]),
+              lambda: crafted(nodes=nodes), lambda: crafted(triangles=stranger),
+              lambda: crafted(version=np.int64(7))]
+
+    def compressed():
+        with zipfile.ZipFile(entry, "w", zipfile.ZIP_DEFLATED) as z:
+            z.writestr("triangles.npy", b"\0" * 1000)
+
+    for spoil, needle in zip(damage + [compressed], ["not a readable mesh set", "children",
+                                                     "meshes other than", "version 7", "stored"]):
+        spoil()
+        caplog.clear()
+        same(again(), built)
+        assert any(needle in r.getMessage() and "damaged" in r.getMessage()
+                   for r in caplog.records), (needle, [r.getMessage() for r in caplog.records])
+        assert entry.read_bytes() == good  # built again and put back
+    old = cache.mesh_key([path])
+    icosphere_file(tmp_path, (0.5, 0.0, 0.0), 1.0, 3)  # the same path, new content
+    assert cache.mesh_key([path]) != old
+    assert not np.array_equal(again().triangles, built.triangles)

@@ -1,5 +1,5 @@
 """`exabricks cache info|clear`: the structures that source-taking commands built
-and kept (exabricks.cache)."""
+and kept, and the BVHs of mesh files (exabricks.cache)."""
 
 from __future__ import annotations
 
@@ -21,7 +21,8 @@ def _store(root):
 
 @click.group()
 def cache():
-    """The structures built from sources by `render SOURCE` and `probe SOURCE`."""
+    """The structures built from sources by `render SOURCE` and `probe SOURCE`, and the
+    BVHs of `render --mesh` files."""
 
 
 @cache.command()

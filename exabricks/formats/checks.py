@@ -157,36 +157,42 @@ def _check_lists(obj: "Regions", where: str) -> None:
 
 
 def _check_bvh(obj: "Bvh", where: str) -> None:
-    """Children at larger indices than their parent, each node the child of exactly
-    one parent (a tree: every walk ends), leaf ranges inside the region index,
-    finite nested bounds and a depth the kernels' stacks hold."""
-    m = obj.n_nodes
-    first = obj.first.astype(np.int64)
-    count = obj.count.astype(np.int64)
+    """A tree over the region index (check_tree), finite bounds, levels in range."""
+    check_tree(obj.first, obj.count, obj.region_index.shape[0], where, "BVH", "region")
+    _check_boxes(obj.lower_lattice, obj.upper_lattice, where, "BVH node")
+    _check_levels(obj.finest_level, where, "BVH node")
+
+
+def check_tree(first: np.ndarray, count: np.ndarray, n_items: int, where: str, tree: str,
+               item: str) -> None:
+    """A flat binary tree that a kernel may walk (the regions' BVH, a mesh BVH):
+    children at larger indices than their parent, each node the child of exactly
+    one parent (a tree: every walk ends), leaf ranges inside the `n_items` items
+    and a depth the kernels' stacks hold. ExabricksError naming `where`."""
+    m = first.shape[0]
+    first = first.astype(np.int64)
+    count = count.astype(np.int64)
     if count.size and count.min() < 0:
         i = int(np.argmin(count))
-        raise ExabricksError(f"{where}: BVH node {i} has a negative region count ({int(count[i])})")
+        raise ExabricksError(f"{where}: {tree} node {i} has a negative {item} count ({int(count[i])})")
     inner = np.flatnonzero(count == 0)
     leaf = np.flatnonzero(count > 0)
     if inner.size and (np.any(first[inner] <= inner) or np.any(first[inner] + 1 >= m)):
         i = int(inner[(first[inner] <= inner) | (first[inner] + 1 >= m)][0])
-        raise ExabricksError(f"{where}: BVH node {i} has children {int(first[i])}, "
+        raise ExabricksError(f"{where}: {tree} node {i} has children {int(first[i])}, "
                              f"{int(first[i]) + 1}: they must follow it and lie below {m}")
     if m:
         parents = np.bincount(np.concatenate([first[inner], first[inner] + 1]), minlength=m)
         bad = np.flatnonzero(parents[1:] != 1)
         if bad.size:
             i = int(bad[0]) + 1
-            raise ExabricksError(f"{where}: BVH node {i} is the child of {int(parents[i])} "
+            raise ExabricksError(f"{where}: {tree} node {i} is the child of {int(parents[i])} "
                                  "nodes (a tree has exactly one parent per node)")
-    if leaf.size and (first[leaf].min() < 0 or (first[leaf] + count[leaf]).max()
-                      > obj.region_index.shape[0]):
-        raise ExabricksError(f"{where}: BVH leaf ranges exceed the region index")
-    _check_boxes(obj.lower_lattice, obj.upper_lattice, where, "BVH node")
-    _check_levels(obj.finest_level, where, "BVH node")
+    if leaf.size and (first[leaf].min() < 0 or (first[leaf] + count[leaf]).max() > n_items):
+        raise ExabricksError(f"{where}: {tree} leaf ranges exceed the {n_items:,} {item}s")
     depth = tree_depth(first, count)
     if depth > MAX_TREE_DEPTH:
-        raise ExabricksError(f"{where}: the BVH is {depth} levels deep, more than the "
+        raise ExabricksError(f"{where}: the {tree} is {depth} levels deep, more than the "
                              f"{MAX_TREE_DEPTH} the kernels' traversal stacks hold")
 
 
