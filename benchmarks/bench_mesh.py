@@ -8,8 +8,10 @@ N x N vertices (2 (N - 1)^2 triangles) whose height is a sum of sines, written a
 binary PLY under bench-data/meshes/. For each size:
 
 - *build*: `exabricks.mesh.build_mesh_set` of the read mesh in this process (the
-  median of --runs after a warm-up, so numba's compiled code is loaded): triangles
-  per second, BVH nodes and depth; and reading the file (trimesh).
+  median of --runs after a warm-up, so numba's compiled code is loaded), and of
+  it the smooth-shading corner normals (`corner_normals`, timed on their own in
+  the same runs): the BVH's triangles per second (the build less the normals),
+  BVH nodes and depth; and reading the file (trimesh).
 - *frame*: an AMReX frame at --size (default camera, viridis with an opacity ramp
   0 -> 0.1 over the field's range, headlight shading), with
   no mesh, with the sheet opaque (it hides the volume behind it: fewer samples)
@@ -32,7 +34,10 @@ SECTION = "Meshes with the volume"
 NOTES = """
 *Build*: `build_mesh_set` in a warm process: the triangles' boxes, the binned-SAH
 tree of the regions' builder (`stages.bvh.build_tree`, 16 bins, leaves of at most
-four triangles, both cores), the node boxes and the triangles in tree order.
+four triangles, both cores), the node boxes and the triangles in tree order, and
+the smooth-shading normals of every corner (*normals*: `corner_normals`, the
+points grouped by position, angle-weighted face normals within the crease angle).
+*BVH M triangles/s*: triangles over the build less the normals.
 *Read*: trimesh's binary PLY reader and our checks. *Frame*: the kernel's time
 of one 1024² AMReX frame (default camera, viridis with an opacity ramp 0 → 0.1,
 headlight shading); *opaque*: the sheet at opacity 1, which ends every ray that
@@ -99,7 +104,7 @@ def main(argv=None) -> int:
     import exabricks as eb
     from exabricks import schema
     from exabricks.engine.renderer import Renderer
-    from exabricks.mesh import build_mesh_set, read_mesh
+    from exabricks.mesh import build_mesh_set, corner_normals, read_mesh
     from exabricks.scene.model import MeshLayer
     from exabricks.stages.bvh import tree_depths
     from benchmarks.peers.common import ALPHA_SCALE, DATASETS
@@ -117,11 +122,14 @@ def main(argv=None) -> int:
         mesh = read_mesh(path)
         read_s = time.perf_counter() - t
         build_mesh_set([mesh])  # warm-up: numba's cached code
-        builds = []
+        builds, normals = [], []
         for _ in range(args.runs):
             t = time.perf_counter()
             meshes = build_mesh_set([mesh])
             builds.append(time.perf_counter() - t)
+            t = time.perf_counter()
+            corner_normals(mesh.vertices, mesh.faces)
+            normals.append(time.perf_counter() - t)
         depth = int(tree_depths(meshes.links[:, 0].astype(np.int64),
                                 meshes.links[:, 1].astype(np.int64)).max()) + 1
         variants = {"no mesh": scene,
@@ -135,22 +143,24 @@ def main(argv=None) -> int:
             for k, s in variants.items():
                 times[k].append(renderer.render_scene(s).stats["ms"])
         base = statistics.median(times["no mesh"])
-        rows.append((count, meshes.n_triangles, read_s, builds, len(meshes.nodes), depth, times,
-                     samples, base))
+        bvh_s = statistics.median(builds) - statistics.median(normals)
+        rows.append((count, meshes.n_triangles, read_s, builds, normals, bvh_s, len(meshes.nodes),
+                     depth, times, samples, base))
         print(f"{meshes.n_triangles:,} triangles: read {read_s:.2f} s, build "
-              f"{statistics.median(builds):.2f} s ({meshes.n_triangles / statistics.median(builds) / 1e6:.2f} M/s), "
+              f"{statistics.median(builds):.2f} s (normals {statistics.median(normals):.2f} s; BVH "
+              f"{meshes.n_triangles / bvh_s / 1e6:.2f} M/s), "
               + ", ".join(f"{k} {statistics.median(v):.0f} ms" for k, v in times.items()), flush=True)
 
     lines = [f"Command: `.venv/bin/python -m benchmarks.bench_mesh --triangles {args.triangles} "
              f"--size {args.size} --runs {args.runs}`", "",
              f"- machine: {benchdoc.machine(opencl=True)}", "",
-             "| triangles | read s | build s | M triangles/s | nodes / depth | frame ms: no mesh | "
-             "opaque (samples) | translucent 0.3 | translucent / no mesh |",
-             "|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
-    for _, n, read_s, builds, nodes, depth, times, samples, base in rows:
-        b = statistics.median(builds)
+             "| triangles | read s | build s | of it normals s | BVH M triangles/s | nodes / depth | "
+             "frame ms: no mesh | opaque (samples) | translucent 0.3 | translucent / no mesh |",
+             "|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
+    for _, n, read_s, builds, normals, bvh_s, nodes, depth, times, samples, base in rows:
         lines.append(
-            f"| {n:,} | {read_s:.2f} | {benchdoc.fmt_spread(builds, 's', 2)} | {n / b / 1e6:.2f} | "
+            f"| {n:,} | {read_s:.2f} | {benchdoc.fmt_spread(builds, 's', 2)} | "
+            f"{benchdoc.fmt_spread(normals, 's', 2)} | {n / bvh_s / 1e6:.2f} | "
             f"{nodes:,} / {depth} | {benchdoc.fmt_spread(times['no mesh'], '', 0)} | "
             f"{benchdoc.fmt_spread(times['opaque'], '', 0)} ({samples['opaque']:,} of "
             f"{samples['no mesh']:,}) | {benchdoc.fmt_spread(times['translucent'], '', 0)} | "

@@ -40,7 +40,10 @@ MAX_FILE_BYTES = 1 << 33
 # Coordinates a mesh may hold (beyond, float32 ray arithmetic overflows).
 MAX_COORDINATE = 1e30
 # The format of a cached MeshSet (save_mesh_set).
-MESH_SET_VERSION = 1
+MESH_SET_VERSION = 2
+# Edges sharper than this stay sharp in smooth shading (corner_normals), as with
+# ParaView's normals filter's default feature angle.
+CREASE_DEGREES = 30.0
 
 
 @dataclass(frozen=True)
@@ -145,13 +148,16 @@ class MeshSet:
     """The triangles of a frame's meshes under one BVH, as the kernels read them.
 
     triangles: float32 (T, 3, 4), the three vertices of each triangle in BVH
-    order (w of the first: the mesh index, as float); nodes: float32 (M, 2, 4),
+    order (w of the first: the mesh index, as float); normals: uint32 (T, 3),
+    the smooth-shading normal at each corner (`corner_normals`), octahedron
+    coded (`encode_normals`); nodes: float32 (M, 2, 4),
     each node's lower and upper corner (world), their w the int32 bits of the
     node's (first, count): an inner node (count 0) has its children at first and
     first + 1, a leaf holds triangles first .. first + count - 1."""
 
     paths: tuple[str, ...]
     triangles: np.ndarray
+    normals: np.ndarray
     nodes: np.ndarray
     dropped: int
 
@@ -184,6 +190,7 @@ def build_mesh_set(meshes) -> MeshSet:
         vertices = np.concatenate([m.vertices for m in meshes])
         faces = np.concatenate([m.faces + o for m, o in zip(meshes, offsets)])
     owner = np.concatenate([np.full(len(m.faces), k, np.float32) for k, m in enumerate(meshes)])
+    vertex_owner = np.concatenate([np.full(len(m.vertices), k) for k, m in enumerate(meshes)])
     # a triangle in an axis plane has a flat box: the tree needs volume
     pad = np.float32(1e-6) * np.float32(max(float(np.abs(vertices).max()), 1e-30))
     lo, hi = _boxes(vertices, faces, pad)
@@ -194,10 +201,150 @@ def build_mesh_set(meshes) -> MeshSet:
                              f"{MAX_TREE_DEPTH}")
     node_lo, node_hi = tree_bounds(first, count, order, lo, hi)
     triangles = _in_order(vertices, faces, owner, order)
+    normals = encode_normals(corner_normals(vertices, faces, vertex_owner))[order]
     nodes = np.zeros((len(first), 2, 4), np.float32)
     nodes[:, 0, :3], nodes[:, 1, :3] = node_lo, node_hi
     nodes[:, :, 3] = np.stack([first, count], axis=1).astype(np.int32).view(np.float32)
-    return MeshSet(tuple(m.path for m in meshes), triangles, nodes, sum(m.dropped for m in meshes))
+    return MeshSet(tuple(m.path for m in meshes), triangles, normals, nodes,
+                   sum(m.dropped for m in meshes))
+
+
+def corner_normals(vertices, faces, vertex_owner=None, crease_degrees: float = CREASE_DEGREES):
+    """float32 (F, 3, 3): the smooth-shading normal at each corner of each face
+    (docs/design.md, "Meshes"): the unit sum, weighted by their angle at the
+    corner's point, of the unit normals of the faces that meet at that point
+    and turn from this face by at most `crease_degrees` (a sharper edge stays
+    sharp: a cube is flat). Vertices at the same float32 position count as one
+    point (an STL's unshared triangles are smooth too), unless `vertex_owner`
+    (each vertex's mesh) differs: meshes do not smooth into each other."""
+    vertices = np.asarray(vertices, np.float64)
+    faces = np.asarray(faces, np.int64)
+    owner = (np.zeros(len(vertices), np.uint64) if vertex_owner is None
+             else np.asarray(vertex_owner).astype(np.uint64))
+    bits = (vertices.astype(np.float32) + np.float32(0.0)).view(np.uint32).astype(np.uint64)
+    order, first = _group((bits[:, 0] << np.uint64(32)) | bits[:, 1],
+                          (bits[:, 2] << np.uint64(32)) | owner)
+    point = np.empty(len(vertices), np.int64)
+    point[order] = np.cumsum(first) - 1
+    corner_point = point[faces].reshape(-1)
+    start, by_point = _corners_by_point(corner_point, int(point.max()) + 1 if len(point) else 0)
+    return _corner_normals(vertices, faces, corner_point, by_point, start,
+                           np.cos(np.radians(crease_degrees)))
+
+
+@numba.njit(cache=True)
+def _corners_by_point(corner_point, n_points):
+    """(start, by_point): the corners (3 f + j) grouped by point, point k's at
+    by_point[start[k]:start[k + 1]] (a counting sort)."""
+    start = np.zeros(n_points + 1, np.int64)
+    for p in corner_point:
+        start[p + 1] += 1
+    for k in range(n_points):
+        start[k + 1] += start[k]
+    fill = start[:-1].copy()
+    by_point = np.empty(corner_point.shape[0], np.int64)
+    for c in range(corner_point.shape[0]):
+        p = corner_point[c]
+        by_point[fill[p]] = c
+        fill[p] += 1
+    return start, by_point
+
+
+def _group(high, low):
+    """(order, first): an order of the keys (high, low) that puts equal keys
+    together, and where each group starts in it. Sorted by a hash (a fifth of a
+    lexicographic sort's time), falling back to that sort if two keys share one."""
+    mixed = (high * np.uint64(0x9E3779B97F4A7C15)) ^ low
+    mixed ^= mixed >> np.uint64(29)
+    order = np.argsort(mixed, kind="stable")
+    h, lo = high[order], low[order]
+    same = (h[1:] == h[:-1]) & (lo[1:] == lo[:-1])
+    if np.any((mixed[order][1:] == mixed[order][:-1]) & ~same):  # a collision
+        order = np.lexsort((low, high))
+        h, lo = high[order], low[order]
+        same = (h[1:] == h[:-1]) & (lo[1:] == lo[:-1])
+    return order, np.concatenate([[True], ~same])
+
+
+@numba.njit(cache=True, parallel=True)
+def _corner_normals(vertices, faces, point, by_point, start, cos_crease):
+    """corner_normals' sums, with scalars only (no temporaries in the loops)."""
+    f = faces.shape[0]
+    unit = np.zeros((f, 3))
+    angle = np.zeros((f, 3))
+    for i in numba.prange(f):
+        ux, uy, uz = (vertices[faces[i, 1], 0] - vertices[faces[i, 0], 0], vertices[faces[i, 1], 1] - vertices[faces[i, 0], 1],
+                      vertices[faces[i, 1], 2] - vertices[faces[i, 0], 2])
+        vx, vy, vz = (vertices[faces[i, 2], 0] - vertices[faces[i, 0], 0], vertices[faces[i, 2], 1] - vertices[faces[i, 0], 1],
+                      vertices[faces[i, 2], 2] - vertices[faces[i, 0], 2])
+        nx, ny, nz = uy * vz - uz * vy, uz * vx - ux * vz, ux * vy - uy * vx
+        length = np.sqrt(nx * nx + ny * ny + nz * nz)
+        if length > 0.0:
+            unit[i, 0], unit[i, 1], unit[i, 2] = nx / length, ny / length, nz / length
+        for j in range(3):
+            q, r = (j + 1) % 3, (j + 2) % 3
+            ex, ey, ez = (vertices[faces[i, q], 0] - vertices[faces[i, j], 0], vertices[faces[i, q], 1] - vertices[faces[i, j], 1],
+                          vertices[faces[i, q], 2] - vertices[faces[i, j], 2])
+            gx, gy, gz = (vertices[faces[i, r], 0] - vertices[faces[i, j], 0], vertices[faces[i, r], 1] - vertices[faces[i, j], 1],
+                          vertices[faces[i, r], 2] - vertices[faces[i, j], 2])
+            d = np.sqrt((ex * ex + ey * ey + ez * ez) * (gx * gx + gy * gy + gz * gz))
+            if d > 0.0:
+                angle[i, j] = np.arccos(min(1.0, max(-1.0, (ex * gx + ey * gy + ez * gz) / d)))
+    out = np.zeros((f, 3, 3), np.float32)
+    for i in numba.prange(f):
+        for j in range(3):
+            k = point[3 * i + j]
+            sx = sy = sz = 0.0
+            for m in range(start[k], start[k + 1]):
+                o = by_point[m] // 3
+                if unit[o, 0] * unit[i, 0] + unit[o, 1] * unit[i, 1] + unit[o, 2] * unit[i, 2] \
+                        >= cos_crease:
+                    w = angle[o, by_point[m] % 3]
+                    sx += w * unit[o, 0]
+                    sy += w * unit[o, 1]
+                    sz += w * unit[o, 2]
+            length = np.sqrt(sx * sx + sy * sy + sz * sz)
+            if length > 0.0:
+                out[i, j, 0], out[i, j, 1], out[i, j, 2] = sx / length, sy / length, sz / length
+            else:
+                out[i, j, 0], out[i, j, 1], out[i, j, 2] = unit[i, 0], unit[i, 1], unit[i, 2]
+    return out
+
+
+def encode_normals(normals) -> np.ndarray:
+    """uint32 (...): unit normals (..., 3) in octahedron coding (Cigolle et al.
+    2014), 16 bits per coordinate (x in the low half); kernels/mesh.cl decodes."""
+    n = np.ascontiguousarray(normals, np.float32)
+    return _encode(n.reshape(-1, 3)).reshape(n.shape[:-1])
+
+
+@numba.njit(cache=True, parallel=True)
+def _encode(n):
+    out = np.empty(n.shape[0], np.uint32)
+    for i in numba.prange(n.shape[0]):
+        x, y, z = np.float64(n[i, 0]), np.float64(n[i, 1]), np.float64(n[i, 2])
+        s = abs(x) + abs(y) + abs(z)
+        if s > 0.0:
+            x, y, z = x / s, y / s, z / s
+        if z < 0.0:
+            x, y = (1.0 - abs(y)) * (1.0 if x >= 0.0 else -1.0), (1.0 - abs(x)) * (1.0 if y >= 0.0 else -1.0)
+        u = np.uint32(np.round((min(1.0, max(-1.0, x)) * 0.5 + 0.5) * 65535.0))
+        v = np.uint32(np.round((min(1.0, max(-1.0, y)) * 0.5 + 0.5) * 65535.0))
+        out[i] = u | (v << np.uint32(16))
+    return out
+
+
+def decode_normals(codes) -> np.ndarray:
+    """float64 (..., 3) unit normals of encode_normals' codes (the kernel's rule)."""
+    codes = np.asarray(codes, np.uint32)
+    u = (codes & 0xFFFF) / 65535.0 * 2.0 - 1.0
+    v = (codes >> 16) / 65535.0 * 2.0 - 1.0
+    z = 1.0 - np.abs(u) - np.abs(v)
+    t = np.maximum(-z, 0.0)
+    x = u - np.where(u >= 0.0, t, -t)
+    y = v - np.where(v >= 0.0, t, -t)
+    n = np.stack([x, y, z], -1)
+    return n / np.linalg.norm(n, axis=-1, keepdims=True)
 
 
 @numba.njit(cache=True, parallel=True)
@@ -275,7 +422,7 @@ def save_mesh_set(meshes: MeshSet, path: Path) -> None:
     """`meshes` as an uncompressed .npz (MESH_SET_VERSION)."""
     with open(path, "wb") as f:
         np.savez(f, version=np.int64(MESH_SET_VERSION), triangles=meshes.triangles,
-                 nodes=meshes.nodes, dropped=np.int64(meshes.dropped))
+                 normals=meshes.normals, nodes=meshes.nodes, dropped=np.int64(meshes.dropped))
 
 
 def load_mesh_set(path: Path, paths) -> MeshSet:
@@ -294,10 +441,10 @@ def load_mesh_set(path: Path, paths) -> MeshSet:
                 or sum(m.file_size for m in members) > size):
             raise ExabricksError(f"{where}: not a stored .npz of meshes")
         with np.load(path, allow_pickle=False) as npz:
-            if sorted(npz.files) != ["dropped", "nodes", "triangles", "version"]:
+            names = ("version", "triangles", "normals", "nodes", "dropped")
+            if sorted(npz.files) != sorted(names):
                 raise ExabricksError(f"{where}: holds {sorted(npz.files)}, not a mesh set")
-            version, triangles, nodes, dropped = (npz[n] for n in
-                                                  ("version", "triangles", "nodes", "dropped"))
+            version, triangles, normals, nodes, dropped = (npz[n] for n in names)
     except (OSError, ValueError, zipfile.BadZipFile, EOFError) as e:
         raise ExabricksError(f"{where}: not a readable mesh set ({e})") from None
     if version.shape != () or int(version) != MESH_SET_VERSION:
@@ -305,7 +452,8 @@ def load_mesh_set(path: Path, paths) -> MeshSet:
     t = triangles.shape[0] if triangles.ndim == 3 else 0
     if (triangles.dtype != np.float32 or triangles.shape != (t, 3, 4) or not 1 <= t <= MAX_TRIANGLES
             or nodes.dtype != np.float32 or nodes.ndim != 3 or nodes.shape[1:] != (2, 4)
-            or not 1 <= nodes.shape[0] <= 2 * t or dropped.shape != () or int(dropped) < 0):
+            or not 1 <= nodes.shape[0] <= 2 * t or dropped.shape != () or int(dropped) < 0
+            or normals.dtype != np.uint32 or normals.shape != (t, 3)):
         raise ExabricksError(f"{where}: arrays of shapes {triangles.shape}, {nodes.shape} are not "
                              "a mesh set")
     xyz = triangles[:, :, :3]
@@ -320,4 +468,4 @@ def load_mesh_set(path: Path, paths) -> MeshSet:
         raise ExabricksError(f"{where}: mesh BVH boxes that are not finite or are inverted")
     links = np.ascontiguousarray(nodes[:, :, 3]).view(np.int32)
     check_tree(links[:, 0], links[:, 1], t, where, "mesh BVH", "triangle")
-    return MeshSet(tuple(str(p) for p in paths), triangles, nodes, int(dropped))
+    return MeshSet(tuple(str(p) for p in paths), triangles, normals, nodes, int(dropped))

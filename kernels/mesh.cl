@@ -15,6 +15,7 @@
 /* The meshes of a frame (exabricks.mesh.MeshSet and frame_arrays). */
 typedef struct {
     __global const float4 *tri;    /* 3 per triangle; tri[3i].w: its mesh */
+    __global const uint *normal;   /* 3 per triangle: its corners' shading normals (octahedron) */
     __global const float4 *node;   /* 2 per node: lower and upper corner, their w the
                                       bits of (first, count): inner nodes count 0 */
     __global const float4 *color;  /* per mesh: r, g, b, opacity */
@@ -89,6 +90,33 @@ EB_INLINE float3 eb_triangle_normal(eb_meshes *m, int i)
 {
     float3 a = m->tri[3 * i].xyz;
     return normalize(cross(m->tri[3 * i + 1].xyz - a, m->tri[3 * i + 2].xyz - a));
+}
+
+/* A unit normal from its octahedron code (exabricks.mesh.encode_normals). */
+EB_INLINE float3 eb_decode_normal(uint code)
+{
+    float u = (float)(code & 0xFFFFu) * (2.0f / 65535.0f) - 1.0f;
+    float v = (float)(code >> 16) * (2.0f / 65535.0f) - 1.0f;
+    float z = 1.0f - fabs(u) - fabs(v);
+    float t = fmax(-z, 0.0f);
+    return normalize((float3)(u - copysign(t, u), v - copysign(t, v), z));
+}
+
+/* The smooth-shading normal of triangle i at world point x on it: its corners'
+ * normals (exabricks.mesh.corner_normals) weighted by x's barycentric
+ * coordinates (clamped to the triangle); not normalised. */
+EB_INLINE float3 eb_triangle_shading_normal(eb_meshes *m, int i, float3 x)
+{
+    float3 a = m->tri[3 * i].xyz;
+    float3 e1 = m->tri[3 * i + 1].xyz - a, e2 = m->tri[3 * i + 2].xyz - a, d = x - a;
+    float d00 = dot(e1, e1), d01 = dot(e1, e2), d11 = dot(e2, e2);
+    float d20 = dot(d, e1), d21 = dot(d, e2);
+    float den = d00 * d11 - d01 * d01;
+    float b1 = den > 0.0f ? clamp((d11 * d20 - d01 * d21) / den, 0.0f, 1.0f) : 0.0f;
+    float b2 = den > 0.0f ? clamp((d00 * d21 - d01 * d20) / den, 0.0f, 1.0f - b1) : 0.0f;
+    __global const uint *c = m->normal + 3 * i;
+    return (1.0f - b1 - b2) * eb_decode_normal(c[0]) + b1 * eb_decode_normal(c[1])
+           + b2 * eb_decode_normal(c[2]);
 }
 
 EB_INLINE int eb_triangle_mesh(eb_meshes *m, int i)

@@ -71,6 +71,7 @@ __kernel void eb_render(__constant eb_params *P, int4 band, int sample_index,
         fr.look.gradient_scale[f] = look_f4[P->gradient_scale_at / 4 + f].xyz;
     fr.surf.mesh.tri = meshes + P->mesh_tris_at;
     fr.surf.mesh.node = meshes + P->mesh_nodes_at;
+    fr.surf.mesh.normal = (__global const uint *)(meshes + P->mesh_normals_at);
     fr.surf.mesh.color = look_f4 + P->mesh_colors_at / 4;
     fr.surf.mesh.info = (__global const int4 *)(look_i + P->mesh_info_at);
     fr.surf.mesh.n_meshes = P->n_meshes;

@@ -143,19 +143,23 @@ EB_COLD float eb_refine_crossing(eb_frame *fr, eb_ray *ray, int f, float iso,
     return da != db ? ta + (tb - ta) * (da / (da - db)) : 0.5f * (ta + tb);
 }
 
-/* Composite a surface hit at distance t of normal n (any length and side),
- * colour rgb and opacity a: headlight and specular, ambient occlusion. */
+/* Composite a surface hit at distance t of normal n (any length and side) and
+ * shading normal ns (on n's side; a mesh's smooth normal, else n), colour rgb
+ * and opacity a: headlight and specular from ns, ambient occlusion about n. */
 EB_INLINE int eb_shade_hit(eb_frame *fr, eb_ray *ray, eb_ray_state *st, float t, float3 n,
-                           float3 rgb, float a)
+                           float3 ns, float3 rgb, float a)
 {
     if (!(a > 0.0f))
         return 0;
-    float n2 = dot(n, n);
+    float n2 = dot(n, n), s2 = dot(ns, ns);
     n = n2 > 0.0f ? n * rsqrt(n2) : -ray->dir_world;
-    if (dot(n, ray->dir_world) > 0.0f)
-        n = -n;  /* toward the viewer */
+    ns = s2 > 0.0f ? ns * rsqrt(s2) : n;
+    if (dot(n, ray->dir_world) > 0.0f) {  /* toward the viewer */
+        n = -n;
+        ns = -ns;
+    }
     if (fr->shade) {
-        float c = -dot(n, ray->dir_world);
+        float c = fmax(-dot(ns, ray->dir_world), 0.0f);
         rgb = rgb * (EB_AMBIENT + EB_DIFFUSE * c);
         if (fr->P->specular > 0.0f)
             rgb += fr->P->specular * pow(c, fr->P->shininess);
@@ -168,15 +172,19 @@ EB_INLINE int eb_shade_hit(eb_frame *fr, eb_ray *ray, eb_ray_state *st, float t,
     return eb_composite(st, a, rgb, t, fr->max_opacity);
 }
 
-/* Colour, opacity and normal of mesh triangle i hit at lattice point p: the
- * mesh's colour, or its colour map of a field where that field has data. */
-EB_INLINE float4 eb_mesh_look(eb_frame *fr, int i, float3 p, float3 *n)
+/* Colour, opacity, normal and shading normal of mesh triangle i hit at lattice
+ * point p, world point x: the mesh's colour, or its colour map of a field where
+ * that field has data. */
+EB_INLINE float4 eb_mesh_look(eb_frame *fr, int i, float3 p, float3 x, float3 *n, float3 *ns)
 {
     eb_meshes *m = &fr->surf.mesh;
     int k = eb_triangle_mesh(m, i);
     float4 c = m->color[k];
     int4 info = m->info[k];
     *n = eb_triangle_normal(m, i);
+    *ns = eb_triangle_shading_normal(m, i, x);
+    if (dot(*ns, *n) < 0.0f)
+        *ns = -*ns;
     if (info.x >= 0) {
         eb_basis_sums s = eb_evaluate(fr, p, 0);
         if (s.weight > 0.0f)
@@ -194,8 +202,9 @@ EB_COLD int eb_surface_hit(eb_frame *fr, eb_ray *ray, eb_ray_state *st, float t,
     float3 n, rgb;
     float a;
     if (j < 0 && k < 0) {
-        float4 c = eb_mesh_look(fr, -1 - k, p, &n);
-        return eb_shade_hit(fr, ray, st, t, n, c.xyz, c.w);
+        float3 ns;
+        float4 c = eb_mesh_look(fr, -1 - k, p, ray->org_world + t * ray->dir_world, &n, &ns);
+        return eb_shade_hit(fr, ray, st, t, n, ns, c.xyz, c.w);
     }
     int level;
     eb_basis_sums s = eb_evaluate_at(fr, p, 1, &level);
@@ -216,7 +225,7 @@ EB_COLD int eb_surface_hit(eb_frame *fr, eb_ray *ray, eb_ray_state *st, float t,
         rgb = eb_lookup(fr->look, slice.y, slice.z, value[slice.x]).xyz;
         a = fr->surf.slice_point[k].w;
     }
-    return eb_shade_hit(fr, ray, st, t, n, rgb, a);
+    return eb_shade_hit(fr, ray, st, t, n, n, rgb, a);
 }
 
 /* Composite every surface hit before distance t_limit: iso crossings between

@@ -187,6 +187,69 @@ def scene_of(field, camera, tf, meshes=(), clip=None, size=48, **settings):
                  settings=Settings(width=size, height=size, jitter=False, **settings))
 
 
+def test_corner_normals_are_smooth_within_the_crease_angle_and_sharp_beyond():
+    """An icosphere's corner normals lie within a degree of the sphere's radius, for
+    its shared vertices as for an STL's unshared ones; every corner of a cube
+    (90 degree edges) keeps its face's normal; the octahedron code keeps a
+    normal to 0.02 degree (16 bits a coordinate)."""
+    from exabricks.mesh import corner_normals, decode_normals, encode_normals
+
+    sphere = trimesh.creation.icosphere(subdivisions=3)
+    corners = sphere.vertices[sphere.faces]
+    radial = corners / np.linalg.norm(corners, axis=-1, keepdims=True)
+    smooth = corner_normals(sphere.vertices, sphere.faces)
+    assert np.degrees(np.arccos(np.clip((smooth * radial).sum(-1), -1, 1))).max() < 1.0
+    unshared = corner_normals(corners.reshape(-1, 3), np.arange(corners.size // 3).reshape(-1, 3))
+    np.testing.assert_array_equal(unshared, smooth)
+    box = trimesh.creation.box()
+    np.testing.assert_allclose(corner_normals(box.vertices, box.faces),
+                               np.repeat(box.face_normals[:, None], 3, axis=1), atol=1e-7)
+    back = decode_normals(encode_normals(smooth))
+    assert np.degrees(np.arccos(np.clip((back * smooth).sum(-1), -1, 1))).max() < 0.02
+
+
+@device_param
+def test_smooth_shading_interpolates_the_corner_normals(device, tmp_path):
+    """An opaque coarse icosphere under the headlight: each pixel is the float64
+    shading of the corner normals interpolated at its ray's nearest hit
+    (Moller-Trumbore over every triangle), not its facet's flat normal."""
+    from exabricks.mesh import decode_normals, mesh_set
+
+    bricks, regions, bvh, field, camera, tf = built_scene(GERRIS, "T")
+    lo, hi = (np.asarray(b, np.float64) for b in bricks_bounds(bricks))
+    path, _ = icosphere_file(tmp_path, (lo + hi) / 2, 0.45 * float((hi - lo).min()), 2)
+    r = Renderer(bricks, regions, bvh, field=field, device=device)
+    scene = scene_of(field, camera, None, [MeshLayer(str(path), color=(1.0, 1.0, 1.0))])
+    got = r.render_scene(scene.replace(lighting=Lighting(shading="headlight"))).rgba
+    meshes = mesh_set((str(path),))
+    tri = meshes.triangles[:, :, :3].astype(np.float64)
+    normals = decode_normals(meshes.normals)
+    origins, dirs = camera.rays(48, 48)
+    o, d = origins.reshape(-1, 3), dirs.reshape(-1, 3)
+    a, e1, e2 = tri[:, 0], tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]
+    p = np.cross(d[:, None], e2[None])
+    det = (e1[None] * p).sum(-1)
+    s = o[:, None] - a[None]
+    u = (s * p).sum(-1) / det
+    q = np.cross(s, e1[None])
+    v = (d[:, None] * q).sum(-1) / det
+    t = (e2[None] * q).sum(-1) / det
+    t = np.where((u >= 0) & (v >= 0) & (u + v <= 1) & (t > 0), t, np.inf)
+    k = np.argmin(t, axis=1)
+    hit = np.isfinite(t[np.arange(len(k)), k])
+    b1, b2 = u[np.arange(len(k)), k], v[np.arange(len(k)), k]
+    ns = (1 - b1 - b2)[:, None] * normals[k, 0] + b1[:, None] * normals[k, 1] + b2[:, None] * normals[k, 2]
+    ns /= np.linalg.norm(ns, axis=1, keepdims=True)
+    flat = np.cross(e1, e2)[k]
+    flat /= np.linalg.norm(flat, axis=1, keepdims=True)
+    light = lambda n: 0.3 + 0.7 * np.abs((n * d).sum(1))
+    want, facets = light(ns)[hit], light(flat)[hit]
+    pixels = got.reshape(-1, 4)[hit]
+    assert hit.sum() > 400
+    np.testing.assert_allclose(pixels[:, :3], np.repeat(want[:, None], 3, axis=1), atol=2e-4)
+    assert np.abs(want - facets).max() > 0.02  # the facets would show
+
+
 @device_param
 def test_an_opaque_sphere_mesh_has_the_analytic_sphere_depth(device, tmp_path):
     """Depth of an opaque icosphere against the exact sphere: each hit lies between
@@ -431,6 +494,7 @@ def test_the_bvh_is_cached_by_content_and_checked_when_read_back(tmp_path, monke
     def same(a, b):
         np.testing.assert_array_equal(a.triangles, b.triangles)
         np.testing.assert_array_equal(a.nodes, b.nodes)
+        np.testing.assert_array_equal(a.normals, b.normals)
         assert a.dropped == b.dropped
 
     with monkeypatch.context() as m:
@@ -439,8 +503,8 @@ def test_the_bvh_is_cached_by_content_and_checked_when_read_back(tmp_path, monke
     good = entry.read_bytes()
 
     def crafted(**change):
-        arrays = {"version": np.int64(1), "triangles": built.triangles, "nodes": built.nodes,
-                  "dropped": np.int64(0), **change}
+        arrays = {"version": np.int64(mesh.MESH_SET_VERSION), "triangles": built.triangles,
+                  "normals": built.normals, "nodes": built.nodes, "dropped": np.int64(0), **change}
         with open(entry, "wb") as f:
             np.savez(f, **arrays)
 

@@ -375,10 +375,15 @@ class Renderer:
         if self._mesh_upload is None or self._mesh_upload[0] != paths:
             self._mesh_upload = None  # the old buffer goes before the new one comes
             meshes = mesh_set(paths) if paths else None
-            words = (np.zeros(4, np.float32) if meshes is None else
-                     np.concatenate([meshes.triangles.reshape(-1, 4), meshes.nodes.reshape(-1, 4)]))
+            at, words = {}, np.zeros(4, np.float32)
+            if meshes is not None:
+                normals = np.zeros(-(-meshes.normals.size // 4) * 4, np.uint32)
+                normals[:meshes.normals.size] = meshes.normals.reshape(-1)
+                t, n = meshes.n_triangles, len(meshes.nodes)
+                words = np.concatenate([meshes.triangles.reshape(-1, 4), meshes.nodes.reshape(-1, 4),
+                                        normals.view(np.float32).reshape(-1, 4)])
+                at = {"mesh_tris_at": 0, "mesh_nodes_at": 3 * t, "mesh_normals_at": 3 * t + 2 * n}
             buffers = (opencl.to_device(self.dataset.queue, words),)
-            at = {} if meshes is None else {"mesh_tris_at": 0, "mesh_nodes_at": 3 * meshes.n_triangles}
             self._mesh_set = meshes
             self._mesh_upload = (paths, buffers, at)
         return self._mesh_upload[1], self._mesh_upload[2]
