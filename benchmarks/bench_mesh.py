@@ -48,24 +48,39 @@ What it says (issue 37's targets: a 10 M-triangle mesh adds at most 30 % to a
 
 - **The frame: missed for a translucent mesh, met for an opaque one.** At
   opacity 0.3 every ray walks the mesh BVH once (26 levels at 10 M triangles)
-  and composites the hit. Taken apart at 10 M triangles (in one process, 3
-  frames each): the surface build of the kernel costs 3.5 % (one triangle out
-  of view: 771 against 746 ms); the walk's box tests 29 % (the triangle test
-  switched off, so that nothing is hit: 989 ms); the triangle tests and the
-  hits' shading and compositing the other 10 %. The triangle test reads each
-  vertex in the ray's axis order with one vector permute; that made no
-  difference, so the walk over the nodes is what a wider or compressed BVH
-  would have to cut. An opaque sheet hides the volume behind it and the frame gets cheaper.
-  Before the sample packets learnt to composite as a vector when no surface hit
-  falls among their lanes (and to span regions when there is no iso-surface),
-  the translucent 1 M sheet cost 1.46x.
-- **The build: met at 1 M triangles, 2.5 % short at 10 M.** It is the regions'
-  binned-SAH builder: its top six levels split breadth first until there are 64
-  subtrees, now a level's nodes at once on the two threads (the same tree:
-  checked array for array), then the subtrees on the threads. At 10 M triangles
-  the first split still passes over every triangle on one thread.
+  and composites the hit. Taken apart at 10 M triangles, before smooth
+  shading (in one process, 3 frames each): the surface build of the kernel
+  costs 3.5 % (one triangle out of view: 771 against 746 ms); the walk's box
+  tests 29 % (the triangle test switched off, so that nothing is hit: 989 ms);
+  the triangle tests and the hits' shading and compositing the other 10 %.
+  The triangle test reads each vertex in the ray's axis order with one vector
+  permute; that made no difference, so the walk over the nodes is what a wider
+  or compressed BVH would have to cut. Smooth shading (the corners' normals
+  interpolated at each hit) took the translucent 10 M sheet from 1.41x to
+  about 1.46x. An opaque sheet hides the volume behind it and the frame gets
+  cheaper. Before the sample packets learnt to composite as a vector when no
+  surface hit falls among their lanes (and to span regions when there is no
+  iso-surface), the translucent 1 M sheet cost 1.46x.
+- **The BVH: met at 1 M triangles, 3 % short at 10 M.** Timed on its own at
+  10 M triangles (the boxes, the tree, its bounds and the triangles in tree
+  order): 5.15 s, 1.94 M triangles/s, as before the normals. It is the
+  regions' binned-SAH builder: its top six levels split breadth first until
+  there are 64 subtrees, a level's nodes at once on the two threads (the same
+  tree: checked array for array), then the subtrees on the threads. At 10 M
+  triangles the first split still passes over every triangle on one thread.
+  The table's *BVH M triangles/s* (the build less the normals timed alone) is
+  lower: it also holds the normals' coding and their order in the tree.
+- **The normals** cost about as much as the BVH at 10 M triangles: the points
+  grouped by position (a sort of a hash of the 5 M vertices' float32
+  coordinates), the corners grouped by point (a counting sort), then each
+  point's corners summed with the point's faces in cache.
 - **Reading** a 10 M-triangle binary PLY through trimesh takes longer than the
-  build (9.4 s).
+  build. A later process takes the set (BVH and normals) from the cache of
+  built structures (docs/design.md, "Sources and the cache of built
+  structures"): `.venv/bin/python -m benchmarks.bench_mesh_cache
+  bench-data/meshes/sheet2237.ply` read, built and stored the 10 M-triangle
+  sheet in 21.2 s and took it from the cache in 2.9 s (hashing the 190 MB
+  file, reading the 756 MB entry and checking it) on 2026-12-05.
 """
 
 

@@ -228,8 +228,7 @@ def corner_normals(vertices, faces, vertex_owner=None, crease_degrees: float = C
     point[order] = np.cumsum(first) - 1
     corner_point = point[faces].reshape(-1)
     start, by_point = _corners_by_point(corner_point, int(point.max()) + 1 if len(point) else 0)
-    return _corner_normals(vertices, faces, corner_point, by_point, start,
-                           np.cos(np.radians(crease_degrees)))
+    return _corner_normals(vertices, faces, by_point, start, np.cos(np.radians(crease_degrees)))
 
 
 @numba.njit(cache=True)
@@ -267,7 +266,7 @@ def _group(high, low):
 
 
 @numba.njit(cache=True, parallel=True)
-def _corner_normals(vertices, faces, point, by_point, start, cos_crease):
+def _corner_normals(vertices, faces, by_point, start, cos_crease):
     """corner_normals' sums, with scalars only (no temporaries in the loops)."""
     f = faces.shape[0]
     unit = np.zeros((f, 3))
@@ -291,9 +290,9 @@ def _corner_normals(vertices, faces, point, by_point, start, cos_crease):
             if d > 0.0:
                 angle[i, j] = np.arccos(min(1.0, max(-1.0, (ex * gx + ey * gy + ez * gz) / d)))
     out = np.zeros((f, 3, 3), np.float32)
-    for i in numba.prange(f):
-        for j in range(3):
-            k = point[3 * i + j]
+    for k in numba.prange(start.shape[0] - 1):  # by point: its faces stay in cache
+        for mc in range(start[k], start[k + 1]):
+            i, j = by_point[mc] // 3, by_point[mc] % 3
             sx = sy = sz = 0.0
             for m in range(start[k], start[k + 1]):
                 o = by_point[m] // 3
