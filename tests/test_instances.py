@@ -173,6 +173,11 @@ def test_the_flag_and_the_scene_key(tmp_path):
         scene_from_options(bricks, flags={"mirror": [("w", "0")]})
     with pytest.raises(ExabricksError, match="mirror: expected an axis"):
         scene_from_options(bricks, flags={"mirror": [("x", "nan")]})
+    with pytest.raises(ExabricksError, match="--mirror: a mirror .* within 1e"):
+        scene_from_options(bricks, flags={"mirror": [("x", "1e300")]})  # before the camera
+    path.write_text(json.dumps({"instances": [{"translate": [0, 1e31, 0]}]}))
+    with pytest.raises(ExabricksError, match=r"instances\[0\]: a translation .* within 1e"):
+        scene_from_options(bricks, scene_path=path)
     path.write_text(json.dumps({"instances": [{"rotate": [0, 0, 0, 30]}]}))
     with pytest.raises(ExabricksError, match=r"instances\[0\].*non-zero axis"):
         scene_from_options(bricks, scene_path=path)

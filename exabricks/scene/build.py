@@ -320,7 +320,10 @@ def _clip(file: SceneFile, f) -> Clip:
 def _instances(file: SceneFile, f) -> tuple[Instance, ...]:
     if f["mirror"] is not None:
         option = next(o for o in SCENE_OPTIONS if o.name == "mirror")
-        return tuple(Instance(mirror=plane) for plane in option.coerce(f["mirror"]))
+        out = tuple(Instance(mirror=plane) for plane in option.coerce(f["mirror"]))
+        for instance in out:
+            _within("--mirror", instance.check)
+        return out
     out = []
     for i, e in enumerate(file.get("instances", default=[])):
         mirror = e.get("mirror")

@@ -35,6 +35,8 @@ MAX_MESHES = 16
 # Instances besides the identity (exabricks.engine.instances).
 MAX_INSTANCES = 7
 AXES = ("x", "y", "z")
+# Positions an instance may move the data to (beyond, float32 ray arithmetic overflows).
+MAX_COORDINATE = 1e30
 # Mesh hits a ray composites, the nearest (kernels/mesh.cl).
 MAX_MESH_HITS = 8
 
@@ -119,16 +121,17 @@ class Instance:
 
     def check(self) -> None:
         if self.mirror is not None and (self.mirror[0] not in AXES
-                                        or not np.isfinite(float(self.mirror[1]))):
-            raise ExabricksError(f"a mirror is an axis (x, y or z) and a finite position, "
-                                 f"got {list(self.mirror)}")
+                                        or not abs(float(self.mirror[1])) <= MAX_COORDINATE):
+            raise ExabricksError(f"a mirror is an axis (x, y or z) and a position within "
+                                 f"{MAX_COORDINATE:g}, got {list(self.mirror)}")
         if self.rotate is not None:
             r = np.asarray(self.rotate, np.float64)
             if not (r.shape == (4,) and np.all(np.isfinite(r)) and r[:3] @ r[:3] > 0):
                 raise ExabricksError(f"a rotation is a non-zero axis x, y, z and an angle in "
                                      f"degrees, all finite, got {list(self.rotate)}")
-        if not (len(self.translate) == 3 and np.all(np.isfinite(self.translate))):
-            raise ExabricksError(f"a translation is three finite numbers, got {list(self.translate)}")
+        if not (len(self.translate) == 3 and np.all(np.abs(self.translate) <= MAX_COORDINATE)):
+            raise ExabricksError(f"a translation is three numbers within {MAX_COORDINATE:g}, "
+                                 f"got {list(self.translate)}")
 
 
 @dataclass(frozen=True)
