@@ -177,9 +177,7 @@ class Camera:
         whole image when a corner is not in front of the eye; None when the
         box is outside the image or wholly behind the eye."""
         origin, forward, du, dv = self.frame(width, height)
-        lower, upper = np.asarray(lower, np.float64), np.asarray(upper, np.float64)
-        corners = np.array([[(lower, upper)[(k >> a) & 1][a] for a in range(3)]
-                            for k in range(8)]) - origin
+        corners = box_corners(lower, upper) - origin
         depth = corners @ forward
         size = float(np.abs(corners).max()) or 1.0
         if (depth <= 0.0).all():  # wholly behind the eye
@@ -214,6 +212,12 @@ class Camera:
         directions /= np.linalg.norm(directions, axis=-1, keepdims=True)
         origins = np.broadcast_to(origin, directions.shape).copy()
         return origins, directions
+
+
+def box_corners(lower, upper) -> np.ndarray:
+    """float64 (8, 3): the corners of the box [lower, upper]."""
+    lower, upper = np.asarray(lower, np.float64), np.asarray(upper, np.float64)
+    return np.array([[(lower, upper)[(k >> a) & 1][a] for a in range(3)] for k in range(8)])
 
 
 def default_camera(lower_world, upper_world, *, fovy: float = 30.0) -> Camera:

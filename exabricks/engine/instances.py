@@ -28,7 +28,7 @@ from itertools import combinations
 
 import numpy as np
 
-from ..camera import Camera
+from ..camera import Camera, box_corners
 from ..errors import ExabricksError
 from ..scene.model import MAX_CLIP_PLANES, Clip, Scene
 
@@ -117,7 +117,7 @@ def visibility_order(box, maps, eye) -> list[int]:
     a cycle no single order can draw."""
     if box is None:
         return list(range(len(maps)))
-    corners = np.array([[box[(k >> a) & 1][a] for a in range(3)] for k in range(8)])
+    corners = box_corners(*box)
     placed = [corners @ r.T + t for r, t in maps]
     size = float(np.abs(np.concatenate(placed)).max()) or 1.0
     eye = np.asarray(eye, np.float64)

@@ -136,7 +136,7 @@ def _file_colour(file: SceneFile, spec: dict, *path) -> _Colour:
 
 def _camera(bricks, file: SceneFile, camera_path, f, instances=()) -> Camera:
     from .. import schema
-    from ..camera import default_camera
+    from ..camera import box_corners, default_camera
 
     inline = file.get("camera")
     if camera_path is not None:
@@ -146,8 +146,7 @@ def _camera(bricks, file: SceneFile, camera_path, f, instances=()) -> Camera:
     elif inline is not None:
         camera = _within(file.at("camera"), Camera.from_json, file.camera_file())
     else:
-        lo, hi = (np.asarray(b, np.float64) for b in schema.world_bounds(bricks))
-        corners = np.array([[(lo, hi)[(k >> a) & 1][a] for a in range(3)] for k in range(8)])
+        corners = box_corners(*schema.world_bounds(bricks))
         placed = np.concatenate([corners] + [corners @ r.T + t for r, t in
                                              (i.affine() for i in instances)])
         camera = default_camera(placed.min(0), placed.max(0))  # on every copy
