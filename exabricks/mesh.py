@@ -272,20 +272,21 @@ def _corner_normals(vertices, faces, by_point, start, cos_crease):
     unit = np.zeros((f, 3))
     angle = np.zeros((f, 3))
     for i in numba.prange(f):
-        ux, uy, uz = (vertices[faces[i, 1], 0] - vertices[faces[i, 0], 0], vertices[faces[i, 1], 1] - vertices[faces[i, 0], 1],
-                      vertices[faces[i, 1], 2] - vertices[faces[i, 0], 2])
-        vx, vy, vz = (vertices[faces[i, 2], 0] - vertices[faces[i, 0], 0], vertices[faces[i, 2], 1] - vertices[faces[i, 0], 1],
-                      vertices[faces[i, 2], 2] - vertices[faces[i, 0], 2])
+        a, b, c = faces[i, 0], faces[i, 1], faces[i, 2]
+        ux, uy, uz = vertices[b, 0] - vertices[a, 0], vertices[b, 1] - vertices[a, 1], \
+            vertices[b, 2] - vertices[a, 2]
+        vx, vy, vz = vertices[c, 0] - vertices[a, 0], vertices[c, 1] - vertices[a, 1], \
+            vertices[c, 2] - vertices[a, 2]
         nx, ny, nz = uy * vz - uz * vy, uz * vx - ux * vz, ux * vy - uy * vx
         length = np.sqrt(nx * nx + ny * ny + nz * nz)
         if length > 0.0:
             unit[i, 0], unit[i, 1], unit[i, 2] = nx / length, ny / length, nz / length
         for j in range(3):
-            q, r = (j + 1) % 3, (j + 2) % 3
-            ex, ey, ez = (vertices[faces[i, q], 0] - vertices[faces[i, j], 0], vertices[faces[i, q], 1] - vertices[faces[i, j], 1],
-                          vertices[faces[i, q], 2] - vertices[faces[i, j], 2])
-            gx, gy, gz = (vertices[faces[i, r], 0] - vertices[faces[i, j], 0], vertices[faces[i, r], 1] - vertices[faces[i, j], 1],
-                          vertices[faces[i, r], 2] - vertices[faces[i, j], 2])
+            p, q, r = faces[i, j], faces[i, (j + 1) % 3], faces[i, (j + 2) % 3]
+            ex, ey, ez = vertices[q, 0] - vertices[p, 0], vertices[q, 1] - vertices[p, 1], \
+                vertices[q, 2] - vertices[p, 2]
+            gx, gy, gz = vertices[r, 0] - vertices[p, 0], vertices[r, 1] - vertices[p, 1], \
+                vertices[r, 2] - vertices[p, 2]
             d = np.sqrt((ex * ex + ey * ey + ez * ez) * (gx * gx + gy * gy + gz * gz))
             if d > 0.0:
                 angle[i, j] = np.arccos(min(1.0, max(-1.0, (ex * gx + ey * gy + ez * gz) / d)))

@@ -37,9 +37,10 @@ def over(front, back):
     return front + (1.0 - front[..., 3:4]) * back
 
 
-def frame(renderer, camera, field, tf, *, meshes=(), clip=Clip(), inst=(), spp=1, sample=None,
+def frame(renderer, camera, field, tf, *, meshes=(), clip=None, inst=(), spp=1, sample=None,
           depth=False):
-    scene = Scene(camera=camera, volumes=(VolumeLayer(field, tf),), meshes=tuple(meshes), clip=clip,
+    scene = Scene(camera=camera, volumes=(VolumeLayer(field, tf),), meshes=tuple(meshes),
+                  clip=clip or Clip(),
                   instances=tuple(inst), lighting=Lighting(shading="headlight", specular=0.3),
                   settings=Settings(width=SIZE, height=SIZE, jitter=False, max_opacity=1.0, spp=spp,
                                     depth=depth))

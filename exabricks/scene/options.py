@@ -22,9 +22,10 @@ class Option:
     """One render option.
 
     kind: "float", "int", "text", "file" (an existing file), "choice" (one of
-    `choices`), "plane" (an axis x, y or z and a finite position, nargs 2), "numbers" (comma-separated numbers in [0, 1], as many as one of
-    `counts`, or any number), "flag" (--name/--no-name), "size" (bytes: 2G,
-    512MiB). `low`/`high` bound a float or int (open bounds when `low_open`,
+    `choices`), "plane" (an axis x, y or z and a finite position, nargs 2),
+    "numbers" (comma-separated numbers in [0, 1], as many as one of `counts`,
+    or any number), "flag" (--name/--no-name), "size" (bytes: 2G, 512MiB).
+    `low`/`high` bound a float or int (open bounds when `low_open`,
     `high_open`); floats must be finite unless `finite` is False (the camera
     vectors, which the camera itself checks and names).
     """
