@@ -17,8 +17,9 @@ from exabricks.engine import instances
 from exabricks.engine.renderer import Renderer
 from exabricks.errors import ExabricksError
 from exabricks.parallel import needs_image_mode
-from exabricks.scene import scene_from_options, scene_to_dict
-from exabricks.scene.model import Clip, Instance, Lighting, MeshLayer, Scene, Settings, VolumeLayer
+from exabricks.scene import field_range, scene_from_options, scene_to_dict
+from exabricks.scene.model import (Clip, Instance, IsoSurface, Lighting, MeshLayer, Scene, Settings,
+                                   Slice, VolumeLayer)
 
 from conftest import AMREX, GERRIS, assert_one_error_line, built_scene, device_param, run_cli
 from test_mesh import icosphere_file
@@ -38,9 +39,9 @@ def over(front, back):
 
 
 def frame(renderer, camera, field, tf, *, meshes=(), clip=None, inst=(), spp=1, sample=None,
-          depth=False):
+          depth=False, isosurfaces=(), slices=()):
     scene = Scene(camera=camera, volumes=(VolumeLayer(field, tf),), meshes=tuple(meshes),
-                  clip=clip or Clip(),
+                  clip=clip or Clip(), isosurfaces=tuple(isosurfaces), slices=tuple(slices),
                   instances=tuple(inst), lighting=Lighting(shading="headlight", specular=0.3),
                   settings=Settings(width=SIZE, height=SIZE, jitter=False, max_opacity=1.0, spp=spp,
                                     depth=depth))
@@ -52,28 +53,38 @@ def cells_box(lo, hi):
 
 
 @device_param
-@pytest.mark.parametrize("with_mesh", [False, True])
-def test_a_mirror_is_the_frame_of_the_mirrored_camera_reversed(amrex, device, with_mesh, tmp_path):
+@pytest.mark.parametrize("extra", ["volume", "mesh", "surfaces"])
+def test_a_mirror_is_the_frame_of_the_mirrored_camera_reversed(amrex, device, extra, tmp_path):
     """The data mirrored across its face x = 0, seen from the data's side: the frame
     of the data (cut at its cells' box) over the frame of the mirrored camera with
-    its columns reversed; with a translucent mesh too (ambient occlusion draws its rays from the pixel:
-    a reversed frame draws other ones)."""
+    its columns reversed (its slice mirrored too); with a translucent mesh, or an
+    iso-surface and a slice through the copy (ambient occlusion draws its rays
+    from the pixel: a reversed frame draws other ones)."""
     bricks, regions, bvh, field, tf, lo, hi = amrex
     renderer = Renderer(bricks, regions, bvh, field=field, device=device)
-    meshes = ()
-    if with_mesh:
+    m = np.diag([-1.0, 1.0, 1.0])
+    flip = lambda p: tuple(m @ (np.asarray(p) - lo) + lo)
+    meshes, isos, slices, mirrored_slices = (), (), (), ()
+    if extra == "mesh":
         path, _ = icosphere_file(tmp_path, (lo + hi) / 2, 0.3 * float((hi - lo).min()), 3)
         meshes = (MeshLayer(str(path), opacity=0.6),)
+    if extra == "surfaces":
+        lo_v, hi_v = (float(x) for x in field_range(bricks, field))
+        isos = (IsoSurface(field, lo_v + 0.6 * (hi_v - lo_v), opacity=0.5),)
+        point, normal = (lo[0] - 0.3, 0.5, 0.5), (1.0, 0.3, 0.0)  # through the copy only
+        slices = (Slice(point, normal, field, tf, opacity=0.7),)
+        mirrored_slices = (Slice(flip(point), tuple(m @ normal), field, tf, opacity=0.7),)
     c, e = (lo + hi) / 2, float((hi - lo).max())
     cam = Camera(position=tuple(c + np.array([0.4, -2.8, 1.4]) * e),
                  look_at=tuple(c - [0.5 * e, 0.0, 0.0]), up=(0, 0, 1), fovy=40)
     mirror = Instance(mirror=("x", float(lo[0])))
-    got = frame(renderer, cam, field, tf, meshes=meshes, inst=[mirror], depth=True)
-    m = np.diag([-1.0, 1.0, 1.0])
-    flip = lambda p: tuple(m @ (np.asarray(p) - lo) + lo)
+    got = frame(renderer, cam, field, tf, meshes=meshes, inst=[mirror], depth=True,
+                isosurfaces=isos, slices=slices)
     mirrored = Camera(position=flip(cam.position), look_at=flip(cam.look_at), up=(0, 0, 1), fovy=40)
-    front = frame(renderer, cam, field, tf, meshes=meshes, clip=cells_box(lo, hi), depth=True)
-    back = frame(renderer, mirrored, field, tf, meshes=meshes, clip=cells_box(lo, hi), depth=True)
+    front = frame(renderer, cam, field, tf, meshes=meshes, clip=cells_box(lo, hi), depth=True,
+                  isosurfaces=isos, slices=slices)
+    back = frame(renderer, mirrored, field, tf, meshes=meshes, clip=cells_box(lo, hi), depth=True,
+                 isosurfaces=isos, slices=mirrored_slices)
     want = over(front.rgba, back.rgba[:, ::-1])
     assert got.stats["instance_order"] == [0, 1]
     assert front.rgba[..., 3].max() > 0.3 and back.rgba[..., 3].max() > 0.3

@@ -88,7 +88,8 @@ def same(a, b):
 CASES = [("gerris", "emission", 2), ("gerris", "emission", 8),
          pytest.param("gerris", "emission", 64, marks=pytest.mark.slow),
          ("amrex", "central", 8), pytest.param("athena", "spp", 8, marks=pytest.mark.slow),
-         ("enzo", "clip-slice", 8), ("amrex", "two-layers", 3),
+         pytest.param("enzo", "clip-slice", 8, marks=pytest.mark.slow), ("enzo", "clip-slice", 3),
+         ("amrex", "two-layers", 3),
          pytest.param("gerris", "nearest", 4, marks=pytest.mark.slow), ("enzo", "emission", 4)]
 
 
