@@ -53,7 +53,10 @@ def cells_box(lo, hi):
 
 
 @device_param
-@pytest.mark.parametrize("extra", ["volume", "mesh", "surfaces"])
+# with surfaces a frame of instances builds a program variant of its own (domain and
+# surfaces): the slow suite runs those
+@pytest.mark.parametrize("extra", ["volume", pytest.param("mesh", marks=pytest.mark.slow),
+                                   pytest.param("surfaces", marks=pytest.mark.slow)])
 def test_a_mirror_is_the_frame_of_the_mirrored_camera_reversed(amrex, device, extra, tmp_path):
     """The data mirrored across its face x = 0, seen from the data's side: the frame
     of the data (cut at its cells' box) over the frame of the mirrored camera with

@@ -117,9 +117,10 @@ def assert_same_frame(packet, single, width=PACKET_WIDTH):
         assert np.array_equal(np.isfinite(packet.depth), np.isfinite(single.depth))
 
 
-# Athena++'s heaviest modes run in the slow suite (each mode stays on the other three
-# datasets in the fast one).
-SLOW = {("athena", "lod"), ("athena", "iso"), ("athena", "emission"), ("athena", "vertex")}
+# The heaviest frames run in the slow suite (each mode stays on two or three datasets
+# in the fast one).
+SLOW = {("athena", "lod"), ("athena", "iso"), ("athena", "emission"), ("athena", "vertex"),
+        ("amrex", "lod")}
 CASES = [pytest.param(name, mode, marks=pytest.mark.slow) if (name, mode) in SLOW else (name, mode)
          for name in sorted(DATASETS) for mode in MODES]
 
