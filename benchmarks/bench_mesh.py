@@ -8,10 +8,10 @@ N x N vertices (2 (N - 1)^2 triangles) whose height is a sum of sines, written a
 binary PLY under bench-data/meshes/. For each size:
 
 - *build*: `exabricks.mesh.build_mesh_set` of the read mesh in this process (the
-  median of --runs after a warm-up, so numba's compiled code is loaded), and of
-  it the smooth-shading corner normals (`corner_normals`, timed on their own in
-  the same runs): the BVH's triangles per second (the build less the normals),
-  BVH nodes and depth; and reading the file (trimesh).
+  median of --runs after a warm-up, so numba's compiled code is loaded), and its
+  two parts timed on their own in the same runs: the BVH (`mesh_bvh`: triangles
+  per second, nodes and depth) and the smooth-shading corner normals
+  (`corner_normals`); and reading the file (trimesh).
 - *frame*: an AMReX frame at --size (default camera, viridis with an opacity ramp
   0 -> 0.1 over the field's range, headlight shading), with
   no mesh, with the sheet opaque (it hides the volume behind it: fewer samples)
@@ -37,7 +37,8 @@ tree of the regions' builder (`stages.bvh.build_tree`, 16 bins, leaves of at mos
 four triangles, both cores), the node boxes and the triangles in tree order, and
 the smooth-shading normals of every corner (*normals*: `corner_normals`, the
 points grouped by position, angle-weighted face normals within the crease angle).
-*BVH M triangles/s*: triangles over the build less the normals.
+*BVH*: `mesh_bvh` alone (the boxes, the tree, its bounds, the triangles in its
+order).
 *Read*: trimesh's binary PLY reader and our checks. *Frame*: the kernel's time
 of one 1024² AMReX frame (default camera, viridis with an opacity ramp 0 → 0.1,
 headlight shading); *opaque*: the sheet at opacity 1, which ends every ray that
@@ -61,16 +62,18 @@ What it says (issue 37's targets: a 10 M-triangle mesh adds at most 30 % to a
   cheaper. Before the sample packets learnt to composite as a vector when no
   surface hit falls among their lanes (and to span regions when there is no
   iso-surface), the translucent 1 M sheet cost 1.46x.
-- **The BVH: met at 1 M triangles, 3 % short at 10 M.** Timed on its own at
-  10 M triangles (the boxes, the tree, its bounds and the triangles in tree
-  order): 5.15 s, 1.94 M triangles/s, as before the normals. It is the
-  regions' binned-SAH builder: its top six levels split breadth first until
-  there are 64 subtrees, a level's nodes at once on the two threads (the same
-  tree: checked array for array), then the subtrees on the threads. At 10 M
-  triangles the first split still passes over every triangle on one thread.
-  The table's *BVH M triangles/s* (the build less the normals timed alone) is
-  lower: it also holds the normals' coding and their order in the tree.
-- **The normals** cost about as much as the BVH at 10 M triangles: the points
+- **The BVH: met at 1 M triangles (2.27 M/s), at 10 M 1.97 M/s here, 1.5 %
+  short.** It is the regions' binned-SAH builder: its top six
+  levels split breadth first until there are 64 subtrees, a level's nodes at
+  once on the two threads, then the subtrees on the threads. The first split,
+  which nothing runs beside, now makes its two passes over every triangle (the
+  centroids' bounds, then the bins) in parts on both threads, merged
+  (`stages.bvh._split_root`): at 10 M triangles 5.15 s (1.94 M/s) became
+  5.08 s in this table's runs, which come between full builds, and 4.9 s
+  (2.04 M/s) in two runs of the BVH alone; the trees are the same, array for
+  array (tested on the Gerris cell supports, and checked on this 10 M-triangle
+  sheet).
+- **The normals** cost nearly as much as the BVH at 10 M triangles: the points
   grouped by position (a sort of a hash of the 5 M vertices' float32
   coordinates), the corners grouped by point (a counting sort), then each
   point's corners summed with the point's faces in cache.
@@ -119,7 +122,7 @@ def main(argv=None) -> int:
     import exabricks as eb
     from exabricks import schema
     from exabricks.engine.renderer import Renderer
-    from exabricks.mesh import build_mesh_set, corner_normals, read_mesh
+    from exabricks.mesh import build_mesh_set, corner_normals, mesh_bvh, read_mesh
     from exabricks.scene.model import MeshLayer
     from exabricks.stages.bvh import tree_depths
     from benchmarks.peers.common import ALPHA_SCALE, DATASETS
@@ -137,11 +140,15 @@ def main(argv=None) -> int:
         mesh = read_mesh(path)
         read_s = time.perf_counter() - t
         build_mesh_set([mesh])  # warm-up: numba's cached code
-        builds, normals = [], []
+        builds, trees, normals = [], [], []
+        owner = np.zeros(len(mesh.faces), np.float32)
         for _ in range(args.runs):
             t = time.perf_counter()
             meshes = build_mesh_set([mesh])
             builds.append(time.perf_counter() - t)
+            t = time.perf_counter()
+            mesh_bvh(mesh.vertices, mesh.faces, owner)
+            trees.append(time.perf_counter() - t)
             t = time.perf_counter()
             corner_normals(mesh.vertices, mesh.faces)
             normals.append(time.perf_counter() - t)
@@ -158,24 +165,25 @@ def main(argv=None) -> int:
             for k, s in variants.items():
                 times[k].append(renderer.render_scene(s).stats["ms"])
         base = statistics.median(times["no mesh"])
-        bvh_s = statistics.median(builds) - statistics.median(normals)
-        rows.append((count, meshes.n_triangles, read_s, builds, normals, bvh_s, len(meshes.nodes),
+        bvh_s = statistics.median(trees)
+        rows.append((count, meshes.n_triangles, read_s, builds, trees, normals, len(meshes.nodes),
                      depth, times, samples, base))
         print(f"{meshes.n_triangles:,} triangles: read {read_s:.2f} s, build "
-              f"{statistics.median(builds):.2f} s (normals {statistics.median(normals):.2f} s; BVH "
-              f"{meshes.n_triangles / bvh_s / 1e6:.2f} M/s), "
+              f"{statistics.median(builds):.2f} s (BVH {bvh_s:.2f} s, "
+              f"{meshes.n_triangles / bvh_s / 1e6:.2f} M/s; normals {statistics.median(normals):.2f} s), "
               + ", ".join(f"{k} {statistics.median(v):.0f} ms" for k, v in times.items()), flush=True)
 
     lines = [f"Command: `.venv/bin/python -m benchmarks.bench_mesh --triangles {args.triangles} "
              f"--size {args.size} --runs {args.runs}`", "",
              f"- machine: {benchdoc.machine(opencl=True)}", "",
-             "| triangles | read s | build s | of it normals s | BVH M triangles/s | nodes / depth | "
+             "| triangles | read s | build s | BVH s | BVH M triangles/s | normals s | nodes / depth | "
              "frame ms: no mesh | opaque (samples) | translucent 0.3 | translucent / no mesh |",
-             "|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
-    for _, n, read_s, builds, normals, bvh_s, nodes, depth, times, samples, base in rows:
+             "|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
+    for _, n, read_s, builds, trees, normals, nodes, depth, times, samples, base in rows:
         lines.append(
             f"| {n:,} | {read_s:.2f} | {benchdoc.fmt_spread(builds, 's', 2)} | "
-            f"{benchdoc.fmt_spread(normals, 's', 2)} | {n / bvh_s / 1e6:.2f} | "
+            f"{benchdoc.fmt_spread(trees, 's', 2)} | {n / statistics.median(trees) / 1e6:.2f} | "
+            f"{benchdoc.fmt_spread(normals, 's', 2)} | "
             f"{nodes:,} / {depth} | {benchdoc.fmt_spread(times['no mesh'], '', 0)} | "
             f"{benchdoc.fmt_spread(times['opaque'], '', 0)} ({samples['opaque']:,} of "
             f"{samples['no mesh']:,}) | {benchdoc.fmt_spread(times['translucent'], '', 0)} | "

@@ -177,8 +177,6 @@ class MeshSet:
 
 def build_mesh_set(meshes) -> MeshSet:
     """One MeshSet of `meshes` (Mesh), mesh k's triangles tagged k."""
-    from .stages.bvh import build_tree, tree_bounds, tree_depths
-
     total = sum(len(m.faces) for m in meshes)
     if total > MAX_TRIANGLES:
         raise ExabricksError(f"the meshes hold {total:,} triangles together, more than "
@@ -191,6 +189,17 @@ def build_mesh_set(meshes) -> MeshSet:
         faces = np.concatenate([m.faces + o for m, o in zip(meshes, offsets)])
     owner = np.concatenate([np.full(len(m.faces), k, np.float32) for k, m in enumerate(meshes)])
     vertex_owner = np.concatenate([np.full(len(m.vertices), k) for k, m in enumerate(meshes)])
+    triangles, nodes, order = mesh_bvh(vertices, faces, owner)
+    normals = encode_normals(corner_normals(vertices, faces, vertex_owner))[order]
+    return MeshSet(tuple(m.path for m in meshes), triangles, normals, nodes,
+                   sum(m.dropped for m in meshes))
+
+
+def mesh_bvh(vertices, faces, owner):
+    """(triangles, nodes, order) of a MeshSet: the binned-SAH BVH over the faces
+    (each tagged with its mesh `owner`), the triangles in its order."""
+    from .stages.bvh import build_tree, tree_bounds, tree_depths
+
     # a triangle in an axis plane has a flat box: the tree needs volume
     pad = np.float32(1e-6) * np.float32(max(float(np.abs(vertices).max()), 1e-30))
     lo, hi = _boxes(vertices, faces, pad)
@@ -201,12 +210,10 @@ def build_mesh_set(meshes) -> MeshSet:
                              f"{MAX_TREE_DEPTH}")
     node_lo, node_hi = tree_bounds(first, count, order, lo, hi)
     triangles = _in_order(vertices, faces, owner, order)
-    normals = encode_normals(corner_normals(vertices, faces, vertex_owner))[order]
     nodes = np.zeros((len(first), 2, 4), np.float32)
     nodes[:, 0, :3], nodes[:, 1, :3] = node_lo, node_hi
     nodes[:, :, 3] = np.stack([first, count], axis=1).astype(np.int32).view(np.float32)
-    return MeshSet(tuple(m.path for m in meshes), triangles, normals, nodes,
-                   sum(m.dropped for m in meshes))
+    return triangles, nodes, order
 
 
 def corner_normals(vertices, faces, vertex_owner=None, crease_degrees: float = CREASE_DEGREES):

@@ -189,8 +189,12 @@ def _build(lo, hi, leaf_size, bins, threads, piece=WHOLE):
                 taken += 1
             inner = [(s, e) for _, s, e in level[:taken] if e - s > leaf_size]
             split = lambda r: _split_node(cen, lo, hi, order, r[0], r[1], bins)  # noqa: E731
-            mids = iter(list(pool.map(split, inner)) if pool and len(inner) > 1
-                        else [split(r) for r in inner])
+            if pool and len(inner) > 1:
+                mids = iter(list(pool.map(split, inner)))
+            elif pool and inner:  # the first split: its passes on the threads
+                mids = iter([_split_root(cen, lo, hi, order, *inner[0], bins, threads)])
+            else:
+                mids = iter([split(r) for r in inner])
             for node, s, e in level[:taken]:
                 if e - s <= leaf_size:
                     first[node], count[node] = s, e - s
@@ -290,18 +294,32 @@ def _split_node(cen, lo, hi, order, s, e, bins):
     cen float64 (R, 3) centroids and lo, hi float32 (R, 3) boxes are in the
     order of `order` and permuted with it.
     """
-    m = e - s
-    inf = np.inf
-    cmin = np.empty(3)
-    cmax = np.empty(3)
-    scale = np.empty(3)
-    bcount = np.empty((3, bins), np.int64)
-    bbox = np.empty((3, bins, 6))
-    right_area = np.empty(bins)
-    right_count = np.empty(bins, np.int64)
-    for ax in range(3):
-        cmin[ax] = inf
-        cmax[ax] = -inf
+    nb = min(bins, e - s)  # a node of m regions needs no more than m bins (most nodes are small)
+    cmin, cmax = _centroid_bounds(cen, s, e)
+    scale = _scales(cmin, cmax, nb)
+    bcount, bbox = _binned(cen, lo, hi, s, e, cmin, cmax, scale, nb)
+    return _split_at_best(cen, lo, hi, order, s, e, nb, cmin, cmax, scale, bcount, bbox)
+
+
+def _split_root(cen, lo, hi, order, s, e, bins, chunks):
+    """_split_node with its two passes over the entries (their centroids' bounds,
+    then the bins) in `chunks` parts on numba's threads, merged: the same bounds,
+    counts and boxes (minima, maxima and sums do not depend on the order), so the
+    same split. For the first split, which no other split runs beside."""
+    nb = min(bins, e - s)
+    edges = np.linspace(s, e, chunks + 1).astype(np.int64)
+    lows, highs = _centroid_bounds_chunks(cen, edges)
+    cmin, cmax = lows.min(axis=0), highs.max(axis=0)
+    scale = _scales(cmin, cmax, nb)
+    counts, boxes = _binned_chunks(cen, lo, hi, edges, cmin, cmax, scale, nb)
+    bbox = np.concatenate([boxes[..., :3].min(axis=0), boxes[..., 3:].max(axis=0)], axis=-1)
+    return _split_at_best(cen, lo, hi, order, s, e, nb, cmin, cmax, scale, counts.sum(axis=0), bbox)
+
+
+@numba.njit(cache=True, nogil=True)
+def _centroid_bounds(cen, s, e):
+    cmin = np.full(3, np.inf)
+    cmax = np.full(3, -np.inf)
     for k in range(s, e):
         for ax in range(3):
             c = cen[k, ax]
@@ -309,13 +327,35 @@ def _split_node(cen, lo, hi, order, s, e, bins):
                 cmin[ax] = c
             if c > cmax[ax]:
                 cmax[ax] = c
-    # Bin every region by centroid on every axis, bins carrying box bounds;
-    # a node of m regions needs no more than m bins (small nodes are most nodes).
-    nb = min(bins, m)
+    return cmin, cmax
+
+
+@numba.njit(cache=True, parallel=True)
+def _centroid_bounds_chunks(cen, edges):
+    n = edges.shape[0] - 1
+    lows = np.empty((n, 3))
+    highs = np.empty((n, 3))
+    for i in numba.prange(n):
+        lows[i], highs[i] = _centroid_bounds(cen, edges[i], edges[i + 1])
+    return lows, highs
+
+
+@numba.njit(cache=True, nogil=True)
+def _scales(cmin, cmax, nb):
+    scale = np.empty(3)
     for ax in range(3):
         scale[ax] = nb / (cmax[ax] - cmin[ax]) if cmax[ax] > cmin[ax] else 0.0
+    return scale
+
+
+@numba.njit(cache=True, nogil=True)
+def _binned(cen, lo, hi, s, e, cmin, cmax, scale, nb):
+    """Every entry's bin by centroid on every axis: counts and boxes (lower, upper)."""
+    inf = np.inf
+    bcount = np.zeros((3, nb), np.int64)
+    bbox = np.empty((3, nb, 6))
+    for ax in range(3):
         for t in range(nb):
-            bcount[ax, t] = 0
             for q in range(3):
                 bbox[ax, t, q] = inf
                 bbox[ax, t, 3 + q] = -inf
@@ -330,6 +370,26 @@ def _split_node(cen, lo, hi, order, s, e, bins):
                     bbox[ax, t, q] = lo[k, q]
                 if hi[k, q] > bbox[ax, t, 3 + q]:
                     bbox[ax, t, 3 + q] = hi[k, q]
+    return bcount, bbox
+
+
+@numba.njit(cache=True, parallel=True)
+def _binned_chunks(cen, lo, hi, edges, cmin, cmax, scale, nb):
+    n = edges.shape[0] - 1
+    counts = np.empty((n, 3, nb), np.int64)
+    boxes = np.empty((n, 3, nb, 6))
+    for i in numba.prange(n):
+        counts[i], boxes[i] = _binned(cen, lo, hi, edges[i], edges[i + 1], cmin, cmax, scale, nb)
+    return counts, boxes
+
+
+@numba.njit(cache=True, nogil=True)
+def _split_at_best(cen, lo, hi, order, s, e, nb, cmin, cmax, scale, bcount, bbox):
+    """The SAH sweep over the bins, then the entries of the best side moved left."""
+    m = e - s
+    inf = np.inf
+    right_area = np.empty(nb)
+    right_count = np.empty(nb, np.int64)
     best_cost = inf
     best_axis = -1
     best_split = -1
