@@ -22,6 +22,9 @@ WORLD_DTYPE = np.dtype(np.float64)
 # supports): the kernels' private stacks hold this many deferred nodes
 # (kernel_abi EB_STACK_SIZE), and every tree is checked against it on load.
 MAX_TREE_DEPTH = 64
+# Largest world coordinate a mesh vertex or an instance's mirror or translation may
+# hold: beyond it, float32 ray arithmetic overflows.
+MAX_COORDINATE = 1e30
 # Samples one ray may take (per pixel sample): a sampling rate that would need
 # more is refused before rendering (and bounds every kernel loop).
 MAX_SAMPLES_PER_RAY = 1 << 20

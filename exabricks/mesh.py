@@ -26,7 +26,7 @@ from pathlib import Path
 import numba
 import numpy as np
 
-from .constants import MAX_TREE_DEPTH
+from .constants import MAX_COORDINATE, MAX_TREE_DEPTH
 from .errors import ExabricksError
 from .formats.memory import check_memory
 
@@ -37,8 +37,6 @@ SUFFIXES = (".obj", ".ply", ".stl")
 MAX_TRIANGLES = 1 << 26
 # Bytes a mesh file may hold (a binary STL of MAX_TRIANGLES is 3.4 GB).
 MAX_FILE_BYTES = 1 << 33
-# Coordinates a mesh may hold (beyond, float32 ray arithmetic overflows).
-MAX_COORDINATE = 1e30
 # The format of a cached MeshSet (save_mesh_set).
 MESH_SET_VERSION = 2
 # Edges sharper than this stay sharp in smooth shading (corner_normals), as with
@@ -131,7 +129,8 @@ def _checked(where: str, vertices: np.ndarray, faces: np.ndarray) -> Mesh:
         raise ExabricksError(f"{where}: triangle {t} refers to vertex {int(faces[t][out[t]][0])}, "
                              f"but the mesh has {len(vertices):,} vertices")
     if np.abs(vertices).max() > MAX_COORDINATE:
-        raise ExabricksError(f"{where}: vertex coordinates beyond 1e30 do not fit float32 arithmetic")
+        raise ExabricksError(f"{where}: vertex coordinates beyond {MAX_COORDINATE:g} do not fit "
+                             "float32 arithmetic")
     v = vertices.astype(np.float32)
     f = faces.astype(np.int32)
     a, b, c = v[f[:, 0]], v[f[:, 1]], v[f[:, 2]]
@@ -473,6 +472,6 @@ def load_mesh_set(path: Path, paths) -> MeshSet:
     if not (np.all(np.abs(box) <= np.float32(np.finfo(np.float32).max))
             and np.all(box[:, 0] <= box[:, 1])):
         raise ExabricksError(f"{where}: mesh BVH boxes that are not finite or are inverted")
-    links = np.ascontiguousarray(nodes[:, :, 3]).view(np.int32)
-    check_tree(links[:, 0], links[:, 1], t, where, "mesh BVH", "triangle")
-    return MeshSet(tuple(str(p) for p in paths), triangles, normals, nodes, int(dropped))
+    meshes = MeshSet(tuple(str(p) for p in paths), triangles, normals, nodes, int(dropped))
+    check_tree(meshes.links[:, 0], meshes.links[:, 1], t, where, "mesh BVH", "triangle")
+    return meshes

@@ -69,7 +69,8 @@ EB_INLINE int eb_mesh_seen(eb_ray_state *st, eb_meshes *m, int i, float t)
  * after its slices: the walk is pruned beyond the farthest kept hit once the
  * list is full, and beyond the first opaque hit, whose distance it returns
  * (+inf: none). A frame split by space has no meshes (the host refuses them,
- * exabricks.parallel.needs_image_mode), so no hit is another domain's. */
+ * exabricks.parallel.needs_image_mode), and an instance's domain is all of
+ * space (exabricks.engine.instances), so no hit is another domain's. */
 EB_INLINE float eb_mesh_hits(eb_frame *fr, eb_ray *ray, float t0, float t1, eb_ray_state *st)
 {
     eb_meshes *m = &fr->surf.mesh;

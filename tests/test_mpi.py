@@ -185,32 +185,25 @@ def test_the_library_and_a_source_under_mpiexec(tmp_path):
 
 
 @pytest.mark.slow
-def test_meshes_under_mpi_take_image_mode(gerris, cli, tmp_path):
-    """A frame with a mesh is split by the image (a mesh reaches beyond the data,
-    where no domain is): the same image as one process, in either mode."""
-    import trimesh
+@pytest.mark.parametrize("what", ["meshes", "instances"])
+def test_meshes_and_instances_under_mpi_take_image_mode(gerris, cli, tmp_path, what):
+    """A frame with a mesh (which reaches beyond the data, where no domain is) or a
+    mirrored copy (drawn from the whole dataset) is split by the image: the same
+    image as one process."""
+    if what == "meshes":
+        import trimesh
 
-    sphere = trimesh.creation.icosphere(subdivisions=3, radius=20.0)
-    sphere.apply_translation((64.0, 40.0, 64.0))
-    mesh = tmp_path / "sphere.ply"
-    sphere.export(mesh)
-    flags = [*FLAGS, "--mesh", mesh, "--mesh-opacity", 0.6, "--shading", "none"]
+        sphere = trimesh.creation.icosphere(subdivisions=3, radius=20.0)
+        sphere.apply_translation((64.0, 40.0, 64.0))
+        mesh = tmp_path / "sphere.ply"
+        sphere.export(mesh)
+        extra = ["--mesh", mesh, "--mesh-opacity", 0.6]
+    else:
+        extra = ["--mirror", "x", 0]
+    flags = [*FLAGS, *extra, "--shading", "none"]
     cli("render", *gerris, "-o", tmp_path / "one.exr", *flags, check=0)
     out = tmp_path / "data.exr"
     proc = mpirun(2, "render", *gerris, "-o", out, *flags)
     assert proc.returncode == 0, proc.stderr
     same_image(out, tmp_path / "one.exr", exact=True)
-    assert read_image(out)[1]["settings"]["mpi"]["image_mode_for"] == "meshes"
-
-
-@pytest.mark.slow
-def test_instances_under_mpi_take_image_mode(gerris, cli, tmp_path):
-    """A frame with a mirrored copy is split by the image (each copy is drawn from
-    the whole dataset): the same image as one process."""
-    flags = [*FLAGS, "--mirror", "x", 0, "--shading", "none"]
-    cli("render", *gerris, "-o", tmp_path / "one.exr", *flags, check=0)
-    out = tmp_path / "data.exr"
-    proc = mpirun(2, "render", *gerris, "-o", out, *flags)
-    assert proc.returncode == 0, proc.stderr
-    same_image(out, tmp_path / "one.exr", exact=True)
-    assert read_image(out)[1]["settings"]["mpi"]["image_mode_for"] == "instances"
+    assert read_image(out)[1]["settings"]["mpi"]["image_mode_for"] == what

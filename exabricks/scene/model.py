@@ -13,6 +13,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from ..camera import Camera
+from ..constants import MAX_COORDINATE
 from ..errors import ExabricksError
 from ..transfer_function import TransferFunction
 
@@ -35,8 +36,6 @@ MAX_MESHES = 16
 # Instances besides the identity (exabricks.engine.instances).
 MAX_INSTANCES = 7
 AXES = ("x", "y", "z")
-# Positions an instance may move the data to (beyond, float32 ray arithmetic overflows).
-MAX_COORDINATE = 1e30
 # Mesh hits a ray composites, the nearest (kernels/mesh.cl).
 MAX_MESH_HITS = 8
 
