@@ -123,6 +123,8 @@ bench: setup
 	$(PY) -m benchmarks.bench_reconstructions --write-docs
 	@# rendering under a memory budget: thin shells (whole frames, bands), Gerris posters
 	$(PY) -m benchmarks.bench_budget --write-docs
+	@# domains kept across samples, bands and frames, and prefetched (make_big.py's layouts)
+	$(PY) -m benchmarks.bench_domain_cache --write-docs
 
 # The thin shells at 204 M cells: every stage and budgeted renders, builders by
 # pieces, and MPI renders with 1, 2 and 4 ranks beside the 20.6 M-cell shells and

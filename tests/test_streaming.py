@@ -486,5 +486,76 @@ def test_samples_share_a_domain_read():
     stepwise = Budgeted(built.bricks, built.regions, scene, budget)
     seen = []
     steps = render_steps(stepwise, scene, on_image=lambda rgba, progress: seen.append(progress))
-    assert steps.stats["domain_reads"] == 4 * stepwise.n_domains and seen
+    # sample after sample, the domains the budget holds beside the next one stay
+    assert stepwise.n_domains < steps.stats["domain_reads"] < 4 * stepwise.n_domains and seen
     np.testing.assert_allclose(steps.rgba, result.rgba, rtol=0, atol=1e-6)
+
+
+def _optimal_misses(sequence, size: int, after=()) -> int:
+    """Belady's misses of a cache of `size` equal entries over `sequence`, with
+    `after` expected to follow it (reference)."""
+    held, misses = [], 0
+    sequence = list(sequence)
+    for k, index in enumerate(sequence):
+        if index in held:
+            continue
+        misses += 1
+        if len(held) == size:
+            rest = sequence[k + 1:] + list(after)
+            held.remove(max(held, key=lambda i: rest.index(i) if i in rest else len(rest)))
+        held.append(index)
+    return misses
+
+
+def test_resident_domains_are_given_up_in_belady_order(monkeypatch):
+    """Domains stay resident while the budget holds them beside a domain being
+    made (SLACK times its bytes); the one given up is the one asked for last. A
+    cyclic sweep (every sample, band or frame asks for the domains in one order)
+    then reads as few as the optimal cache does, where least-recently-used would
+    read every domain every time."""
+    from collections import deque
+    from types import SimpleNamespace
+
+    from exabricks.engine import streaming
+
+    made = []
+    monkeypatch.setattr(streaming, "domain_data", lambda b, r, lo, hi, **_: made.append(lo) or (None,) * 3)
+    monkeypatch.setattr(streaming, "Renderer", lambda *a, **k: object())
+    monkeypatch.setattr(streaming.schema, "release", lambda whole: None)
+    n, nbytes = 6, 1000
+    for resident in (1, 2, 3, 6):
+        domains = Budgeted.__new__(Budgeted)
+        domains.__dict__.update(
+            partition=SimpleNamespace(nbytes=np.full(n, nbytes), n_domains=n, lower=np.arange(n),
+                                      upper=np.arange(n) + 1),
+            capacity=int((resident - 1 + SLACK) * nbytes), n_domains=n, reads=0, prefetched=0,
+            prefetch=False, _cache={}, _future=deque(), _cycle=[], _last=None, _pending=None,
+            bricks=None, regions=None, fields=None, where=None, blocks=None, room=nbytes,
+            options={}, device=None, scale=None)
+        sweep = [0, 1, 2, 3, 4, 5, 5, 5]  # a domain's tiles and samples in a row count once
+        domains.expect(sweep * 2)
+        asked = [i for _ in range(3) for i in sweep]  # two sweeps expected, and one more frame
+        for index in asked:
+            domains.domain(index, None)
+            assert len(domains._cache) <= resident
+        runs = streaming._runs(asked)  # and after them, the expected order again
+        assert domains.reads == _optimal_misses(runs, resident, after=runs[:6] + runs[:12]), resident
+    assert domains.reads == n  # five beside the one made: each read once
+
+
+@pytest.mark.parametrize("name,tile", [("gerris", None), ("amrex", (40, 24))])
+def test_prefetched_domains_give_the_same_frame(name, tile):
+    """With prefetch, each next domain is made on a thread while the one before it
+    draws; the frame (whole, or in bands of tiles) equals the in-memory one, and
+    the domains are planned so that the budget holds both."""
+    built = loaded(name)[0]
+    scene = scene_for(name, "emission")
+    budget = budget_for(name, scene, 4)
+    domains = Budgeted(built.bricks, built.regions, scene, budget, tile=tile, prefetch=True)
+    assert domains.n_domains >= 4 and domains.room * (SLACK + 1) <= domains.capacity
+    if tile is None:
+        rgba = render_steps(domains, scene).rgba
+    else:
+        rgba = tiled(domains, scene, tile)[0]
+    same(rgba, renderer(name, None).render_scene(scene).rgba)
+    assert 0 < domains.prefetched < domains.reads

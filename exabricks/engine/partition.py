@@ -22,6 +22,7 @@ eye comes first, which is front to back along every ray of a pinhole camera.
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 
 import numba
@@ -35,7 +36,8 @@ from ..errors import ExabricksError
 class KdPartition:
     """Inner nodes i: axis[i] in 0..2, plane[i] (lattice units), children left[i],
     right[i] (node ids; a negative id -1 - k is domain k). `lower`, `upper`: float64
-    (n, 3) half-open boxes of the domains, +-inf on the outer faces."""
+    (n, 3) half-open boxes of the domains, +-inf on the outer faces. `nbytes`: int64
+    (n,) each domain's `domain_bytes`, where a budget planned it (else None)."""
 
     axis: np.ndarray
     plane: np.ndarray
@@ -43,6 +45,7 @@ class KdPartition:
     right: np.ndarray
     lower: np.ndarray
     upper: np.ndarray
+    nbytes: np.ndarray | None = None
 
     @property
     def n_domains(self) -> int:
@@ -166,18 +169,25 @@ def budget_partition(bricks: schema.Bricks, regions: schema.Regions, max_bytes: 
         for whole in (bricks, regions):  # mapped inputs: the plan's pages go back
             schema.release(whole)
         if need <= max_bytes:
+            needs[_box_key(lower, upper)] = need
             return None
         smallest[0] = min(smallest[0], need)
         return 0.5, None, None
 
-    smallest = [np.inf]
+    smallest, needs = [np.inf], {}
     try:
         grid = byte_grid(bricks, regions, grid_bytes, len(_field_rows(bricks, fields)))
-        return _kd_tree(*grid, split, None)
+        tree = _kd_tree(*grid, split, None)
+        return dataclasses.replace(tree, nbytes=np.array(
+            [needs[_box_key(lo, hi)] for lo, hi in zip(tree.lower, tree.upper)], np.int64))
     except _Uncuttable:
         raise ExabricksError(
             f"domains of {mib(max_bytes)} are too small for this dataset: the smallest domain it "
             f"can be cut into holds {mib(smallest[0])}") from None
+
+
+def _box_key(lower, upper) -> tuple:
+    return tuple(float(x) for x in (*lower, *upper))
 
 
 def mib(nbytes) -> str:

@@ -5,9 +5,14 @@ and progressive rendering, seed paper 004).
 A frame is drawn as steps: for each of its spp samples, each domain of the
 dataset front to back. Under a memory budget the domains are those of a k-d
 partition of space (exabricks.engine.partition.budget_partition) whose every
-domain, structures and device copies together, fits the budget; one domain is
-resident at a time, read from the mapped files (only its pages), rendered and
-dropped before the next is read. Each domain's rays continue from the image
+domain, structures and device copies together, fits the budget. A domain is
+read from the mapped files (only its pages) when a step needs it, and stays
+resident while the budget holds it beside the next one being made: domains
+are kept across samples, bands of tiles and frames, and the one given up for a
+new one is the one needed again last, in the order the frame will ask for
+them (the next frame's order assumed to be this one's; Belady's choice, which
+a cyclic sweep needs: a least-recently-used cache would miss every time).
+Each domain's rays continue from the image
 composited in front of it (kernels/render.cl EB_DOMAIN_ARGS `front`), so early
 ray termination carries from domain to domain and the frame equals the
 in-memory one up to float rounding. Without a budget the whole dataset is the
@@ -23,11 +28,13 @@ then says what it covers (`progress` in its stats).
 from __future__ import annotations
 
 import gc
+import threading
 import time
+from collections import deque
 
 import numpy as np
 
-from .. import schema
+from .. import opencl, schema
 from ..formats.memory import mapping
 from ..errors import ExabricksError
 from .device_data import DatasetScale
@@ -65,6 +72,9 @@ class Resident:
     def order(self, scene) -> list[int]:
         return [0]
 
+    def expect(self, indices) -> None:
+        pass
+
     def domain(self, index: int, scene) -> Renderer:
         return self.renderer
 
@@ -74,11 +84,14 @@ class Resident:
 
 class Budgeted:
     """The domains of a dataset (mapped, schema.load(mapped=True)) that each fit
-    `budget` bytes with the images of `scene` (SLACK, PER_BRICK); one is
-    resident at a time. `where`: the two files' names for errors."""
+    `budget` bytes with the images of `scene` (SLACK, PER_BRICK), kept resident
+    while the budget holds them (module docstring). `prefetch`: make the next
+    domain on a thread while the one before it draws (the domains are then
+    planned smaller, so that the budget holds both); default on devices that
+    are not CPUs. `where`: the two files' names for errors."""
 
     def __init__(self, bricks: schema.Bricks, regions: schema.Regions, scene, budget: int, *,
-                 device=None, where=("the bricks", "the regions"), tile=None):
+                 device=None, where=("the bricks", "the regions"), tile=None, prefetch=None):
         self.bricks, self.regions, self.device, self.where = bricks, regions, device, where
         self.budget, self.tile = int(budget), tile
         # where samples can be, in lattice units: the bricks' cells and half a
@@ -90,8 +103,15 @@ class Budgeted:
         self.fields = scene.fields()
         self.scale = DatasetScale.of(bricks, self.fields)
         self.blocks = region_blocks(regions)
-        self._current = (None, None)
-        self.reads = 0  # domains made so far
+        self._cache = {}  # domain index -> Renderer, least recently used first
+        self._last = self._pending = None  # the domain last asked for; one being prefetched
+        self._future, self._cycle = deque(), []  # the domains the frame will ask for next
+        if prefetch is None:  # where the host is idle while the device draws
+            chosen = device if device is not None and not isinstance(device, str) else \
+                opencl.choose_device(device)
+            prefetch = not opencl.is_cpu(chosen)
+        self.prefetch = bool(prefetch)
+        self.reads = self.prefetched = 0  # domains made so far, and of them on a thread
         self._plan(scene)
 
     def _plan(self, scene) -> None:
@@ -110,18 +130,21 @@ class Budgeted:
         self.samples_per_read = int(min(scene.settings.spp, 1 + (self.budget // 4) // max(frame, 1)))
         fixed = (image_bytes(scene, self.tile) + (self.samples_per_read - 1) * frame
                  + PER_BRICK * self.bricks.n_bricks + reads)
-        room = int((self.budget - fixed) / SLACK)
+        # a domain being made takes SLACK times its bytes; one made on a thread while
+        # the one before it draws (prefetch) takes that beside the one drawing
+        room = int((self.budget - fixed) / (SLACK + 1 if self.prefetch else SLACK))
         if room <= 0:
             raise ExabricksError(
                 f"a memory budget of {mib(self.budget)} leaves nothing for the data besides "
                 f"{mib(fixed)} of images, indices over the dataset's {self.bricks.n_bricks:,} "
                 f"bricks and reads from its files")
-        self.options, self.room = options, room
+        self.options, self.room, self.capacity = options, room, self.budget - fixed
+        self._settle()
+        self._cache.clear()
         self.partition = budget_partition(self.bricks, self.regions, room, fields=self.fields,
                                           where=self.where, grid_bytes=self.budget // 4,
                                           blocks=self.blocks, **options)
         self.n_domains = self.partition.n_domains
-        self._current = (None, None)
         if self.n_domains > 1:
             from ..parallel import needs_image_mode
 
@@ -149,22 +172,103 @@ class Budgeted:
         s = scene.settings
         return scene.camera.footprint(world(lo), world(hi), int(s.width), int(s.height))
 
+    def expect(self, indices) -> None:
+        """The domains that the steps to come will ask for, in order (repeats of the
+        same domain in a row counted once); after them, the same again."""
+        self._future = deque(_runs(indices))
+        self._cycle = list(self._future)
+
     def domain(self, index: int, scene) -> Renderer:
-        if self._current[0] == index:
-            return self._current[1]
-        self._current = (None, None)  # the previous domain goes before the next comes
+        if index == self._last and index in self._cache:  # its next tile or sample
+            return self._cache[index]
+        self._advance(index)
+        self._settle()
+        renderer = self._cache.pop(index, None)
+        if renderer is None:
+            self._make_room(SLACK * self._bytes(index))
+            renderer = self._make(index)
+        self._cache[index], self._last = renderer, index  # the most recently used
+        if self.prefetch:
+            self._prefetch()
+        return renderer
+
+    def _bytes(self, index: int) -> int:
+        return int(self.partition.nbytes[index])
+
+    def _make(self, index: int) -> Renderer:
+        """Read domain `index` from the files and upload it."""
         self.reads += 1
-        gc.collect()
-        schema.trim_heap()
         box = (self.partition.lower[index], self.partition.upper[index])
         data = domain_data(self.bricks, self.regions, *box, fields=self.fields, where=self.where,
-                          blocks=self.blocks, touch=self.room // 4, **self.options)
+                           blocks=self.blocks, touch=self.room // 4, **self.options)
         for whole in (self.bricks, self.regions):
             schema.release(whole)
-        renderer = Renderer(*data, fields=self.fields, device=self.device,
-                            domain=box if self.n_domains > 1 else None, scale=self.scale)
-        self._current = (index, renderer)
-        return renderer
+        return Renderer(*data, fields=self.fields, device=self.device,
+                        domain=box if self.n_domains > 1 else None, scale=self.scale)
+
+    def _prefetch(self) -> None:
+        """Make the next domain expected, on a thread while the current one draws,
+        where the budget holds it (SLACK times its bytes while it is made) beside
+        every resident domain."""
+        following = next((i for i in self._future if i not in self._cache), None)
+        if following is None or (sum(self._bytes(i) for i in self._cache)
+                                 + SLACK * self._bytes(following) > self.capacity):
+            return
+        made = {}
+
+        def make():
+            try:
+                made["renderer"] = self._make(following)
+            except BaseException as error:  # raised when the domain is asked for
+                made["error"] = error
+
+        thread = threading.Thread(target=make, name="exabricks-prefetch", daemon=True)
+        thread.start()
+        self._pending = (following, thread, made)
+        self.prefetched += 1
+
+    def _settle(self) -> None:
+        """Wait for the domain being prefetched: resident if it was made; an error
+        making it comes again when that domain is asked for."""
+        if self._pending is None:
+            return
+        index, thread, made = self._pending
+        self._pending = None
+        thread.join()
+        if "renderer" in made:  # resident, not yet used
+            self._cache = {index: made["renderer"], **self._cache}
+        else:
+            self.reads -= 1  # made again when asked for
+            self.prefetched -= 1
+
+    def _advance(self, index: int) -> None:
+        """`index` is asked for now: the expected order moves past it."""
+        if index in self._future:
+            while self._future.popleft() != index:
+                pass
+        if not self._future:
+            self._future.extend(self._cycle)
+
+    def _make_room(self, making: float) -> None:
+        """Give up resident domains until the rest and `making` bytes (a domain
+        being made) fit the budget: first those not expected again, then the
+        one expected last; among equals the least recently used."""
+        future = list(self._future) + self._cycle  # and after it, the same order again
+        far = len(future) + 1
+
+        def next_use(index):
+            return future.index(index) if index in future else far
+
+        held = sum(self._bytes(i) for i in self._cache)
+        gone = False
+        while self._cache and held + making > self.capacity:
+            victim = max(self._cache, key=next_use)  # the first of equals: least recent
+            held -= self._bytes(victim)
+            del self._cache[victim]
+            gone = True
+        if gone or not self._cache:
+            gc.collect()
+            schema.trim_heap()
 
 
 def render_steps(domains, scene, *, band=None, tile_width=None, deadline: float | None = None,
@@ -182,8 +286,7 @@ def render_steps(domains, scene, *, band=None, tile_width=None, deadline: float 
     cfg = scene.settings
     spp, width, height = int(cfg.spp), int(cfg.width), int(cfg.height)
     row0, rows = (0, height) if band is None else (int(band[0]), int(band[1]))
-    step = width if tile_width is None else int(tile_width)
-    tiles = [(c, row0, min(step, width - c), rows) for c in range(0, width, step)]
+    tiles = _band_tiles(width, row0, rows, tile_width)
     whole = tiles == [(0, 0, width, height)]
     if not whole and (deadline is not None or on_image is not None):
         raise ExabricksError("a band of tiles is drawn whole: no deadline or image so far")
@@ -191,11 +294,13 @@ def render_steps(domains, scene, *, band=None, tile_width=None, deadline: float 
     total = np.zeros((rows, width, 4), np.float32)
     order = domains.order(scene)
     several = domains.n_domains > 1
-    meets = {index: _tiles_met(tiles, domains.footprint(index, scene)) for index in order}
+    meets = _meets(domains, scene, order, tiles)
     start = time.perf_counter()
     samples, stats, done_samples, done_domains, drawn = 0, {}, 0, 0, rows
     depth = over = None
     group = domains.samples_per_read if deadline is None and on_image is None else 1
+    if band is None:  # render_tiled expects a band's domains for the whole frame
+        domains.expect([i for i in order if meets[i]] * -(-spp // group))
     if several and group > 1:
         for first in range(0, spp, group):
             over, stats, n = _group(domains, scene, plain, order, meets, whole, rows, width,
@@ -261,6 +366,8 @@ def render_steps(domains, scene, *, band=None, tile_width=None, deadline: float 
     if isinstance(domains, Budgeted):
         stats["memory_budget"] = domains.budget
         stats["domain_reads"] = domains.reads
+        if domains.prefetch:
+            stats["domains_prefetched"] = domains.prefetched
     return RenderResult(rgba, depth, stats)
 
 
@@ -293,6 +400,23 @@ def _group(domains, scene, plain, order, meets, whole, rows, width, group, total
     return overs[group[-1]], stats, samples
 
 
+def _runs(indices) -> list:
+    """`indices` with each run of one index in a row counted once."""
+    return [i for k, i in enumerate(indices) if k == 0 or indices[k - 1] != i]
+
+
+def _band_tiles(width: int, row0: int, rows: int, tile_width=None) -> list:
+    """The tiles (col0, row0, cols, rows) of a band of rows: `tile_width` columns each,
+    or the band whole."""
+    step = width if tile_width is None else int(tile_width)
+    return [(c, row0, min(step, width - c), rows) for c in range(0, width, step)]
+
+
+def _meets(domains, scene, order, tiles) -> dict:
+    """{domain: the tiles it can draw into}."""
+    return {index: _tiles_met(tiles, domains.footprint(index, scene)) for index in order}
+
+
 def _tiles_met(tiles, rect) -> list:
     """The tiles (col0, row0, cols, rows) that the pixel rectangle `rect` (col0,
     row0, col1, row1; None: nothing) meets."""
@@ -312,6 +436,13 @@ def render_tiled(domains, scene, tile, put, *, deadline: float | None = None,
     it. Returns the frame's stats (progress: rows [done, height])."""
     width, height = int(scene.settings.width), int(scene.settings.height)
     tile_w, tile_h = min(int(tile[0]), width), min(int(tile[1]), height)
+    order = domains.order(scene)
+    group = domains.samples_per_read
+    expected = []
+    for row0 in range(0, height, tile_h):
+        meets = _meets(domains, scene, order, _band_tiles(width, row0, min(tile_h, height - row0), tile_w))
+        expected += [i for i in order if meets[i]] * -(-int(scene.settings.spp) // group)
+    domains.expect(expected)
     start = time.perf_counter()
     stats, samples, done = {}, 0, 0
     for row0 in range(0, height, tile_h):
