@@ -19,7 +19,7 @@ from __future__ import annotations
 import numpy as np
 
 from .constants import MAX_SAMPLES_PER_RAY, MAX_TREE_DEPTH
-from .scene.model import MAX_ISOSURFACES, MAX_MESH_HITS, MAX_SLICES
+from .scene.model import MAX_INSTANCES, MAX_ISOSURFACES, MAX_MESH_HITS, MAX_SLICES
 from .scene.options import SCENE_OPTIONS
 
 # Samples a ray reconstructs at once on CPU devices (kernels/packet.cl): sixteen
@@ -38,6 +38,7 @@ LIMITS = {
     "EB_MAX_MESH_HITS": MAX_MESH_HITS,      # mesh hits a ray composites (the nearest)
     "EB_LOD_LEVELS": LOD_LEVELS,
     "EB_MAX_MIP": MAX_MIP,
+    "EB_MAX_COPIES": MAX_INSTANCES + 1,     # overlapping instances' copies, the data's included
 }
 TUNABLES = {
     "EB_QUEUE_SIZE": 64,   # the ordered walk's heap (traversal.cl); fuller walks re-trace
@@ -83,6 +84,8 @@ PARAMS = (
     ("tables_at", "int"), ("mesh_colors_at", "int"), ("mesh_info_at", "int"), ("n_meshes", "int"),
     # the meshes' buffer (exabricks.mesh.MeshSet): float4 offsets
     ("mesh_tris_at", "int"), ("mesh_nodes_at", "int"), ("mesh_normals_at", "int"),
+    # overlapping instances (kernels/mixture.cl): three float4 rows per copy in the look
+    ("copies_at", "int"), ("n_copies", "int"),
 ) + tuple((o.name, "float" if o.kind == "float" else "int") for o in SCENE_OPTIONS if o.kernel)
 
 _C_TYPES = {"float4": (np.float32, (4,)), "long": np.int64, "int": np.int32,
@@ -146,7 +149,7 @@ def header() -> str:
 
 def variant_defines(*, n_fields: int = 1, reconstruction: str = "basis", surfaces: bool = False,
                     lod: bool = False, packets: bool = False, domain: bool = False,
-                    cell_location: bool = False) -> tuple[str, ...]:
+                    cell_location: bool = False, mixture: bool = False) -> tuple[str, ...]:
     """The build defines of the render program for these choices (each a program
     of its own; the host checks which combinations exist before building)."""
     return ((f"EB_N_FIELDS={max(1, int(n_fields))}",)
@@ -155,4 +158,4 @@ def variant_defines(*, n_fields: int = 1, reconstruction: str = "basis", surface
             + (("EB_CELL_LOCATION",) if cell_location else ())
             + (("EB_SURFACES",) if surfaces else ()) + (("EB_LOD",) if lod else ())
             + ((f"EB_PACKET={PACKET_WIDTH}",) if packets else ())
-            + (("EB_DOMAIN",) if domain else ()))
+            + (("EB_DOMAIN",) if domain else ()) + (("EB_MIXTURE",) if mixture else ()))

@@ -54,6 +54,10 @@ typedef struct {
 #ifdef EB_DOMAIN
     float4 domain_lower, domain_upper;  /* this domain's half-open box, lattice space */
 #endif
+#ifdef EB_MIXTURE
+    __global const float4 *copies;      /* overlapping instances (mixture.cl) */
+    int n_copies;
+#endif
 } eb_frame;
 
 #ifdef EB_DOMAIN

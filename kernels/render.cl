@@ -5,6 +5,9 @@
 #include "camera.cl"
 #include "integrator.cl"
 #include "dataset.cl"
+#ifdef EB_MIXTURE
+#include "mixture.cl"
+#endif
 
 /* eb_render's domain arguments (-DEB_DOMAIN, a domain of a frame split by space:
  * frame.cl eb_in_domain): where use_front, the premultiplied RGBA of this sample
@@ -78,6 +81,10 @@ __kernel void eb_render(__constant eb_params *P, int4 band, int sample_index,
     fr.look.tables = look_f4;
     fr.look.table_at = look_i + P->tables_at;
     fr.look.table0 = fr.look.table_at[0];
+#ifdef EB_MIXTURE
+    fr.copies = look_f4 + P->copies_at / 4;
+    fr.n_copies = P->n_copies;
+#endif
 
     float jx = 0.5f, jy = 0.5f;
     if (spp > 1) {
@@ -104,12 +111,18 @@ __kernel void eb_render(__constant eb_params *P, int4 band, int sample_index,
         before = front[slot];
 #endif
     /* Constant shade/ordered arguments let the compiler drop the unused paths. */
+#ifdef EB_MIXTURE
+    c = P->shading ? eb_integrate_mixture(&fr, &ray, 1, &n, &t_depth, level_samples)
+                   : eb_integrate_mixture(&fr, &ray, 0, &n, &t_depth, level_samples);
+    (void)before;
+#else
     if (P->ordered)
         c = P->shading ? eb_integrate(&fr, &ray, 1, 1, before, &n, &t_depth, level_samples)
                     : eb_integrate(&fr, &ray, 0, 1, before, &n, &t_depth, level_samples);
     else
         c = P->shading ? eb_integrate(&fr, &ray, 1, 0, before, &n, &t_depth, level_samples)
                     : eb_integrate(&fr, &ray, 0, 0, before, &n, &t_depth, level_samples);
+#endif
     c /= (float)spp;
     if (sample_index == 0) {
         rgba[slot] = c;

@@ -2,8 +2,8 @@
 "Instances"): a mirrored or moved copy of the data and the meshes is exactly
 the frame of the untouched data seen by the camera taken back by its map (for a
 mirror, a camera whose image is the columns reversed), composited in
-visibility order; copies that overlap, and frames split by space, are refused
-with one line; the flag and the scene key. Every frame test runs on every
+visibility order; copies that overlap mix their media (their extinctions add);
+frames split by space are refused with one line; the flag and the scene key. Every frame test runs on every
 OpenCL device present."""
 
 from __future__ import annotations
@@ -143,14 +143,83 @@ def test_a_tile_of_an_instanced_frame_is_that_part_of_it(amrex):
     np.testing.assert_array_equal(tile, whole[16:36, 8:32])
 
 
-def test_copies_that_overlap_are_refused(amrex):
-    """A mirror through the middle of the data would mix two media: one error
+@device_param
+# each other reconstruction and level of detail is a program variant of its own
+@pytest.mark.parametrize("mode", ["basis", *(pytest.param(m, marks=pytest.mark.slow)
+                                            for m in ("nearest", "vertex", "lod"))])
+def test_two_copies_in_one_place_are_the_medium_twice_as_dense(amrex, device, mode):
+    """A copy laid on the data itself (an instance that moves nothing) overlaps it
+    everywhere: the mixture's extinction is twice the data's, which is the frame
+    of the data (cut at its cells) with half the unit distance, headlight shading
+    and early termination included; with each reconstruction and level of detail."""
+    bricks, regions, bvh, field, tf, lo, hi = amrex
+    renderer = Renderer(bricks, regions, bvh, field=field, device=device)
+    cam = Camera(position=(2.0, -2.6, 1.9), look_at=(0.45, 0.5, 0.5), up=(0, 0, 1), fovy=40)
+    settings = dict(width=SIZE, height=SIZE, jitter=False, max_opacity=1.0, depth=True,
+                    reconstruction="basis" if mode == "lod" else mode, lod=2.0 if mode == "lod" else 0.0)
+    lighting = Lighting(shading="headlight", specular=0.3)
+    got = renderer.render_scene(Scene(camera=cam, volumes=(VolumeLayer(field, tf),), lighting=lighting,
+                                      instances=(Instance(),), settings=Settings(**settings)))
+    assert got.stats["instance_order"] == "mixture"
+    unit = got.stats["unit_distance"]
+    scene = Scene(camera=cam, volumes=(VolumeLayer(field, tf),), clip=cells_box(lo, hi),
+                  lighting=lighting, settings=Settings(**settings, unit_distance=unit / 2))
+    want = renderer.render_scene(scene)
+    assert want.rgba[..., 3].max() > 0.5
+    np.testing.assert_allclose(got.rgba, want.rgba, atol=3e-5)
+    assert got.stats["samples"] == 2 * want.stats["samples"]
+    np.testing.assert_allclose(got.depth, want.depth, rtol=1e-5)
+
+
+@device_param
+def test_the_mixture_of_copies_apart_is_their_composite(amrex, device):
+    """Drawn as a mixture, copies that do not overlap (the mirror on the data's
+    face) give the frame their composite in visibility order gives: every
+    segment of a ray is one copy's regions."""
+    bricks, regions, bvh, field, tf, lo, hi = amrex
+    renderer = Renderer(bricks, regions, bvh, field=field, device=device)
+    cam = Camera(position=(0.9, -2.6, 1.6), look_at=(0.0, 0.5, 0.5), up=(0, 0, 1), fovy=45)
+    scene = Scene(camera=cam, volumes=(VolumeLayer(field, tf),),
+                  instances=(Instance(mirror=("x", float(lo[0]))),),
+                  lighting=Lighting(shading="headlight"),
+                  settings=Settings(width=SIZE, height=SIZE, max_opacity=1.0, spp=2))
+    composite = renderer.render_scene(scene)
+    assert composite.stats["instance_order"] == [0, 1]
+    rgba, _, stats = instances.render_mixture(
+        renderer._everywhere(), scene, renderer._object_box(scene), traversal="ordered", rows=None,
+        window=None, sample=None, deadline=None)
+    assert stats["samples"] == composite.stats["samples"]
+    np.testing.assert_allclose(rgba, composite.rgba, atol=3e-5)
+
+
+@device_param
+def test_a_mirror_through_the_data_mixes_two_media_symmetrically(amrex, device):
+    """The data mirrored across the plane y = 0.4 through it: where both copies
+    are, their media mix. Seen from a camera on that plane looking along it, the
+    mixture is its own mirror image: the frame equals itself with its columns
+    reversed. The half of the frame outside the overlap still shows one copy."""
+    bricks, regions, bvh, field, tf, lo, hi = amrex
+    renderer = Renderer(bricks, regions, bvh, field=field, device=device)
+    c = 0.4
+    cam = Camera(position=(3.2, c, 1.3), look_at=(0.5, c, 0.5), up=(0, 0, 1), fovy=40)
+    mirror = Instance(mirror=("y", c))
+    got = frame(renderer, cam, field, tf, inst=[mirror])
+    alone = frame(renderer, cam, field, tf, clip=cells_box(lo, hi))
+    assert got.stats["instance_order"] == "mixture"
+    assert got.rgba[..., 3].max() > 0.3
+    np.testing.assert_allclose(got.rgba, got.rgba[:, ::-1], atol=2e-5)
+    assert not np.allclose(got.rgba, alone.rgba, atol=1e-2)  # the copy's medium adds
+
+
+def test_overlapping_copies_with_surfaces_are_refused(amrex):
+    """Iso-surfaces, slices and meshes are not drawn in a mixture: one error
     naming the two instances."""
     bricks, regions, bvh, field, tf, lo, hi = amrex
     renderer = Renderer(bricks, regions, bvh, field=field)
     cam = Camera(position=(0.5, -3.0, 1.5), look_at=(0.5, 0.5, 0.5), up=(0, 0, 1))
-    with pytest.raises(ExabricksError, match="instances 0 and 1 overlap"):
-        frame(renderer, cam, field, tf, inst=[Instance(mirror=("y", 0.5))])
+    iso = IsoSurface(field, float(np.mean(field_range(bricks, field))))
+    with pytest.raises(ExabricksError, match="instances 0 and 1 overlap.*iso-surfaces"):
+        frame(renderer, cam, field, tf, inst=[Instance(mirror=("y", 0.5))], isosurfaces=[iso])
 
 
 def test_visibility_order_puts_the_eye_side_first_and_refuses_cycles():

@@ -12,6 +12,8 @@ Writes into docs/images/mesh/:
 - amrex-body-clipped.png: the same, the half z > 0.5 clipped away (the body too);
 - amrex-mirrored.png: the same body and volume with their mirror image across
   the data's face y = 0 (`--mirror y 0`);
+- amrex-mixture.png: the volume with its mirror image across the plane y = 0.3
+  through the data (`--mirror y 0.3`): the overlapping copies' media mix;
 - gerris-shell.png: the Gerris plume; its T = 0.1 surface as a translucent shell
   coloured by the vertical velocity W, around the volume of T;
 - amrex-sheet.png: a wavy sheet of a million triangles (benchmarks/bench_mesh.py's)
@@ -50,6 +52,10 @@ def main() -> int:
         exabricks("render", AMREX, *look, "--mirror", "y", 0, "--position", 3.2, -2.6, 2.3,
                   "--look-at", 0.45, 0, 0.4, "--up", 0, 0, 1, "--size", 640, 480,
                   "-o", OUT / "amrex-mirrored.png")
+        exabricks("render", AMREX, "--field", "phi", "--colormap", "viridis", "--opacity", "0,0.3",
+                  "--specular", 0.3, "--spp", 4, "--background", "1,1,1", "--mirror", "y", 0.3,
+                  "--position", 3.2, -2.6, 2.3, "--look-at", 0.45, 0.3, 0.4, "--up", 0, 0, 1,
+                  "--size", 640, 480, "-o", OUT / "amrex-mixture.png")
         shell = Path(tmp) / "shell.ply"
         exabricks("surface", GERRIS, "--field", "T", "--value", 0.1, "-o", shell)
         scene = Path(tmp) / "scene.json"

@@ -18,7 +18,9 @@ boxes fixes for the whole frame (the side of the eye comes first;
 one's rays continuing from the image composited in front of it (the domain
 frames of exabricks.engine.streaming, one whole dataset per domain), sample by
 sample: the same image, early ray termination and depth as one scene holding
-every copy. Boxes that overlap would mix their media; they are refused.
+every copy. Where boxes overlap, the copies' media mix (their extinctions add):
+the frame is then drawn in one pass that takes every copy covering a point at
+the same samples (`render_mixture`, kernels/mixture.cl; volume layers only).
 """
 
 from __future__ import annotations
@@ -109,41 +111,57 @@ def object_box(lower, upper, mesh_bounds=None) -> np.ndarray:
     return np.stack([np.min([b[0] for b in boxes], 0), np.max([b[1] for b in boxes], 0)])
 
 
+def _placed(box, maps):
+    """The corners of each instance's copy of `box`, and the scale of the whole."""
+    corners = box_corners(*box)
+    placed = [corners @ r.T + t for r, t in maps]
+    return placed, float(np.abs(np.concatenate(placed)).max()) or 1.0
+
+
+def _separation(placed, maps, i: int, j: int, size: float):
+    """(low, high, unit axis, cut): a plane between copies i and j (separating
+    axes of two boxes: their faces' normals and the cross products of their
+    edges), `low` the copy below `cut` along the axis; None where they overlap."""
+    (ri, _), (rj, _) = maps[i], maps[j]
+    for axis in [*ri.T, *rj.T] + [np.cross(a, b) for a in ri.T for b in rj.T]:
+        n = float(np.linalg.norm(axis))
+        if n < 1e-9:
+            continue
+        axis = axis / n
+        pi, pj = placed[i] @ axis, placed[j] @ axis
+        if pi.max() <= pj.min() + TOUCH * size:
+            return i, j, axis, 0.5 * (pi.max() + pj.min())
+        if pj.max() <= pi.min() + TOUCH * size:
+            return j, i, axis, 0.5 * (pj.max() + pi.min())
+    return None
+
+
+def overlapping(box, maps) -> tuple[int, int] | None:
+    """The first two instances whose copies of the object-space `box` overlap, or None."""
+    if box is None:
+        return None
+    placed, size = _placed(box, maps)
+    return next(((i, j) for i, j in combinations(range(len(maps)), 2)
+                 if _separation(placed, maps, i, j, size) is None), None)
+
+
 def visibility_order(box, maps, eye) -> list[int]:
     """The instances (`maps`: (R, t) each) front to back from the world point `eye`,
     whose copies of the object-space `box` ((2, 3)) each lie on one side of a
-    plane from each other (separating axes of two boxes: their faces' normals and
-    the cross products of their edges). ExabricksError for two that overlap, or
-    a cycle no single order can draw."""
+    plane from each other. ExabricksError for two that overlap (`render` draws
+    those as a mixture), or a cycle no single order can draw."""
     if box is None:
         return list(range(len(maps)))
-    corners = box_corners(*box)
-    placed = [corners @ r.T + t for r, t in maps]
-    size = float(np.abs(np.concatenate(placed)).max()) or 1.0
+    placed, size = _placed(box, maps)
     eye = np.asarray(eye, np.float64)
     before = {i: set() for i in range(len(maps))}  # before[j]: those in front of j
     for i, j in combinations(range(len(maps)), 2):
-        (ri, _), (rj, _) = maps[i], maps[j]
-        axes = [*ri.T, *rj.T] + [np.cross(a, b) for a in ri.T for b in rj.T]
-        for axis in axes:
-            n = float(np.linalg.norm(axis))
-            if n < 1e-9:
-                continue
-            pi, pj = placed[i] @ (axis / n), placed[j] @ (axis / n)
-            if pi.max() <= pj.min() + TOUCH * size:
-                low, high, cut = i, j, 0.5 * (pi.max() + pj.min())
-            elif pj.max() <= pi.min() + TOUCH * size:
-                low, high, cut = j, i, 0.5 * (pj.max() + pi.min())
-            else:
-                continue
-            front, back = (low, high) if eye @ (axis / n) <= cut else (high, low)
-            before[back].add(front)
-            break
-        else:
-            raise ExabricksError(
-                f"instances {i} and {j} overlap (0 is the data itself): their media would mix, "
-                "which exabricks does not draw; place the copies apart (a mirror plane outside "
-                "the data or on its face)")
+        found = _separation(placed, maps, i, j, size)
+        if found is None:
+            raise ExabricksError(f"instances {i} and {j} overlap (0 is the data itself)")
+        low, high, axis, cut = found
+        front, back = (low, high) if eye @ axis <= cut else (high, low)
+        before[back].add(front)
     order, placing = [], set()
 
     def place(k):
@@ -162,6 +180,26 @@ def visibility_order(box, maps, eye) -> list[int]:
     return order
 
 
+def render_mixture(inner, scene: Scene, box, *, traversal, rows, window, sample, deadline):
+    """`render`'s frame with every instance drawn at once as one mixture of media
+    (kernels/mixture.cl), each copy cut at its cells' box: what copies that
+    overlap need (their extinctions add where they do); volume layers only."""
+    maps = transforms(scene)
+    what = [w for w, items in (("iso-surfaces", scene.isosurfaces), ("slices", scene.slices),
+                               ("meshes", scene.meshes)) if items]
+    if what:
+        i, j = overlapping(box, maps) or (0, 1)
+        raise ExabricksError(f"instances {i} and {j} overlap (0 is the data itself): their volumes "
+                             f"mix, but {', '.join(what)} cannot be drawn in a mixture; place the "
+                             "copies apart (a mirror plane outside the data or on its face)")
+    mixed = inner._mixture(box, maps)
+    result = mixed.render_scene(scene.replace(instances=(), background=(0.0, 0.0, 0.0, 0.0)),
+                                traversal=traversal, rows=rows, window=window, sample=sample,
+                                deadline=deadline)
+    stats = dict(result.stats, instances=len(maps), instance_order="mixture")
+    return result.rgba, result.depth, stats
+
+
 def render(inner, scene: Scene, box, *, traversal, rows, window, sample, deadline):
     """The frame of `scene` with its instances: (premultiplied rgba without the
     background, depth or None, stats). `inner` renders one frame of the
@@ -170,6 +208,9 @@ def render(inner, scene: Scene, box, *, traversal, rows, window, sample, deadlin
     deadline applies to the first instance's first sample alone (those after it
     draw the rows it drew)."""
     maps = transforms(scene)
+    if overlapping(box, maps):
+        return render_mixture(inner, scene, box, traversal=traversal, rows=rows, window=window,
+                              sample=sample, deadline=deadline)
     order = visibility_order(box, maps, scene.camera.position)
     scenes = [object_scene(scene, r, t, box) for r, t in maps]
     spp = int(scene.settings.spp)

@@ -142,6 +142,7 @@ class Renderer:
         self._mesh_upload = None  # (mesh files, device buffers, their eb_params)
         self._mesh_set = None
         self._whole = None  # _everywhere's
+        self.copies = None  # overlapping instances' maps (_mixture): float32 (n, 3, 4)
 
     def _use(self, lookup: str) -> None:
         _check_lookup(lookup)
@@ -160,7 +161,7 @@ class Renderer:
         program = self.dataset.program_for(
             extra, reconstruction=reconstruction, surfaces=surfaces, lod=lod,
             packets=self._packet_width(reconstruction) > 1, domain=self.domain is not None,
-            cell_location=self.lookup == "cell-location")
+            cell_location=self.lookup == "cell-location", mixture=self.copies is not None)
         return opencl.kernel(program, "eb_render")
 
     def _packet_width(self, reconstruction: str) -> int:
@@ -304,7 +305,7 @@ class Renderer:
         ao_distance = lighting.ao_distance or AO_DISTANCE_CELLS * s.finest_width_world
         args, layout = s.dataset_args(up(q, s.flags_for(node_vis, region_vis)), cfg.reconstruction,
                                       lod, self.lookup == "cell-location")
-        look, look_params, stats["transfer_function_tables"] = frame_arrays(scene, s)
+        look, look_params, stats["transfer_function_tables"] = frame_arrays(scene, s, self.copies)
         mesh_args, mesh_params = self._meshes(scene)
         if scene.meshes:
             stats["meshes"] = self._mesh_set.stats()
@@ -396,6 +397,17 @@ class Renderer:
             self._whole.domain = instances.EVERYWHERE
         self._whole.lookup, self._whole.packets = self.lookup, self.packets
         return self._whole
+
+    def _mixture(self, box, maps) -> "Renderer":
+        """This Renderer of the same upload drawing the copies of the data that the
+        rigid `maps` ((R, t) each) place, as one mixture of media (kernels/mixture.cl),
+        each cut at the object-space world `box` of its cells."""
+        other = copy.copy(self)
+        b = self.dataset.bricks
+        other.domain = tuple((*((np.asarray(x, np.float64) - b.origin_world) / b.spacing_world), 0.0)
+                             for x in box)
+        other.copies = np.array([np.column_stack([r.T, -r.T @ t]) for r, t in maps], np.float32)
+        return other
 
     def _object_box(self, scene: Scene):
         """The world box of the data's cells and `scene`'s meshes (instances.object_box)."""
@@ -497,7 +509,8 @@ AO_DISTANCE_CELLS = 10.0
 ISO_TOLERANCE_CELLS = 1e-3
 
 
-def frame_arrays(scene: Scene, device_dataset: DeviceDataset) -> tuple[tuple, dict, list]:
+def frame_arrays(scene: Scene, device_dataset: DeviceDataset,
+                 copies=None) -> tuple[tuple, dict, list]:
     """The look of `scene` as the render kernel takes it: its float and int arrays
     (look_f, look_i of kernels/render.cl), their eb_params members, and how each
     volume layer is looked up (the stats' "transfer_function_tables"). Every
@@ -505,7 +518,8 @@ def frame_arrays(scene: Scene, device_dataset: DeviceDataset) -> tuple[tuple, di
     each volume layer's knot index, transfer_function.knot_buckets, and lookup
     table, transfer_function.lookup_table, unless --tf-lookup exact or the table
     is further than TABLE_TOLERANCE from the knots), the volume layers,
-    iso-surfaces and slices by field index on the device, and clipping."""
+    iso-surfaces and slices by field index on the device, clipping, and the
+    `copies` of overlapping instances (Renderer._mixture; None: none)."""
     index = {name: i for i, name in enumerate(device_dataset.fields)}
     xs, rgba = [], []
 
@@ -576,6 +590,8 @@ def frame_arrays(scene: Scene, device_dataset: DeviceDataset) -> tuple[tuple, di
         "iso_tolerance": ISO_TOLERANCE_CELLS * device_dataset.finest_width_world,
         "clip_box": clip.box is not None, "clip_lower": (*box[0], 0.0),
         "clip_upper": (*box[1], 0.0), "n_clip_planes": len(clip.planes),
+        "copies_at": floats.add(rows(np.zeros((0, 3, 4)) if copies is None else copies, np.float32), 4),
+        "n_copies": 0 if copies is None else len(copies),
     }
     return (floats.array(), ints.array()), params, tables
 
