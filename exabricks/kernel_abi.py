@@ -84,8 +84,8 @@ PARAMS = (
     ("tables_at", "int"), ("mesh_colors_at", "int"), ("mesh_info_at", "int"), ("n_meshes", "int"),
     # the meshes' buffer (exabricks.mesh.MeshSet): float4 offsets
     ("mesh_tris_at", "int"), ("mesh_nodes_at", "int"), ("mesh_normals_at", "int"),
-    # overlapping instances (kernels/mixture.cl): three float4 rows per copy in the look
-    ("copies_at", "int"), ("n_copies", "int"),
+    # overlapping instances (kernels/mixture.cl): copy_rows float4 rows per copy in the look
+    ("copies_at", "int"), ("n_copies", "int"), ("copy_rows", "int"),
 ) + tuple((o.name, "float" if o.kind == "float" else "int") for o in SCENE_OPTIONS if o.kernel)
 
 _C_TYPES = {"float4": (np.float32, (4,)), "long": np.int64, "int": np.int32,

@@ -56,7 +56,7 @@ typedef struct {
 #endif
 #ifdef EB_MIXTURE
     __global const float4 *copies;      /* overlapping instances (mixture.cl) */
-    int n_copies;
+    int n_copies, copy_rows;
 #endif
 } eb_frame;
 

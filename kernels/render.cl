@@ -84,6 +84,7 @@ __kernel void eb_render(__constant eb_params *P, int4 band, int sample_index,
 #ifdef EB_MIXTURE
     fr.copies = look_f4 + P->copies_at / 4;
     fr.n_copies = P->n_copies;
+    fr.copy_rows = P->copy_rows;
 #endif
 
     float jx = 0.5f, jy = 0.5f;

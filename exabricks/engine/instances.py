@@ -20,7 +20,7 @@ frames of exabricks.engine.streaming, one whole dataset per domain), sample by
 sample: the same image, early ray termination and depth as one scene holding
 every copy. Where boxes overlap, the copies' media mix (their extinctions add):
 the frame is then drawn in one pass that takes every copy covering a point at
-the same samples (`render_mixture`, kernels/mixture.cl; volume layers only).
+the same samples (`render_mixture`, kernels/mixture.cl).
 """
 
 from __future__ import annotations
@@ -182,22 +182,42 @@ def visibility_order(box, maps, eye) -> list[int]:
 
 def render_mixture(inner, scene: Scene, box, *, traversal, rows, window, sample, deadline):
     """`render`'s frame with every instance drawn at once as one mixture of media
-    (kernels/mixture.cl), each copy cut at its cells' box: what copies that
-    overlap need (their extinctions add where they do); volume layers only."""
-    maps = transforms(scene)
-    what = [w for w, items in (("iso-surfaces", scene.isosurfaces), ("slices", scene.slices),
-                               ("meshes", scene.meshes)) if items]
-    if what:
-        i, j = overlapping(box, maps) or (0, 1)
-        raise ExabricksError(f"instances {i} and {j} overlap (0 is the data itself): their volumes "
-                             f"mix, but {', '.join(what)} cannot be drawn in a mixture; place the "
-                             "copies apart (a mirror plane outside the data or on its face)")
-    mixed = inner._mixture(box, maps)
+    (kernels/mixture.cl), each copy cut at its box: what copies that overlap
+    need (their extinctions add where they do)."""
+    mixed = inner._mixture(box, copy_rows(scene, box))
     result = mixed.render_scene(scene.replace(instances=(), background=(0.0, 0.0, 0.0, 0.0)),
                                 traversal=traversal, rows=rows, window=window, sample=sample,
                                 deadline=deadline)
-    stats = dict(result.stats, instances=len(maps), instance_order="mixture")
+    stats = dict(result.stats, instances=len(scene.instances) + 1, instance_order="mixture")
     return result.rgba, result.depth, stats
+
+
+def copy_rows(scene: Scene, box) -> np.ndarray:
+    """float32 (copies, rows, 4): what kernels/mixture.cl reads of each copy, in
+    float4 rows: its map from world to object space (3 rows: M | m); a head (has
+    a clip box, clip planes, the row of its slices, 0); the clip box's corners;
+    its clip planes (point, unit normal), padded to the most any copy has; its
+    slices' points (w: opacity), then their unit normals. The clipping and the
+    slices are the copy's object scene's (`object_scene`: the cut at `box` included)."""
+    maps = transforms(scene)
+    clips = [object_scene(scene, r, t, box) for r, t in maps]
+    most = max(len(o.clip.planes) for o in clips)
+    n_slices = len(scene.slices)
+    out = np.zeros((len(maps), 6 + 2 * most + 2 * n_slices, 4), np.float32)
+    unit = lambda v: np.asarray(v, np.float64) / np.linalg.norm(v)
+    for k, ((r, t), obj) in enumerate(zip(maps, clips)):
+        out[k, :3] = np.column_stack([r.T, -r.T @ t])
+        clip = obj.clip
+        out[k, 3] = (clip.box is not None, len(clip.planes), 6 + 2 * most, 0)
+        if clip.box is not None:
+            out[k, 4, :3], out[k, 5, :3] = clip.box
+        for i, (point, normal) in enumerate(clip.planes):
+            out[k, 6 + 2 * i, :3], out[k, 7 + 2 * i, :3] = point, unit(normal)
+        at = 6 + 2 * most
+        for i, plane in enumerate(obj.slices):
+            out[k, at + i] = (*plane.point, plane.opacity)
+            out[k, at + n_slices + i, :3] = unit(plane.normal)
+    return out
 
 
 def render(inner, scene: Scene, box, *, traversal, rows, window, sample, deadline):

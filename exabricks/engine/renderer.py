@@ -142,7 +142,7 @@ class Renderer:
         self._mesh_upload = None  # (mesh files, device buffers, their eb_params)
         self._mesh_set = None
         self._whole = None  # _everywhere's
-        self.copies = None  # overlapping instances' maps (_mixture): float32 (n, 3, 4)
+        self.copies = None  # overlapping instances (_mixture): float32 (n, rows, 4)
 
     def _use(self, lookup: str) -> None:
         _check_lookup(lookup)
@@ -398,15 +398,16 @@ class Renderer:
         self._whole.lookup, self._whole.packets = self.lookup, self.packets
         return self._whole
 
-    def _mixture(self, box, maps) -> "Renderer":
-        """This Renderer of the same upload drawing the copies of the data that the
-        rigid `maps` ((R, t) each) place, as one mixture of media (kernels/mixture.cl),
-        each cut at the object-space world `box` of its cells."""
+    def _mixture(self, box, copies: np.ndarray) -> "Renderer":
+        """This Renderer of the same upload drawing copies of the data as one mixture
+        of media (kernels/mixture.cl): `copies` float32 (n, rows, 4), each copy's
+        map and object-space clipping and slices (instances.copy_rows), each cut
+        at the object-space world `box` (instances.object_box)."""
         other = copy.copy(self)
         b = self.dataset.bricks
         other.domain = tuple((*((np.asarray(x, np.float64) - b.origin_world) / b.spacing_world), 0.0)
                              for x in box)
-        other.copies = np.array([np.column_stack([r.T, -r.T @ t]) for r, t in maps], np.float32)
+        other.copies = np.ascontiguousarray(copies, np.float32)
         return other
 
     def _object_box(self, scene: Scene):
@@ -590,8 +591,9 @@ def frame_arrays(scene: Scene, device_dataset: DeviceDataset,
         "iso_tolerance": ISO_TOLERANCE_CELLS * device_dataset.finest_width_world,
         "clip_box": clip.box is not None, "clip_lower": (*box[0], 0.0),
         "clip_upper": (*box[1], 0.0), "n_clip_planes": len(clip.planes),
-        "copies_at": floats.add(rows(np.zeros((0, 3, 4)) if copies is None else copies, np.float32), 4),
+        "copies_at": floats.add(rows(np.zeros((0, 4)) if copies is None else copies, np.float32), 4),
         "n_copies": 0 if copies is None else len(copies),
+        "copy_rows": 0 if copies is None else copies.shape[1],
     }
     return (floats.array(), ints.array()), params, tables
 
