@@ -185,11 +185,11 @@ def test_the_library_and_a_source_under_mpiexec(tmp_path):
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("what", ["meshes", "instances"])
+@pytest.mark.parametrize("what", ["meshes", "instances", "mixture"])
 def test_meshes_and_instances_under_mpi_take_image_mode(gerris, cli, tmp_path, what):
-    """A frame with a mesh (which reaches beyond the data, where no domain is) or a
-    mirrored copy (drawn from the whole dataset) is split by the image: the same
-    image as one process."""
+    """A frame with a mesh (which reaches beyond the data, where no domain is), a
+    mirrored copy (drawn from the whole dataset), or a mirror through the data
+    (a mixture) is split by the image: the same image as one process."""
     if what == "meshes":
         import trimesh
 
@@ -199,11 +199,13 @@ def test_meshes_and_instances_under_mpi_take_image_mode(gerris, cli, tmp_path, w
         sphere.export(mesh)
         extra = ["--mesh", mesh, "--mesh-opacity", 0.6]
     else:
-        extra = ["--mirror", "x", 0]
+        extra = ["--mirror", "x", 0 if what == "instances" else 60]
     flags = [*FLAGS, *extra, "--shading", "none"]
     cli("render", *gerris, "-o", tmp_path / "one.exr", *flags, check=0)
     out = tmp_path / "data.exr"
     proc = mpirun(2, "render", *gerris, "-o", out, *flags)
     assert proc.returncode == 0, proc.stderr
     same_image(out, tmp_path / "one.exr", exact=True)
-    assert read_image(out)[1]["settings"]["mpi"]["image_mode_for"] == what
+    settings = read_image(out)[1]["settings"]
+    assert settings["mpi"]["image_mode_for"] == ("meshes" if what == "meshes" else "instances")
+    assert (settings.get("instance_order") == "mixture") == (what == "mixture")
