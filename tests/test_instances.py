@@ -131,7 +131,7 @@ def test_a_rigid_copy_is_the_frame_of_the_camera_moved_back(amrex, device):
     np.testing.assert_allclose(got.rgba, np.mean(samples, axis=0), atol=2e-5)
 
 
-@pytest.mark.parametrize("at", [0.0, 0.4])  # copies apart, and a mixture
+@pytest.mark.parametrize("at", [0.0, pytest.param(0.4, marks=pytest.mark.slow)])  # apart; mixed
 def test_a_tile_of_an_instanced_frame_is_that_part_of_it(amrex, at):
     bricks, regions, bvh, field, tf, lo, hi = amrex
     renderer = Renderer(bricks, regions, bvh, field=field)
@@ -189,7 +189,8 @@ def test_two_copies_in_one_place_are_the_medium_twice_as_dense(amrex, device, mo
 
 
 @device_param
-@pytest.mark.parametrize("extra", ["volume", pytest.param("surfaces", marks=pytest.mark.slow)])
+@pytest.mark.slow  # the fast suite draws a mixture once (the coincident copies)
+@pytest.mark.parametrize("extra", ["volume", "surfaces"])
 def test_the_mixture_of_copies_apart_is_their_composite(amrex, device, extra, tmp_path):
     """Drawn as a mixture, copies that do not overlap (the mirror on the data's
     face) give the frame their composite in visibility order gives: every
@@ -220,6 +221,7 @@ def test_the_mixture_of_copies_apart_is_their_composite(amrex, device, extra, tm
 
 
 @device_param
+@pytest.mark.slow  # the fast suite draws a mixture once (the coincident copies)
 def test_a_mirror_through_the_data_mixes_two_media_symmetrically(amrex, device):
     """The data mirrored across the plane y = 0.4 through it: where both copies
     are, their media mix. Seen from a camera on that plane looking along it, the

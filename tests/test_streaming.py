@@ -543,7 +543,8 @@ def test_resident_domains_are_given_up_in_belady_order(monkeypatch):
     assert domains.reads == n  # five beside the one made: each read once
 
 
-@pytest.mark.parametrize("name,tile", [("gerris", None), ("amrex", (40, 24))])
+@pytest.mark.parametrize("name,tile", [("gerris", None),
+                                       pytest.param("amrex", (40, 24), marks=pytest.mark.slow)])
 def test_prefetched_domains_give_the_same_frame(name, tile):
     """With prefetch, each next domain is made on a thread while the one before it
     draws; the frame (whole, or in bands of tiles) equals the in-memory one, and
