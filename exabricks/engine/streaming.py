@@ -50,6 +50,13 @@ SLACK = 2.5
 # Bytes per brick of the whole dataset that making a domain holds whatever its
 # size (partition.domain_data: a mask of the bricks listed and their renumbering).
 PER_BRICK = 5
+# A resident domain kept beside the one being made counts this many times its
+# bytes (partition.domain_bytes): what the estimate misses (about 4 % and 83 KiB
+# a domain on the thin shells) and the heap the makes leave behind. Counted
+# once, a 16 MiB budget's tiled frame of the thin shells peaked at the budget;
+# twice, within it (docs/benchmarks.md, "Domains kept across samples, bands and
+# frames").
+HELD = 2
 
 
 def image_bytes(scene, tile=None) -> int:
@@ -132,7 +139,7 @@ class Budgeted:
                  + PER_BRICK * self.bricks.n_bricks + reads)
         # a domain being made takes SLACK times its bytes; one made on a thread while
         # the one before it draws (prefetch) takes that beside the one drawing
-        room = int((self.budget - fixed) / (SLACK + 1 if self.prefetch else SLACK))
+        room = int((self.budget - fixed) / (SLACK + HELD if self.prefetch else SLACK))
         if room <= 0:
             raise ExabricksError(
                 f"a memory budget of {mib(self.budget)} leaves nothing for the data besides "
@@ -211,7 +218,7 @@ class Budgeted:
         where the budget holds it (SLACK times its bytes while it is made) beside
         every resident domain."""
         following = next((i for i in self._future if i not in self._cache), None)
-        if following is None or (sum(self._bytes(i) for i in self._cache)
+        if following is None or (HELD * sum(self._bytes(i) for i in self._cache)
                                  + SLACK * self._bytes(following) > self.capacity):
             return
         made = {}
@@ -259,16 +266,16 @@ class Budgeted:
         def next_use(index):
             return future.index(index) if index in future else far
 
-        held = sum(self._bytes(i) for i in self._cache)
+        held = HELD * sum(self._bytes(i) for i in self._cache)
         gone = False
         while self._cache and held + making > self.capacity:
             victim = max(self._cache, key=next_use)  # the first of equals: least recent
-            held -= self._bytes(victim)
+            held -= HELD * self._bytes(victim)
             del self._cache[victim]
             gone = True
         if gone or not self._cache:
             gc.collect()
-            schema.trim_heap()
+        schema.trim_heap()
 
 
 def render_steps(domains, scene, *, band=None, tile_width=None, deadline: float | None = None,
