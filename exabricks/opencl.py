@@ -137,7 +137,10 @@ def list_devices() -> list[DeviceInfo]:
 
 
 def choose_device(spec: str | None = None):
-    """The pyopencl Device for `spec` (module docstring); None uses EXABRICKS_DEVICE or the default."""
+    """The pyopencl Device for `spec` (module docstring); None uses EXABRICKS_DEVICE or the
+    default; a Device is itself."""
+    if spec is not None and not isinstance(spec, str):
+        return spec
     cl = _cl()
     if spec is None:
         spec = os.environ.get("EXABRICKS_DEVICE") or None

@@ -97,6 +97,14 @@ EB_INLINE eb_basis_sums eb_sample_region_at(eb_frame *fr, int r, float3 p, int l
 #endif
 }
 
+/* The sums a sample of region r takes at lattice point p (level `level`): with
+ * the derivative sums where shading uses analytic gradients. */
+EB_INLINE eb_basis_sums eb_sample_shaded(eb_frame *fr, int r, float3 p, int level, const int shade)
+{
+    return shade && !fr->central ? eb_sample_region_at(fr, r, p, level, 1)
+                                 : eb_sample_region_at(fr, r, p, level, 0);
+}
+
 /* The level a region is sampled at: its finest level, or with --lod the
  * coarsest level whose cells project to at most the given pixels at the
  * region's entry distance t (Kähler & Abel), never finer than the data. */

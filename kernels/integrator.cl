@@ -35,8 +35,7 @@ EB_PROFILED int eb_sample_interval(eb_frame *fr, eb_ray *ray, int r, int level, 
     float tm, len;
     while (eb_next_sample(fr, ray, &it, &tm, &len)) {
         float3 p = ray->org + tm * ray->dir;
-        eb_basis_sums s = shade && !fr->central ? eb_sample_region_at(fr, r, p, level, 1)
-                                                : eb_sample_region_at(fr, r, p, level, 0);
+        eb_basis_sums s = eb_sample_shaded(fr, r, p, level, shade);
         if (eb_sample_step(fr, ray, &s, p, level, tm, len, shade, st))
             return 1;
     }

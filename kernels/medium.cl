@@ -12,6 +12,46 @@
 #include "common.h"
 #include "frame.cl"
 
+/* Media mixed at one point: their extinctions add, their colours weighted by
+ * extinction; a medium of opacity 1 (infinite extinction) alone gives the
+ * colour (with others like it: their mean). Also the copies of overlapping
+ * instances (mixture.cl). */
+typedef struct {
+    float s_sum;  /* sum of -log2(1 - alpha) */
+    float3 rgb, rgb_opaque;
+    int opaque;
+} eb_extinctions;
+
+EB_INLINE eb_extinctions eb_extinctions_none(void)
+{
+    eb_extinctions m = {0.0f, (float3)(0.0f), (float3)(0.0f), 0};
+    return m;
+}
+
+/* Add a medium of opacity a (> 0, per the unit the result scales) and colour rgb. */
+EB_INLINE void eb_extinctions_add(eb_extinctions *m, float a, float3 rgb)
+{
+    if (a >= 1.0f) {
+        m->rgb_opaque += rgb;
+        ++m->opaque;
+        return;
+    }
+    float s = -eb_log2_positive(1.0f - a);
+    m->s_sum += s;
+    m->rgb += s * rgb;
+}
+
+/* Colour (xyz) and opacity (w) of the mixture over `scale` units; zero if none. */
+EB_INLINE float4 eb_extinctions_step(eb_extinctions *m, float scale)
+{
+    if (m->opaque)
+        return (float4)(m->rgb_opaque / (float)m->opaque, 1.0f);
+    if (!(m->s_sum > 0.0f))
+        return (float4)(0.0f);
+    float a = 1.0f - eb_exp2_nonpositive(fmax(-m->s_sum * scale, -126.0f));
+    return (float4)(m->rgb / m->s_sum, a);
+}
+
 /* Opacity (w) and colour (xyz) of a step of length len at lattice point p
  * (sums s, field values `value`, finest level `level`), the mixture of the
  * volume layers (medium.cl); shaded layers use their field's gradient. */
@@ -30,9 +70,7 @@ EB_INLINE float4 eb_medium_step(eb_frame *fr, eb_basis_sums *s, float3 p, int le
             rgb *= eb_headlight(eb_field_gradient(fr, s, p, level, layer.x), dir_world);
         return (float4)(rgb, a);
     }
-    float s_sum = 0.0f;
-    float3 rgb = (float3)(0.0f), rgb_opaque = (float3)(0.0f);
-    int opaque = 0;
+    eb_extinctions mix = eb_extinctions_none();
     for (int i = 0; i < look.n_layers; ++i) {
         int4 layer = look.layers[i];
         float4 c = eb_layer_lookup(look, layer, look.table_at[i], value[layer.x]);
@@ -41,19 +79,7 @@ EB_INLINE float4 eb_medium_step(eb_frame *fr, eb_basis_sums *s, float3 p, int le
         float3 ci = c.xyz;
         if (shade)
             ci *= eb_headlight(eb_field_gradient(fr, s, p, level, layer.x), dir_world);
-        if (c.w >= 1.0f) {  /* infinite extinction: these layers alone give the colour */
-            rgb_opaque += ci;
-            ++opaque;
-            continue;
-        }
-        float sl = -eb_log2_positive(1.0f - c.w);
-        s_sum += sl;
-        rgb += sl * ci;
+        eb_extinctions_add(&mix, c.w, ci);
     }
-    if (opaque)
-        return (float4)(rgb_opaque / (float)opaque, 1.0f);
-    if (!(s_sum > 0.0f))
-        return (float4)(0.0f);
-    float a = 1.0f - eb_exp2_nonpositive(fmax(-s_sum * (len * fr->inv_unit_distance), -126.0f));
-    return (float4)(rgb / s_sum, a);
+    return eb_extinctions_step(&mix, len * fr->inv_unit_distance);
 }

@@ -54,13 +54,10 @@ EB_INLINE void eb_copy_find(eb_frame *fr, eb_copy *c, float t)
         c->level = eb_sample_level(fr, c->r, c->t_in);
 }
 
-/* The sums of copy c at distance tm of its region (with gradients where shading
- * needs analytic ones). */
+/* The sums of copy c at distance tm of its region. */
 EB_INLINE eb_basis_sums eb_copy_sample(eb_frame *fr, eb_copy *c, float tm, const int shade)
 {
-    float3 p = c->org + tm * c->dir;
-    return shade && !fr->central ? eb_sample_region_at(fr, c->r, p, c->level, 1)
-                                 : eb_sample_region_at(fr, c->r, p, c->level, 0);
+    return eb_sample_shaded(fr, c->r, c->org + tm * c->dir, c->level, shade);
 }
 
 #ifdef EB_SURFACES
@@ -289,9 +286,7 @@ EB_INLINE float4 eb_integrate_mixture(eb_frame *fr, eb_ray *ray, const int shade
         uint samples_before = st.samples;
         float tm, len;
         while (!done && eb_intervals_next(&it, &tm, &len)) {
-            float s_sum = 0.0f;
-            float3 rgb = (float3)(0.0f), rgb_opaque = (float3)(0.0f);
-            int opaque_copies = 0;
+            eb_extinctions mix = eb_extinctions_none();
 #ifdef EB_SURFACES
             /* every copy's sample first: the surfaces before it composite first */
             for (int k = 0; k < n; ++k) {
@@ -325,22 +320,12 @@ EB_INLINE float4 eb_integrate_mixture(eb_frame *fr, eb_ray *ray, const int shade
                     continue;
                 float4 col = eb_medium_step(fr, s, c[k].org + tm * c[k].dir, c[k].level, v, len,
                                             c[k].dir_obj, shade);
-                if (!(col.w > 0.0f))
-                    continue;
-                if (col.w >= 1.0f) {  /* infinite extinction: these copies alone give the colour */
-                    rgb_opaque += col.xyz;
-                    ++opaque_copies;
-                    continue;
-                }
-                float sk = -eb_log2_positive(1.0f - col.w);
-                s_sum += sk;
-                rgb += sk * col.xyz;
+                if (col.w > 0.0f)
+                    eb_extinctions_add(&mix, col.w, col.xyz);
             }
-            if (opaque_copies)
-                done = eb_composite(&st, 1.0f, rgb_opaque / (float)opaque_copies, tm, fr->max_opacity);
-            else if (s_sum > 0.0f)
-                done = eb_composite(&st, 1.0f - eb_exp2_nonpositive(fmax(-s_sum, -126.0f)),
-                                    rgb / s_sum, tm, fr->max_opacity);
+            float4 step = eb_extinctions_step(&mix, 1.0f);
+            if (step.w > 0.0f)
+                done = eb_composite(&st, step.w, step.xyz, tm, fr->max_opacity);
         }
         eb_level_samples_add(&st, level, st.samples - samples_before);
         t = b;

@@ -182,8 +182,7 @@ class DeviceDataset:
         self.field = self.fields[0] if self.fields else field
         self.field_index = self.field_indices[0] if self.fields else 0
         scale = DatasetScale.of(bricks, self.fields) if scale is None else scale
-        self.device = device if device is not None and not isinstance(device, str) \
-            else opencl.choose_device(device)
+        self.device = opencl.choose_device(device)
         check_device_memory(self.device, {
             "brick values": bricks.values.shape[1] * 4 * max(1, len(self.fields)),
             "brick boxes": bricks.n_bricks * 40,

@@ -403,10 +403,10 @@ class Renderer:
         of media (kernels/mixture.cl): `copies` float32 (n, rows, 4), each copy's
         map and object-space clipping and slices (instances.copy_rows), each cut
         at the object-space world `box` (instances.object_box)."""
+        from .partition import eye_lattice
+
         other = copy.copy(self)
-        b = self.dataset.bricks
-        other.domain = tuple((*((np.asarray(x, np.float64) - b.origin_world) / b.spacing_world), 0.0)
-                             for x in box)
+        other.domain = tuple((*eye_lattice(self.dataset.bricks, x), 0.0) for x in box)
         other.copies = np.ascontiguousarray(copies, np.float32)
         return other
 

@@ -114,9 +114,7 @@ class Budgeted:
         self._last = self._pending = None  # the domain last asked for; one being prefetched
         self._future, self._cycle = deque(), []  # the domains the frame will ask for next
         if prefetch is None:  # where the host is idle while the device draws
-            chosen = device if device is not None and not isinstance(device, str) else \
-                opencl.choose_device(device)
-            prefetch = not opencl.is_cpu(chosen)
+            prefetch = not opencl.is_cpu(opencl.choose_device(device))
         self.prefetch = bool(prefetch)
         self.reads = self.prefetched = 0  # domains made so far, and of them on a thread
         self._plan(scene)
@@ -202,6 +200,10 @@ class Budgeted:
     def _bytes(self, index: int) -> int:
         return int(self.partition.nbytes[index])
 
+    def _held(self) -> int:
+        """What the resident domains count for beside one being made (HELD)."""
+        return HELD * sum(self._bytes(i) for i in self._cache)
+
     def _make(self, index: int) -> Renderer:
         """Read domain `index` from the files and upload it."""
         self.reads += 1
@@ -218,8 +220,7 @@ class Budgeted:
         where the budget holds it (SLACK times its bytes while it is made) beside
         every resident domain."""
         following = next((i for i in self._future if i not in self._cache), None)
-        if following is None or (HELD * sum(self._bytes(i) for i in self._cache)
-                                 + SLACK * self._bytes(following) > self.capacity):
+        if following is None or self._held() + SLACK * self._bytes(following) > self.capacity:
             return
         made = {}
 
@@ -260,16 +261,15 @@ class Budgeted:
         """Give up resident domains until the rest and `making` bytes (a domain
         being made) fit the budget: first those not expected again, then the
         one expected last; among equals the least recently used."""
-        future = list(self._future) + self._cycle  # and after it, the same order again
-        far = len(future) + 1
-
-        def next_use(index):
-            return future.index(index) if index in future else far
-
-        held = HELD * sum(self._bytes(i) for i in self._cache)
-        gone = False
+        held, gone = self._held(), False
+        if self._cache and held + making > self.capacity:
+            future = list(self._future) + self._cycle  # and after it, the same order again
+            next_use = {}
+            for at, index in enumerate(future):
+                next_use.setdefault(index, at)
         while self._cache and held + making > self.capacity:
-            victim = max(self._cache, key=next_use)  # the first of equals: least recent
+            # the first of equals: least recent
+            victim = max(self._cache, key=lambda i: next_use.get(i, len(future)))
             held -= HELD * self._bytes(victim)
             del self._cache[victim]
             gone = True
