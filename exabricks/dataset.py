@@ -130,7 +130,7 @@ def ingest_defaults() -> dict:
     from .stages.ingest import ingest
 
     return {name: p.default for name, p in inspect.signature(ingest).parameters.items()
-            if p.kind is p.KEYWORD_ONLY and name not in ("level_cap", "on_step")}
+            if p.kind is p.KEYWORD_ONLY and name not in ("level_cap", "piece_order", "on_step")}
 
 
 def open_dataset(inputs, options: dict | None = None, *, cache=None, desc: str = "build",

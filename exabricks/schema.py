@@ -17,7 +17,7 @@ and re-exports their public names (use them as `schema.load`, `schema.Bricks`):
 - their checks (`validate`, `first_misaligned`, `tree_depth`): formats/checks.py;
 - provenance (`sha256_file`, `prefetch_sha256`, `make_meta`, `content_sha256`,
   `built_from`, `check_built_from`): formats/provenance.py;
-- memory (`release`, `release_arrays`, `trim_heap`, `rows`, `reduce_chunks`,
+- memory (`mapping`, `release`, `release_arrays`, `discard`, `trim_heap`, `rows`, `reduce_chunks`,
   `memory_limit`): formats/memory.py;
 - the .npz reader (`NpzArchive`) and the header entries: formats/npz.py;
 - `save`, `load`, `peek`: formats/files.py.
@@ -28,7 +28,8 @@ from __future__ import annotations
 from .formats.checks import first_misaligned, tree_depth, validate
 from .formats.files import load, peek, save
 from .formats.kinds import KINDS, ArraySpec, Bricks, Bvh, Cells, Kind, Regions, Values, summary, world_bounds
-from .formats.memory import CHUNK, memory_limit, reduce_chunks, release, release_arrays, rows, trim_heap
+from .formats.memory import (CHUNK, discard, mapping, memory_limit, reduce_chunks, release, release_arrays, rows,
+                             trim_heap)
 from .formats.npz import FORMAT, HEADER_KEYS, MAX_HEADER_BYTES, NpzArchive
 from .formats.provenance import (
     built_from,
@@ -47,7 +48,7 @@ __all__ = [
     # provenance
     "sha256_file", "prefetch_sha256", "make_meta", "content_sha256", "built_from", "check_built_from",
     # memory
-    "CHUNK", "release", "release_arrays", "trim_heap", "rows", "reduce_chunks", "memory_limit",
+    "CHUNK", "mapping", "release", "release_arrays", "discard", "trim_heap", "rows", "reduce_chunks", "memory_limit",
     # the .npz reader and the header entries
     "FORMAT", "HEADER_KEYS", "MAX_HEADER_BYTES", "NpzArchive",
     # files

@@ -84,11 +84,23 @@ def cells_of(lower, level, values=None):
 # the embedded Gerris plume through the CLI
 
 
+def in_order_of(cells, lower, level):
+    """`cells` (as `exabricks ingest` writes them: in piece order) permuted into the
+    order of the cells `lower`, `level` (int arrays) read from the source."""
+    mine = np.lexsort((cells.lower_lattice[:, 2], cells.lower_lattice[:, 1], cells.lower_lattice[:, 0],
+                       cells.level))
+    theirs = np.lexsort((lower[:, 2], lower[:, 1], lower[:, 0], level))
+    order = np.empty_like(mine)
+    order[theirs] = mine
+    return cells.replace(lower_lattice=cells.lower_lattice[order], level=cells.level[order],
+                         values=cells.values[:, order])
+
+
 def test_gerris_plume_ingests_exactly(tmp_path):
     out = tmp_path / "cells.npz"
     run_cli("ingest", GERRIS, "-o", out, check=0)
-    cells = schema.load(out, "cells")
     raw = np.fromfile(GERRIS, "<i4").reshape(-1, 4)
+    cells = in_order_of(schema.load(out, "cells"), raw[:, :3], raw[:, 3])
     assert cells.n_cells == LEAF_COUNTS["gerris"] == 67_712
     assert cells.fields == GERRIS_FIELDS
     np.testing.assert_array_equal(cells.lower_lattice, raw[:, :3])
@@ -100,6 +112,7 @@ def test_gerris_plume_ingests_exactly(tmp_path):
     np.testing.assert_array_equal(cells.spacing_world, [1, 1, 1])
     inputs = [e["path"] for e in cells.meta["inputs"]]
     assert inputs[0] == str(GERRIS) and len(inputs) == 6
+    assert cells.meta["piece_runs"]["starts"][0] == 0  # in piece order (test_pieces.py)
     assert all(e["sha256"] for e in cells.meta["inputs"])
     per_level = np.bincount(raw[:, 3])
     assert cells.meta["statistics"]["cells_per_level"] == {
@@ -112,7 +125,8 @@ def test_gerris_plume_ingests_exactly(tmp_path):
 def test_field_subset_keeps_requested_order(tmp_path):
     out = tmp_path / "cells.npz"
     run_cli("ingest", GERRIS, "-o", out, "--field", "T", "--field", "P", check=0)
-    cells = schema.load(out, "cells")
+    raw = np.fromfile(GERRIS, "<i4").reshape(-1, 4)
+    cells = in_order_of(schema.load(out, "cells"), raw[:, :3], raw[:, 3])
     assert cells.fields == ("T", "P")
     np.testing.assert_array_equal(cells.values[0], np.fromfile(GERRIS.with_name("plume7-1.T.scalars"), "<f4"))
     np.testing.assert_array_equal(cells.values[1], np.fromfile(GERRIS.with_name("plume7-1.P.scalars"), "<f4"))
@@ -122,7 +136,8 @@ def test_magnitude_field(tmp_path):
     out = tmp_path / "cells.npz"
     run_cli("ingest", GERRIS, "-o", out, "--magnitude", "speed=U,V,W",
             "--field", "T", "--field", "speed", check=0)
-    cells = schema.load(out, "cells")
+    raw = np.fromfile(GERRIS, "<i4").reshape(-1, 4)
+    cells = in_order_of(schema.load(out, "cells"), raw[:, :3], raw[:, 3])
     assert cells.fields == ("T", "speed")
     u, v, w = (np.fromfile(GERRIS.with_name(f"plume7-1.{c}.scalars"), "<f4").astype(np.float64)
                for c in "UVW")
@@ -799,7 +814,7 @@ def test_eb_body_of_a_real_plotfile_becomes_holes(tmp_path, eb_plotfile):
     assert 0 < np.count_nonzero(~keep) < original.n_cells and np.any(vf == 0.5)
     out = tmp_path / "cells.npz"
     run_cli("ingest", eb_plotfile, "-o", out, check=0)
-    cells = schema.load(out, "cells")
+    cells = in_order_of(schema.load(out, "cells"), original.lower_lattice[keep], original.level[keep])
     assert cells.fields == ("phi", "volFrac")
     np.testing.assert_array_equal(cells.lower_lattice, original.lower_lattice[keep])
     np.testing.assert_array_equal(cells.level, original.level[keep])

@@ -1,6 +1,7 @@
 """The numba builders run as plain Python (NUMBA_DISABLE_JIT=1) give exactly what the
 compiled ones give: ingest (validate_cells, cell_statistics, find_overlap,
-amr_from_uniform), brick, regions, BVH and the brick-support tree, on tiny inputs.
+amr_from_uniform, order_cells), brick (whole, and a piece of ordered cells),
+regions, BVH and the brick-support tree, on tiny inputs.
 
 The uncompiled run happens in a subprocess (numba reads the variable when it is
 imported) that calls `stage_outputs` from this module; the compiled run calls it here.
@@ -20,7 +21,9 @@ import numpy as np
 import pytest
 
 from exabricks import schema
+from exabricks.pieces import Piece
 from exabricks.stages.brick import build_bricks
+from exabricks.stages.piece_order import RUNS_KEY, order_cells
 from exabricks.stages.bvh import build_bvh
 from exabricks.engine.cell_location import build_brick_tree
 from exabricks.stages.ingest import amr_from_uniform, cell_statistics, find_overlap, validate_cells
@@ -66,6 +69,11 @@ def stage_outputs(cells: schema.Cells, volume: np.ndarray) -> dict[str, np.ndarr
         out[f"merged.{name}"] = array
     bricks = build_bricks(cells, max_brick_width=4)
     put("bricks", bricks)
+    ordered = order_cells(cells.replace(lower_lattice=cells.lower_lattice.copy(),
+                                        level=cells.level.copy()), run_cells=32)
+    put("ordered", ordered)
+    out["ordered.runs"] = np.array(ordered.meta[RUNS_KEY]["starts"])
+    put("piece", build_bricks(ordered, max_brick_width=4, piece=Piece(1, 3)))
     regions = build_regions(bricks)
     put("regions", regions)
     put("bvh", build_bvh(regions, leaf_size=2))
@@ -101,7 +109,7 @@ def both(tmp_path_factory):
 
 @pytest.mark.slow
 @pytest.mark.parametrize("stage", ["validated", "cell_statistics", "overlap", "merged", "bricks",
-                                   "regions", "bvh", "tree"])
+                                   "ordered", "piece", "regions", "bvh", "tree"])
 def test_plain_python_equals_compiled(both, stage):
     python, compiled, _ = both
     names = sorted(k for k in compiled if k == stage or k.startswith(stage + "."))

@@ -17,6 +17,7 @@ from exabricks.readers import read
 from exabricks.stages.brick import build_bricks
 from exabricks.stages.bvh import build_bvh
 from exabricks.stages.join import join_bricks, join_bvh, join_regions
+from exabricks.stages.piece_order import MAX_RUNS, RUN_CELLS, RUNS_KEY, order_cells
 from exabricks.pieces import Piece, task_range
 from exabricks.stages.regions import build_regions
 
@@ -63,6 +64,47 @@ def test_joined_pieces_equal_the_whole_build(name, counts):
                 assert all(s.n_bricks if build is build_bricks else
                            s.n_regions if build is build_regions else 1 for s in shares)
         whole = built
+
+
+def ordered(name):
+    """The dataset's cells as `exabricks ingest` writes them (exabricks.stages.piece_order),
+    from copies: ordering permutes the cells' own arrays in place."""
+    cells = dataset_cells(name)
+    return order_cells(cells.replace(lower_lattice=cells.lower_lattice.copy(),
+                                     level=cells.level.copy()))
+
+
+@pytest.mark.parametrize("name,counts", [("shell", (3, 8)), ("gerris", (2, 40)),
+                                         ("amrex", (3,)), ("athena", (2,)), ("enzo", (4,))])
+def test_pieces_of_ordered_cells_read_only_their_share(name, counts):
+    """Cells in piece order hold the same bricks, and N pieces that each read only
+    their run of cells, joined, equal the whole build of the cells as read (40 pieces
+    of gerris' 16 runs: some pieces are empty)."""
+    cells, cells_ordered = dataset_cells(name), ordered(name)
+    whole = build_bricks(cells)
+    runs = cells_ordered.meta[RUNS_KEY]["starts"]
+    assert runs[0] == 0 and len(runs) <= MAX_RUNS and cells_ordered.n_cells == cells.n_cells
+    assert_same(whole, build_bricks(cells_ordered), (name, "ordered"))
+    for n in counts:
+        shares = [build_bricks(cells_ordered, piece=Piece(k, n)) for k in range(n)]
+        cut = [s.meta["piece"]["cells"] for s in shares]
+        assert all(a in runs + [cells.n_cells] and b in runs + [cells.n_cells] for a, b in cut)
+        assert_same(whole, join_bricks([(f"{k}.npz", s) for k, s in enumerate(shares)]), (name, n))
+    if name == "shell":  # a real split: the runs cut the cells about evenly
+        assert len(runs) >= cells.n_cells // RUN_CELLS
+        sizes = [b - a for a, b in cut]
+        assert max(sizes) < 1.3 * cells.n_cells / len(cut)
+
+
+def test_ordering_a_copy_equals_ordering_in_place():
+    """Read-only (mapped) cells are ordered into new arrays, the same as in place."""
+    cells = dataset_cells("amrex")
+    lower, level = cells.lower_lattice.copy(), cells.level.copy()
+    lower.flags.writeable = level.flags.writeable = False
+    copy = order_cells(cells.replace(lower_lattice=lower, level=level))
+    assert_same(ordered("amrex").replace(meta={"statistics": 0}), copy.replace(meta={"statistics": 0}),
+                "copy")
+    assert np.array_equal(lower, cells.lower_lattice)
 
 
 def test_task_ranges_cover_every_task_once():
@@ -200,3 +242,87 @@ def test_share_meta_is_json(enzo_files):
         for k in range(n):
             _, _, meta = schema.peek(enzo_files / f"{kind}.{k}.npz")
             assert json.loads(json.dumps(meta["piece"]))["index"] == k
+
+
+def rewrite(src, dst, **arrays):
+    """A copy of the .npz `src` at `dst` with some members replaced, unchecked."""
+    with np.load(src, allow_pickle=False) as z:
+        members = {k: z[k] for k in z.files}
+    np.savez(dst, **{**members, **arrays})
+
+
+def test_a_piece_reads_only_its_cells(enzo_files, tmp_path, cli):
+    """Cells outside a piece's share that no whole build accepts (a level out of range,
+    a corner off its level's lattice) do not stop that piece: it never reads them; the
+    piece equals the one from the intact file."""
+    d = enzo_files
+    cells = schema.load(d / "cells.npz", "cells")
+    share = schema.load(d / "bricks.1.npz", "bricks").meta["piece"]["cells"]
+    lower, level = cells.lower_lattice.copy(), cells.level.copy()
+    level[share[0] - 1] = 99
+    lower[share[1]] += 1
+    broken = tmp_path / "cells.npz"
+    rewrite(d / "cells.npz", broken, lower_lattice=lower, level=level)
+    cli("brick", broken, "--piece", "1/3", "-o", tmp_path / "b1.npz", check=0)
+    assert_same(schema.load(d / "bricks.1.npz", "bricks"), schema.load(tmp_path / "b1.npz"), "piece")
+    assert_one_error_line(cli("brick", broken, "-o", tmp_path / "b.npz"), "cells.npz", "level 99")
+    # A piece whose share holds a bad cell names it by its index in the file.
+    level[share[0] - 1], lower[share[1]] = cells.level[share[0] - 1], cells.lower_lattice[share[1]]
+    level[share[0] + 5] = 99
+    rewrite(d / "cells.npz", broken, lower_lattice=lower, level=level)
+    assert_one_error_line(cli("brick", broken, "--piece", "1/3", "-o", tmp_path / "b1.npz"),
+                          "cells.npz", f"from {share[0]}", "cell 5 ", "level 99")
+
+
+def test_a_cell_in_two_pieces_is_refused_by_regions(enzo_files, tmp_path, cli):
+    """A crafted file in piece order with one cell copied into another piece's share:
+    each piece bricks what it reads, and the joined bricks, which share that cell,
+    are refused where regions check that no two bricks share a cell."""
+    d = enzo_files
+    cells = schema.load(d / "cells.npz", "cells")
+    share = schema.load(d / "bricks.2.npz", "bricks").meta["piece"]["cells"]
+    lower, level = cells.lower_lattice.copy(), cells.level.copy()
+    lower[share[0]], level[share[0]] = lower[0], level[0]
+    rewrite(d / "cells.npz", tmp_path / "cells.npz", lower_lattice=lower, level=level)
+    assert_one_error_line(cli("brick", tmp_path / "cells.npz", "-o", tmp_path / "b.npz"),
+                          "cells.npz", "overlap")
+    for k in range(3):
+        cli("brick", tmp_path / "cells.npz", "--piece", f"{k}/3", "-o", tmp_path / f"b{k}.npz", check=0)
+    cli("join", *[tmp_path / f"b{k}.npz" for k in range(3)], "-o", tmp_path / "b.npz", check=0)
+    assert_one_error_line(cli("regions", tmp_path / "b.npz", "-o", tmp_path / "r.npz"), "b.npz",
+                          "share a cell")
+    assert not (tmp_path / "r.npz").exists()
+
+
+@pytest.mark.parametrize("runs,needles", [
+    ({"max_brick_width": 32, "starts": [0, 7, 7]}, ["do not increase"]),
+    ({"max_brick_width": 32, "starts": [3, 9]}, ["do not increase from 0"]),
+    ({"max_brick_width": 32, "starts": [0, 10 ** 30]}, ["starts of its"]),
+    ({"max_brick_width": 32, "starts": "0"}, ["starts of its"]),
+    ({"max_brick_width": "32", "starts": [0]}, None),  # no width: the whole file is read
+    ([0, 1], None),
+])
+def test_bad_runs_are_refused_or_ignored(enzo_files, tmp_path, cli, runs, needles):
+    """Runs that are not increasing starts of the file's cells are refused with one
+    line; runs without a width are not runs, and the piece reads the whole file."""
+    cells = schema.load(enzo_files / "cells.npz", "cells")
+    bad = tmp_path / "cells.npz"
+    schema.save(bad, cells.replace(meta={**cells.meta, RUNS_KEY: runs}))
+    proc = cli("brick", bad, "--piece", "1/3", "-o", tmp_path / "b.npz")
+    if needles is None:
+        assert proc.returncode == 0, proc.stderr
+    else:
+        assert_one_error_line(proc, "cells.npz", RUNS_KEY, *needles)
+        assert not (tmp_path / "b.npz").exists()
+
+
+def test_wider_bricks_than_the_runs_read_the_whole_file(enzo_files, tmp_path, cli):
+    """--max-brick-width above the runs' width: the pieces cut the partition as
+    before (the runs are not nodes of it), and still join to the whole build."""
+    d = enzo_files
+    cli("brick", d / "cells.npz", "--max-brick-width", "64", "-o", tmp_path / "whole.npz", check=0)
+    for k in range(2):
+        cli("brick", d / "cells.npz", "--max-brick-width", "64", "--piece", f"{k}/2", "-o",
+            tmp_path / f"b{k}.npz", check=0)
+    cli("join", tmp_path / "b0.npz", tmp_path / "b1.npz", "-o", tmp_path / "joined.npz", check=0)
+    assert_same(schema.load(tmp_path / "whole.npz"), schema.load(tmp_path / "joined.npz"), "wide")

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import os
 
 import numpy as np
 import pytest
@@ -146,3 +147,23 @@ def test_large_stored_members_are_read_directly_and_crc_checked(tmp_path):
     bad.write_bytes(bytes(raw))
     with pytest.raises(ExabricksError, match=r"flipped.npz: array 'values' .*CRC"):
         schema.load(bad, "cells")
+
+
+def test_discard_hands_back_the_pages_of_a_part(tmp_path):
+    """schema.discard: an in-memory array's whole pages inside the part read as zeros
+    and leave the resident set (what ordering cells in place relies on); the bytes
+    around the part are kept; a mapped array's part is handed back and read again."""
+    def resident():
+        with open("/proc/self/statm") as f:
+            return int(f.read().split()[1]) * os.sysconf("SC_PAGE_SIZE")
+
+    a = np.arange(1 << 25, dtype=np.int32)  # 128 MiB, written
+    before = resident()
+    schema.discard(a[5:(1 << 25) - 5])
+    assert before - resident() > 100 << 20
+    assert a[:5].tolist() == [0, 1, 2, 3, 4] and a[-5:].tolist() == list(range((1 << 25) - 5, 1 << 25))
+    assert not a[4096:(1 << 25) - 4096].any()
+    np.save(tmp_path / "x.npy", np.arange(1000, dtype=np.int32))
+    m = np.load(tmp_path / "x.npy", mmap_mode="r")
+    schema.discard(m[100:900])
+    assert m.tolist() == list(range(1000))

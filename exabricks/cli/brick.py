@@ -5,6 +5,7 @@ from __future__ import annotations
 import click
 
 from .. import schema
+from ..errors import ExabricksError
 from ..output import check_output
 from ..structures import MAX_BRICK_WIDTH
 from .options import input_path, output_option, piece_option
@@ -22,10 +23,15 @@ def brick(cells_path, output, max_brick_width, piece):
     A brick is a full box of cells of one level, at most --max-brick-width cells
     wide per axis; the bricks file holds every cell's values, brick by brick.
     """
+    from ..stages.piece_order import reads_share
     from ..structures import bricks_of  # numba import only when the command runs
 
     check_output(output, [cells_path])
-    cells = schema.load(cells_path, "cells", mapped=True, checked=True, digest=True)
+    # A piece of cells in piece order reads and checks only its share.
+    share = reads_share(schema.peek(cells_path)[2], piece, max_brick_width)
+    cells = schema.load(cells_path, "cells", mapped=True, checked=not share, digest=True)
+    if share != reads_share(cells.meta, piece, max_brick_width):
+        raise ExabricksError(f"{cells_path}: was replaced while it was read")
     bricks = bricks_of(cells, [cells_path], where=cells_path, max_brick_width=max_brick_width,
                        piece=piece)
     schema.save(output, bricks, inputs=[cells_path])

@@ -23,8 +23,8 @@ def ingest(input_path, output, **options):
     scalars = list((kwargs.get("scalars") or {}).values())
     check_output(output, [input_path, *scalars])
     schema.prefetch_sha256([input_path, *scalars])
-    with progress.bar(total=3, desc="ingest", unit="step") as bar:
-        cells = ingest_stage(input_path, **kwargs, on_step=bar.update)
+    with progress.bar(total=4, desc="ingest", unit="step") as bar:
+        cells = ingest_stage(input_path, **kwargs, piece_order=True, on_step=bar.update)
         inputs = [entry["path"] for entry in cells.meta.get("inputs", [])]
         schema.save(output, cells, inputs=[input_path, *inputs])
         bar.update()

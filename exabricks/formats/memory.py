@@ -1,7 +1,8 @@
-"""Memory: handing back the pages of mapped arrays (`release`, `release_arrays`)
-and the C heap (`trim_heap`), work in steps of about CHUNK elements (`rows`,
-`reduce_chunks`), and the memory this process can hold (`memory_limit`,
-`check_memory` before allocating).
+"""Memory: handing back the pages of mapped arrays (`release`, `release_arrays`),
+of arrays whose contents are done with (`discard`) and the C heap
+(`trim_heap`), work in steps of about CHUNK elements (`rows`, `reduce_chunks`),
+and the memory this process can hold (`memory_limit`, `check_memory` before
+allocating).
 """
 
 from __future__ import annotations
@@ -49,6 +50,35 @@ def release_arrays(*arrays: np.ndarray) -> None:
         base = mapping(array)
         if base is not None:
             _hand_back(base)
+
+
+def discard(part: np.ndarray) -> None:
+    """Hand back the pages of `part`, a contiguous view of an array this process
+    allocated, whose contents are no longer needed: a mapped array's pages are
+    handed back (`release_arrays`), an in-memory one's whole pages inside `part`
+    read as zeros afterwards and take memory again only when written
+    (madvise MADV_DONTNEED on private anonymous memory; a no-op elsewhere).
+    For passes that turn one large array into another in steps."""
+    import mmap
+
+    base = mapping(part)
+    if base is not None:
+        _hand_back(base, part.ctypes.data - np.frombuffer(base, np.uint8).ctypes.data, part.nbytes)
+        return
+    if not hasattr(mmap, "MADV_DONTNEED") or not part.flags.c_contiguous:
+        return
+    import ctypes
+    import ctypes.util
+
+    page = mmap.PAGESIZE
+    lo = -(-part.ctypes.data // page) * page
+    hi = (part.ctypes.data + part.nbytes) // page * page
+    if hi > lo:
+        try:
+            libc = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6", use_errno=True)
+            libc.madvise(ctypes.c_void_p(lo), ctypes.c_size_t(hi - lo), mmap.MADV_DONTNEED)
+        except (OSError, AttributeError):
+            pass
 
 
 def trim_heap() -> None:

@@ -12,12 +12,8 @@ the start of its run.  A whole build then joins bricks of one level that fill a
 box together (`merge_bricks`: the midpoint planes cut octree-like layouts into
 many more bricks than their cells need).
 
-Internally each cell is one row of an int32 (N, 5) array `rec`: lower corner
-x, y, z (lattice units), level, and the cell's index in the input.  A k-d node
-is one int64 row of 10: start and end of its run in `rec`, the lower and upper
-corner of its bounding box (lattice units, upper exclusive), and its finest and
-coarsest level.  Partitioning a node computes both children's rows in the same
-pass, so each tree level reads every cell once.
+The partition itself (its cell and node rows, splitting, the breadth-first top
+and the depth-first subtrees) is exabricks.stages.cell_tree.
 """
 
 from __future__ import annotations
@@ -30,247 +26,16 @@ from ..constants import LATTICE_DTYPE, LEVEL_DTYPE, OFFSET_DTYPE, VALUE_DTYPE
 from ..errors import ExabricksError
 from .ingest import neighbour_overlap_keys, spread3, find_overlap
 from ..pieces import WHOLE, Piece, share_meta, task_range
+from .cell_tree import (END, ID, LEVEL, START, build_subtree, build_subtrees, build_top, pack, run_nodes,
+                        take_columns)
+from .piece_order import share_runs
 
-# Columns of a cell row in `rec` and fields of a node row.
-_LEVEL, _ID = 3, 4
-_START, _END = 0, 1
-_NODE_SIZE = 10
-# Outcomes of _split.
-_LEAF, _SPLIT, _OVERLAP = 0, 1, -1
 # Below this many cells the build runs on one thread: the partition is already fast.
 _PARALLEL_MIN_CELLS = 200_000
 # Subtrees per thread for the depth-first parallel phase (more: better balance).
 _TASKS_PER_THREAD = 16
 # Subtrees per piece when a build is cut into pieces (exabricks.pieces).
 _TASKS_PER_PIECE = 16
-
-
-@numba.njit(cache=True, inline="always")
-def _grow(st, x, y, z, level):
-    """Add one cell to node statistics (lo xyz, hi xyz, finest, coarsest level)."""
-    w = np.int64(1) << level
-    return (min(st[0], x), min(st[1], y), min(st[2], z),
-            max(st[3], x + w), max(st[4], y + w), max(st[5], z + w),
-            min(st[6], level), max(st[7], level))
-
-
-@numba.njit(cache=True, inline="always")
-def _empty_stats():
-    big = np.int64(1) << 62
-    return (big, big, big, -big, -big, -big, np.int64(127), np.int64(-1))
-
-
-@numba.njit(cache=True, inline="always")
-def _store(nodes, t, start, end, st):
-    nodes[t, 0] = start
-    nodes[t, 1] = end
-    for a in range(8):
-        nodes[t, 2 + a] = st[a]
-
-
-@numba.njit(cache=True, parallel=True)
-def _pack(lower, level, chunks):
-    """Cell rows and the root node row, in one parallel pass.
-
-    lower: int32 (N, 3); level: int8 (N,).  Returns rec, int32 (N, 5) (x, y, z,
-    level, input index), and the root node row, int64 (1, 10).
-    """
-    n = level.shape[0]
-    rec = np.empty((n, 5), np.int32)
-    part = np.empty((chunks, 8), np.int64)
-    for c in numba.prange(chunks):
-        st = _empty_stats()
-        for p in range(c * n // chunks, (c + 1) * n // chunks):
-            rec[p, 0] = lower[p, 0]
-            rec[p, 1] = lower[p, 1]
-            rec[p, 2] = lower[p, 2]
-            rec[p, 3] = level[p]
-            rec[p, 4] = p
-            st = _grow(st, np.int64(lower[p, 0]), np.int64(lower[p, 1]),
-                       np.int64(lower[p, 2]), np.int64(level[p]))
-        for a in range(8):
-            part[c, a] = st[a]
-    root = np.empty((1, _NODE_SIZE), np.int64)
-    root[0, 0] = 0
-    root[0, 1] = n
-    for a in range(8):
-        # lower corner and finest level are minima, the rest maxima
-        root[0, 2 + a] = part[:, a].min() if a < 3 or a == 6 else part[:, a].max()
-    return rec, root
-
-
-@numba.njit(cache=True)
-def _split(rec, nodes, t, max_width, brick_end):
-    """Make node `nodes[t]` a brick or split it into `nodes[t]` and `nodes[t + 1]`.
-
-    rec:       int32 (N, 5) cell rows, partitioned in place over the node's run.
-    nodes:     int64 (M, 10) node rows; row t + 1 must exist.
-    brick_end: int32 (N,), set to the run's end at a leaf's start.
-    Returns _LEAF, _SPLIT, or _OVERLAP when no plane separates the cells, which
-    only happens when cells overlap (the node's box is then its coarsest cell).
-    """
-    s = nodes[t, 0]
-    e = nodes[t, 1]
-    lmin = nodes[t, 8]
-    lmax = nodes[t, 9]
-    n = e - s
-    if lmin == lmax:
-        # Leaf test of §3.1.2: one level, full box, at most max_width cells per axis.
-        d0 = (nodes[t, 5] - nodes[t, 2]) >> lmin
-        d1 = (nodes[t, 6] - nodes[t, 3]) >> lmin
-        d2 = (nodes[t, 7] - nodes[t, 4]) >> lmin
-        if d0 <= max_width and d1 <= max_width and d2 <= max_width:
-            # d0 * d1 <= n first, so that the triple product cannot overflow.
-            if d0 * d1 <= n and d0 * d1 * d2 == n:
-                brick_end[s] = e
-                return _LEAF
-    # Split the longest axis at its middle rounded to a multiple of the coarsest
-    # width W: every cell is W-aligned at that plane, so none is cut (§3.1.2).
-    # A plane strictly inside the box always has cells on both sides.
-    big_w = np.int64(1) << lmax
-    ext0 = nodes[t, 5] - nodes[t, 2]
-    ext1 = nodes[t, 6] - nodes[t, 3]
-    ext2 = nodes[t, 7] - nodes[t, 4]
-    axis = -1
-    pos = np.int64(0)
-    first = _first_axis(ext0, ext1, ext2)
-    second = _second_axis(ext0, ext1, ext2)
-    for attempt in range(3):
-        # Axes in order of decreasing extent (ties: x before y before z).  For
-        # cells that do not overlap the longest axis always has a plane.
-        a = first if attempt == 0 else (second if attempt == 1 else 3 - first - second)
-        lo = nodes[t, 2 + a]
-        hi = nodes[t, 5 + a]
-        mid = (lo + hi) >> 1
-        # Nearest multiple of W (ties up); at a box edge, one W further inside.
-        p = ((mid + (big_w >> 1)) >> lmax) << lmax
-        if p <= lo:
-            p += big_w
-        if p >= hi:
-            p -= big_w
-        if lo < p < hi:
-            axis = a
-            pos = p
-            break
-    if axis < 0:
-        return _OVERLAP
-    # Hoare partition on rec[:, axis] < pos, accumulating both children's rows.
-    left = _empty_stats()
-    right = _empty_stats()
-    i = s
-    j = e - 1
-    while True:
-        while i <= j and rec[i, axis] < pos:
-            left = _grow(left, np.int64(rec[i, 0]), np.int64(rec[i, 1]),
-                         np.int64(rec[i, 2]), np.int64(rec[i, 3]))
-            i += 1
-        while i <= j and rec[j, axis] >= pos:
-            right = _grow(right, np.int64(rec[j, 0]), np.int64(rec[j, 1]),
-                          np.int64(rec[j, 2]), np.int64(rec[j, 3]))
-            j -= 1
-        if i > j:
-            break
-        for c in range(5):
-            tmp = rec[i, c]
-            rec[i, c] = rec[j, c]
-            rec[j, c] = tmp
-        left = _grow(left, np.int64(rec[i, 0]), np.int64(rec[i, 1]),
-                     np.int64(rec[i, 2]), np.int64(rec[i, 3]))
-        right = _grow(right, np.int64(rec[j, 0]), np.int64(rec[j, 1]),
-                      np.int64(rec[j, 2]), np.int64(rec[j, 3]))
-        i += 1
-        j -= 1
-    _store(nodes, t, s, i, left)
-    _store(nodes, t + 1, i, e, right)
-    return _SPLIT
-
-
-@numba.njit(cache=True, inline="always")
-def _first_axis(e0, e1, e2):
-    if e0 >= e1 and e0 >= e2:
-        return 0
-    return 1 if e1 >= e2 else 2
-
-
-@numba.njit(cache=True, inline="always")
-def _second_axis(e0, e1, e2):
-    first = _first_axis(e0, e1, e2)
-    if first == 0:
-        return 1 if e1 >= e2 else 2
-    if first == 1:
-        return 0 if e0 >= e2 else 2
-    return 0 if e0 >= e1 else 1
-
-
-@numba.njit(cache=True)
-def _build_subtree(rec, node, max_width, brick_end):
-    """Build every brick below one node, depth first with an explicit stack.
-
-    node: int64 (10,) node row.  Returns (start, end) of a node whose cells
-    overlap, or (-1, -1).
-    """
-    stack = np.empty((256, _NODE_SIZE), np.int64)
-    stack[0] = node
-    top = 1
-    while top > 0:
-        top -= 1
-        if top + 2 > stack.shape[0]:
-            bigger = np.empty((2 * stack.shape[0], _NODE_SIZE), np.int64)
-            bigger[: stack.shape[0]] = stack
-            stack = bigger
-        outcome = _split(rec, stack, top, max_width, brick_end)
-        if outcome == _SPLIT:
-            top += 2
-        elif outcome == _OVERLAP:
-            return stack[top, 0], stack[top, 1]
-    return np.int64(-1), np.int64(-1)
-
-
-@numba.njit(cache=True, parallel=True)
-def _build_top(rec, root, max_width, brick_end, target):
-    """Split breadth first, the nodes of each tree level in parallel, until at
-    least `target` nodes are unfinished.
-
-    root: int64 (1, 10).  Returns the unfinished nodes, int64 (K, 10), and the
-    (start, end) of a node whose cells overlap, or (-1, -1).
-    """
-    current = root.copy()
-    while 0 < current.shape[0] < target:
-        k_nodes = current.shape[0]
-        following = np.empty((2 * k_nodes, _NODE_SIZE), np.int64)
-        outcome = np.empty(k_nodes, np.int64)
-        for k in numba.prange(k_nodes):
-            for a in range(_NODE_SIZE):
-                following[2 * k, a] = current[k, a]
-            outcome[k] = _split(rec, following, 2 * k, max_width, brick_end)
-        m = 0
-        for k in range(k_nodes):
-            if outcome[k] == _OVERLAP:
-                return current, current[k, 0], current[k, 1]
-            if outcome[k] == _SPLIT:
-                m += 2
-        current = np.empty((m, _NODE_SIZE), np.int64)
-        m = 0
-        for k in range(k_nodes):
-            if outcome[k] == _SPLIT:
-                current[m] = following[2 * k]
-                current[m + 1] = following[2 * k + 1]
-                m += 2
-    return current, np.int64(-1), np.int64(-1)
-
-
-@numba.njit(cache=True, parallel=True)
-def _build_subtrees(rec, tasks, max_width, brick_end):
-    """Build the subtrees below the node rows `tasks` (int64 (K, 10)) in parallel.
-
-    Returns int64 (K, 2): per task, (start, end) of an overlapping node or -1.
-    """
-    overlap = np.empty((tasks.shape[0], 2), np.int64)
-    for k in numba.prange(tasks.shape[0]):
-        s, e = _build_subtree(rec, tasks[k], max_width, brick_end)
-        overlap[k, 0] = s
-        overlap[k, 1] = e
-    return overlap
 
 
 @numba.njit(cache=True, parallel=True)
@@ -289,13 +54,13 @@ def _place(rec, starts, ends, lower, level, dims, source, clash):
     its cells fill the box exactly unless two of them are the same cell (then one
     slot is hit twice and another is left empty).  That is the only overlap the
     partition can miss (cells of different levels that overlap are never separated
-    by a plane, _split's _OVERLAP, and leaves are disjoint), so with this check the
+    by a plane, split_node's OVERLAP, and leaves are disjoint), so with this check the
     build refuses every overlap in one pass, at memory speed.
     """
     for b in numba.prange(starts.shape[0]):
         s = starts[b]
         e = ends[b]
-        lvl = rec[s, _LEVEL]
+        lvl = rec[s, LEVEL]
         lo0 = rec[s, 0]
         lo1 = rec[s, 1]
         lo2 = rec[s, 2]
@@ -327,20 +92,8 @@ def _place(rec, starts, ends, lower, level, dims, source, clash):
             slot = s + i + d0 * (j + d1 * k)
             if source[slot] >= 0 and clash[b, 0] < 0:
                 clash[b, 0] = source[slot]
-                clash[b, 1] = rec[p, _ID]
-            source[slot] = rec[p, _ID]
-
-
-@numba.njit(cache=True, parallel=True)
-def _gather(values, source):
-    """values[:, source]: float32 (F, N) from float32 (F, N) and int32 (N,)."""
-    out = np.empty((values.shape[0], source.shape[0]), values.dtype)
-    for f in range(values.shape[0]):
-        row = values[f]
-        dest = out[f]
-        for p in numba.prange(source.shape[0]):
-            dest[p] = row[source[p]]
-    return out
+                clash[b, 1] = rec[p, ID]
+            source[slot] = rec[p, ID]
 
 
 @numba.njit(cache=True, inline="always")
@@ -507,6 +260,19 @@ def merge_bricks(lower: np.ndarray, level: np.ndarray, dims: np.ndarray, offset:
     return new_lower, new_level, new_dims, new_offset, out
 
 
+def _build_tasks(rec, tasks, width, brick_end) -> tuple[int, int]:
+    """Build the subtrees below the node rows `tasks` in parallel, largest first,
+    one at a time to whichever thread is free; (start, end) of a node whose cells
+    overlap, or (-1, -1)."""
+    if not tasks.shape[0]:
+        return -1, -1
+    order = np.argsort(tasks[:, START] - tasks[:, END], kind="stable")
+    with numba.parallel_chunksize(1):
+        overlap = build_subtrees(rec, np.ascontiguousarray(tasks[order]), width, brick_end)
+    found = np.flatnonzero(overlap[:, 0] >= 0)
+    return (int(overlap[found[0], 0]), int(overlap[found[0], 1])) if found.size else (-1, -1)
+
+
 def build_bricks(cells: schema.Cells, *, max_brick_width: int = 32,
                  piece: Piece = WHOLE) -> schema.Bricks:
     """Bricks of same-level cells that completely fill their box (paper §3.1).
@@ -530,63 +296,69 @@ def build_bricks(cells: schema.Cells, *, max_brick_width: int = 32,
     if n >= np.iinfo(np.int32).max:
         raise ExabricksError(f"{n} cells: at most {np.iinfo(np.int32).max - 1} are supported")
     threads = numba.get_num_threads()
-    rec, root = _pack(cells.lower_lattice, cells.level, 4 * threads)
-    schema.release_arrays(cells.lower_lattice, cells.level)  # when mapped: rec holds them now
-    brick_end = np.full(n, -1, np.int32)
     width = np.int64(max_brick_width)
-    a, b = 0, n  # the run of cells this share holds
-    if not piece.whole or (threads > 1 and n >= _PARALLEL_MIN_CELLS):
-        # Split the top of the tree level by level, then build the subtrees in parallel.
-        # Pieces cut the same top whatever their thread counts (the bricks do not
-        # depend on where the top ends: a node's split depends on its cells alone).
-        target = threads * _TASKS_PER_THREAD if piece.whole else _TASKS_PER_PIECE * piece.count
-        pending, s, e = _build_top(rec, root, width, brick_end, target)
-        if not piece.whole and s < 0:
-            # Tasks are in cell order: task t owns the cells from its start to the
-            # next task's (with the bricks the top finished in between).
-            bounds = np.concatenate([[0], pending[1:, _START], [n]])
-            t0, t1 = task_range(np.diff(bounds), piece)
-            a, b = int(bounds[t0]), int(bounds[t1])
-            pending = pending[t0:t1]
-        if s < 0 and pending.shape[0]:
-            # Largest subtrees first, one at a time to whichever thread is free.
-            tasks = np.ascontiguousarray(pending[np.argsort(pending[:, _START] - pending[:, _END],
-                                                            kind="stable")])
-            with numba.parallel_chunksize(1):
-                overlap = _build_subtrees(rec, tasks, width, brick_end)
-            found = np.flatnonzero(overlap[:, 0] >= 0)
-            if found.size:
-                s, e = overlap[found[0]]
+    runs = share_runs(cells, piece, max_brick_width)
+    if runs is not None:
+        # Cells in piece order (exabricks.stages.piece_order): read and check the
+        # share's cells only, and build the subtrees of its runs.
+        a, b = int(runs[0]), int(runs[-1])
+        cells = cells.replace(lower_lattice=cells.lower_lattice[a:b], level=cells.level[a:b],
+                              values=cells.values[:, a:b])
+        schema.validate(cells, f"the cells from {a} (piece {piece.index}/{piece.count})")
+        base, lo, hi = a, 0, b - a  # cell ids in rec count from a; the share is rec[lo:hi]
+        rec, _ = pack(cells.lower_lattice, cells.level, 4 * threads)
+        brick_end = np.full(hi, -1, np.int32)
+        s, e = _build_tasks(rec, run_nodes(rec, runs - a), width, brick_end)
     else:
-        s, e = _build_subtree(rec, root[0], width, brick_end)
+        rec, root = pack(cells.lower_lattice, cells.level, 4 * threads)  # mapped pages handed back
+        brick_end = np.full(n, -1, np.int32)
+        base, lo, hi = 0, 0, n
+        a, b = 0, n  # the run of cells this share holds
+        if not piece.whole or (threads > 1 and n >= _PARALLEL_MIN_CELLS):
+            # Split the top of the tree level by level, then build the subtrees in parallel.
+            # Pieces cut the same top whatever their thread counts (the bricks do not
+            # depend on where the top ends: a node's split depends on its cells alone).
+            target = threads * _TASKS_PER_THREAD if piece.whole else _TASKS_PER_PIECE * piece.count
+            pending, s, e = build_top(rec, root, width, brick_end, target)
+            if not piece.whole and s < 0:
+                # Tasks are in cell order: task t owns the cells from its start to the
+                # next task's (with the bricks the top finished in between).
+                bounds = np.concatenate([[0], pending[1:, START], [n]])
+                t0, t1 = task_range(np.diff(bounds), piece)
+                a, b = lo, hi = int(bounds[t0]), int(bounds[t1])
+                pending = pending[t0:t1]
+            if s < 0:
+                s, e = _build_tasks(rec, pending, width, brick_end)
+        else:
+            s, e = build_subtree(rec, root[0], width, brick_end)
     if s >= 0:
-        raise ExabricksError(_overlap_message(rec[s:e]))
+        raise ExabricksError(_overlap_message(rec[s:e], base))
 
-    starts = np.flatnonzero(brick_end[a:b] >= 0)
-    ends = brick_end[a:b][starts].astype(np.int64) - a
+    starts = np.flatnonzero(brick_end[lo:hi] >= 0)
+    ends = brick_end[lo:hi][starts].astype(np.int64) - lo
     nb = starts.shape[0]
     lower = np.empty((nb, 3), LATTICE_DTYPE)
     level = np.empty(nb, LEVEL_DTYPE)
     dims = np.empty((nb, 3), LATTICE_DTYPE)
-    source = np.full(b - a, -1, np.int32)
+    source = np.full(hi - lo, -1, np.int32)
     clash = np.full((nb, 2), -1, np.int32)
     # Checked at ingest too, but a cells file can be edited after it.
-    _place(rec[a:b], starts.astype(np.int64), ends, lower, level, dims, source, clash)
+    _place(rec[lo:hi], starts.astype(np.int64), ends, lower, level, dims, source, clash)
     del rec, brick_end
     schema.trim_heap()
     bad = np.flatnonzero(clash[:, 0] >= 0)
     if bad.size:
         i, j = (int(k) for k in clash[bad[0]])
-        lo, lv = cells.lower_lattice, cells.level
-        raise ExabricksError(f"cells overlap: cell {j} at {lo[j].tolist()} level {int(lv[j])} and "
-                             f"cell {i} at {lo[i].tolist()} level {int(lv[i])}")
+        low, lv = cells.lower_lattice, cells.level
+        raise ExabricksError(f"cells overlap: cell {base + j} at {low[j].tolist()} level "
+                             f"{int(lv[j])} and cell {base + i} at {low[i].tolist()} level {int(lv[i])}")
     offset = starts.astype(OFFSET_DTYPE)
     values = np.ascontiguousarray(cells.values, dtype=VALUE_DTYPE)
     if piece.whole:  # shares are joined by `exabricks join` (exabricks.stages.join)
         lower, level, dims, offset, values = merge_bricks(lower, level, dims, offset, values,
                                                           max_brick_width, source)
     else:
-        values = _gather(values, source)
+        values = take_columns(values, source)
     schema.release_arrays(cells.values)
     return schema.Bricks(
         fields=cells.fields, origin_world=cells.origin_world, spacing_world=cells.spacing_world,
@@ -703,12 +475,13 @@ def statistics(level: np.ndarray, dims: np.ndarray) -> dict:
     }
 
 
-def _overlap_message(run: np.ndarray) -> str:
-    """Name two overlapping cells of a node that no plane can split (int32 (n, 5) rows)."""
-    coarse = int(np.argmax(run[:, _LEVEL]))
+def _overlap_message(run: np.ndarray, base: int = 0) -> str:
+    """Name two overlapping cells of a node that no plane can split (int32 (n, 5) rows
+    whose cell ids count from `base`)."""
+    coarse = int(np.argmax(run[:, LEVEL]))
     other = 1 if coarse == 0 else 0
     a, b = run[coarse], run[other]
     return (
-        f"cells overlap: cell {int(a[_ID])} at {a[:3].tolist()} level {int(a[_LEVEL])} and "
-        f"cell {int(b[_ID])} at {b[:3].tolist()} level {int(b[_LEVEL])}"
+        f"cells overlap: cell {base + int(a[ID])} at {a[:3].tolist()} level {int(a[LEVEL])} and "
+        f"cell {base + int(b[ID])} at {b[:3].tolist()} level {int(b[LEVEL])}"
     )

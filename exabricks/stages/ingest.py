@@ -34,6 +34,7 @@ from .. import schema
 from ..constants import AUTO_MASK_FIELD, LATTICE_DTYPE, LEVEL_DTYPE, MAX_LEVEL, NAN_POLICIES, VALUE_DTYPE
 from ..errors import ExabricksError
 from ..schema import Cells, first_misaligned
+from .piece_order import RUNS_KEY, order_cells
 
 RAW_DEFAULTS = {"dims": None, "dtype": "float32", "byte_order": "little", "name": "value",
                 "max_level": None, "threshold": 0.0}
@@ -63,6 +64,7 @@ def ingest(
     mask: str | None = None,
     auto_mask: bool = True,
     level_cap: int | None = None,
+    piece_order: bool = False,
     on_step: Callable[[], None] | None = None,
 ) -> Cells:
     """Leaf cells of `path`, checked, with their provenance meta (ready for schema.save).
@@ -88,7 +90,11 @@ def ingest(
     auto_mask: with no `mask`, use AUTO_MASK_FIELD as the mask when the input has it.
     level_cap: AMReX only: read levels 0..level_cap, using the covered data the
           plotfile stores for level `level_cap` (`readers.amrex.read`; `coarsen` uses it).
-    on_step: called after reading and after checking (for a progress bar).
+    piece_order: store the cells in the order of the top of their k-d partition, with
+          the runs from which `brick --piece K/N` reads only its share
+          (exabricks.stages.piece_order; what the `ingest` command writes).
+    on_step: called after reading, after checking and, with `piece_order`, after
+          ordering (for a progress bar).
 
     The order: read, magnitudes, derived expressions, mask, field selection,
     `validate_cells` (so an expression's inf or NaN, e.g. from a division by zero, meets
@@ -207,6 +213,9 @@ def ingest(
         n_read = cells.n_cells
         cells = validate_cells(cells, source=source, nan_policy=nan_policy)
         step()
+        if piece_order:
+            cells = order_cells(cells)
+            step()
 
     inputs = cells.meta.get("inputs") or _input_files(path)
     parameters = {
@@ -226,7 +235,8 @@ def ingest(
                   "masked_cells": int(n_masked)}
     return cells.replace(meta=schema.make_meta(
         inputs=inputs, parameters=parameters, statistics=statistics,
-        source={k: v for k, v in cells.meta.items() if k != "inputs"},
+        source={k: v for k, v in cells.meta.items() if k not in ("inputs", RUNS_KEY)},
+        **({RUNS_KEY: cells.meta[RUNS_KEY]} if piece_order else {}),
     ))
 
 
