@@ -28,20 +28,18 @@ from benchmarks import benchdoc
 from exabricks import schema  # noqa: E402
 
 SECTION = "Builders by pieces"
-READING = """Reading the figures. Pieces divide the subtrees of a stage, not the whole
-stage: every piece loads and checks its entire input and computes the top of
-the tree (`brick` packs every cell and splits the top levels, whose first
-splits run on one thread; `regions` checks that no two bricks share a cell and
-computes every support and the 64 top tasks; `bvh` makes the top SAH splits
-over every region), and the join reads the shares and writes the whole file.
-So a piece takes about half of a one-process run rather than a quarter, and 4
-pieces end a stage 0.8-1.5 times as soon as one process (`bvh` is slower in
-pieces). Memory per piece is that of one process for `brick` (the packed cells), about 0.7 of it for
-`regions` and `bvh`; a join holds about its output, except `brick`'s, which
-also joins the small bricks of the shares (`merge_bricks`; 3-5 times its output
-at its peak, and a join of 3.0 s at 20.6 M cells and 24.2 s at 204 M). What pieces buy today is a
-stage cut into jobs of half the length, each on its own node; cutting the
-replicated top (pieces that read only their own cells) is the next step.
+READING = """Reading the figures. The cells come from `exabricks ingest`, in piece
+order: a `brick` piece maps and checks only its own runs of cells and builds
+their subtrees, so its time and memory are about 1/N of the work (what stays
+whole is hashing the input for the provenance, on a background thread). The
+other stages' pieces divide only the subtrees: every `regions` or `bvh` piece
+loads and checks its entire input and computes the top of its tree (`regions`
+checks that no two bricks share a cell and computes every support and the 64
+top tasks; `bvh` makes the top SAH splits over every region), so a piece takes
+about half of a one-process run and holds 0.7-0.85 of its memory. A join holds
+about its output, except `brick`'s, which also joins the small bricks of the
+shares (`merge_bricks`, about 3 times its output at its peak): on N machines
+the `brick` stage is now bounded by its join.
 """
 STAGES = (("brick", "cells", "bricks"), ("regions", "bricks", "regions"), ("bvh", "regions", "bvh"))
 
