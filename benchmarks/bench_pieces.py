@@ -31,15 +31,14 @@ SECTION = "Builders by pieces"
 READING = """Reading the figures. The cells come from `exabricks ingest`, in piece
 order: a `brick` piece maps and checks only its own runs of cells and builds
 their subtrees, so its time and memory are about 1/N of the work (what stays
-whole is hashing the input for the provenance, on a background thread). The
-other stages' pieces divide only the subtrees: every `regions` or `bvh` piece
-loads and checks its entire input and computes the top of its tree (`regions`
-checks that no two bricks share a cell and computes every support and the 64
-top tasks; `bvh` makes the top SAH splits over every region), so a piece takes
-about half of a one-process run and holds 0.7-0.85 of its memory. A join holds
-about its output, except `brick`'s, which also joins the small bricks of the
-shares (`merge_bricks`, about 3 times its output at its peak): on N machines
-the `brick` stage is now bounded by its join.
+whole is hashing the input for the provenance, on a background thread). A
+`regions` piece checks that no two bricks share a cell among its own tasks'
+bricks and reads the values of its own regions only, but computes every
+support and the 64 top tasks; a `bvh` piece loads and checks every region and
+makes the top SAH splits over all of them. A join holds about its output,
+except `brick`'s, which also joins the small bricks of the shares
+(`merge_bricks`, about 3 times its output at its peak): on N machines the
+`brick` stage is bounded by its join.
 """
 STAGES = (("brick", "cells", "bricks"), ("regions", "bricks", "regions"), ("bvh", "regions", "bvh"))
 

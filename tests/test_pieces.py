@@ -294,6 +294,27 @@ def test_a_cell_in_two_pieces_is_refused_by_regions(enzo_files, tmp_path, cli):
     assert not (tmp_path / "r.npz").exists()
 
 
+def test_pieces_of_regions_find_bricks_that_share_a_cell():
+    """Each regions piece checks only the bricks of its own tasks; a brick moved onto
+    its neighbour's cells is found by the pieces whose tasks hold the shared cells
+    (each with the one-process build's message), and the other pieces pass."""
+    bricks = build_bricks(dataset_cells("shell"))
+    lower = bricks.lower_lattice.copy()
+    b = int(np.flatnonzero(bricks.level == 0)[len(bricks.level) // 3])
+    lower[b, 0] += 1  # one cell along x: onto the cells of the next brick, or off the shell
+    crafted = bricks.replace(lower_lattice=lower)
+    with pytest.raises(ExabricksError) as whole:
+        build_regions(crafted)
+    n, refused = 8, []
+    for k in range(n):
+        try:
+            build_regions(crafted, piece=Piece(k, n))
+        except ExabricksError as e:
+            assert "share a cell" in str(e) and str(e) == str(whole.value)
+            refused.append(k)
+    assert 1 <= len(refused) < n
+
+
 @pytest.mark.parametrize("runs,needles", [
     ({"max_brick_width": 32, "starts": [0, 7, 7]}, ["do not increase"]),
     ({"max_brick_width": 32, "starts": [3, 9]}, ["do not increase from 0"]),

@@ -368,37 +368,41 @@ def build_bricks(cells: schema.Cells, *, max_brick_width: int = 32,
     )
 
 
-def require_disjoint(bricks: schema.Bricks) -> None:
+def require_disjoint(bricks: schema.Bricks, ids: np.ndarray | None = None) -> None:
     """ExabricksError naming two bricks that share a cell, if any (O(N log N) in the
-    cells, through the Morton-order check of exabricks.stages.ingest).
+    cells, through the Morton-order check of exabricks.stages.ingest); with `ids`
+    (int (K,)), among those bricks only.
 
     Each cell is one uint64 key, its Morton code above its brick's id, sorted in
     place: 8 bytes a cell and no per-cell corner or level arrays (bricks may be
     mapped, schema.load(mapped=True)).  Lattices too wide for one key take the
     per-cell path."""
-    n = bricks.n_bricks
+    lower, level, dims = bricks.lower_lattice, bricks.level, bricks.dims
+    if ids is not None:
+        lower, level, dims = lower[ids], level[ids], dims[ids]
+    n = level.shape[0]
     if n < 2:
         return
-    level = bricks.level
+    sizes = dims.astype(np.int64).prod(axis=1)
+    offset = np.concatenate([[0], np.cumsum(sizes)[:-1]])  # the values' order, as validated
+    n_cells = int(sizes.sum())
     lmin, lmax = int(level.min()), int(level.max())
-    cmin, cmax = _brick_corner_range(bricks.lower_lattice, level, bricks.dims)
+    cmin, cmax = _brick_corner_range(lower, level, dims)
     cmin = (cmin >> lmax) << lmax  # as in find_overlap: every cell stays aligned
     bits = max(int(((cmax - cmin) >> lmin).max()).bit_length(), 1)
     id_bits = max(int(n - 1).bit_length(), 1)
     if 3 * bits + id_bits <= 64:
-        keys = _brick_keys(bricks.lower_lattice, level, bricks.dims, bricks.offset,
-                           bricks.values.shape[1], cmin, lmin, np.uint64(id_bits))
+        keys = _brick_keys(lower, level, dims, offset, n_cells, cmin, lmin, np.uint64(id_bits))
         keys.sort()
         a, b = neighbour_overlap_keys(keys, np.uint64(id_bits), level, lmin)
         pair = None if a < 0 else (int(a), int(b))
     else:
-        lower, lv = brick_cells(bricks.lower_lattice, level, bricks.dims, bricks.offset,
-                                bricks.values.shape[1])
-        pair = find_overlap(lower, lv)
+        cell_lower, cell_level = brick_cells(lower, level, dims, offset, n_cells)
+        pair = find_overlap(cell_lower, cell_level)
         if pair is not None:
-            pair = tuple(int(np.searchsorted(bricks.offset, i, side="right")) - 1 for i in pair)
+            pair = tuple(int(np.searchsorted(offset, i, side="right")) - 1 for i in pair)
     if pair is not None:
-        a, b = pair
+        a, b = pair if ids is None else (int(ids[pair[0]]), int(ids[pair[1]]))
         raise ExabricksError(f"bricks overlap: brick {b} at {bricks.lower_lattice[b].tolist()} "
                              f"and brick {a} at {bricks.lower_lattice[a].tolist()} share a cell")
 

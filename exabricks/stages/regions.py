@@ -106,12 +106,18 @@ def build_regions(bricks: schema.Bricks, merge: Merge = Merge(),
     # Each step's temporaries are handed back to the system before the next
     # (schema.trim_heap): glibc would keep them for the next allocations, and
     # the builders' peaks are those of the steps, not of their sum.
-    require_disjoint(bricks)
-    schema.trim_heap()
+    if piece.whole:
+        require_disjoint(bricks)
+        schema.trim_heap()
     sup_lo, sup_hi = support_boxes_doubled(bricks)
     tasks, lv, small = _tasks(sup_lo, sup_hi, bricks.level,
                               bricks.dims.astype(np.int64).prod(axis=1), merge)
     t0, t1 = task_range([t[2].size for t in tasks], piece)
+    if not piece.whole and t1 > t0:
+        # Two bricks that share a cell both overlap the task that holds that cell:
+        # a piece checks the bricks of its own tasks, and the N pieces check all.
+        require_disjoint(bricks, np.unique(np.concatenate([t[2] for t in tasks[t0:t1]])))
+        schema.trim_heap()
     parts = _run(sup_lo, sup_hi, tasks[t0:t1], lv, small, merge)
     del sup_lo, sup_hi, tasks, lv, small
     schema.trim_heap()
