@@ -27,6 +27,8 @@ from .errors import ExabricksError
 
 # A share's meta["piece"]: index, count, and per kind where its share lies.
 PIECE_KEY = "piece"
+# A cells file's meta entry: the runs a brick piece reads (exabricks.stages.piece_order).
+RUNS_KEY = "piece_runs"
 
 
 @dataclass(frozen=True)

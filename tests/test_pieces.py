@@ -251,6 +251,11 @@ def rewrite(src, dst, **arrays):
     np.savez(dst, **{**members, **arrays})
 
 
+def test_info_counts_the_runs(enzo_files, cli):
+    runs = schema.peek(enzo_files / "cells.npz")[2][RUNS_KEY]["starts"]
+    assert f"piece runs: {len(runs):,}" in cli("info", enzo_files / "cells.npz", check=0).stdout
+
+
 def test_a_piece_reads_only_its_cells(enzo_files, tmp_path, cli):
     """Cells outside a piece's share that no whole build accepts (a level out of range,
     a corner off its level's lattice) do not stop that piece: it never reads them; the

@@ -21,6 +21,7 @@ from ..constants import (
     WORLD_DTYPE,
 )
 from ..errors import ExabricksError
+from ..pieces import RUNS_KEY
 from .memory import rows
 
 
@@ -277,6 +278,9 @@ def summary(obj: Kind) -> dict[str, Any]:
         elif isinstance(obj, Cells):
             per_level = np.bincount(obj.level.astype(np.int64), minlength=1)
             counts["cells"] = obj.n_cells
+            runs = obj.meta.get(RUNS_KEY)
+            if isinstance(runs, dict) and isinstance(runs.get("starts"), list):
+                counts["piece_runs"] = len(runs["starts"])
         else:
             n = obj.dims.astype(np.int64).prod(axis=1)
             per_level = np.bincount(obj.level.astype(np.int64), weights=n, minlength=1)

@@ -61,6 +61,8 @@ def discard(part: np.ndarray) -> None:
     For passes that turn one large array into another in steps."""
     import mmap
 
+    if not part.nbytes:
+        return
     base = mapping(part)
     if base is not None:
         _hand_back(base, part.ctypes.data - np.frombuffer(base, np.uint8).ctypes.data, part.nbytes)

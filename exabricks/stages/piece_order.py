@@ -27,10 +27,9 @@ import numpy as np
 
 from .. import schema
 from ..errors import ExabricksError
-from ..pieces import Piece, task_range
+from ..pieces import RUNS_KEY, Piece, task_range
 from .cell_tree import ID, LEVEL, PACK_STEP, START, build_top, pack, take_columns
 
-RUNS_KEY = "piece_runs"
 # A run per this many cells, at most MAX_RUNS (pieces are balanced over runs).
 RUN_CELLS = 1 << 12
 MAX_RUNS = 4096
