@@ -279,6 +279,7 @@ def test_a_piece_reads_only_its_cells(enzo_files, tmp_path, cli):
                           "cells.npz", f"from {share[0]}", "cell 5 ", "level 99")
 
 
+@pytest.mark.slow
 def test_a_cell_in_two_pieces_is_refused_by_regions(enzo_files, tmp_path, cli):
     """A crafted file in piece order with one cell copied into another piece's share:
     each piece bricks what it reads, and the joined bricks, which share that cell,
@@ -342,6 +343,7 @@ def test_bad_runs_are_refused_or_ignored(enzo_files, tmp_path, cli, runs, needle
         assert not (tmp_path / "b.npz").exists()
 
 
+@pytest.mark.slow
 def test_wider_bricks_than_the_runs_read_the_whole_file(enzo_files, tmp_path, cli):
     """--max-brick-width above the runs' width: the pieces cut the partition as
     before (the runs are not nodes of it), and still join to the whole build."""
