@@ -75,7 +75,9 @@ def ordered(name):
 
 
 @pytest.mark.parametrize("name,counts", [("shell", (3, 8)), ("gerris", (2, 40)),
-                                         ("amrex", (3,)), ("athena", (2,)), ("enzo", (4,))])
+                                         pytest.param("amrex", (3,), marks=pytest.mark.slow),
+                                         pytest.param("athena", (2,), marks=pytest.mark.slow),
+                                         pytest.param("enzo", (4,), marks=pytest.mark.slow)])
 def test_pieces_of_ordered_cells_read_only_their_share(name, counts):
     """Cells in piece order hold the same bricks, and N pieces that each read only
     their run of cells, joined, equal the whole build of the cells as read (40 pieces
@@ -323,11 +325,12 @@ def test_pieces_of_regions_find_bricks_that_share_a_cell():
 
 @pytest.mark.parametrize("runs,needles", [
     ({"max_brick_width": 32, "starts": [0, 7, 7]}, ["do not increase"]),
-    ({"max_brick_width": 32, "starts": [3, 9]}, ["do not increase from 0"]),
+    pytest.param({"max_brick_width": 32, "starts": [3, 9]}, ["do not increase from 0"],
+                 marks=pytest.mark.slow),
     ({"max_brick_width": 32, "starts": [0, 10 ** 30]}, ["starts of its"]),
-    ({"max_brick_width": 32, "starts": "0"}, ["starts of its"]),
+    pytest.param({"max_brick_width": 32, "starts": "0"}, ["starts of its"], marks=pytest.mark.slow),
     ({"max_brick_width": "32", "starts": [0]}, None),  # no width: the whole file is read
-    ([0, 1], None),
+    pytest.param([0, 1], None, marks=pytest.mark.slow),
 ])
 def test_bad_runs_are_refused_or_ignored(enzo_files, tmp_path, cli, runs, needles):
     """Runs that are not increasing starts of the file's cells are refused with one
