@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import argparse
 import sys
+from pathlib import Path
 
 import numba
 import numpy as np
@@ -186,8 +187,6 @@ def main(argv=None) -> int:
     p.add_argument("--work", default=str(benchdoc.BENCH / "render"))
     p.add_argument("--write-docs", action="store_true")
     args = p.parse_args(argv)
-    from pathlib import Path
-
     sets = benchdoc.datasets()
     rows = []
     for key in benchdoc.chosen([args.only], list(sets)):

@@ -7,6 +7,7 @@ allocating).
 
 from __future__ import annotations
 
+import functools
 import os
 
 import numpy as np
@@ -69,30 +70,34 @@ def discard(part: np.ndarray) -> None:
         return
     if not hasattr(mmap, "MADV_DONTNEED") or not part.flags.c_contiguous:
         return
-    import ctypes
-    import ctypes.util
-
     page = mmap.PAGESIZE
     lo = -(-part.ctypes.data // page) * page
     hi = (part.ctypes.data + part.nbytes) // page * page
-    if hi > lo:
-        try:
-            libc = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6", use_errno=True)
-            libc.madvise(ctypes.c_void_p(lo), ctypes.c_size_t(hi - lo), mmap.MADV_DONTNEED)
-        except (OSError, AttributeError):
-            pass
+    libc = _libc()
+    if hi > lo and libc is not None and hasattr(libc, "madvise"):
+        import ctypes
+
+        libc.madvise(ctypes.c_void_p(lo), ctypes.c_size_t(hi - lo), mmap.MADV_DONTNEED)
 
 
 def trim_heap() -> None:
     """Give the C heap's free memory back to the system (glibc keeps what the
     piece's temporaries used, a few hundred MB on large data); a no-op elsewhere."""
+    libc = _libc()
+    if libc is not None and hasattr(libc, "malloc_trim"):
+        libc.malloc_trim(0)
+
+
+@functools.cache
+def _libc():
+    """The C library (ctypes), or None where there is none to load."""
     import ctypes
     import ctypes.util
 
     try:
-        ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6").malloc_trim(0)
-    except (OSError, AttributeError):
-        pass
+        return ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6")
+    except OSError:
+        return None
 
 
 def rows(*arrays: np.ndarray):
@@ -107,10 +112,8 @@ def rows(*arrays: np.ndarray):
         parts = [a[start:start + step] for a in arrays]
         yield start, parts
         for a, part in zip(arrays, parts):
-            base = mapping(a)
-            if base is not None and part.size:
-                _hand_back(base, part.ctypes.data - np.frombuffer(base, np.uint8).ctypes.data,
-                           part.nbytes)
+            if mapping(a) is not None:
+                discard(part)
 
 
 def reduce_chunks(array: np.ndarray, fn, combine):
