@@ -127,6 +127,8 @@ bench: setup
 	$(PY) -m benchmarks.bench_domain_cache --write-docs
 	@# coherent rays: how full packets of 2x2 and 4x2 rays sharing one region walk would be
 	$(PY) -m benchmarks.bench_lane_fill --write-docs
+	@# pre-integrated transfer functions against the midpoint rule, float64, at equal sample counts
+	$(PY) -m benchmarks.bench_preintegration --picture docs/images/preintegration-peaks.png --write-docs
 
 # The thin shells at 204 M cells: every stage and budgeted renders, builders by
 # pieces, and MPI renders with 1, 2 and 4 ranks beside the 20.6 M-cell shells and
