@@ -2,13 +2,14 @@
 at what sample count does each quadrature reach the image of the exact integral?
 
     .venv/bin/python -m benchmarks.bench_preintegration [--only amrex,athena,gerris]
-        [--size 64] [--rates 1,2,4] [--reference-rate 32] [--write-docs]
+        [--size 64] [--rates 1,2,4] [--reference-rate 32]
+        [--picture PNG [--picture-of athena] [--picture-size 192]] [--write-docs]
 
 For each dataset (the stage files of benchmarks/bench_render.py's work directory,
 built on first use) and each transfer function below, the primary rays of a
 --size² frame of bench_peers' camera are integrated in float64 along their
 interval through the data's world bounds, in n = ceil(length / h) equal steps of
-h = finest cell / rate, by three quadratures of the emission-absorption integral
+h = finest cell / rate, by these quadratures of the emission-absorption integral
 (DESIGN.md: slab opacity alpha per opacity unit, extinction
 sigma = -ln(1 - alpha) / unit, colour rgb; premultiplied front-to-back compositing,
 no early termination, no jitter):
@@ -22,12 +23,17 @@ no early termination, no jitter):
   with S and K the integrals of sigma and sigma rgb over the value (Engel et al. 2001,
   §4, the integral functions: exact in opacity, the colour without the attenuation
   inside one step). A kernel would read S and K from one 4-channel table per layer,
-  as it reads RGBA now, and skip the log2 of the opacity correction.
+  as it reads RGBA now, and skip the log2 of the opacity correction;
+- the same from a table of the size a kernel would read (KERNEL_INTERVALS), and
+  that table with today's lookup at the mean of the ends for the steps whose ends
+  lie within FLAT_INTERVALS table intervals (where the tables' differences lose
+  their precision; the share of such steps is printed);
 - *pre-integrated, 2D tables*: the same linear value per step, the step integrated
   with its own attenuation (what Engel's 2D table of (f, b) holds for one step
   length), here by 16 midpoint sub-steps.
 
-The reference is the midpoint rule at --reference-rate samples per finest cell. The
+The reference is the midpoint rule at --reference-rate samples per finest cell, and
+how far it is from the integral is printed (against 1D pre-integration at its rate). The
 values come from `probe` (the basis reconstruction, the kernels' own, float32) and
 everything after them is float64. Transfer functions, each over the field's range
 with the default preset's colours:
@@ -40,8 +46,10 @@ with the default preset's colours:
 
 Errors are of premultiplied RGBA in [0, 1] against the reference, over every pixel
 and channel: RMSE, the largest, and the share of pixels where some channel is off by
-more than half an 8-bit step. docs/benchmarks.md, "Pre-integrated transfer
-functions", has the figures; --write-docs replaces that section.
+more than half an 8-bit step. --picture writes one frame of the peaks function, the
+reference | the midpoint rule | the kernel-sized table with its fallback, at the lowest
+rate. docs/benchmarks.md, "Pre-integrated transfer functions", has the figures;
+--write-docs replaces that section.
 """
 
 from __future__ import annotations
