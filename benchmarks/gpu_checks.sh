@@ -6,7 +6,7 @@
 #
 #   benchmarks/gpu_checks.sh prepare        here: .gpu/ with the missing packages as
 #                                           CPython 3.12 wheels and the shared data
-#   benchmarks/gpu_checks.sh run 1          there (carry [".gpu"], timeout_s 560): the
+#   benchmarks/gpu_checks.sh run 1          there (carry [".gpu"], timeout_s 600): the
 #                                           device, the float64 reference tests, the
 #                                           frames, what the kernels ask of the GPU,
 #                                           and prefetched domains
@@ -16,11 +16,11 @@
 #                                           the targets' frames (bench_peers, the
 #                                           20.6 M-cell thin shells at 1024²)
 #
-# Every step has its own time limit and its output goes to $OUT/part<N>.txt (the
-# device tool brings back at most 8 files), so a step that fails or runs out of
-# time leaves the others' figures. QUICK=1 shrinks
-# every frame and round, to try the script on a CPU (EXABRICKS_DEVICE picks the
-# device; OUT defaults to out/gpu-checks).
+# Every step has its own time limit (560 s at most for a part's steps together),
+# and its output goes to $OUT/part<N>.txt (the device tool brings back at most 8
+# files), so a step that fails or runs out of time leaves the others' figures.
+# QUICK=1 shrinks every frame and round, to try the script on a CPU
+# (EXABRICKS_DEVICE picks the device; OUT defaults to out/gpu-checks).
 set -u
 cd "$(dirname "$0")/.."
 GPU=.gpu
@@ -79,28 +79,28 @@ setup_there() {
 }
 
 run1() {
-    step devices 60 python3 -c "from exabricks.cli.main import main; main()" devices
-    step tests 200 python3 -m pytest -q -x -n "$(nproc)" -m "not slow and not slurm" -k "not enzo" \
+    step devices 30 python3 -c "from exabricks.cli.main import main; main()" devices
+    step tests 170 python3 -m pytest -q -x -n "$(nproc)" -m "not slow and not slurm" -k "not enzo" \
         -p no:cacheprovider tests/test_render.py tests/test_packets.py tests/test_surfaces.py \
         tests/test_probe.py tests/test_reconstructions.py tests/test_render_traversal.py \
         tests/test_cell_location.py tests/test_tf_table.py
-    step render 150 python3 -m benchmarks.bench_render --only gerris,amrex,athena --runs "$RUNS" \
+    step render 120 python3 -m benchmarks.bench_render --only gerris,amrex,athena --runs "$RUNS" \
         --size "$SIZE"
     step resources 60 python3 -m benchmarks.kernel_resources
-    step domain_cache 180 python3 -m benchmarks.bench_domain_cache --size 256 --budgets 8,16
+    step domain_cache 150 python3 -m benchmarks.bench_domain_cache --size 256 --budgets 8,16
 }
 
 run2() {
     local ab=(python3 -m benchmarks.ab_kernels --base-dir . --datasets amrex,gerris
               --variants volume --rate 10 --size "$BIG" --rounds "$ROUNDS")
-    step regcap64 100 "${ab[@]}" --options=-cl-nv-maxrregcount=64
-    step regcap96 100 "${ab[@]}" --options=-cl-nv-maxrregcount=96
-    step queue16 100 "${ab[@]}" --options=-DEB_QUEUE_SIZE=16
-    step peers 120 python3 -m benchmarks.bench_peers --no-yt --no-vtk \
+    step regcap64 90 "${ab[@]}" --options=-cl-nv-maxrregcount=64
+    step regcap96 90 "${ab[@]}" --options=-cl-nv-maxrregcount=96
+    step queue16 90 "${ab[@]}" --options=-DEB_QUEUE_SIZE=16
+    step peers 110 python3 -m benchmarks.bench_peers --no-yt --no-vtk \
         --datasets amrex,athena,gerris,shell256 --size "$SIZE" --runs "$RUNS" --images /tmp/peers-images \
         --docs /tmp/peers.md
     # The 20.6 M-cell thin shells (about 260 MiB of structures, built there).
-    [ "$QUICK" = 1 ] || step shells 240 python3 -m benchmarks.bench_render --only shell \
+    [ "$QUICK" = 1 ] || step shells 180 python3 -m benchmarks.bench_render --only shell \
         --runs "$RUNS" --size "$SIZE"
 }
 
