@@ -121,18 +121,18 @@ READING = """What it says (docs/design.md, "Transfer-function tables", has the d
 """
 
 
-def transfer_functions(bench: TransferFunction) -> dict[str, TransferFunction]:
-    """The three transfer functions of the module docstring, over bench's range."""
+def transfer_functions(value_range) -> dict[str, TransferFunction]:
+    """The three transfer functions of the module docstring, over `value_range`."""
+    bench = transfer_function(value_range)
     lo, hi = bench.value_range
     span = hi - lo
-    ramp = TransferFunction(bench.rgb_points, np.array([[lo, 0.0], [hi, 1.0]]), "ramp")
     tents = [[lo, 0.0]]
     for centre in (0.25, 0.5, 0.75):
         c = lo + centre * span
         tents += [[c - 0.01 * span, 0.0], [c, 0.5], [c + 0.01 * span, 0.0]]
     tents.append([hi, 0.0])
     peaks = TransferFunction(bench.rgb_points, np.array(tents), "peaks")
-    return {"bench": bench, "ramp": ramp, "peaks": peaks}
+    return {"bench": bench, "ramp": transfer_function(value_range, alpha_scale=1.0), "peaks": peaks}
 
 
 class IntegralTables:
@@ -361,13 +361,13 @@ def main(argv=None) -> int:
         field = PEER_DATASETS[key][1] if key in PEER_DATASETS else sets[key].field
         device = DeviceDataset(bricks, regions, bvh, field=field)
         values = cells.values[cells.field_index(field)]
-        bench_tf = transfer_function((float(np.nanmin(values)), float(np.nanmax(values))))
+        value_range = (float(np.nanmin(values)), float(np.nanmax(values)))
         bounds = schema.world_bounds(cells)
         camera = default_camera(*bounds)
         unit = finest = finest_cell_width_world(bricks)
         rays = Rays(device, camera, args.size, bounds, finest)
         if args.picture is not None and key == args.picture_of:
-            tf = {"peaks": transfer_functions(bench_tf)["peaks"]}
+            tf = {"peaks": transfer_functions(value_range)["peaks"]}
             lo, hi = (np.asarray(x, np.float64) for x in bounds)
             closer = default_camera(lo + PICTURE_MARGIN * (hi - lo), hi - PICTURE_MARGIN * (hi - lo))
             frames = measure(Rays(device, closer, args.picture_size, bounds, finest), tf, unit,
@@ -375,7 +375,7 @@ def main(argv=None) -> int:
             picture(args.picture, args.picture_size, [frames["reference", args.reference_rate],
                                                       frames[METHODS[0], rates[0]],
                                                       frames[METHODS[3], rates[0]]])
-        images = measure(rays, transfer_functions(bench_tf), unit, rates, args.reference_rate)
+        images = measure(rays, transfer_functions(value_range), unit, rates, args.reference_rate)
         for name, got in images.items():
             reference = got["reference", args.reference_rate]
             check = errors(got["check", args.reference_rate], reference)

@@ -74,7 +74,6 @@ setup_there() {
             export OCL_ICD_VENDORS=/tmp/icd
         fi
     fi
-    [ -e .venv/bin/python ] || { mkdir -p .venv/bin && ln -sf "$(command -v python3)" .venv/bin/python; }
     nvidia-smi -L 2>/dev/null || true
 }
 

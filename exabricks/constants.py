@@ -22,6 +22,9 @@ WORLD_DTYPE = np.dtype(np.float64)
 # supports): the kernels' private stacks hold this many deferred nodes
 # (kernel_abi EB_STACK_SIZE), and every tree is checked against it on load.
 MAX_TREE_DEPTH = 64
+# The default --max-brick-width: bricks at most this many cells wide per axis
+# (`brick`), and the width whose partition a cells file's piece runs are nodes of.
+MAX_BRICK_WIDTH = 32
 # Largest world coordinate a mesh vertex or an instance's mirror or translation may
 # hold: beyond it, float32 ray arithmetic overflows.
 MAX_COORDINATE = 1e30

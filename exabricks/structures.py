@@ -14,10 +14,10 @@ from collections.abc import Callable, Sequence
 from contextlib import contextmanager
 
 from . import schema
+from .constants import MAX_BRICK_WIDTH
 from .errors import ExabricksError
 from .pieces import WHOLE, Piece
 
-MAX_BRICK_WIDTH = 32
 LEAF_SIZE = 4
 BINS = 16
 

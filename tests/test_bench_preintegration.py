@@ -10,14 +10,13 @@ import pytest
 from benchmarks.bench_preintegration import (SUB_STEPS, IntegralTables, midpoint,
                                              preintegrated_1d, preintegrated_2d,
                                              transfer_functions)
-from benchmarks.peers.common import transfer_function
 
 UNIT = 0.5
 
 
 @pytest.fixture(scope="module")
 def tfs():
-    return transfer_functions(transfer_function((-1.0, 3.0)))
+    return transfer_functions((-1.0, 3.0))
 
 
 def dense_integral(values_at, length, tf, n=200_000):

@@ -5,9 +5,9 @@ from __future__ import annotations
 import click
 
 from .. import schema
+from ..constants import MAX_BRICK_WIDTH
 from ..errors import ExabricksError
 from ..output import check_output
-from ..structures import MAX_BRICK_WIDTH
 from .options import input_path, output_option, piece_option
 
 

@@ -22,7 +22,7 @@ import numba
 import numpy as np
 
 from .. import schema
-from ..constants import LATTICE_DTYPE, LEVEL_DTYPE, OFFSET_DTYPE, VALUE_DTYPE
+from ..constants import LATTICE_DTYPE, LEVEL_DTYPE, MAX_BRICK_WIDTH, OFFSET_DTYPE, VALUE_DTYPE
 from ..errors import ExabricksError
 from .ingest import neighbour_overlap_keys, spread3, find_overlap
 from ..pieces import WHOLE, Piece, share_meta, task_range
@@ -273,7 +273,7 @@ def _build_tasks(rec, tasks, width, brick_end) -> tuple[int, int]:
     return (int(overlap[found[0], 0]), int(overlap[found[0], 1])) if found.size else (-1, -1)
 
 
-def build_bricks(cells: schema.Cells, *, max_brick_width: int = 32,
+def build_bricks(cells: schema.Cells, *, max_brick_width: int = MAX_BRICK_WIDTH,
                  piece: Piece = WHOLE) -> schema.Bricks:
     """Bricks of same-level cells that completely fill their box (paper §3.1).
 

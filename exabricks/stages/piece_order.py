@@ -26,6 +26,7 @@ import numba
 import numpy as np
 
 from .. import schema
+from ..constants import MAX_BRICK_WIDTH
 from ..errors import ExabricksError
 from ..pieces import RUNS_KEY, Piece, task_range
 from .cell_tree import ID, LEVEL, PACK_STEP, START, build_top, pack, take_columns
@@ -34,7 +35,7 @@ from .cell_tree import ID, LEVEL, PACK_STEP, START, build_top, pack, take_column
 RUN_CELLS = 1 << 12
 MAX_RUNS = 4096
 # The widest --max-brick-width whose partition the runs are nodes of (the default).
-RUNS_WIDTH = 32
+RUNS_WIDTH = MAX_BRICK_WIDTH
 
 
 def order_cells(cells: schema.Cells, *, run_cells: int = RUN_CELLS) -> schema.Cells:
