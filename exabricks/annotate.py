@@ -159,8 +159,9 @@ class ColourBar:
 
     kind: "volume" (with the opacity curve over the bar: opacity 0 at the left
     edge, `opacity_top` at the right), "isosurface" (the colour field of an iso-surface) or
-    "slice". Row r of `box` (from its top) shows the value at the row's centre,
-    ``hi - (r + 0.5) / box.height * (hi - lo)``.
+    "slice". `value_range` and the bar's axis are on the colour map's scaled axis
+    (exabricks.scaling: the data value, or its log or symlog): row r of `box`
+    (from its top) shows the scaled value ``hi - (r + 0.5) / box.height * (hi - lo)``.
     """
 
     kind: str
@@ -187,8 +188,11 @@ class ColourBar:
 
     def values(self) -> np.ndarray:
         """The data value of each row of the bar (float64 (height,), top row first)."""
+        from .scaling import inverse
+
         lo, hi = self.value_range
-        return hi - (np.arange(self.box.height) + 0.5) / self.box.height * (hi - lo)
+        scaled = hi - (np.arange(self.box.height) + 0.5) / self.box.height * (hi - lo)
+        return inverse(scaled, self.colormap.scale, self.colormap.threshold)
 
 
 @dataclass(frozen=True)
@@ -235,6 +239,14 @@ def backdrop_color(background) -> tuple[float, float, float]:
     black for a fully transparent background."""
     r, g, b, a = (float(c) for c in background)
     return (r, g, b) if a > 0.0 else (0.0, 0.0, 0.0)
+
+
+def png_backdrop(scene):
+    """The opaque RGB a scene's .png is composited over (`backdrop_color`), or None
+    where the scene keeps the frame's alpha (``--transparent``)."""
+    if scene is None or scene.settings.transparent:
+        return None
+    return backdrop_color(scene.background)
 
 
 def relative_luminance(rgb) -> float:
@@ -311,10 +323,14 @@ def _slice_caption(s) -> str:
 def _legends(scene: Scene, units: dict) -> tuple[list, list]:
     """(colour bars, swatches) of `scene` without their boxes, in scene order:
     (kind, caption, label, colormap, range) and (label, colour)."""
+    from .scaling import axis_label, forward
+
     bars, swatches = [], []
     for v in scene.volumes:
-        bars.append(("volume", "volume", _with_unit(v.field, units.get(v.field)),
-                     v.transfer_function, v.transfer_function.value_range))
+        tf = v.transfer_function
+        span = tuple(float(x) for x in forward(tf.value_range, tf.scale, tf.threshold))
+        bars.append(("volume", "volume", _with_unit(axis_label(v.field, tf.scale), units.get(v.field)),
+                     tf, span))
     for s in scene.isosurfaces:
         caption = f"iso {s.field} = {_number(s.value)}"
         if units.get(s.field):
@@ -597,7 +613,10 @@ def _draw_bar(fig, bar: ColourBar, height: int, fx, fy, text, f, fg, line_width)
         spine.set_linewidth(line_width)
     ax.set_xlim(0.0, 1.0)
     if bar.opacity:
-        alpha = bar.colormap.alpha_points
+        from .scaling import forward
+
+        alpha = bar.colormap.alpha_points.copy()
+        alpha[:, 0] = forward(alpha[:, 0], bar.colormap.scale, bar.colormap.threshold)
         inside = alpha[(alpha[:, 0] > lo) & (alpha[:, 0] < hi), 0]
         values = np.concatenate([[lo], inside, [hi]])
         opacity = np.interp(values, alpha[:, 0], alpha[:, 1])

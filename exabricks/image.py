@@ -56,8 +56,11 @@ class Image:
         if annotate and Path(path).suffix.lower() != ".png":
             raise ExabricksError(f"{path}: an annotated picture is a .png; an .exr stays the raw "
                                  "integration")
+        from .annotate import png_backdrop
+
         image = self.annotated(title=title) if annotate else self
-        write_image(path, image.rgba, metadata=self.metadata, depth=image.depth)
+        write_image(path, image.rgba, metadata=self.metadata, depth=image.depth,
+                    backdrop=png_backdrop(self.scene))
 
     def annotated(self, *, title: str | None = None) -> Image:
         """The picture with colour bars (the volume's with its opacity curve), field

@@ -73,8 +73,9 @@ def _decoded_metadata(attributes: dict) -> dict:
     return out
 
 
-def to_png_pixels(rgba) -> np.ndarray:
-    """Premultiplied float RGBA (H, W, 4) -> un-premultiplied 8-bit RGBA (H, W, 4) uint8.
+def to_png_pixels(rgba, backdrop=None) -> np.ndarray:
+    """Premultiplied float RGBA (H, W, 4) -> un-premultiplied 8-bit RGBA (H, W, 4) uint8;
+    with `backdrop` (opaque RGB in [0, 1]), composited over it first: opaque.
 
     Converted in bands of rows, so a large frame needs no float64 copy."""
     rgba = np.asarray(rgba)
@@ -82,6 +83,9 @@ def to_png_pixels(rgba) -> np.ndarray:
     rows = max(1, (1 << 16) // max(1, rgba.shape[1] * 4))
     for r in range(0, rgba.shape[0], rows):
         band = np.asarray(rgba[r:r + rows], dtype=np.float64)
+        if backdrop is not None:
+            band = np.concatenate([band[..., :3] + (1.0 - np.clip(band[..., 3:4], 0.0, 1.0))
+                                   * np.asarray(backdrop, np.float64), np.ones_like(band[..., 3:4])], axis=-1)
         alpha = np.clip(band[..., 3:4], 0.0, 1.0)
         with np.errstate(divide="ignore", invalid="ignore"):
             rgb = np.where(alpha > 0, band[..., :3] / alpha, 0.0)
@@ -110,13 +114,15 @@ def _checked(rgba, depth, path: Path):
     return rgba, depth
 
 
-def write_image(path, rgba, *, metadata: dict | None = None, depth=None, inputs=()) -> None:
+def write_image(path, rgba, *, metadata: dict | None = None, depth=None, inputs=(),
+                backdrop=None) -> None:
     """Write premultiplied `rgba` (H, W, 4) float to `path` (.exr or .png), atomically.
 
     `metadata`: JSON-serialisable values by short ASCII key (camera, transfer
     function, dataset, settings). `depth`: optional (H, W) float32 world-unit
     distances, .exr only (channel Z). `inputs`: paths the output must not
-    replace (exabricks.output).
+    replace (exabricks.output). `backdrop`: the opaque RGB a .png is composited
+    over (None: the .png keeps the alpha); an .exr is never composited.
     """
     path = Path(path)
     rgba, depth = _checked(rgba, depth, path)
@@ -127,7 +133,7 @@ def write_image(path, rgba, *, metadata: dict | None = None, depth=None, inputs=
         for r in range(0, height, rows):
             yield rgba[r:r + rows], None if depth is None else depth[r:r + rows]
 
-    _write_bands(path, width, height, bands, depth is not None, metadata, inputs)
+    _write_bands(path, width, height, bands, depth is not None, metadata, inputs, backdrop)
 
 
 def _band_rows(width: int) -> int:
@@ -145,7 +151,7 @@ def _check_depth(path: Path, has_depth: bool) -> str:
 
 
 def _write_bands(path: Path, width: int, height: int, bands, has_depth: bool, metadata,
-                 inputs) -> None:
+                 inputs, backdrop=None) -> None:
     """Write the image that `bands()` yields as (rgba, depth or None) bands of
     _band_rows rows, top to bottom, to `path`, atomically (write_image)."""
     suffix = _check_depth(path, has_depth)
@@ -157,7 +163,7 @@ def _write_bands(path: Path, width: int, height: int, bands, has_depth: bool, me
                 if suffix == ".exr":
                     _write_exr(f, width, height, bands(), has_depth, attributes)
                 else:
-                    _write_png(f, width, height, bands(), attributes)
+                    _write_png(f, width, height, bands(), attributes, backdrop)
         except (OSError, RuntimeError) as e:
             raise ExabricksError(f"{path}: cannot write image: "
                                  f"{getattr(e, 'strerror', None) or e}") from None
@@ -173,8 +179,9 @@ class FrameFile:
     `background`. Use as a context manager: the scratch file goes on leaving."""
 
     def __init__(self, path, width: int, height: int, *, depth: bool = False,
-                 background=(0.0, 0.0, 0.0, 0.0)):
+                 background=(0.0, 0.0, 0.0, 0.0), backdrop=None):
         self.path, self.width, self.height = Path(path), int(width), int(height)
+        self.backdrop = backdrop  # write_image's
         self.depth = bool(depth)
         _check_depth(self.path, self.depth)
         r, g, b, a = (float(c) for c in background)
@@ -248,7 +255,7 @@ class FrameFile:
     def write(self, *, metadata: dict | None = None, inputs=()) -> None:
         """Write the frame so far to the output, atomically."""
         _write_bands(self.path, self.width, self.height, self._bands, self.depth, metadata,
-                     inputs)
+                     inputs, self.backdrop)
 
 
 def _drop_cache(fd: int) -> None:
@@ -329,7 +336,7 @@ def _png_chunk(kind: bytes, data: bytes) -> bytes:
         struct.pack(">I", zlib.crc32(data, zlib.crc32(kind)))
 
 
-def _write_png(f, width: int, height: int, bands, attributes: dict) -> None:
+def _write_png(f, width: int, height: int, bands, attributes: dict, backdrop=None) -> None:
     """An 8-bit RGBA PNG (un-premultiplied, to_png_pixels) written band by band:
     the Software text, the metadata as iTXt chunks, then the rows (Sub filter)
     deflated as they come."""
@@ -340,7 +347,7 @@ def _write_png(f, width: int, height: int, bands, attributes: dict) -> None:
         f.write(_png_chunk(b"iTXt", name.encode("latin-1") + b"\0\0\0\0\0" + text.encode()))
     deflate = zlib.compressobj(6)
     for rgba, _ in bands:
-        pixels = to_png_pixels(rgba).reshape(len(rgba), width * 4)
+        pixels = to_png_pixels(rgba, backdrop).reshape(len(rgba), width * 4)
         rows = np.empty((len(rgba), width * 4 + 1), np.uint8)
         rows[:, 0] = 1  # Sub: each byte minus the same channel of the pixel to its left
         rows[:, 1:5] = pixels[:, :4]

@@ -31,6 +31,7 @@ import numpy as np
 
 from .constants import MAX_KNOTS
 from .errors import ExabricksError
+from .scaling import SCALES
 
 # Knots of a matplotlib colormap shortcut: matplotlib's own lookup tables have 256
 # entries, so 256 evenly spaced knots reproduce them (`from_colormap`).
@@ -121,10 +122,22 @@ class TransferFunction:
     rgb_points: np.ndarray
     alpha_points: np.ndarray
     name: str = "custom"
+    # How the knots were laid out and the colour bar reads them (exabricks.scaling):
+    # "linear", "log" or "symlog" with the linear threshold `threshold`.
+    scale: str = "linear"
+    threshold: float = 1.0
 
     def __post_init__(self):
-        rgb = _knots(self.rgb_points, 4, "RGBPoints", f"transfer function {self.name!r}")
-        alpha = _knots(self.alpha_points, 2, "Points", f"transfer function {self.name!r}")
+        where = f"transfer function {self.name!r}"
+        if self.scale not in SCALES[1:] or not (math.isfinite(self.threshold) and self.threshold > 0):
+            raise ExabricksError(f"{where}: scale must be one of {', '.join(SCALES[1:])} with a "
+                                 f"positive threshold, got {self.scale!r}, {self.threshold!r}")
+        if self.scale != "symlog":
+            object.__setattr__(self, "threshold", 1.0)  # only symlog has one
+        rgb = _knots(self.rgb_points, 4, "RGBPoints", where)
+        alpha = _knots(self.alpha_points, 2, "Points", where)
+        if self.scale == "log" and min(rgb[0, 0], alpha[0, 0]) <= 0:
+            raise ExabricksError(f"{where}: a log scale needs knots at positive values")
         rgb.setflags(write=False)
         alpha.setflags(write=False)
         object.__setattr__(self, "rgb_points", rgb)
@@ -134,7 +147,8 @@ class TransferFunction:
         if not isinstance(other, TransferFunction):
             return NotImplemented
         return (self.name == other.name and np.array_equal(self.rgb_points, other.rgb_points)
-                and np.array_equal(self.alpha_points, other.alpha_points))
+                and np.array_equal(self.alpha_points, other.alpha_points)
+                and (self.scale, self.threshold) == (other.scale, other.threshold))
 
     __hash__ = None
 
@@ -162,7 +176,11 @@ class TransferFunction:
         else:
             # No opacity in the preset: a linear ramp over the colour range (module docstring).
             alpha = np.array([[rgb[0, 0], 0.0], [rgb[-1, 0], 1.0]])
-        return cls(rgb, alpha, name)
+        scale, threshold = preset.get("Scale", "linear"), preset.get("LinearThreshold", 1.0)
+        if scale not in SCALES[1:] or isinstance(threshold, bool) or not isinstance(threshold, (int, float)):
+            raise ExabricksError(f"{source}: 'Scale' must be one of {', '.join(SCALES[1:])} and "
+                                 f"'LinearThreshold' a positive number")
+        return cls(rgb, alpha, name, scale, float(threshold))
 
     @classmethod
     def from_paraview(cls, path) -> TransferFunction:
@@ -208,28 +226,63 @@ class TransferFunction:
         """The same shape stretched so its knot span [first x, last x] becomes `value_range`.
 
         (ParaView's "rescale to data range"; used for presets stored over [0, 1].)
+        A function on a log or symlog scale is stretched on its scaled axis.
         """
+        from .scaling import forward, inverse, scaled_range
+
         lo, hi = _range(value_range, f"transfer function {self.name!r}")
-        x0 = min(self.rgb_points[0, 0], self.alpha_points[0, 0])
-        x1 = max(self.rgb_points[-1, 0], self.alpha_points[-1, 0])
-        scale = 0.0 if x1 == x0 else (hi - lo) / (x1 - x0)  # one knot: move it to lo
+        axis = (self.scale, self.threshold)
+        if self.scale != "linear":
+            lo, hi = scaled_range((lo, hi), *axis)
+        x0, x1 = (float(x) for x in forward(self.value_range, *axis))
+        stretch = 0.0 if x1 == x0 else (hi - lo) / (x1 - x0)  # one knot: move it to lo
 
         def remap(points):
             out = points.copy()
-            out[:, 0] = lo + (points[:, 0] - x0) * scale
+            out[:, 0] = inverse(lo + (forward(points[:, 0], *axis) - x0) * stretch, *axis)
             return out
 
-        return TransferFunction(remap(self.rgb_points), remap(self.alpha_points), self.name)
+        return TransferFunction(remap(self.rgb_points), remap(self.alpha_points), self.name, *axis)
+
+    def on_scale(self, scale: str, threshold: float = 1.0) -> TransferFunction:
+        """This function read as one over the *scaled* axis of `scale`
+        (exabricks.scaling), as a function of the data value: its knots mapped
+        back to data values, with knots added first so that no interval spans more
+        than 1/COLORMAP_KNOTS of the scaled range (between knots the result is
+        linear in the data value, which then differs from linear on the scaled
+        axis by well under 1e-3 of an interval's change)."""
+        from .scaling import inverse
+
+        if scale == "linear":
+            return TransferFunction(self.rgb_points, self.alpha_points, self.name)
+        lo, hi = self.value_range
+        grid = np.linspace(lo, hi, COLORMAP_KNOTS) if hi > lo else np.array([lo])
+
+        def dense(points):
+            xs = np.union1d(points[:, 0], grid)
+            columns = [np.interp(xs, points[:, 0], points[:, c]) for c in range(1, points.shape[1])]
+            x = inverse(xs, scale, threshold)
+            keep = np.concatenate([[True], np.diff(x) > 0])  # float64 rounding of far ends
+            return np.column_stack([x] + columns)[keep]
+
+        return TransferFunction(dense(self.rgb_points), dense(self.alpha_points), self.name, scale,
+                                float(threshold))
 
     def to_paraview_dict(self) -> dict:
-        """ParaView preset form (for image metadata and `from_paraview_dict`)."""
+        """ParaView preset form (for image metadata and `from_paraview_dict`); a
+        scale other than linear is kept as "Scale" (and "LinearThreshold")."""
         points = np.column_stack([self.alpha_points, np.full((len(self.alpha_points), 2), (0.5, 0.0))])
-        return {
+        out = {
             "Name": self.name,
             "ColorSpace": "RGB",
             "RGBPoints": self.rgb_points.reshape(-1).tolist(),
             "Points": points.reshape(-1).tolist(),
         }
+        if self.scale != "linear":
+            out["Scale"] = self.scale
+        if self.scale == "symlog":
+            out["LinearThreshold"] = self.threshold
+        return out
 
     # -- evaluation ---------------------------------------------------------------------
 

@@ -43,6 +43,10 @@ def test_render_exr_png_and_metadata(plume, tmp_path):
     depth = read_depth(exr)
     hit = rgba[..., 3] >= 0.5
     assert np.all(np.isfinite(depth[hit])) and np.all(np.isinf(depth[rgba[..., 3] < 0.5]))
+    # A .png is the frame over black (premultiplied colour, opaque) unless --transparent.
+    png_rgba, _ = read_image(png)
+    assert (png_rgba[..., 3] == 1).all() and np.abs(png_rgba[..., :3] - rgba[..., :3]).max() <= 1.5 / 255
+    run_cli("render", *scene(plume), "-o", png, *SMALL, "--no-jitter", "--transparent", check=0)
     png_rgba, _ = read_image(png)
     assert np.abs(png_rgba - rgba).max() <= 1.5 / 255
 

@@ -9,7 +9,9 @@ from pathlib import Path
 import pytest
 
 from exabricks import schema
-from exabricks.camera import Camera, default_camera
+from exabricks.auto_transfer import automatic_transfer_function
+from exabricks.camera import Camera
+from exabricks.framing import framed_camera, view_axes, visible_corners
 from exabricks.errors import ExabricksError
 from exabricks.scene import (
     FLAGS, MAX_AO_SAMPLES, MAX_CLIP_PLANES, MAX_ISOSURFACES, MAX_SLICES, MAX_VOLUMES, Clip,
@@ -17,7 +19,7 @@ from exabricks.scene import (
     scene_from_options, scene_schema, scene_to_dict,
 )
 from exabricks.transfer_function import (
-    TransferFunction, default_transfer_function, preset_path, widen_degenerate_range,
+    TransferFunction, preset_path, widen_degenerate_range,
 )
 
 from conftest import DEVICES, GERRIS, assert_one_error_line, run_cli
@@ -79,8 +81,10 @@ def test_defaults(bricks):
     scene = scene_from_options(bricks, flags={})
     assert bricks.fields[0] == "P" and scene.fields() == ("P",)
     (layer,) = scene.volumes
-    assert layer.field == "P" and layer.transfer_function == default_transfer_function(field_range(bricks, "P"))
-    assert scene.camera == default_camera(*schema.world_bounds(bricks))
+    assert layer.field == "P" and layer.transfer_function == automatic_transfer_function(bricks, "P")
+    # The camera frames what the automatic function shows, from the three-quarter view.
+    corners = visible_corners(bricks, "P", layer.transfer_function, axes=view_axes())
+    assert scene.camera == framed_camera(corners)
     assert scene.settings == Settings() and scene.lighting == Lighting() and scene.clip == Clip()
     assert scene.isosurfaces == () and scene.slices == () and scene.background == (0, 0, 0, 0)
 
@@ -88,7 +92,7 @@ def test_defaults(bricks):
 def test_volume_flags(bricks):
     scene = scene_from_options(bricks, flags={"field": "T"})
     assert scene.volumes[0].field == "T"
-    assert scene.volumes[0].transfer_function == default_transfer_function(field_range(bricks, "T"))
+    assert scene.volumes[0].transfer_function == automatic_transfer_function(bricks, "T")
     tf = scene_from_options(bricks, flags={"field": "U", "colormap": "magma", "range": (-1, 2),
                                            "opacity": (0, 0.5, 1)}).volumes[0].transfer_function
     assert tf == TransferFunction.from_colormap("magma", (-1, 2), opacity=(0, 0.5, 1))
@@ -182,7 +186,7 @@ def test_flags_override_the_file_key_by_key(bricks, tmp_path):
 def test_volume_flags_replace_the_layers(bricks, tmp_path):
     (layer,) = build(bricks, FULL, tmp_path, colormap="gray").volumes
     assert layer.field == "T"  # the scene's first volume field
-    assert layer.transfer_function == colormap(bricks, "T", "gray")
+    assert layer.transfer_function == automatic_transfer_function(bricks, "T", colormap="gray")
     (layer,) = build(bricks, FULL, tmp_path, field="W").volumes
     assert layer == build(bricks, None, tmp_path, field="W").volumes[0]
     assert build(bricks, FULL, tmp_path, volume=False).volumes == ()

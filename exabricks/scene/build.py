@@ -16,6 +16,7 @@ import numpy as np
 
 from ..camera import Camera
 from ..errors import ExabricksError
+from ..field_statistics import field_range
 from ..transfer_function import TransferFunction
 from .file import SceneFile, shown
 from .model import (DEFAULT_COLORMAP, DEFAULT_FOVY, Clip, Instance, IsoSurface, Lighting, MeshLayer, Scene,
@@ -23,20 +24,19 @@ from .model import (DEFAULT_COLORMAP, DEFAULT_FOVY, Clip, Instance, IsoSurface, 
 from .options import SCENE_OPTIONS, VOLUME_FLAGS, check_flags, flag_name, normalised_flags
 
 
-def field_range(bricks, field: str | None) -> tuple[float, float]:
-    """(min, max) of the finite values of `field` (None: the first field);
-    ExabricksError if it has none."""
-    from ..schema import reduce_chunks
+# Geometry of embedded-boundary (cut-cell) plotfiles: volume and area fractions,
+# centroids; not what a user means by "the data" (lower-case prefixes).
+GEOMETRY_FIELDS = ("vfrac", "volfrac", "volume_fraction", "afrac", "areafrac", "area_frac", "apx",
+                   "apy", "apz", "fcx", "fcy", "fcz", "centroid", "bcent", "bnorm", "barea")
 
-    def extent(chunk):
-        finite = chunk[np.isfinite(chunk)]
-        return (float(finite.min()), float(finite.max())) if finite.size else (np.inf, -np.inf)
 
-    lo, hi = reduce_chunks(bricks.values[bricks.field_index(field)], extent,
-                           lambda a, b: (min(a[0], b[0]), max(a[1], b[1])))
-    if lo > hi:
-        raise ExabricksError(f"field {field or bricks.fields[0]!r} has no finite values")
-    return lo, hi
+def default_field(fields) -> str:
+    """The field drawn when none is named: the first that is not embedded-boundary
+    geometry (`GEOMETRY_FIELDS`), else the first."""
+    for name in fields:
+        if not name.lower().replace("-", "_").startswith(GEOMETRY_FIELDS):
+            return name
+    return fields[0]
 
 
 def _data_range(bricks, field: str) -> tuple[float, float]:
@@ -46,34 +46,45 @@ def _data_range(bricks, field: str) -> tuple[float, float]:
 
 
 def choose_transfer_function(bricks, field, preset=None, colormap=None, value_range=None,
-                             opacity=None) -> TransferFunction:
-    """The transfer function of `--transfer-function`, `--colormap`, `--range` and
-    `--opacity` for `field` (docs/scene.md):
+                             opacity=None, scale=None, *, builtin: bool | None = None) -> TransferFunction:
+    """The transfer function of `--transfer-function`, `--colormap`, `--range`,
+    `--opacity` and `--scale` for `field` (docs/scene.md):
 
-    - `colormap`: that matplotlib colormap over `value_range` (default: the
-      field's finite range) with the `opacity` knots spread evenly over it
-      (default (0, 1): a ramp);
+    - `colormap` with `opacity`: that matplotlib colormap over `value_range`
+      (default: the field's finite range) with the `opacity` knots spread evenly
+      over it, both on the axis of `scale` (exabricks.scaling; default auto);
     - `preset` naming a built-in preset (and no such file): its shape stretched
-      over `value_range` or the field's range;
+      over `value_range` or the field's range on that axis;
     - `preset` naming a preset file: used as stored, or rescaled to `value_range`;
-    - neither: the default transfer function over `value_range` or the field's range.
+    - neither, or `colormap` alone: the automatic transfer function
+      (exabricks.auto_transfer) in that colormap (default viridis).
+
+    `builtin`: whether `preset` is a built-in name (None: where no such file exists).
     """
-    from ..transfer_function import builtin_presets, default_transfer_function, preset_path
+    from ..auto_transfer import automatic_transfer_function
+    from ..scaling import default_threshold, resolve, scaled_range
+    from ..transfer_function import builtin_presets, preset_path
 
     if preset and colormap:
         raise ExabricksError("give --transfer-function or --colormap, not both")
-    data_range = tuple(value_range) if value_range else _data_range(bricks, field)
-    if colormap:
-        return TransferFunction.from_colormap(colormap, data_range, opacity=opacity or (0.0, 1.0))
-    if opacity:
+    if opacity and not colormap:
         raise ExabricksError("--opacity goes with --colormap")
-    if preset is None:
-        return default_transfer_function(data_range)
-    if not Path(preset).exists() and preset in builtin_presets():
-        # Built-in presets are shapes over [0, 1]: stretch them over the data (ParaView's rescale).
-        return TransferFunction.from_paraview(preset_path(preset)).rescaled(data_range)
-    tf = TransferFunction.from_paraview(preset)
-    return tf.rescaled(value_range) if value_range else tf
+    if preset is None and not opacity:
+        return automatic_transfer_function(bricks, field, scale=scale, value_range=value_range,
+                                           colormap=colormap or DEFAULT_COLORMAP)
+    if builtin is None and preset is not None:
+        builtin = not Path(preset).exists() and preset in builtin_presets()
+    if preset is not None and not builtin:
+        tf = TransferFunction.from_paraview(preset)
+        return tf.rescaled(value_range) if value_range else tf
+    data_range = _data_range(bricks, field)
+    axis = resolve(scale, data_range), default_threshold(data_range)
+    span = scaled_range(tuple(value_range) if value_range else data_range, *axis)
+    if colormap:
+        shape = TransferFunction.from_colormap(colormap, span, opacity=opacity)
+    else:  # built-in presets are shapes over [0, 1]: stretched over the data (ParaView's rescale)
+        shape = TransferFunction.from_paraview(preset_path(preset)).rescaled(span)
+    return shape.on_scale(*axis)
 
 
 def _within(where: str, build, *args, **kw):
@@ -134,9 +145,10 @@ def _file_colour(file: SceneFile, spec: dict, *path) -> _Colour:
                    spec.get("range"), file.at(*path, "range"))
 
 
-def _camera(bricks, file: SceneFile, camera_path, f, instances=()) -> Camera:
+def _camera(bricks, file: SceneFile, camera_path, f, instances=(), volumes=(), aspect=1.0) -> Camera:
     from .. import schema
-    from ..camera import box_corners, default_camera
+    from ..camera import box_corners
+    from ..framing import framed_camera, view_axes, visible_corners
 
     inline = file.get("camera")
     if camera_path is not None:
@@ -146,40 +158,43 @@ def _camera(bricks, file: SceneFile, camera_path, f, instances=()) -> Camera:
     elif inline is not None:
         camera = _within(file.at("camera"), Camera.from_json, file.camera_file())
     else:
-        corners = box_corners(*schema.world_bounds(bricks))
+        # What the volume layers make visible (else the whole dataset), on every copy:
+        # boxes along the view's axes (tightest) unless copies turn them.
+        axes = None if instances else view_axes()
+        boxes = [visible_corners(bricks, v.field, v.transfer_function, axes=axes) for v in volumes]
+        corners = np.concatenate([b for b in boxes if b is not None]
+                                 or [box_corners(*schema.world_bounds(bricks))])
         placed = np.concatenate([corners] + [corners @ r.T + t for r, t in
                                              (i.affine() for i in instances)])
-        camera = default_camera(placed.min(0), placed.max(0))  # on every copy
+        camera = framed_camera(placed, aspect=aspect)
     return camera.with_overrides(position=f["position"], look_at=f["look_at"], up=f["up"], fovy=f["fovy"])
 
 
 def _file_transfer_function(bricks, file: SceneFile, i: int, field: str) -> TransferFunction:
-    from ..transfer_function import DEFAULT_PRESET, preset_path
-
     where = file.at("volumes", i, "transfer_function")
     entry = file.doc["volumes"][i]
-    spec = entry.get("transfer_function", DEFAULT_PRESET)
+    spec = entry.get("transfer_function")
     value_range = _value_range(entry.get("range"), file.at("volumes", i, "range"))
-    data_range = lambda: value_range or _within(file.at("volumes", i, "field"), _data_range, bricks, field)
-    if isinstance(spec, dict) and "colormap" in spec:
-        return _within(where, TransferFunction.from_colormap, spec["colormap"], data_range(),
-                       opacity=spec.get("opacity", (0.0, 1.0)))
-    if isinstance(spec, dict):
+    scale = entry.get("scale")
+    if isinstance(spec, dict) and "colormap" not in spec:
         tf = TransferFunction.from_paraview_dict(spec, source=where)
         return tf.rescaled(value_range) if value_range else tf
-    preset = file.preset_file(spec, "volumes", i, "transfer_function")
-    if preset is None:  # a built-in shape over [0, 1], stretched over the data
-        return TransferFunction.from_paraview(preset_path(spec)).rescaled(data_range())
-    tf = _within(where, TransferFunction.from_paraview, preset)
-    return tf.rescaled(value_range) if value_range else tf
+    if isinstance(spec, dict):
+        colormap, opacity, preset = spec["colormap"], spec.get("opacity"), None
+    else:
+        colormap, opacity = None, None
+        preset = None if spec is None else file.preset_file(spec, "volumes", i, "transfer_function")
+    builtin = isinstance(spec, str) and preset is None
+    return _within(where, choose_transfer_function, bricks, field, spec if builtin else preset,
+                   colormap, value_range, opacity and tuple(opacity), scale, builtin=builtin)
 
 
 def _volumes(bricks, file: SceneFile, f, base: str, base_at: str) -> tuple[VolumeLayer, ...]:
     if f["volume"] is False:
         return ()
     if any(f[name] is not None for name in VOLUME_FLAGS):
-        tf = choose_transfer_function(bricks, base, f["transfer_function"], f["colormap"],
-                                      f["range"], f["opacity"])
+        tf = _within(base_at if f["field"] is None else "--field", choose_transfer_function, bricks, base,
+                     f["transfer_function"], f["colormap"], f["range"], f["opacity"], f["scale"])
         return (VolumeLayer(base, tf),)
     entries = file.get("volumes")
     if entries is None or (not entries and f["volume"]):
@@ -394,12 +409,14 @@ def scene_from_options(bricks, *, scene_path=None, camera_path=None, flags: dict
     elif file.get("volumes"):
         base, base_at = file.doc["volumes"][0]["field"], file.at("volumes", 0, "field")
     else:
-        base, base_at = bricks.fields[0], "the first field"
+        base, base_at = default_field(bricks.fields), "the default field"
     base = _field(bricks, base, base_at)
     instances = _instances(file, f)
+    volumes = _volumes(bricks, file, f, base, base_at)
+    settings = _settings(file, f)
     scene = Scene(
-        camera=_camera(bricks, file, camera_path, f, instances),
-        volumes=_volumes(bricks, file, f, base, base_at),
+        camera=_camera(bricks, file, camera_path, f, instances, volumes, settings.width / settings.height),
+        volumes=volumes,
         isosurfaces=_isosurfaces(bricks, file, f, base, base_at),
         slices=_slices(bricks, file, f, base, base_at),
         meshes=_meshes(bricks, file, f),
@@ -407,7 +424,7 @@ def scene_from_options(bricks, *, scene_path=None, camera_path=None, flags: dict
         clip=_clip(file, f),
         lighting=_lighting(file, f),
         background=_background(file, f),
-        settings=_settings(file, f),
+        settings=settings,
     )
     scene.check()
     return scene

@@ -181,6 +181,7 @@ class Settings:
     reconstruction: str = "basis"
     lod: float = 0.0
     tf_lookup: str = "table"
+    transparent: bool = False
 
 
 @dataclass(frozen=True)

@@ -14,6 +14,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from ..errors import ExabricksError
+from ..scaling import SCALES
 from .model import AXES, GRADIENTS, MAX_AO_SAMPLES, RECONSTRUCTIONS, SHADING_MODES, TF_LOOKUPS
 
 
@@ -240,13 +241,16 @@ SCENE_OPTIONS = (
     _vector("look_at", "Point the camera looks at (world units).", finite=False),
     _vector("up", "Camera up vector.", finite=False),
     Option("fovy", "Full vertical field of view, degrees."),
-    Option("field", "Scalar field to use (default: the first field of the file).", kind="text",
-           metavar="NAME"),
+    Option("field", "Scalar field to use (default: the first field of the file that is not "
+           "embedded-boundary geometry such as vfrac).", kind="text", metavar="NAME"),
+    Option("scale", "The field's axis for the transfer function and colour bar: auto (default: "
+           "log for a positive field spanning more than two decades, else linear), linear, log "
+           "or symlog.", kind="choice", choices=SCALES),
     Option("transfer_function", "ParaView colour-map preset JSON, or a built-in name (default, "
            "inferno-shells; built-ins are stretched over --range or the field's range).",
            kind="text", metavar="PRESET"),
-    Option("colormap", "A matplotlib colormap over --range (default: the field's range).",
-           kind="text", metavar="NAME"),
+    Option("colormap", "A matplotlib colormap over --range (default: the field's range); without "
+           "--opacity, with the automatic opacity (docs/scene.md).", kind="text", metavar="NAME"),
     Option("range", "Data range of the colormap (and rescales a preset file to it).", nargs=2,
            metavar="LO HI"),
     Option("opacity", "With --colormap: alpha knots spread evenly over the range (default 0,1: "
@@ -308,8 +312,11 @@ SCENE_OPTIONS = (
            low=0, high=MAX_AO_SAMPLES),
     _light("ao_distance", "Length of the ambient-occlusion rays, world units (default: 10 finest "
            "cell widths).", _AO, **_POSITIVE),
-    Option("background", "Background colour in [0, 1] (RGB is opaque; default transparent).",
-           kind="numbers", counts=(3, 4), metavar="R,G,B[,A]"),
+    Option("background", "Background colour in [0, 1] (RGB is opaque; default transparent in "
+           ".exr, black behind a .png).", kind="numbers", counts=(3, 4), metavar="R,G,B[,A]"),
+    _setting("transparent", "A .png keeps the frame's alpha (un-premultiplied colour) instead of "
+             "being composited over the background made opaque (default; black behind a "
+             "transparent background).", kind="flag"),
     _setting("unit_distance", "World thickness over which alpha is the opacity (default: the finest "
              "cell width).", **_POSITIVE),
     Option("size", "Image size in pixels (default 512 512).", kind="int", nargs=2, low=1,
@@ -330,7 +337,7 @@ SCENE_OPTIONS = (
 # The names `scene_from_options` takes (None, or an empty tuple, means "not given").
 FLAGS = tuple(o.name for o in SCENE_OPTIONS)
 # The flags that describe one volume layer (they replace the scene file's layers).
-VOLUME_FLAGS = ("field", "transfer_function", "colormap", "range", "opacity")
+VOLUME_FLAGS = ("field", "transfer_function", "colormap", "range", "opacity", "scale")
 
 JOB_OPTIONS = (
     Option("scene", "Scene JSON (docs/scene.md): camera, volumes, iso-surfaces, slices, clipping, "

@@ -76,7 +76,7 @@ def render_job(dataset, output, *, flags: dict | None = None,
 
             def write(result, image=image, describe=describe, frame_scene=frame_scene):
                 finish = _annotated(frame_scene, dataset, title) if annotate else None
-                return _write(image, result, describe, inputs, finish)
+                return _write(image, result, describe, inputs, finish, frame_scene)
 
             if comm is None and tile is not None:
                 _render_tiled(renderer, frame_scene, started, image, describe, inputs, **steps)
@@ -96,14 +96,16 @@ def _render_tiled(domains, scene, started, image, describe, inputs, budget, prog
     """One frame tile by tile (exabricks.engine.streaming.render_tiled) into a
     FrameFile beside `image`, rewriting the output every `progressive` seconds
     (after the band that passes them) and stopping after `time_limit`."""
-    from ..image_io import FrameFile
+    from ..annotate import png_backdrop
     from ..engine.streaming import render_tiled
+    from ..image_io import FrameFile
 
     s = scene.settings
     now = time.perf_counter()
     deadline = None if time_limit is None else (started or now) + time_limit
     last = [now]
-    with FrameFile(image, s.width, s.height, depth=s.depth, background=scene.background) as out:
+    with FrameFile(image, s.width, s.height, depth=s.depth, background=scene.background,
+                   backdrop=png_backdrop(scene)) as out:
 
         def on_band(progress):
             if time.perf_counter() - last[0] >= progressive:
@@ -248,15 +250,18 @@ def frame_metadata(scene, dataset, path_file, index, stats) -> dict:
     return metadata
 
 
-def _write(image, result, describe, inputs, finish=None) -> None:
+def _write(image, result, describe, inputs, finish=None, scene=None) -> None:
     """Write one frame with its metadata, describe(stats), its pixels through
-    `finish` when given (rank 0: the others have no result)."""
+    `finish` when given (rank 0: the others have no result); a .png over the
+    backdrop of `scene` (annotate.png_backdrop)."""
+    from ..annotate import png_backdrop
     from ..image_io import write_image
 
     if result is None:
         return
     rgba = result.rgba if finish is None else finish(result.rgba)
-    write_image(image, rgba, metadata=describe(result.stats), depth=result.depth, inputs=inputs)
+    write_image(image, rgba, metadata=describe(result.stats), depth=result.depth, inputs=inputs,
+                backdrop=png_backdrop(scene))
     _log_written(image, result.stats)
 
 

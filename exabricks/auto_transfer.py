@@ -1,0 +1,158 @@
+"""The automatic transfer function: what a render shows when it is given none
+(docs/scene.md, "Defaults that show the data").
+
+It is made from the field's *volume-weighted* histogram on its scaled axis
+(exabricks.scaling; log for a positive field spanning more than two decades):
+
+1. The ambient value is the histogram's mode: the value that fills the most
+   space (the quiet medium around a blast, the cold gas of a cosmology box, the
+   unheated fluid around a plume). It and the bins around it that hold at least
+   `AMBIENT_SHOULDER` of the mode's volume (the ambient medium's own noise) are
+   transparent.
+2. Opacity then grows with the square of the distance from that band on the
+   scaled axis (`RAMP_POWER`), on each side, to its largest value at the
+   field's extremes: what differs most from the surroundings shows most.
+3. The opacity's height is set so that the rays of the default view through
+   the visible part cross an optical depth of at most about `TARGET_DEPTH`
+   (all but the thickest tenth of them): the opacity (sigma x volume) of the
+   cells summed over columns along the view (`column_depths`).
+4. The colours are `colormap` over the span of the scaled axis that holds all
+   but `COLOUR_TRIM` of that opacity at either end (or over the range given),
+   so that they spread over what is seen.
+
+The result is an ordinary piecewise-linear function of the data value
+(`TransferFunction.on_scale`), so every renderer, the scene file and the colour
+bar take it as any other.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from .field_statistics import field_range, opacity_columns, volume_histogram
+from .scaling import default_threshold, resolve, scaled_range
+from .transfer_function import TransferFunction, widen_degenerate_range
+
+# Bins of the volume-weighted histogram over the scaled range.
+HISTOGRAM_BINS = 256
+# Bins next to the mode holding at least this share of its volume are ambient too.
+AMBIENT_SHOULDER = 0.05
+# The opacity's rise with the distance from the ambient band: a power of it, so that
+# what differs most from the surroundings stands out of the haze around it.
+RAMP_POWER = 4.0
+RAMP_KNOTS = 17
+# Share of the opacity whose values lie below (above) the colour map's ends.
+COLOUR_TRIM = 0.005
+# The optical depth of the DEPTH_QUANTILE of the default view's columns through
+# the visible part (column_depths, COLUMN_BINS across the data): the thickest
+# tenth of the visible part stays translucent enough to see into.
+TARGET_DEPTH = 2.0
+DEPTH_QUANTILE = 0.9
+COLUMN_BINS = 96
+# Most points per axis a cell is spread over its columns with.
+SPLAT = 8
+# The most opacity per unit distance any value gets.
+MAX_ALPHA = 0.9
+DEFAULT_NAME = "automatic"
+
+
+def ambient_band(histogram: np.ndarray) -> tuple[int, int]:
+    """(first, last) bin of the ambient band: the mode and the bins next to it
+    holding at least AMBIENT_SHOULDER of its volume."""
+    mode = int(np.argmax(histogram))
+    floor = AMBIENT_SHOULDER * histogram[mode]
+    first = last = mode
+    while first > 0 and histogram[first - 1] >= floor:
+        first -= 1
+    while last < len(histogram) - 1 and histogram[last + 1] >= floor:
+        last += 1
+    return first, last
+
+
+def opacity_shape(axis_range, band, bins: int = HISTOGRAM_BINS) -> np.ndarray:
+    """Opacity knots ``[[s, r], ...]`` of the shape: 0 over the ambient band and
+    rising as the power RAMP_POWER of the distance from it to 1 at each end of
+    `axis_range` that lies beyond it (RAMP_KNOTS knots a side)."""
+    a, b = axis_range
+    width = (b - a) / bins
+    low, high = a + band[0] * width, a + (band[1] + 1) * width
+    t = np.linspace(0.0, 1.0, RAMP_KNOTS)
+    left = [(low - (low - a) * u, u ** RAMP_POWER) for u in t[::-1]] if low > a else [(low, 0.0)]
+    right = [(high + (b - high) * u, u ** RAMP_POWER) for u in t] if high < b else [(high, 0.0)]
+    knots = np.asarray(left + right, np.float64)
+    return knots[np.concatenate([[True], np.diff(knots[:, 0]) > 0])]
+
+
+def visible_span(histogram: np.ndarray, shape: np.ndarray, axis_range) -> tuple[float, float]:
+    """The span of the scaled axis that holds all but COLOUR_TRIM of the opacity
+    (volume x shape) at each end: where the colours go."""
+    a, b = axis_range
+    centres = a + (np.arange(len(histogram)) + 0.5) * (b - a) / len(histogram)
+    weight = histogram * np.interp(centres, shape[:, 0], shape[:, 1])
+    if not weight.sum() > 0:
+        return a, b
+    cumulative = np.cumsum(weight) / weight.sum()
+    lo = centres[int(np.searchsorted(cumulative, COLOUR_TRIM))]
+    hi = centres[min(int(np.searchsorted(cumulative, 1.0 - COLOUR_TRIM)), len(centres) - 1)]
+    half = 0.5 * (b - a) / len(histogram)
+    return (lo - half, hi + half) if hi > lo else (a, b)
+
+
+def automatic_transfer_function(bricks, field: str, *, scale: str | None = None,
+                                value_range=None, colormap: str = "viridis",
+                                unit_distance: float | None = None) -> TransferFunction:
+    """The automatic transfer function of `field` (module docstring).
+
+    `scale`: "auto" (None), "linear", "log" or "symlog". `value_range`: the data
+    range the colours span (default: the field's finite range). `unit_distance`:
+    the world thickness alpha is the opacity of (default: the finest cell width).
+    """
+    data_range = widen_degenerate_range(field_range(bricks, field))
+    colour_range = tuple(value_range) if value_range else data_range
+    scale = resolve(scale, data_range)
+    threshold = default_threshold(data_range)
+    axis = scaled_range(colour_range, scale, threshold)
+    histogram = volume_histogram(bricks, field, scale, threshold, axis, HISTOGRAM_BINS)
+    shape = opacity_shape(axis, ambient_band(histogram))
+    colours = TransferFunction.from_colormap(colormap, axis if value_range else visible_span(histogram, shape, axis))
+    unit = TransferFunction(colours.rgb_points, shape, DEFAULT_NAME).on_scale(scale, threshold)
+    sigma = _sigma_for_depth(bricks, field, unit, unit_distance)
+    alpha = unit.alpha_points.copy()
+    alpha[:, 1] = np.minimum(1.0 - np.exp(-sigma * alpha[:, 1]), MAX_ALPHA)
+    return TransferFunction(unit.rgb_points, alpha, DEFAULT_NAME, scale, threshold)
+
+
+def _sigma_for_depth(bricks, field: str, unit: TransferFunction, unit_distance) -> float:
+    """The extinction (per `unit_distance`) that the shape `unit` (alpha read as a
+    relative extinction in [0, 1]) is scaled by so that the rays of the default
+    view through the visible part see an optical depth of at most about
+    TARGET_DEPTH: the DEPTH_QUANTILE of `column_depths` over the covered columns."""
+    spacing = np.asarray(bricks.spacing_world, np.float64)
+    finest = float(2.0 ** int(bricks.level.min()) * spacing.min()) if bricks.n_bricks else 1.0
+    unit_distance = float(unit_distance or finest)
+    columns = column_depths(bricks, field, unit)
+    covered = columns[columns > 0]
+    if covered.size == 0:
+        return 1.0
+    depth = float(np.quantile(covered, DEPTH_QUANTILE))  # in lattice units x relative extinction
+    sigma = TARGET_DEPTH / depth * unit_distance / float(spacing.min())
+    return sigma if math.isfinite(sigma) and sigma > 0 else 1.0
+
+
+def column_depths(bricks, field: str, unit: TransferFunction, bins: int = COLUMN_BINS) -> np.ndarray:
+    """(bins, bins) float64: the relative extinction (`unit`'s alpha) of `field`
+    summed along the default view's rays (framing.view_axes) through `bins` x
+    `bins` square columns across the data, in lattice units of length."""
+    from .camera import box_corners
+    from .formats.kinds import world_bounds
+    from .framing import view_axes
+
+    axes = view_axes()[:2]
+    along = box_corners(*(np.asarray(b, np.float64) for b in world_bounds(bricks))) @ axes.T
+    lower = along.min(0)
+    size = max(float((along.max(0) - lower).max()), 1e-300) / bins  # world units
+    mass = opacity_columns(bricks, field, unit, axes, lower, size, bins, SPLAT)
+    lattice = size / float(np.asarray(bricks.spacing_world, np.float64).min())
+    return mass / (lattice * lattice)

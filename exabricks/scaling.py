@@ -1,0 +1,89 @@
+"""How a field's values are laid out on a colour axis: linear, log or symlog
+(docs/scene.md, "Defaults that show the data").
+
+A transfer function is always piecewise linear in the *data* value (the kernels'
+contract, docs/design.md); a scale only says where its knots sit and how its
+colour bar is drawn. `forward` maps data values to the scaled axis, `inverse`
+back. ``auto`` takes log for a positive field that spans more than
+`AUTO_LOG_DECADES` decades, as yt's ``take_log`` does for such fields, and
+linear otherwise.
+
+symlog is ``sign(x) log10(1 + |x| / c)`` with the linear threshold ``c > 0``:
+linear within about ``c`` of zero, logarithmic beyond, for signed fields that
+span decades on either side.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from .errors import ExabricksError
+
+SCALES = ("auto", "linear", "log", "symlog")
+# auto: log where max / min of a positive field exceeds 10 ** AUTO_LOG_DECADES.
+AUTO_LOG_DECADES = 2.0
+# symlog's linear threshold when none is given: this fraction of the largest |value|.
+SYMLOG_THRESHOLD = 1e-3
+
+
+def resolve(scale: str | None, value_range) -> str:
+    """The concrete scale ("linear", "log" or "symlog") of `scale` (None: auto)
+    for a field whose finite values span `value_range` (low, high)."""
+    scale = scale or "auto"
+    if scale not in SCALES:
+        raise ExabricksError(f"unknown scale {scale!r} (one of {', '.join(SCALES)})")
+    lo, hi = (float(v) for v in value_range)
+    if scale == "auto":
+        return "log" if lo > 0 and hi / lo > 10.0 ** AUTO_LOG_DECADES else "linear"
+    if scale == "log" and not hi > 0:
+        raise ExabricksError(f"--scale log: the field has no positive value (its range is "
+                             f"[{lo:g}, {hi:g}]); use linear or symlog")
+    return scale
+
+
+def default_threshold(value_range) -> float:
+    """symlog's linear threshold for values within `value_range`."""
+    lo, hi = (float(v) for v in value_range)
+    big = max(abs(lo), abs(hi))
+    return SYMLOG_THRESHOLD * big if big > 0 else 1.0
+
+
+def forward(values, scale: str, threshold: float = 1.0) -> np.ndarray:
+    """Data values (any shape) on the scaled axis, float64. log of a value <= 0 is -inf."""
+    v = np.asarray(values, np.float64)
+    if scale == "linear":
+        return v
+    if scale == "log":
+        with np.errstate(divide="ignore", invalid="ignore"):
+            return np.where(v > 0, np.log10(np.where(v > 0, v, 1.0)), -np.inf)
+    return np.sign(v) * np.log10(1.0 + np.abs(v) / threshold)
+
+
+def inverse(scaled, scale: str, threshold: float = 1.0) -> np.ndarray:
+    """Scaled-axis values (any shape) back to data values, float64."""
+    s = np.asarray(scaled, np.float64)
+    if scale == "linear":
+        return s
+    if scale == "log":
+        return np.power(10.0, s)
+    return np.sign(s) * threshold * (np.power(10.0, np.abs(s)) - 1.0)
+
+
+def scaled_range(value_range, scale: str, threshold: float = 1.0) -> tuple[float, float]:
+    """`value_range` on the scaled axis; for log, a range reaching 0 or below starts
+    `AUTO_LOG_DECADES` * 3 decades under its top (the lowest positive values
+    of a real field rarely matter more)."""
+    lo, hi = (float(v) for v in value_range)
+    if scale == "log" and lo <= 0:
+        lo = hi * 10.0 ** (-3 * AUTO_LOG_DECADES)
+    a, b = (float(x) for x in forward([lo, hi], scale, threshold))
+    if not (math.isfinite(a) and math.isfinite(b) and a < b):
+        raise ExabricksError(f"cannot lay the range [{lo:g}, {hi:g}] on a {scale} axis")
+    return a, b
+
+
+def axis_label(field: str, scale: str) -> str:
+    """The colour bar's label of `field` on `scale` (yt writes log(field))."""
+    return {"linear": field, "log": f"log10 {field}", "symlog": f"symlog {field}"}[scale]
