@@ -7,8 +7,13 @@
 #include "transfer_function.cl"
 
 /* Headlight shading: emitted rgb *= AMBIENT + DIFFUSE |n . v|, with n the
- * normalised gradient and v the view direction; a zero gradient leaves the
- * colour unshaded (factor 1). */
+ * normalised gradient and v the view direction. A volume sample's factor is
+ * weighted by its gradient's strength, 1 - w DIFFUSE (1 - |n . v|) with
+ * w = |g|^2 / (1 + |g|^2), where |g| = 1 is a change of the layer's whole
+ * transfer-function range within one finest cell (gradient_scale,
+ * exabricks.engine.device_data): flat and noisy parts of the medium, whose
+ * normals are rounding or cell-scale noise, stay unlit instead of showing
+ * speckle and rings (docs/design.md, "Volume shading"). */
 #define EB_AMBIENT 0.3f
 #define EB_DIFFUSE 0.7f
 
@@ -49,10 +54,12 @@ EB_INLINE float4 eb_layer_lookup(eb_look look, int4 layer, int table, float valu
     return eb_lookup(look, layer.y, layer.z, value);
 }
 
-/* Headlight factor of a world-direction gradient g (any scale) seen along dir. */
+/* Headlight factor of a volume sample's gradient g (scaled by gradient_scale)
+ * seen along dir: 1 for a zero gradient. */
 EB_INLINE float eb_headlight(float3 g, float3 dir_world)
 {
     float g2 = dot(g, g);
     /* rsqrt is cheaper than length() and a division. */
-    return g2 > 0.0f ? EB_AMBIENT + EB_DIFFUSE * fabs(dot(g, dir_world)) * rsqrt(g2) : 1.0f;
+    return g2 > 0.0f ? 1.0f - g2 / (1.0f + g2) * EB_DIFFUSE * (1.0f - fabs(dot(g, dir_world)) * rsqrt(g2))
+                     : 1.0f;
 }

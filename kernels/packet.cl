@@ -352,8 +352,8 @@ EB_INLINE void eb_packet_medium(eb_frame *fr, eb_packet_sums *s, eb_vf len, floa
         eb_vf gy = select((eb_vf)(0.0f), ny * inv_w2, nonzero) * scale.y;
         eb_vf gz = select((eb_vf)(0.0f), nz * inv_w2, nonzero) * scale.z;
         eb_vf g2 = gx * gx + gy * gy + gz * gz;
-        eb_vf light = EB_AMBIENT + EB_DIFFUSE * fabs(gx * dir_world.x + gy * dir_world.y
-                                                     + gz * dir_world.z) * rsqrt(g2);
+        eb_vf facing = fabs(gx * dir_world.x + gy * dir_world.y + gz * dir_world.z) * rsqrt(g2);
+        eb_vf light = 1.0f - g2 / (1.0f + g2) * EB_DIFFUSE * (1.0f - facing);  /* eb_headlight */
         light = select((eb_vf)(1.0f), light, g2 > 0.0f);
         *r *= light;
         *g *= light;

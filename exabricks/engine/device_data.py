@@ -140,14 +140,37 @@ class DatasetScale:
                    {f: field_magnitude(bricks.values[bricks.field_index(f)]) for f in fields})
 
 
-def gradient_scale(spacing_world, magnitude: float) -> np.ndarray:
+# Finest cells over which a change of a layer's whole transfer-function range is a
+# gradient of strength 1: where a volume sample is shaded fully (kernels/look.cl,
+# eb_headlight; docs/design.md, "Volume shading").
+SHADING_CELLS = 1.0
+# The smallest range a gradient is measured against, as a share of the field's
+# largest |value|: keeps the kernel's dot(g, g) far from float overflow.
+MIN_SHADING_SPAN = 1e-6
+
+
+def gradient_scale(spacing_world, span: float) -> np.ndarray:
     """Per-axis factor turning a lattice-unit gradient into one parallel to the
-    world-unit gradient, for shading (only its direction matters): 1 / spacing
-    divided by its largest component and by the field's largest magnitude, so
-    the kernel's dot(g, g) stays far from float overflow and underflow whatever
-    the units of the field and of the world."""
+    world-unit gradient whose length is 1 where the field changes by `span` over
+    SHADING_CELLS finest cells: 1 / spacing divided by its largest component,
+    times SHADING_CELLS / span."""
     inv = 1.0 / np.asarray(spacing_world, np.float64)
-    return inv / inv.max() / magnitude
+    return inv / inv.max() * SHADING_CELLS / span
+
+
+def gradient_scales(spacing_world, fields, magnitudes: dict, volumes=()) -> np.ndarray:
+    """(F, 4) float32 rows of `gradient_scale` of each of `fields`: against the
+    value range of the first volume layer of that field (`volumes`: the scene's
+    VolumeLayer), else against the field's largest |value| (`magnitudes`)."""
+    spans = {}
+    for layer in volumes:
+        lo, hi = layer.transfer_function.value_range
+        spans.setdefault(layer.field, hi - lo)
+    rows = []
+    for f in fields:
+        floor = MIN_SHADING_SPAN * magnitudes[f]
+        rows.append([*gradient_scale(spacing_world, max(spans.get(f, magnitudes[f]), floor)), 0.0])
+    return np.array(rows or [[1.0, 1.0, 1.0, 0.0]], np.float32)
 
 
 def _packed(dtype, *parts) -> np.ndarray:
@@ -241,9 +264,8 @@ class DeviceDataset:
                               bvh.lower_lattice, bvh.upper_lattice, bvh.region_index,
                               r.lower_lattice, r.upper_lattice)
 
-        self.gradient_scales = np.array(
-            [[*gradient_scale(b.spacing_world, scale.magnitudes[f]), 0.0]
-             for f in self.fields] or [[1.0, 1.0, 1.0, 0.0]], np.float32)
+        self.spacing_world = np.array(b.spacing_world, np.float64)
+        self.magnitudes = scale.magnitudes
         self.finest_width_world = scale.finest_width_world
         self.min_spacing_world = float(b.spacing_world.min())
         self._location_args = None

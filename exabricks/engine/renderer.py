@@ -63,7 +63,7 @@ from ..mesh import mesh_set
 from ..scene import Lighting, Scene, Settings, VolumeLayer
 from ..transfer_function import TABLE_TOLERANCE, knot_buckets, lookup_table
 from . import instances
-from .device_data import DatasetScale, DeviceDataset
+from .device_data import DatasetScale, DeviceDataset, gradient_scales
 from .grouped import Grouped
 
 # Region walks (kernels/traversal.cl): "ordered" keeps a private min-heap of
@@ -575,7 +575,8 @@ def frame_arrays(scene: Scene, device_dataset: DeviceDataset,
     rows = lambda r, dtype: np.asarray(r, dtype).reshape(-1, 4)
     params = {
         "tf_xs_at": floats.add(cat(xs, (1,))), "tf_rgba_at": floats.add(cat(rgba, (1, 4)), 4),
-        "gradient_scale_at": floats.add(device_dataset.gradient_scales, 4),
+        "gradient_scale_at": floats.add(gradient_scales(device_dataset.spacing_world, device_dataset.fields,
+                                                        device_dataset.magnitudes, scene.volumes), 4),
         "iso_value_at": floats.add(rows(iso_value, np.float32), 4),
         "iso_color_at": floats.add(rows(iso_color, np.float32), 4),
         "slice_point_at": floats.add(rows(slice_point, np.float32), 4),
