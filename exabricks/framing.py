@@ -17,9 +17,9 @@ import numpy as np
 from .camera import DEFAULT_UP, DEFAULT_VIEW_DIRECTION, Camera
 
 # Share of the opacity left outside the visible box at each end of each axis.
-TRIM = 0.002
+TRIM = 0.005
 # Share of the frame's half-width and half-height left free around the box.
-MARGIN = 0.08
+MARGIN = 0.05
 # Bins per axis of the opacity's distribution over the lattice.
 POSITION_BINS = 1024
 

@@ -1,0 +1,105 @@
+"""The first picture: what `exabricks render SOURCE -o x.png` gives with no
+options on every shared dataset, measured (docs/scene.md, "Defaults").
+
+    .venv/bin/python -m benchmarks.first_picture [--out DIR] [--size N]
+
+Each dataset is rendered with no option but the field (the one a user would
+name: Gerris T, Athena++ rho, Enzo Density; AMReX's only field by default),
+and the PNG is measured by `picture_metrics`:
+
+- opaque: the share of pixels with alpha 255 (a PNG is composited over the
+  background unless --transparent);
+- coverage: the share of pixels brighter than COVERED (luminance in [0, 1]):
+  neither an empty frame (0) nor an opaque block filling it (1);
+- contrast: the spread (standard deviation over mean) of the luminance of
+  covered pixels: an opaque cube of one colour has little;
+- framing: the share of the frame's width and height (the larger) that the
+  bounding box of the covered pixels spans;
+- isolated dark pixels: covered pixels darker than half the median of their
+  8 neighbours, per thousand covered pixels (speckle).
+
+It prints a Markdown table (the one in docs/scene.md) and leaves the pictures
+in --out.
+"""
+
+from __future__ import annotations
+
+import argparse
+import subprocess
+import sys
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+from benchmarks.benchdoc import exabricks_command
+
+ROOT = Path(__file__).resolve().parents[1]
+SHARED = ROOT.parent / "shared" / "data"
+# Luminance above which a pixel counts as covered.
+COVERED = 0.03
+
+# name -> (source under ../shared/data, field flag)
+DATASETS = {
+    "amrex": ("amrex-advection3d/plt00020", ()),
+    "athena": ("athena-blast3d/Blast.out2.00001.athdf", ("--field", "rho")),
+    "gerris": ("gerris-plume/plume7-1.cells", ("--field", "T")),
+    "enzo": ("enzo-moving7/moving7_0010", ("--field", "Density")),
+}
+
+
+def luminance(rgb8: np.ndarray) -> np.ndarray:
+    """(H, W) float64 in [0, 1]: Rec. 709 luminance of 8-bit RGB."""
+    return (np.asarray(rgb8[..., :3], np.float64) / 255.0) @ np.array([0.2126, 0.7152, 0.0722])
+
+
+def picture_metrics(rgba8: np.ndarray) -> dict:
+    """The measures of the module docstring of an (H, W, 4) uint8 picture."""
+    lum = luminance(rgba8)
+    covered = lum > COVERED
+    h, w = lum.shape
+    out = {"opaque": float((rgba8[..., 3] == 255).mean()), "coverage": float(covered.mean())}
+    if not covered.any():
+        return {**out, "contrast": 0.0, "framing": 0.0, "isolated_dark": 0.0}
+    seen = lum[covered]
+    rows, cols = np.nonzero(covered)
+    out["contrast"] = float(seen.std() / seen.mean())
+    out["framing"] = float(max((rows.max() - rows.min() + 1) / h, (cols.max() - cols.min() + 1) / w))
+    padded = np.pad(lum, 1, mode="edge")
+    neighbours = np.stack([padded[1 + dy:h + 1 + dy, 1 + dx:w + 1 + dx]
+                           for dy in (-1, 0, 1) for dx in (-1, 0, 1) if dy or dx])
+    dark = covered & (lum < 0.5 * np.median(neighbours, axis=0))
+    out["isolated_dark"] = float(1000.0 * dark.sum() / covered.sum())
+    return out
+
+
+def render_default(name: str, output: Path, *, data: Path = SHARED, extra=()) -> np.ndarray:
+    """Render dataset `name` with no option but its field into `output` (.png);
+    its RGBA pixels (H, W, 4) uint8."""
+    from PIL import Image
+
+    source, field = DATASETS[name]
+    subprocess.run([*exabricks_command(), "render", str(data / source), *field, *extra,
+                    "-o", str(output)], check=True)
+    return np.asarray(Image.open(output).convert("RGBA"))
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--out", type=Path, default=None, help="folder for the pictures")
+    args = parser.parse_args(argv)
+    out = args.out or Path(tempfile.mkdtemp(prefix="first-picture-"))
+    out.mkdir(parents=True, exist_ok=True)
+    print("| dataset | command | opaque | coverage | contrast | framing | isolated dark (‰) |")
+    print("|---|---|---|---|---|---|---|")
+    for name, (source, field) in DATASETS.items():
+        m = picture_metrics(render_default(name, out / f"{name}.png"))
+        command = " ".join(["exabricks render", Path(source).name, *field, "-o x.png"])
+        print(f"| {name} | `{command}` | {m['opaque']:.2f} | {m['coverage']:.2f} | "
+              f"{m['contrast']:.2f} | {m['framing']:.2f} | {m['isolated_dark']:.2f} |")
+    print(f"pictures in {out}", file=sys.stderr)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
