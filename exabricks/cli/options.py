@@ -211,11 +211,11 @@ def _ingest_table(field_flags=("--field", "--fields")) -> list[tuple[str, tuple,
     ]
 
 
-def ingest_options(*field_flags: str):
+def ingest_options(*field_flags: str, leave_out: tuple[str, ...] = ()):
     """A decorator adding the ingest options (`_ingest_table`), each passed under the
-    ingest stage's own keyword."""
+    ingest stage's own keyword; `leave_out`: keywords of those a command does not take."""
     options = [click.option(*flags, keyword, **settings)
-               for keyword, flags, settings in _ingest_table(field_flags)]
+               for keyword, flags, settings in _ingest_table(field_flags) if keyword not in leave_out]
 
     def apply(command):
         for option in reversed(options):
@@ -236,8 +236,9 @@ def ingest_defaults() -> dict:
 
 
 def ingest_kwargs(options: dict) -> dict:
-    """The ingest stage's keyword arguments, popped from a command's `options`."""
-    kwargs = {keyword: options.pop(keyword) for keyword, _, _ in _ingest_table()}
+    """The ingest stage's keyword arguments, popped from a command's `options` (those
+    it takes: `ingest_options`' leave_out)."""
+    kwargs = {keyword: options.pop(keyword) for keyword, _, _ in _ingest_table() if keyword in options}
     if kwargs["mask"] is not None and not kwargs["auto_mask"]:
         raise click.UsageError("--mask and --no-mask exclude each other")
     return kwargs

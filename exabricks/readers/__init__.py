@@ -33,6 +33,16 @@ def detect_format(path: str | Path, *, dims=None) -> str:
     needs `dims`); an Enzo output (``NAME`` with a ``NAME.hierarchy`` sibling), a
     FLASH or Chombo file, or anything else one of yt's front ends claims, is yt.
     """
+    fmt = guess_format(path, dims=dims)
+    if fmt is None:
+        raise ExabricksError(f"cannot tell the format of {path}; use --format")
+    return fmt
+
+
+def guess_format(path: str | Path, *, dims=None, ask_yt: bool = True) -> str | None:
+    """`detect_format`'s answer, or None where no format claims `path` (`ask_yt`:
+    whether to ask yt's front ends, which takes seconds, about a name no rule knows).
+    Raises ExabricksError for a missing path and a raw volume without `dims`."""
     path = Path(path)
     if not path.exists():
         raise ExabricksError(f"{path}: no such file or directory")
@@ -50,9 +60,9 @@ def detect_format(path: str | Path, *, dims=None) -> str:
         return "raw"
     if path.with_name(name + ".hierarchy").is_file() or any(p.search(name) for p in _YT_NAME_PATTERNS):
         return "yt"
-    if _yt_claims(path):
+    if ask_yt and _yt_claims(path):
         return "yt"
-    raise ExabricksError(f"cannot tell the format of {path}; use --format")
+    return None
 
 
 def _yt_claims(path: Path) -> bool:
