@@ -124,6 +124,32 @@ def automatic_transfer_function(bricks, field: str, *, scale: str | None = None,
     return TransferFunction(unit.rgb_points, alpha, DEFAULT_NAME, scale, threshold)
 
 
+def suggested_iso_value(bricks, field: str, *, scale: str | None = None) -> float:
+    """An iso-value of `field` that shows a surface: on the side of the ambient
+    band (`ambient_band`) that reaches further on the scaled axis (the blast's
+    shell, the plume's hot core, the collapsed halo), the value that splits
+    that side's automatic opacity in half, in data units. Where the field has
+    no such side, the ambient value."""
+    from .scaling import inverse
+
+    data_range = widen_degenerate_range(field_range(bricks, field))
+    scale = resolve(scale, data_range)
+    threshold = default_threshold(data_range)
+    a, b = scaled_range(data_range, scale, threshold)
+    histogram = volume_histogram(bricks, field, scale, threshold, (a, b), HISTOGRAM_BINS)
+    band = ambient_band(histogram)
+    shape = opacity_shape((a, b), band)
+    centres = a + (np.arange(HISTOGRAM_BINS) + 0.5) * (b - a) / HISTOGRAM_BINS
+    weight = histogram * np.interp(centres, shape[:, 0], shape[:, 1])
+    below, above = weight[:band[0]], weight[band[1] + 1:]
+    upper = HISTOGRAM_BINS - 1 - band[1] >= band[0]
+    side, at = (above, centres[band[1] + 1:]) if upper else (below, centres[:band[0]])
+    if not side.sum() > 0:
+        return float(inverse(centres[band[0]], scale, threshold))
+    half = int(np.searchsorted(np.cumsum(side) / side.sum(), 0.5))
+    return float(inverse(at[min(half, len(at) - 1)], scale, threshold))
+
+
 def _sigma_for_depth(bricks, field: str, unit: TransferFunction, unit_distance) -> float:
     """The extinction (per `unit_distance`) that the shape `unit` (alpha read as a
     relative extinction in [0, 1]) is scaled by so that the rays of the default
