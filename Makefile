@@ -18,16 +18,24 @@ system-deps:
 	  $(SUDO) env DEBIAN_FRONTEND=noninteractive apt-get install -y -qq pocl-opencl-icd ocl-icd-libopencl1 >/dev/null; \
 	fi
 
+# The package with the dev extra (tests, linter, benchmarks' peers; about 1.8 GB): setup, test.
 $(VENV)/.installed: pyproject.toml
 	$(PYTHON) -m venv $(VENV)
 	$(VENV)/bin/pip install -q --upgrade pip
 	$(VENV)/bin/pip install -q -e '.[dev]'
 	touch $@
 
+# The package with its runtime dependencies only (about 0.8 GB): what the demo needs.
+$(VENV)/.installed-run: pyproject.toml
+	$(PYTHON) -m venv $(VENV)
+	$(VENV)/bin/pip install -q --upgrade pip
+	$(VENV)/bin/pip install -q -e .
+	touch $@
+
 setup: system-deps $(VENV)/.installed
 
 # The main job: the embedded Gerris plume through every stage.
-$(OUT)/cells.npz: $(VENV)/.installed
+$(OUT)/cells.npz: $(VENV)/.installed-run
 	@mkdir -p $(OUT)
 	$(EB) ingest $(DATA)/plume7-1.cells -o $@
 
@@ -44,14 +52,17 @@ $(OUT)/bvh.npz: $(OUT)/regions.npz
 # specular) inside the translucent volume of T, on a dark background. 64 occlusion
 # rays per hit and 4 samples per pixel: the occlusion's grain falls below the
 # volume's own jitter noise (docs/benchmarks.md, "Iso-surface normals").
+# `devices --warm` first builds the kernels of this picture and of a default render
+# (exabricks/warm.py), so that neither waits for a compile afterwards.
 $(OUT)/plume.png: $(OUT)/bvh.npz
+	$(EB) devices --warm
 	$(EB) -v render $(OUT)/bricks.npz $(OUT)/regions.npz $(OUT)/bvh.npz -o $@ \
 	  --field T --camera $(DATA)/camera.json \
 	  --colormap inferno --range -0.1 0.6 --opacity 0,0,0.1,0.18,0.25,0.3,0.35,0.4 \
 	  --iso 0.45 --iso-color 0.95,0.95,1 --specular 0.3 --ao-samples 64 --spp 4 \
 	  --background 0.05,0.05,0.08
 
-demo: setup $(OUT)/plume.png
+demo: system-deps $(OUT)/plume.png
 	@echo "image: $(OUT)/plume.png"
 
 # ruff (its rules in pyproject.toml) over the package, the tests, the benchmarks,

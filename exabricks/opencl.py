@@ -12,19 +12,31 @@ installed wheel, ``exabricks/kernels``; the directory is passed to the compiler
 as an include path. The program is built once per context, set of
 preprocessor defines and process; pyopencl's on-disk binary cache (and PoCL's
 kernel cache) make later processes skip compilation.
+
+A build that compiles (the first use of a set of options on a machine: seconds to
+tens of seconds on a small CPU) says so on a terminal, with the seconds ticking
+(exabricks.progress.waiting), and in the log with -v; so does a kernel's first
+enqueue, where PoCL compiles its work-group function. A build served from a cache
+stays silent. `exabricks devices --warm` (exabricks.warm) builds the programs of
+the first pictures ahead.
 """
 
 from __future__ import annotations
 
+import logging
 import os
+import time
+from contextlib import contextmanager
 from dataclasses import dataclass
 from importlib import resources
 from pathlib import Path
 
 import numpy as np
 
-from . import kernel_abi
+from . import kernel_abi, progress
 from .errors import ExabricksError
+
+log = logging.getLogger(__name__)
 
 # The source file holding the __kernel entry points; it #includes the rest.
 ENTRY_SOURCE = "render.cl"
@@ -185,29 +197,117 @@ def build_options(defines=()) -> list[str]:
 def program_for(context, defines=(), source_name: str = ENTRY_SOURCE):
     """The built kernel program `source_name` (a main file of kernels/) of
     `context` with preprocessor `defines` (e.g. ``("EB_CELL_LOCATION",)``, each
-    passed as ``-D``), compiled once per process."""
+    passed as ``-D``), compiled once per process (BUILDS records each build)."""
     cl = _cl()
     defines = tuple(defines)
     key = (context.int_ptr, defines, source_name)
     if key not in _PROGRAMS:
         directory = kernel_dir()
         source = kernel_abi.header() + (directory / source_name).read_text(encoding="utf-8")
+        options = build_options(defines)
+        device = _device_name(context.devices[0])
+        what = "the renderer" if source_name == ENTRY_SOURCE else f"kernels/{source_name}"
+        start = time.perf_counter()
         try:
-            _PROGRAMS[key] = cl.Program(context, source).build(options=build_options(defines))
+            with _compiling(what, device):
+                _PROGRAMS[key] = cl.Program(context, source).build(options=options)
         except cl.RuntimeError as e:
             raise ExabricksError(f"{directory / source_name}: OpenCL build failed: {e}") from None
+        seconds = time.perf_counter() - start
+        BUILDS.append((source_name, defines, seconds))
+        _log_compile(f"compiling {what} for {device} (defines: {' '.join(defines) or 'none'})", seconds)
     return _PROGRAMS[key]
+
+
+# Every program build of this process: (source name, defines, seconds), in order
+# (a build that a cache served counts too; tests count them).
+BUILDS: list = []
+
+# A compile that follows a shown one within this many seconds continues its line and clock.
+_CONTINUE_SECONDS = 1.0
+_last_shown = {"since": 0.0, "until": -1e9}
+
+
+def separate_compiles() -> None:
+    """Start the next compile's terminal line and clock afresh (a new task begins)."""
+    _last_shown["until"] = -1e9
+
+
+def _device_name(device) -> str:
+    return device.name.strip()
+
+
+@contextmanager
+def _compiling(what: str, device: str):
+    """The terminal line of a compile of `what` for `device` (progress.waiting), shown
+    when it takes long; consecutive compiles (a frame's programs, then its kernel's
+    work-group function) share one line and one clock."""
+    now = time.perf_counter()
+    since = _last_shown["since"] if now - _last_shown["until"] < _CONTINUE_SECONDS else now
+    message = f"compiling {what} for {device} (first use of these options; cached afterwards)…"
+    with progress.waiting(message, since=since) as wait:
+        try:
+            yield wait
+        finally:
+            if wait.shown:
+                _last_shown.update(since=wait.since, until=time.perf_counter())
+
+
+def _log_compile(what: str, seconds: float) -> None:
+    """One log line per compile: INFO (-v) when it took long enough to be announced."""
+    level = logging.INFO if seconds >= progress.announce_after() else logging.DEBUG
+    log.log(level, "%s took %.1f s", what, seconds)
+
+
+class Kernel:
+    """A pyopencl Kernel (attributes pass through) whose first enqueue waits until
+    the command starts running, announced like a build when that takes long: PoCL
+    compiles a kernel's work-group function for the work-group size of its first
+    command, on its worker thread, before it runs (otherwise an unannounced wait
+    in the read that follows)."""
+
+    def __init__(self, kernel, name: str):
+        self.kernel = kernel
+        self.entry = name
+        self.first = True
+
+    def __call__(self, queue, *args, **kw):
+        if not self.first:
+            return self.kernel(queue, *args, **kw)
+        self.first = False
+        device = _device_name(queue.device)
+        start = time.perf_counter()
+        with _compiling("the renderer" if self.entry == "eb_render" else f"kernel {self.entry}",
+                        device):
+            event = self.kernel(queue, *args, **kw)
+            _wait_running(queue, event)
+        _log_compile(f"compiling the work-group function of {self.entry} for {device}",
+                     time.perf_counter() - start)
+        return event
+
+    def __getattr__(self, name):
+        return getattr(self.kernel, name)
+
+
+def _wait_running(queue, event) -> None:
+    """Wait until `event`'s command runs or has ended (not for the run itself)."""
+    cl = _cl()
+    queue.flush()  # a driver may hold a command back until the queue is flushed
+    running = cl.command_execution_status.RUNNING
+    while event.command_execution_status > running:
+        time.sleep(0.002)
 
 
 _KERNELS: dict = {}
 
 
-def kernel(program, name: str):
+def kernel(program, name: str) -> Kernel:
     """The Kernel `name` of `program`, one object per process (pyopencl's
-    ``program.name`` makes a new one, and warns, on every access)."""
+    ``program.name`` makes a new one, and warns, on every access); called as a
+    pyopencl Kernel, its first enqueue says so when it compiles (`Kernel`)."""
     key = (program.int_ptr, name)
     if key not in _KERNELS:
-        _KERNELS[key] = _cl().Kernel(program, name)
+        _KERNELS[key] = Kernel(_cl().Kernel(program, name), name)
     return _KERNELS[key]
 
 

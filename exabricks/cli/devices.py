@@ -1,4 +1,5 @@
-"""`exabricks devices`: the OpenCL platforms and devices, with the specs --device takes."""
+"""`exabricks devices`: the OpenCL platforms and devices, with the specs --device takes;
+`--warm` builds the kernels of the first pictures ahead (exabricks.warm)."""
 
 from __future__ import annotations
 
@@ -6,20 +7,42 @@ import json
 
 import click
 
+from .options import device_option
+
 
 @click.command()
 @click.option("--json", "as_json", is_flag=True, help="Machine-readable output.")
-def devices(as_json):
+@click.option("--warm", is_flag=True,
+              help="Also build the renderer's kernels for the default render and `make demo`'s "
+              "picture on the device (--device; once per machine: the driver caches them).")
+@device_option
+def devices(as_json, warm, device):
     """List OpenCL devices; pass a SPEC (P:D or a name substring) to --device."""
     from ..opencl import choose_device, list_devices
 
     infos = list_devices()
     default = choose_device(None)
     rows = [{**d.to_dict(), "default": d.name == default.name.strip()} for d in infos]
-    if as_json:
+    if as_json and not warm:
         click.echo(json.dumps(rows, indent=2))
         return
-    for r in rows:
-        mark = "*" if r["default"] else " "
-        click.echo(f"{mark} {r['spec']}  {r['type']:<4} {r['name']}  [{r['platform']}, {r['version']}, "
-                   f"{r['compute_units']} compute units, {r['global_memory_bytes'] / 2**30:.1f} GiB]")
+    if not as_json:
+        for r in rows:
+            mark = "*" if r["default"] else " "
+            click.echo(f"{mark} {r['spec']}  {r['type']:<4} {r['name']}  [{r['platform']}, {r['version']}, "
+                       f"{r['compute_units']} compute units, {r['global_memory_bytes'] / 2**30:.1f} GiB]")
+    if warm:
+        from ..warm import warm as warm_kernels
+
+        target = choose_device(device).name.strip()
+
+        def said(row):
+            if not as_json:
+                click.echo(f"kernels ready for {row['frame']} on {target}: {row['seconds']:.1f} s")
+
+        warmed = warm_kernels(device, on_frame=said)
+        if as_json:
+            for r in rows:
+                if r["name"] == target:
+                    r["warmed"] = warmed
+            click.echo(json.dumps(rows, indent=2))
