@@ -160,7 +160,7 @@ def bench_dataset(key: str, modes: list[str], runs: int, size: int) -> tuple[dic
             c0 = time.process_time()
             res = ren.render_scene(scene)
             cpu[mode].append(1e3 * (time.process_time() - c0))
-            times[mode].append(res.stats["ms"] * res.stats["spp"])
+            times[mode].append(res.stats["ms"])
             samples[mode] = res.stats["samples"]
     device = "?"
     for ren in renderers.values():

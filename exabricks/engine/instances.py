@@ -257,7 +257,7 @@ def render(inner, scene: Scene, box, *, traversal, rows, window, sample, deadlin
     seconds = time.perf_counter() - start
     stats = dict(stats, rows=stats["rows"] if drawn is None else drawn, samples=count,
                  instances=len(maps), instance_order=order, spp=spp,
-                 ms=1e3 * seconds / (spp if sample is None else 1),
+                 ms=1e3 * seconds, ms_per_sample=1e3 * seconds / (spp if sample is None else 1),
                  samples_per_second=count / seconds if seconds > 0 else 0.0)
     return total, depth, stats
 

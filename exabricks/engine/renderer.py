@@ -86,7 +86,8 @@ class RenderResult:
 
     rgba:  float32 (H, W, 4), premultiplied colour and opacity, row 0 at the top.
     depth: float32 (H, W) world distance where opacity reached 0.5 (inf: never), or None.
-    stats: samples (reconstructions), ms (kernel wall time per frame),
+    stats: samples (reconstructions), ms (kernel wall time of the frame, every
+           sample per pixel), ms_per_sample (of one sample per pixel),
            samples_per_second, visible_regions, and the settings used
            (reconstruction included).
     """
@@ -364,7 +365,8 @@ class Renderer:
             opencl.read_back(q, level_buf, level_samples)
             stats["samples_per_level"] = {str(l): int(c) for l, c in enumerate(level_samples) if c}
         stats["lod"] = float(cfg.lod)
-        stats.update(rows=drawn, samples=total, ms=1e3 * seconds / (spp if sample is None else 1),
+        stats.update(rows=drawn, samples=total, ms=1e3 * seconds,
+                     ms_per_sample=1e3 * seconds / (spp if sample is None else 1),
                      samples_per_second=total / seconds if seconds > 0 else 0.0)
         return RenderResult(over_background(rgba, scene.background), d, stats)
 

@@ -367,7 +367,7 @@ def render_steps(domains, scene, *, band=None, tile_width=None, deadline: float 
         for key in ("regions", "visible_regions"):  # the last domain's only
             stats.pop(key, None)
     stats.pop("rows", None)
-    stats.update(samples=samples, ms=1e3 * seconds / max(done_samples, 1),
+    stats.update(samples=samples, ms=1e3 * seconds, ms_per_sample=1e3 * seconds / max(done_samples, 1),
                  samples_per_second=samples / seconds if seconds > 0 else 0.0,
                  pieces=domains.n_domains, progress=progress)
     if isinstance(domains, Budgeted):
