@@ -19,7 +19,10 @@ and the PNG is measured by `picture_metrics`:
   8 neighbours, per thousand covered pixels (speckle).
 
 It prints a Markdown table (the one in docs/scene.md) and leaves the pictures
-in --out.
+in --out. With --yt DIR it also writes yt's `create_scene` default picture of
+each dataset and field to DIR/defaults-yt-<dataset>.png (512 x 512; the Gerris
+cells through exabricks.yt_grids, as benchmarks/peers/yt.py loads them), the
+comparison of docs/gallery.md, "The first picture".
 """
 
 from __future__ import annotations
@@ -84,10 +87,47 @@ def render_default(name: str, output: Path, *, data: Path = SHARED, extra=()) ->
     return np.asarray(Image.open(output).convert("RGBA"))
 
 
+def yt_default(name: str, output: Path, *, data: Path = SHARED) -> float:
+    """yt's `create_scene(ds, field)` of dataset `name`, saved as `output` at
+    512 x 512 with yt's defaults otherwise; its seconds."""
+    import time
+
+    import yt
+
+    yt.set_log_level(40)
+    source, field = DATASETS[name]
+    path = data / source
+    if name == "gerris":
+        from exabricks import readers, schema, yt_grids
+
+        cells = readers.read(str(path), fields=[field[1]])
+        grids, top = yt_grids.to_amr_grids(cells, source=str(path))
+        lo, hi = (np.asarray(b) for b in schema.world_bounds(cells))
+        root = np.rint((hi - lo) / cells.spacing_world / (1 << top)).astype(int)
+        ds = yt.load_amr_grids(grids, root, bbox=np.column_stack([lo, hi]), length_unit=1.0)
+        name_in_yt = ("stream", field[1])
+    else:
+        ds = yt.load(str(path))
+        wanted = field[1] if field else "phi"
+        name_in_yt = next(f for f in ds.field_list if f[1] == wanted)
+    t = time.perf_counter()
+    scene = yt.create_scene(ds, name_in_yt)
+    scene.camera.resolution = (512, 512)
+    scene.save(str(output))
+    return time.perf_counter() - t
+
+
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--out", type=Path, default=None, help="folder for the pictures")
+    parser.add_argument("--yt", type=Path, default=None, metavar="DIR",
+                        help="also write yt's create_scene default of each dataset here")
     args = parser.parse_args(argv)
+    if args.yt is not None:
+        args.yt.mkdir(parents=True, exist_ok=True)
+        for name in DATASETS:
+            seconds = yt_default(name, args.yt / f"defaults-yt-{name}.png")
+            print(f"yt {name}: {seconds:.1f} s", file=sys.stderr)
     out = args.out or Path(tempfile.mkdtemp(prefix="first-picture-"))
     out.mkdir(parents=True, exist_ok=True)
     print("| dataset | command | opaque | coverage | contrast | framing | isolated dark (‰) |")
