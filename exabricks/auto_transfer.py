@@ -31,7 +31,7 @@ import math
 
 import numpy as np
 
-from .field_statistics import field_range, opacity_columns, volume_histogram
+from .field_statistics import field_range, opacity_columns, smallest_positive, volume_histogram
 from .scaling import default_threshold, resolve, scaled_range
 from .transfer_function import TransferFunction, widen_degenerate_range
 
@@ -100,6 +100,14 @@ def visible_span(histogram: np.ndarray, shape: np.ndarray, axis_range) -> tuple[
     return (lo - half, hi + half) if hi > lo else (a, b)
 
 
+def field_axis(bricks, field: str, scale: str | None = None):
+    """(scale, symlog threshold, finite range widened where constant, smallest
+    positive value or None) of `field` for `scale` (None: auto; exabricks.scaling)."""
+    data_range = widen_degenerate_range(field_range(bricks, field))
+    floor = smallest_positive(bricks, field) if data_range[0] <= 0 < data_range[1] else None
+    return resolve(scale, data_range, floor), default_threshold(data_range), data_range, floor
+
+
 def automatic_transfer_function(bricks, field: str, *, scale: str | None = None,
                                 value_range=None, colormap: str = "viridis",
                                 unit_distance: float | None = None) -> TransferFunction:
@@ -109,11 +117,8 @@ def automatic_transfer_function(bricks, field: str, *, scale: str | None = None,
     range the colours span (default: the field's finite range). `unit_distance`:
     the world thickness alpha is the opacity of (default: the finest cell width).
     """
-    data_range = widen_degenerate_range(field_range(bricks, field))
-    colour_range = tuple(value_range) if value_range else data_range
-    scale = resolve(scale, data_range)
-    threshold = default_threshold(data_range)
-    axis = scaled_range(colour_range, scale, threshold)
+    scale, threshold, data_range, floor = field_axis(bricks, field, scale)
+    axis = scaled_range(tuple(value_range) if value_range else data_range, scale, threshold, floor)
     histogram = volume_histogram(bricks, field, scale, threshold, axis, HISTOGRAM_BINS)
     shape = opacity_shape(axis, ambient_band(histogram))
     colours = TransferFunction.from_colormap(colormap, axis if value_range else visible_span(histogram, shape, axis))
@@ -132,10 +137,8 @@ def suggested_iso_value(bricks, field: str, *, scale: str | None = None) -> floa
     no such side, the ambient value."""
     from .scaling import inverse
 
-    data_range = widen_degenerate_range(field_range(bricks, field))
-    scale = resolve(scale, data_range)
-    threshold = default_threshold(data_range)
-    a, b = scaled_range(data_range, scale, threshold)
+    scale, threshold, data_range, floor = field_axis(bricks, field, scale)
+    a, b = scaled_range(data_range, scale, threshold, floor)
     histogram = volume_histogram(bricks, field, scale, threshold, (a, b), HISTOGRAM_BINS)
     band = ambient_band(histogram)
     shape = opacity_shape((a, b), band)

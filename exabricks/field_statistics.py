@@ -212,3 +212,15 @@ def field_range(bricks, field: str | None) -> tuple[float, float]:
     if lo > hi:
         raise ExabricksError(f"field {field or bricks.fields[0]!r} has no finite values")
     return lo, hi
+
+
+def smallest_positive(bricks, field: str) -> float | None:
+    """The smallest positive finite value of `field`, or None where it has none."""
+    from .schema import reduce_chunks
+
+    def least(chunk):
+        positive = chunk[np.isfinite(chunk) & (chunk > 0)]
+        return float(positive.min()) if positive.size else math.inf
+
+    low = reduce_chunks(bricks.values[bricks.field_index(field)], least, min)
+    return low if math.isfinite(low) else None

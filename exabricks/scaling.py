@@ -28,15 +28,18 @@ AUTO_LOG_DECADES = 2.0
 SYMLOG_THRESHOLD = 1e-3
 
 
-def resolve(scale: str | None, value_range) -> str:
+def resolve(scale: str | None, value_range, floor: float | None = None) -> str:
     """The concrete scale ("linear", "log" or "symlog") of `scale` (None: auto)
-    for a field whose finite values span `value_range` (low, high)."""
+    for a field whose finite values span `value_range` (low, high), `floor`
+    its smallest positive value (a non-negative field with zeros, as a dark
+    matter density, is on a log scale when its positive values span decades)."""
     scale = scale or "auto"
     if scale not in SCALES:
         raise ExabricksError(f"unknown scale {scale!r} (one of {', '.join(SCALES)})")
     lo, hi = (float(v) for v in value_range)
     if scale == "auto":
-        return "log" if lo > 0 and hi / lo > 10.0 ** AUTO_LOG_DECADES else "linear"
+        low = lo if lo > 0 else (floor if lo == 0 and floor else 0.0)
+        return "log" if low > 0 and hi / low > 10.0 ** AUTO_LOG_DECADES else "linear"
     if scale == "log" and not hi > 0:
         raise ExabricksError(f"--scale log: the field has no positive value (its range is "
                              f"[{lo:g}, {hi:g}]); use linear or symlog")
@@ -71,13 +74,14 @@ def inverse(scaled, scale: str, threshold: float = 1.0) -> np.ndarray:
     return np.sign(s) * threshold * (np.power(10.0, np.abs(s)) - 1.0)
 
 
-def scaled_range(value_range, scale: str, threshold: float = 1.0) -> tuple[float, float]:
+def scaled_range(value_range, scale: str, threshold: float = 1.0,
+                 floor: float | None = None) -> tuple[float, float]:
     """`value_range` on the scaled axis; for log, a range reaching 0 or below starts
-    `AUTO_LOG_DECADES` * 3 decades under its top (the lowest positive values
-    of a real field rarely matter more)."""
+    at `floor` (the smallest positive value), else `AUTO_LOG_DECADES` * 3
+    decades under its top."""
     lo, hi = (float(v) for v in value_range)
     if scale == "log" and lo <= 0:
-        lo = hi * 10.0 ** (-3 * AUTO_LOG_DECADES)
+        lo = floor if floor and 0 < floor < hi else hi * 10.0 ** (-3 * AUTO_LOG_DECADES)
     a, b = (float(x) for x in forward([lo, hi], scale, threshold))
     if not (math.isfinite(a) and math.isfinite(b) and a < b):
         raise ExabricksError(f"cannot lay the range [{lo:g}, {hi:g}] on a {scale} axis")

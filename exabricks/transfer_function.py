@@ -240,7 +240,9 @@ class TransferFunction:
         def remap(points):
             out = points.copy()
             out[:, 0] = inverse(lo + (forward(points[:, 0], *axis) - x0) * stretch, *axis)
-            return out
+            if self.scale == "linear":
+                return out
+            return out[np.concatenate([[True], np.diff(out[:, 0]) > 0])]  # knots merged by rounding
 
         return TransferFunction(remap(self.rgb_points), remap(self.alpha_points), self.name, *axis)
 

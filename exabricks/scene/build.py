@@ -30,9 +30,18 @@ GEOMETRY_FIELDS = ("vfrac", "volfrac", "volume_fraction", "afrac", "areafrac", "
                    "apy", "apz", "fcx", "fcy", "fcz", "centroid", "bcent", "bnorm", "barea")
 
 
+# Fields drawn first when present, as yt's create_scene draws ("gas", "density"):
+# the names codes give the mass density (lower case).
+DENSITY_FIELDS = ("density", "rho", "dens")
+
+
 def default_field(fields) -> str:
-    """The field drawn when none is named: the first that is not embedded-boundary
+    """The field drawn when none is named: the mass density where the data has
+    one (`DENSITY_FIELDS`), else the first field that is not embedded-boundary
     geometry (`GEOMETRY_FIELDS`), else the first."""
+    for name in fields:
+        if name.lower() in DENSITY_FIELDS:
+            return name
     for name in fields:
         if not name.lower().replace("-", "_").startswith(GEOMETRY_FIELDS):
             return name
@@ -61,8 +70,8 @@ def choose_transfer_function(bricks, field, preset=None, colormap=None, value_ra
 
     `builtin`: whether `preset` is a built-in name (None: where no such file exists).
     """
-    from ..auto_transfer import automatic_transfer_function
-    from ..scaling import default_threshold, resolve, scaled_range
+    from ..auto_transfer import automatic_transfer_function, field_axis
+    from ..scaling import scaled_range
     from ..transfer_function import builtin_presets, preset_path
 
     if preset and colormap:
@@ -77,9 +86,9 @@ def choose_transfer_function(bricks, field, preset=None, colormap=None, value_ra
     if preset is not None and not builtin:
         tf = TransferFunction.from_paraview(preset)
         return tf.rescaled(value_range) if value_range else tf
-    data_range = _data_range(bricks, field)
-    axis = resolve(scale, data_range), default_threshold(data_range)
-    span = scaled_range(tuple(value_range) if value_range else data_range, *axis)
+    scale, threshold, data_range, floor = field_axis(bricks, field, scale)
+    axis = scale, threshold
+    span = scaled_range(tuple(value_range) if value_range else data_range, *axis, floor)
     if colormap:
         shape = TransferFunction.from_colormap(colormap, span, opacity=opacity)
     else:  # built-in presets are shapes over [0, 1]: stretched over the data (ParaView's rescale)

@@ -241,8 +241,9 @@ SCENE_OPTIONS = (
     _vector("look_at", "Point the camera looks at (world units).", finite=False),
     _vector("up", "Camera up vector.", finite=False),
     Option("fovy", "Full vertical field of view, degrees."),
-    Option("field", "Scalar field to use (default: the first field of the file that is not "
-           "embedded-boundary geometry such as vfrac).", kind="text", metavar="NAME"),
+    Option("field", "Scalar field to use (default: the density where the data has one, "
+           "else the first field that is not embedded-boundary geometry such as vfrac).",
+           kind="text", metavar="NAME"),
     Option("scale", "The field's axis for the transfer function and colour bar: auto (default: "
            "log for a positive field spanning more than two decades, else linear), linear, log "
            "or symlog.", kind="choice", choices=SCALES),
