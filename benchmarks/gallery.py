@@ -450,7 +450,8 @@ def first_picture_section(all_shots: list[Shot]) -> list[str]:
             "without shading. The rings and the dotted zipper along the crescent were the normals of "
             "weak, cell-scale gradients; the high-frequency energy the headlight adds over "
             "`--shading none` fell from 1.2 % to 0.27 % of the mean luminance on AMReX and from "
-            "1.9 % to 0.25 % on Athena++ (docs/benchmarks.md, \"Volume shading\").", "",
+            "1.9 % to 0.25 % on Athena++ (`benchmarks.bench_shading.added_detail` of these pictures; "
+            "docs/benchmarks.md, \"Volume shading\", measures each build's own default pictures).", "",
             "| | before (b0682ec) | now | `--shading none` |", "|---|---|---|---|"]
     for key, name in (("amrex", "AMReX phi"), ("athena", "Athena++ rho")):
         out.append(f"| {name} | ![before](images/shading-{key}-before.png) | "
