@@ -2,7 +2,11 @@
 client), and the page in a real browser (headless Chromium through Selenium):
 it loads, a frame appears and refines, a drag orbits, dragging an opacity knot
 changes the image, and "Save scene" writes a file whose `render --scene` is the
-viewer's converged frame. EXABRICKS_VIEW_SCREENSHOTS=DIR keeps the screenshots
+viewer's converged frame; what a new user meets: a wheel zoom refines to
+converged once the wheel stops, a preview fills the frame's place, "Save scene"
+is in sight at 1280x800, the first picture is `render`'s with the same options
+(the automatic transfer function, not overridden) and "Add iso-surface" starts at
+the suggested iso-value. EXABRICKS_VIEW_SCREENSHOTS=DIR keeps the screenshots
 (docs/view.md's pictures)."""
 
 from __future__ import annotations
@@ -22,7 +26,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from conftest import GERRIS, run_cli
+from conftest import ATHENA, GERRIS, run_cli
 
 pytestmark = pytest.mark.slow
 aiohttp = pytest.importorskip("aiohttp")
@@ -205,23 +209,24 @@ def frame_after(got, stage):
     return got[i + 1]
 
 
-def assert_renders(scene_file_or_doc, tmp_path, png: bytes):
-    """`render --scene` of the document draws `png` (the viewer's frame), pixel for pixel."""
-    from PIL import Image as PILImage
-
-    import exabricks as eb
-
+def assert_renders(scene_file_or_doc, tmp_path, png: bytes, *options):
+    """`render --scene` of the document to a .png is `png` (the viewer's frame), pixel
+    for pixel."""
     path = tmp_path / "check.json"
     if isinstance(scene_file_or_doc, dict):
         path.write_text(json.dumps(scene_file_or_doc))
     else:
         shutil.copy(scene_file_or_doc, path)
-    run_cli("render", GERRIS, "--scene", path, "-o", tmp_path / "check.exr", check=0)
-    rendered = eb.Image.read(tmp_path / "check.exr")
-    doc = json.loads(path.read_text())
-    rendered.scene = type("S", (), {"background": tuple(doc["background"])})()
+    run_cli("render", GERRIS, "--scene", path, *options, "-o", tmp_path / "check.png", check=0)
+    assert_same_pixels(png, tmp_path / "check.png")
+
+
+def assert_same_pixels(png: bytes, path):
+    """The viewer's frame `png` is the picture in the .png at `path`, pixel for pixel."""
+    from PIL import Image as PILImage
+
     viewer = np.asarray(PILImage.open(io.BytesIO(png)).convert("RGB"))
-    np.testing.assert_array_equal(viewer, rendered.shown())
+    np.testing.assert_array_equal(viewer, np.asarray(PILImage.open(path).convert("RGB")))
 
 
 # -- the page in a real browser --------------------------------------------------
@@ -255,9 +260,10 @@ def wait_for(driver, script, timeout=60):
     raise AssertionError(f"timed out waiting for: {script}")
 
 
-def converged(driver, after_version=-1):
+def converged(driver, after_version=-1, timeout=60):
     return wait_for(driver, f"const f = window.exabricks.frame; return f && f.stage === 'converged' && "
-                            f"f.version > {after_version} && window.exabricks.version === f.version ? f : null")
+                            f"f.version > {after_version} && window.exabricks.version === f.version ? f : null",
+                    timeout)
 
 
 def shown_png(driver) -> bytes:
@@ -328,6 +334,108 @@ def test_the_page_in_a_browser(server, browser, tmp_path):
     assert not logs, logs
 
 
+PAGE_BACKGROUND = (0x16, 0x18, 0x1D)  # viewer.css: body's background
+
+
+def in_sight(driver, element_id):
+    """Whether the element lies wholly within the viewport, on top there (not covered)."""
+    return driver.execute_script(
+        "const e = document.getElementById(arguments[0]), r = e.getBoundingClientRect();"
+        "return r.width > 0 && r.height > 0 && r.left >= 0 && r.top >= 0 && r.right <= innerWidth && "
+        "r.bottom <= innerHeight && document.elementFromPoint((r.left + r.right) / 2, (r.top + r.bottom) / 2) === e",
+        element_id)
+
+
+def test_a_new_user_zooms_drags_and_saves(server, browser):
+    """A wheel zoom refines to a converged frame once the wheel stops; a preview
+    during a drag fills the place of the whole frame; "Save scene" is in sight at
+    1280x800 and every control can be scrolled to."""
+    from PIL import Image as PILImage
+    from selenium.webdriver.common.action_chains import ActionChains
+    from selenium.webdriver.common.actions.wheel_input import ScrollOrigin
+    from selenium.webdriver.common.by import By
+
+    browser.get(server.url)
+    frame = converged(browser)
+    whole = browser.execute_script("return document.getElementById('frame').getBoundingClientRect().toJSON()")
+    assert (whole["width"], whole["height"]) == (320, 256)
+
+    # "Save scene" in sight without scrolling; the last control reachable by scrolling the panel
+    assert browser.execute_script("return [innerWidth, outerHeight]") == [1280, 800]
+    assert in_sight(browser, "save"), browser.find_element(By.ID, "save").rect
+    browser.execute_script("document.getElementById('spp').scrollIntoView({block: 'nearest'})")
+    assert in_sight(browser, "spp") and in_sight(browser, "save")
+
+    # a wheel zoom and then nothing: the frame refines to the whole size at the scene's samples
+    camera = browser.execute_script("return window.exabricks.doc.camera")
+    distance = np.linalg.norm(np.subtract(camera["position"], camera["look_at"]))
+    view = browser.find_element(By.ID, "view")
+    ActionChains(browser).scroll_from_origin(ScrollOrigin.from_element(view), 0, 200).perform()
+    frame = converged(browser, frame["version"], timeout=30)
+    camera = browser.execute_script("return window.exabricks.doc.camera")
+    assert np.linalg.norm(np.subtract(camera["position"], camera["look_at"])) > distance * 1.05
+    assert (frame["width"], frame["height"], frame["spp"]) == (320, 256, 2)
+    assert browser.find_element(By.ID, "status").get_attribute("data-stage") == "converged"
+
+    # mid-drag (the button held, no more motion): a quarter-size preview, drawn over the whole frame's place
+    ActionChains(browser).move_to_element(view).click_and_hold().move_by_offset(30, 0) \
+        .move_by_offset(10, 5).perform()
+    preview = wait_for(browser, "const f = window.exabricks.frame, img = document.getElementById('frame');"
+                                "return f && f.stage === 'coarse' && f.version === window.exabricks.version && "
+                                "img.complete && img.naturalWidth === f.width ? f : null")
+    assert (preview["width"], preview["height"]) == (80, 64)
+    box = browser.execute_script("return document.getElementById('frame').getBoundingClientRect().toJSON()")
+    assert (box["width"], box["height"]) == (320, 256) and box == whole
+    shot = np.asarray(PILImage.open(io.BytesIO(browser.get_screenshot_as_png())).convert("RGB")).astype(int)
+    x0, y0 = round(box["left"]), round(box["top"])
+    drawn = shot[y0:y0 + 256, x0:x0 + 320]
+    page = np.all(np.abs(drawn - PAGE_BACKGROUND) <= 2, axis=-1)
+    assert page.mean() < 0.01, f"{page.mean():.1%} of the frame's place shows the page, not the preview"
+    screenshot(browser, "view-drag-preview.png")
+    ActionChains(browser).release().perform()
+    frame = converged(browser, preview["version"] - 1)
+    assert frame["width"] == 320
+    logs = [e for e in browser.get_log("browser") if e["level"] == "SEVERE"]
+    assert not logs, logs
+
+
+def test_the_first_picture_is_renders_and_an_iso_surface_shows(tmp_path, browser):
+    """With no transfer function given, the page's first converged frame is what
+    `render` draws with the same options (the automatic transfer function, the
+    framing camera, an opaque background), pixel for pixel: the page shows the
+    automatic function's knots without replacing it. "Add iso-surface" starts at
+    suggested_iso_value of the field (the blast's shell)."""
+    from selenium.webdriver.common.by import By
+
+    import exabricks as eb
+    from exabricks.auto_transfer import suggested_iso_value
+
+    s = Server(tmp_path, ATHENA, "--field", "rho")
+    try:
+        browser.get(s.url)
+        frame = converged(browser)
+        doc = browser.execute_script("return window.exabricks.doc")
+        assert doc["volumes"] == [{"field": "rho", "transfer_function": {"colormap": "viridis"}}]
+        layer = browser.execute_script("return window.exabricks.layer")
+        assert layer["field"] == "rho" and len(layer["opacity"]) > 2 and 0 < max(layer["opacity"]) < 0.5
+        assert in_sight(browser, "save")
+        screenshot(browser, "view-blast.png")
+        viewer = shown_png(browser)
+
+        browser.find_element(By.ID, "iso-add").click()
+        iso = browser.execute_script("return window.exabricks.doc.isosurfaces")
+        assert len(iso) == 1 and iso[0]["field"] == "rho"
+        assert iso[0]["value"] == suggested_iso_value(eb.open(ATHENA).bricks, "rho")
+        converged(browser, frame["version"])
+        screenshot(browser, "view-blast-iso.png")
+        logs = [e for e in browser.get_log("browser") if e["level"] == "SEVERE"]
+        assert not logs, logs
+    finally:
+        s.stop()
+    run_cli("render", ATHENA, "--field", "rho", "-o", tmp_path / "render.png", check=0)
+    assert_same_pixels(viewer, tmp_path / "render.png")
+
+
 def test_a_view_within_a_memory_budget(tmp_path):
     """`view --memory-budget` draws domain by domain; its saved scene renders the same
     frame with `render --scene --memory-budget`."""
@@ -337,16 +445,7 @@ def test_a_view_within_a_memory_budget(tmp_path):
                           then=[([{"type": "save"}], lambda m: isinstance(m, dict) and m.get("type") == "saved")])
     finally:
         s.stop()
-    from PIL import Image as PILImage
-
-    import exabricks as eb
-
-    run_cli("render", GERRIS, "--scene", tmp_path / "scene.json", "--memory-budget", "8M", "-o",
-            tmp_path / "check.exr", check=0)
-    rendered = eb.Image.read(tmp_path / "check.exr")
-    rendered.scene = type("S", (), {"background": (0.0, 0.0, 0.0, 0.0)})()
-    viewer = np.asarray(PILImage.open(io.BytesIO(frame_after(got, "converged"))).convert("RGB"))
-    np.testing.assert_array_equal(viewer, rendered.shown())
+    assert_renders(tmp_path / "scene.json", tmp_path, frame_after(got, "converged"), "--memory-budget", "8M")
 
 
 def test_a_server_that_cannot_listen_says_so():

@@ -18,8 +18,11 @@ Messages (JSON text; frames are PNG bytes, each after a "frame" message):
                     {"type": "save"}          (writes --scene-out, sends the document back)
     server -> page  {"type": "init", ...}     (session.Session.info)
                     {"type": "frame", "stage", "width", "height", "spp", "ms",
-                     "samples_per_second", "device", "version"}, then the PNG
-                    (version: the page's number of the scene it shows, 0 at the start)
+                     "samples_per_second", "device", "version", "size", "layer"}, then the PNG
+                    (version: the page's number of the scene it shows, 0 at the start;
+                    size: the scene's whole size, which the page shows every stage at;
+                    layer: the first volume layer's knots as the page shows them,
+                    session.Session.layer)
                     {"type": "saved", "scene": {...}, "path": ...}
                     {"type": "error", "message": "..."}
 """
@@ -56,6 +59,7 @@ class Viewer:
         self.token = token or secrets.token_urlsafe(24)
         self.lock = asyncio.Lock()  # one frame on the device at a time
         self.runner = None
+        self.sockets = set()  # the open pages' websockets, closed on stopping
 
     # -- checks ---------------------------------------------------------------
 
@@ -98,16 +102,20 @@ class Viewer:
         ws = web.WebSocketResponse(max_msg_size=MAX_MESSAGE, heartbeat=30)
         await ws.prepare(request)
         page = _Page(self, ws)
-        await ws.send_str(json.dumps(self.session.info()))
-        page.want(self.session.doc, False)
-        async for msg in ws:
-            if msg.type == WSMsgType.TEXT:
-                await page.receive(msg.data)
-            elif msg.type == WSMsgType.BINARY:
-                await page.error("binary messages are not understood")
-            elif msg.type == WSMsgType.ERROR:
-                break
-        page.close()
+        self.sockets.add(ws)
+        try:
+            await ws.send_str(json.dumps(self.session.info()))
+            page.want(self.session.doc, False)
+            async for msg in ws:
+                if msg.type == WSMsgType.TEXT:
+                    await page.receive(msg.data)
+                elif msg.type == WSMsgType.BINARY:
+                    await page.error("binary messages are not understood")
+                elif msg.type == WSMsgType.ERROR:
+                    break
+        finally:
+            self.sockets.discard(ws)
+            page.close()
         return ws
 
     def app(self):
@@ -137,6 +145,12 @@ class Viewer:
         return f"http://{host}:{self.port}/?token={self.token}"
 
     async def stop(self) -> None:
+        """Close the open pages' websockets (else the server waits out aiohttp's
+        shutdown timeout, tens of seconds, for pages left open), then the server."""
+        from aiohttp import WSCloseCode
+
+        for ws in list(self.sockets):
+            await ws.close(code=WSCloseCode.GOING_AWAY, message=b"exabricks view stopped")
         if self.runner is not None:
             await self.runner.cleanup()
 
@@ -182,6 +196,8 @@ class _Page:
             try:
                 scene = await loop.run_in_executor(None, session.check, doc)
                 self.good = doc
+                layer = session.layer(scene)
+                size = [scene.settings.width, scene.settings.height]
                 for stage, staged in session.stages(scene, moving):
                     if version != self.version:
                         break
@@ -193,7 +209,7 @@ class _Page:
                         "type": "frame", "stage": frame.stage, "width": frame.width,
                         "height": frame.height, "spp": frame.spp, "ms": round(frame.ms, 1),
                         "samples_per_second": frame.samples_per_second, "device": frame.device,
-                        "version": tag}))
+                        "version": tag, "size": size, "layer": layer}))
                     await self.ws.send_bytes(frame.png)
                 else:
                     if version == self.version:

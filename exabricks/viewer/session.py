@@ -13,12 +13,19 @@ lighting, background and the settings. Each version is drawn in stages:
 A newer version drops what is left of an older one. The document reaches the file
 system nowhere: a camera or a transfer function must be inline (or a built-in
 preset's name), and only the server writes, to `--scene-out`.
+
+The first document draws what `render` draws with the same options: without a
+transfer function it holds the automatic one's spec (`{"colormap": NAME}` with no
+opacity, exabricks.auto_transfer), which the page shows as the knots it would
+become (`Session.layer`) until the user edits them. The automatic function of a
+layer is computed once per (field, colour map, range, scale), not per frame.
 """
 
 from __future__ import annotations
 
 import io
 import json
+import os
 import time
 from dataclasses import dataclass, replace
 
@@ -35,6 +42,10 @@ COARSE_FRACTION = 4
 COARSE_MIN = 64
 MOVING_LOD = 2.0  # --lod while the camera moves, when the page asks for it
 MAX_DOC_BYTES = 1 << 20
+# Knots the page is shown (and edits, once touched) for a layer whose transfer
+# function has none of its own (the automatic one, a preset).
+SHOWN_KNOTS = 17
+AUTOMATIC_CACHE = 32  # automatic transfer functions kept
 
 
 @dataclass(frozen=True)
@@ -58,9 +69,10 @@ class Session:
         from ..api import Renderer
 
         self.renderer = Renderer(dataset, device=device)
+        self._automatic = {}  # automatic transfer functions as inline presets, by spec
         start = self.renderer.scene(scene, **(options or {}))
         self.meshes = {m.path for m in start.meshes}  # the only files a page may name
-        self.doc = page_document(start, options or {})
+        self.doc = page_document(start, options or {}, scene)
         self.check(self.doc)
         self.budget, self.device = budget, device
         if budget is not None and dataset.paths is None:
@@ -75,11 +87,68 @@ class Session:
         if len(json.dumps(doc)) > MAX_DOC_BYTES:
             raise ExabricksError(f"scene: larger than {MAX_DOC_BYTES} bytes")
         _no_files(doc, self.meshes)
-        return self.renderer.scene(doc)
+        return self.renderer.scene(self._resolved(doc))
+
+    def _resolved(self, doc: dict) -> dict:
+        """`doc` with each automatic layer (`{"colormap": NAME}`, no opacity) given as
+        the inline preset of its automatic transfer function, computed once per spec:
+        the same function, read back exactly (scene_to_dict's contract), without
+        the histogram and column sums behind it on every frame of a drag."""
+        from ..scene import choose_transfer_function
+
+        volumes = doc.get("volumes")
+        if not isinstance(volumes, list) or not volumes:
+            return doc
+        bricks = self.renderer.dataset.bricks
+        out = []
+        for entry in volumes:
+            spec = _automatic_spec(entry, bricks.fields)
+            preset = None if spec is None else self._automatic.get(json.dumps(spec))
+            if spec is not None and preset is None:
+                field, colormap, value_range, scale = spec
+                try:
+                    tf = choose_transfer_function(bricks, field, colormap=colormap,
+                                                  value_range=value_range, scale=scale)
+                except (ExabricksError, TypeError, ValueError):
+                    pass  # left as it is: the scene's own checks say what is wrong
+                else:
+                    preset = tf.to_paraview_dict()
+                    while len(self._automatic) >= AUTOMATIC_CACHE:
+                        self._automatic.pop(next(iter(self._automatic)), None)
+                    self._automatic[json.dumps(spec)] = preset
+            out.append(entry if preset is None else {"field": entry["field"], "transfer_function": preset})
+        return {**doc, "volumes": out}
+
+    def layer(self, scene) -> dict | None:
+        """The first volume layer as the page shows it: its field, the range and
+        scale its knots span (the colours' span, which holds all but a sliver of the
+        automatic function's opacity), and SHOWN_KNOTS opacity knots evenly over that range
+        on that scale (what `{"colormap", "opacity"}` over the range reads back as):
+        for a layer without knots of its own, what the editor shows and starts from."""
+        from ..scaling import inverse, scaled_range
+
+        if not scene.volumes:
+            return None
+        layer = scene.volumes[0]
+        tf = layer.transfer_function
+        lo, hi = float(tf.rgb_points[0, 0]), float(tf.rgb_points[-1, 0])  # the colours' span
+        scale, threshold = tf.scale, tf.threshold
+        try:
+            a, b = scaled_range((lo, hi), scale, threshold)
+        except ExabricksError:
+            scale, (a, b) = "linear", (lo, hi if hi > lo else lo + 1.0)
+        at = inverse(np.linspace(a, b, SHOWN_KNOTS), scale, threshold)
+        alpha = np.interp(at, tf.alpha_points[:, 0], tf.alpha_points[:, 1])
+        return _finite({"field": layer.field, "range": [lo, hi], "scale": scale,
+                        "opacity": [round(float(x), 4) for x in alpha]})
 
     def info(self) -> dict:
-        """What the page needs at the start: the document, the fields with their ranges
-        and histograms, the colour maps, the data's bounds and the device."""
+        """What the page needs at the start: the document, the fields with their ranges,
+        histograms and suggested iso-values (exabricks.auto_transfer.suggested_iso_value:
+        "Add iso-surface" starts there), the colour maps, the data's bounds and the
+        device."""
+        from ..auto_transfer import suggested_iso_value
+
         bricks = self.renderer.dataset.bricks
         fields = {}
         for i, name in enumerate(bricks.fields):
@@ -90,6 +159,12 @@ class Session:
             lo, hi = (float(sample.min()), float(sample.max())) if sample.size else (0.0, 1.0)
             counts, _ = np.histogram(sample, bins=HISTOGRAM_BINS, range=(lo, hi if hi > lo else lo + 1))
             fields[name] = {"range": [lo, hi], "histogram": counts.tolist()}
+            try:
+                iso = suggested_iso_value(bricks, name)
+            except (ExabricksError, ValueError):
+                iso = None
+            if iso is not None and np.isfinite(iso):
+                fields[name]["iso"] = iso
         lo, hi = self.renderer.dataset.bounds
         return {"type": "init", "scene": self.doc, "fields": fields, "colormaps": list(COLORMAPS),
                 "bounds": [list(lo), list(hi)]}
@@ -109,17 +184,24 @@ class Session:
         return out
 
     def draw(self, stage: str, scene) -> Frame:
+        """One stage's frame as PNG bytes: the pixels `render -o frame.png` writes of
+        the same scene (composited over its opaque backdrop, exabricks.image_io), or
+        `Image.shown()` of a --transparent scene's."""
         from PIL import Image as PILImage
+
+        from ..annotate import png_backdrop
+        from ..image_io import to_png_pixels
 
         started = time.perf_counter()
         image = self._budgeted(scene) if self.budget is not None else self.renderer.render(scene)
+        backdrop = png_backdrop(scene)
+        pixels = image.shown() if backdrop is None else to_png_pixels(image.rgba, backdrop)[..., :3]
         out = io.BytesIO()
-        PILImage.fromarray(image.shown(), "RGB").save(out, format="PNG", compress_level=1)
+        PILImage.fromarray(np.ascontiguousarray(pixels), "RGB").save(out, format="PNG", compress_level=1)
         st = image.metadata.get("settings", {})
         return Frame(out.getvalue(), stage, scene.settings.width, scene.settings.height,
                      scene.settings.spp, (time.perf_counter() - started) * 1e3,
                      float(st.get("samples_per_second", 0.0)), str(st.get("device", "")))
-
 
     def _budgeted(self, scene):
         """The frame drawn domain by domain within the memory budget, as `render
@@ -136,22 +218,82 @@ class Session:
         return Image(result.rgba, None, {"settings": result.stats}, scene=scene)
 
 
-def page_document(scene, options: dict) -> dict:
+def page_document(scene, options: dict, source=None) -> dict:
     """The scene file's object of `scene` (exabricks.scene.scene_to_dict), its first
-    volume layer as the page edits one: a colour map with opacity knots over a range
-    (the flags' --colormap and --opacity, viridis and a ramp by default)."""
+    volume layer as it was asked for (by the flags in `options`, else by the scene
+    file or object `source`), so that the page edits it and draws what `render`
+    draws with the same options:
+
+    - a colour map (`--colormap`, `--opacity`, `--range`, `--scale`, or no transfer
+      function at all: the automatic one, in viridis) stays that spec, with no
+      opacity knots where none were given (the automatic opacity);
+    - a preset (`--transfer-function`, a preset file or object) becomes the inline
+      preset it was read as."""
     from ..scene import scene_to_dict
+    from ..scene.model import DEFAULT_COLORMAP
+    from ..scene.options import VOLUME_FLAGS
 
     doc = scene_to_dict(scene)
     if scene.volumes:
         layer = scene.volumes[0]
-        points = layer.transfer_function.rgb_points
-        opacity = options.get("opacity") or (0.0, 1.0)
-        doc["volumes"] = [{"field": layer.field,
-                           "transfer_function": {"colormap": options.get("colormap") or "viridis",
-                                                 "opacity": [float(a) for a in opacity]},
-                           "range": [float(points[0, 0]), float(points[-1, 0])]}]
+        if any(options.get(name) not in (None, ()) for name in VOLUME_FLAGS):
+            asked = {"transfer_function": options.get("transfer_function"),
+                     "colormap": options.get("colormap"), "opacity": options.get("opacity"),
+                     "range": options.get("range"), "scale": options.get("scale")}
+        else:
+            asked = _first_volume(source)
+        if asked.get("transfer_function") is None:
+            tf = {"colormap": asked.get("colormap") or DEFAULT_COLORMAP}
+            if asked.get("opacity"):
+                tf["opacity"] = [float(a) for a in asked["opacity"]]
+            entry = {"field": layer.field, "transfer_function": tf}
+            if asked.get("range"):
+                entry["range"] = [float(x) for x in asked["range"]]
+            if asked.get("scale"):
+                entry["scale"] = asked["scale"]
+            doc["volumes"][0] = entry
     return _finite(doc)
+
+
+def _first_volume(source) -> dict:
+    """What the first volume layer of a scene file or object asks for: its
+    transfer_function (None for a colour map or none), colormap, opacity, range
+    and scale."""
+    from ..scene import read_scene_file
+
+    if source is None:
+        return {}
+    if isinstance(source, dict):
+        doc = source
+    elif isinstance(source, (str, os.PathLike)):
+        doc = read_scene_file(source)
+    else:  # an eb.Scene: its transfer functions as they are
+        return {"transfer_function": "inline"}
+    volumes = doc.get("volumes") or [{}]
+    entry = volumes[0] if isinstance(volumes[0], dict) else {}
+    tf = entry.get("transfer_function")
+    if isinstance(tf, dict) and "colormap" in tf:
+        return {"colormap": tf["colormap"], "opacity": tf.get("opacity"), "range": entry.get("range"),
+                "scale": entry.get("scale")}
+    return {"transfer_function": tf, "range": entry.get("range"), "scale": entry.get("scale")}
+
+
+def _automatic_spec(entry, fields):
+    """(field, colormap, range, scale) of a volume entry that asks for the automatic
+    transfer function (`{"colormap": NAME}` and nothing else), else None."""
+    if not isinstance(entry, dict) or not set(entry) <= {"field", "transfer_function", "range", "scale"}:
+        return None
+    tf, value_range, scale = entry.get("transfer_function"), entry.get("range"), entry.get("scale")
+    if not (isinstance(tf, dict) and set(tf) == {"colormap"} and isinstance(tf["colormap"], str)):
+        return None
+    if entry.get("field") not in fields or not (scale is None or isinstance(scale, str)):
+        return None
+    if value_range is not None:
+        if not (isinstance(value_range, list) and len(value_range) == 2 and all(
+                isinstance(x, (int, float)) and not isinstance(x, bool) and np.isfinite(x) for x in value_range)):
+            return None
+        value_range = [float(x) for x in value_range]
+    return entry["field"], tf["colormap"], value_range, scale
 
 
 def _finite(doc):

@@ -4,7 +4,8 @@
 
 const $ = (id) => document.getElementById(id);
 const state = { doc: null, info: null, start: null, ws: null, pending: null, version: 0,
-                frame: null, url: null, moving: false };
+                frame: null, url: null, moving: false, layer: null };
+const WHEEL_SETTLE_MS = 200;  // no wheel event for this long: the zoom has stopped
 window.exabricks = state;  // for the browser tests and the curious
 
 // ---------------------------------------------------------------- vectors
@@ -56,8 +57,17 @@ function show(h, blob) {
   if (state.url) URL.revokeObjectURL(state.url);
   state.url = URL.createObjectURL(blob);
   state.blob = blob;  // the PNG shown
-  $("frame").src = state.url;
+  // every stage at the scene's whole size (within the view): a preview is a blurry
+  // picture of the same size, not a small one
+  const [width, height] = h.size || [h.width, h.height], img = $("frame");
+  img.style.width = `${width}px`;
+  img.style.height = `${height}px`;
+  img.src = state.url;
   state.frame = h;
+  if (h.layer) {
+    state.layer = h.layer;
+    if (!explicit(volume())) { drawOpacity(); rangeInputs(); }
+  }
   $("error").hidden = true;
   const rate = h.samples_per_second ? `${(h.samples_per_second / 1e6).toFixed(1)} M samples/s` : "";
   $("status").textContent = `${h.stage} ${h.width}×${h.height}, ${h.spp} spp, ${h.ms} ms, ${rate} on ${h.device}`;
@@ -80,19 +90,48 @@ function init(msg) {
   fill();
 }
 
+// The first volume layer (the automatic one, as `render` draws it, where there is none).
+// Its transfer function is left as the document has it: a colour map with opacity
+// knots, a colour map alone (the automatic opacity), or a preset.
 function volume() {
   if (!state.doc.volumes.length) {
-    const f = Object.keys(state.info.fields)[0];
-    state.doc.volumes.push({ field: f, transfer_function: { colormap: "viridis", opacity: [0, 1] },
-                             range: state.info.fields[f].range.slice() });
+    state.doc.volumes.push({ field: Object.keys(state.info.fields)[0], transfer_function: { colormap: "viridis" } });
   }
   const v = state.doc.volumes[0];
-  if (typeof v.transfer_function !== "object" || !v.transfer_function.colormap) {
-    v.transfer_function = { colormap: "viridis", opacity: [0, 1] };
-  }
-  if (!v.transfer_function.opacity) v.transfer_function.opacity = [0, 1];
-  if (!v.range) v.range = fieldRange(v.field);
+  if (v.transfer_function === undefined) v.transfer_function = { colormap: "viridis" };
   return v;
+}
+
+// The layer's colour map: a name, or "" for a preset.
+function colormapOf(v) {
+  const tf = v.transfer_function;
+  return (typeof tf === "object" && tf !== null && typeof tf.colormap === "string" && tf.colormap) || "";
+}
+
+// Whether the layer has opacity knots of its own (else the editor shows those the
+// server sampled from the function it drew: state.layer).
+function explicit(v) {
+  return !!colormapOf(v) && Array.isArray(v.transfer_function.opacity);
+}
+
+// The layer's opacity knots and the range they span, as the editor shows them; null
+// before the server has said what a layer without knots draws.
+function shownKnots(v) {
+  if (explicit(v)) return { knots: v.transfer_function.opacity, range: v.range || fieldRange(v.field) };
+  const l = state.layer;
+  return l && l.field === v.field ? { knots: l.opacity, range: l.range } : null;
+}
+
+// Make the layer's knots its own, starting from those shown (the automatic function's,
+// sampled over its colours' span on its scale): what the user then edits.
+function editable(v, colormap) {
+  if (explicit(v)) return true;
+  const l = state.layer;
+  if (!l || l.field !== v.field) return false;
+  v.transfer_function = { colormap: colormap || colormapOf(v) || "viridis", opacity: l.opacity.slice() };
+  v.range = l.range.slice();
+  v.scale = l.scale;
+  return true;
 }
 
 // A field's range, or [0, 1] for a name the data lacks (the server then says so).
@@ -105,12 +144,10 @@ function fieldRange(name) {
 function fill() {
   const d = state.doc, v = volume();
   $("field").value = v.field;
-  if (![...$("colormap").options].some((o) => o.value === v.transfer_function.colormap)) {
-    $("colormap").add(new Option(v.transfer_function.colormap, v.transfer_function.colormap));
-  }
-  $("colormap").value = v.transfer_function.colormap;
-  $("range-lo").value = v.range[0];
-  $("range-hi").value = v.range[1];
+  const name = colormapName(v);
+  if (![...$("colormap").options].some((o) => o.value === name)) $("colormap").add(new Option(name, name));
+  $("colormap").value = name;
+  rangeInputs();
   $("shading").value = d.lighting.shading;
   $("ao").value = (d.lighting.ambient_occlusion || {}).samples || 0;
   $("background").value = "#" + d.background.slice(0, 3).map((c) => Math.round(c * 255).toString(16).padStart(2, "0")).join("");
@@ -130,6 +167,22 @@ function fill() {
   drawOpacity();
 }
 
+// The colour map's name, or a preset's ("preset NAME"), for the colour-map list.
+function colormapName(v) {
+  const tf = v.transfer_function;
+  if (typeof tf !== "object" || tf === null) return `preset ${tf}`;
+  return colormapOf(v) || `preset ${tf.Name || "inline"}`;
+}
+
+// The range boxes: the layer's range, else the span the server drew it over.
+function rangeInputs() {
+  const v = volume(), shown = shownKnots(v);
+  const range = v.range || (shown && shown.range) || fieldRange(v.field);
+  for (const [i, id] of [[0, "range-lo"], [1, "range-hi"]]) {
+    if (document.activeElement !== $(id)) $(id).value = range[i];
+  }
+}
+
 function numbers(id, values, set, enabled) {
   const inputs = values.map((x) => {
     const input = document.createElement("input");
@@ -145,8 +198,10 @@ function drawOpacity() {
   const c = $("opacity"), g = c.getContext("2d"), v = volume();
   // the field's histogram (log counts) under the knots, over the layer's range
   const field = state.info.fields[v.field] || { histogram: [], range: fieldRange(v.field) };
+  const shown = shownKnots(v);
   const hist = field.histogram, top = Math.log1p(Math.max(...hist, 1));
-  const [flo, fhi] = field.range, [rlo, rhi] = v.range, bin = (fhi - flo) / hist.length;
+  const [flo, fhi] = field.range, [rlo, rhi] = shown ? shown.range : fieldRange(v.field);
+  const bin = (fhi - flo) / hist.length;
   const x = (value) => 5 + ((value - rlo) / ((rhi - rlo) || 1)) * (c.width - 10);
   g.clearRect(0, 0, c.width, c.height);
   g.fillStyle = "#3a4150";
@@ -154,7 +209,12 @@ function drawOpacity() {
     const h = (Math.log1p(n) / top) * (c.height - 10), x0 = x(flo + i * bin), x1 = x(flo + (i + 1) * bin);
     if (x1 > 0 && x0 < c.width) g.fillRect(x0, c.height - h, Math.max(1, x1 - x0 - 1), h);
   });
-  const knots = v.transfer_function.opacity;
+  if (!shown) return;
+  const knots = shown.knots;
+  if (!explicit(v)) {  // the automatic function (or a preset), until a knot is touched
+    g.fillStyle = "#9aa0aa"; g.font = "11px system-ui, sans-serif";
+    g.fillText(`${colormapOf(v) ? "automatic" : "preset"}: drag a knot to edit`, 10, 14);
+  }
   g.strokeStyle = "#ffd166"; g.lineWidth = 2; g.beginPath();
   knots.forEach((a, i) => { const [x, y] = knotXY(i, knots.length, a); i ? g.lineTo(x, y) : g.moveTo(x, y); });
   g.stroke();
@@ -176,6 +236,7 @@ function opacityEditor() {
   };
   c.addEventListener("pointerdown", (e) => {
     const r = c.getBoundingClientRect(), x = ((e.clientX - r.left) * c.width) / r.width;
+    if (!editable(volume())) return;
     const knots = volume().transfer_function.opacity;
     let best = 1e9;
     knots.forEach((a, i) => { const d = Math.abs(knotXY(i, knots.length, a)[0] - x); if (d < best) { best = d; knot = i; } });
@@ -191,6 +252,7 @@ function opacityEditor() {
   c.addEventListener("pointermove", move);
   c.addEventListener("pointerup", () => { knot = -1; });
   const resample = (n) => {
+    if (!editable(volume())) return;
     const k = volume().transfer_function.opacity, out = [];
     for (let i = 0; i < n; i++) {
       const t = (i * (k.length - 1)) / Math.max(1, n - 1), j = Math.min(k.length - 2, Math.floor(t));
@@ -200,8 +262,9 @@ function opacityEditor() {
     drawOpacity();
     send();
   };
-  $("knot-more").onclick = () => resample(Math.min(32, volume().transfer_function.opacity.length + 1));
-  $("knot-less").onclick = () => resample(Math.max(2, volume().transfer_function.opacity.length - 1));
+  const count = () => (shownKnots(volume()) || { knots: [0, 1] }).knots.length;
+  $("knot-more").onclick = () => resample(Math.min(32, count() + 1));
+  $("knot-less").onclick = () => resample(Math.max(2, count() - 1));
 }
 
 // ---------------------------------------------------------------- iso-surfaces and slices
@@ -252,7 +315,7 @@ function slices() {
 function cameraControls() {
   const view = $("view");
   const pointers = new Map();
-  let last = null, pinch = null;
+  let last = null, pinch = null, wheelTimer = null;
   view.addEventListener("contextmenu", (e) => e.preventDefault());
   view.addEventListener("pointerdown", (e) => {
     view.setPointerCapture(e.pointerId);
@@ -283,6 +346,10 @@ function cameraControls() {
   view.addEventListener("wheel", (e) => {
     e.preventDefault();
     zoom(Math.exp(e.deltaY * 0.001));
+    // a wheel has no "up": once it has been still a while, the zoom has stopped and the
+    // frame refines to converged, as after a drag
+    clearTimeout(wheelTimer);
+    wheelTimer = setTimeout(() => { wheelTimer = null; send(false); }, WHEEL_SETTLE_MS);
   }, { passive: false });
   $("reset").onclick = () => { state.doc.camera = JSON.parse(JSON.stringify(state.start.camera)); send(); };
 }
@@ -319,22 +386,37 @@ function controls() {
   $("field").onchange = () => {
     const v = volume();
     v.field = $("field").value;
-    v.range = fieldRange(v.field);
+    if (explicit(v)) v.range = fieldRange(v.field);  // the knots over the new field's range
+    else {  // the new field's automatic function, in the colour map chosen
+      v.transfer_function = { colormap: colormapOf(v) || "viridis" };
+      delete v.range;
+    }
+    delete v.scale;  // the new field's own (auto: log for a positive field over decades)
     fill(); send();
   };
-  $("colormap").onchange = () => { volume().transfer_function.colormap = $("colormap").value; send(); };
+  $("colormap").onchange = () => {
+    const v = volume(), name = $("colormap").value;
+    if (name.startsWith("preset ")) return;
+    if (colormapOf(v)) v.transfer_function.colormap = name;  // automatic or knots: the colours only
+    else if (!editable(v, name)) return;  // a preset: its opacity, in this colour map
+    send();
+  };
   $("range-lo").onchange = $("range-hi").onchange = () => {
-    volume().range = [+$("range-lo").value, +$("range-hi").value]; send();
+    volume().range = [+$("range-lo").value, +$("range-hi").value]; drawOpacity(); send();
   };
   $("iso-add").onclick = () => {
-    const v = volume(), [lo, hi] = fieldRange(v.field);
-    state.doc.isosurfaces.push({ field: v.field, value: (lo + hi) / 2, color: [0.9, 0.9, 0.9], opacity: 1 });
+    // where the surface shows: the server's suggested_iso_value of the field (the far side
+    // of the ambient medium, e.g. a blast's shell), else mid-range
+    const v = volume(), [lo, hi] = fieldRange(v.field), f = state.info.fields[v.field];
+    const value = f && typeof f.iso === "number" ? f.iso : (lo + hi) / 2;
+    state.doc.isosurfaces.push({ field: v.field, value, color: [0.9, 0.9, 0.9], opacity: 1 });
     isos(); send();
   };
   $("slice-add").onclick = () => {
-    const v = volume(), [lo, hi] = state.info.bounds;
-    state.doc.slices.push({ point: mul(add(lo, hi), 0.5), normal: [0, 1, 0], field: v.field,
-                            colormap: v.transfer_function.colormap, range: v.range.slice() });
+    const v = volume(), [lo, hi] = state.info.bounds, shown = shownKnots(v);
+    const colormap = colormapOf(v) || "viridis";
+    state.doc.slices.push({ point: mul(add(lo, hi), 0.5), normal: [0, 1, 0], field: v.field, colormap,
+                            range: (v.range || (shown && shown.range) || fieldRange(v.field)).slice() });
     slices(); send();
   };
   $("clip-box-on").onchange = () => {
