@@ -11,19 +11,26 @@ parameters that built it, and a changed file or a new exabricks misses.
 Entries are built in a private directory under the root and renamed into place:
 two builds of one source at once both finish, the first rename wins and the
 second build's directory is dropped. An entry is loaded and checked like any
-file; one that fails the checks is removed and built again. `clear` removes
-only what this module made (entry directories that hold an entry.json, and
-unfinished builds), never anything else a user keeps under the root.
+file, and its structures carry their key and the source's content hash in their
+provenance (`record`), checked against both on load: one that fails the checks
+(or that is not whole: a member missing, a directory or a FIFO) is removed and
+built again. A build holds an exclusive lock (flock) on its private directory,
+and a process that uses an entry a shared one (`Cache.lease`): `clear` never
+removes what a live process holds. `clear` removes only what this module made
+(entry directories that hold an entry.json or entry members, and what is left
+of unfinished builds), never anything else a user keeps under the root.
 """
 
 from __future__ import annotations
 
+import fcntl
 import hashlib
 import json
 import logging
 import os
 import re
 import shutil
+import stat
 import tempfile
 import time
 from dataclasses import dataclass
@@ -51,17 +58,19 @@ def default_root() -> Path:
 
 def source_digest(path: str | os.PathLike) -> str:
     """The sha256 of what a source holds: a directory's every file (relative name
-    and content), or a file with its siblings that share its name up to the last
-    suffix (an Enzo output's .hierarchy and .cpu files, a Gerris .cells file's
-    .scalars), which a reader may also read."""
+    and content; symbolic links inside it are followed, a loop is refused), or a
+    file with its siblings that share its name up to the last suffix (an Enzo
+    output's .hierarchy and .cpu files, a Gerris .cells file's .scalars), which a
+    reader may also read."""
     from .formats.provenance import sha256_file
 
     path = Path(path)
     h = hashlib.sha256()
     try:
         if path.is_dir():
-            members = sorted(p for p in path.rglob("*") if p.is_file())
-            names = [p.relative_to(path).as_posix() for p in members]
+            found = _walk(path)
+            names = [n for n, _ in found]
+            members = [p for _, p in found]
         else:
             stem = path.name.rsplit(".", 1)[0] if "." in path.name[1:] else path.name
             members = sorted(p for p in path.parent.iterdir()
@@ -74,6 +83,43 @@ def source_digest(path: str | os.PathLike) -> str:
     except OSError as e:
         raise ExabricksError(f"{path}: cannot read the source ({e.strerror or e})") from None
     return h.hexdigest()
+
+
+_MAX_DEPTH = 256
+
+
+def _walk(top: Path) -> list[tuple[str, Path]]:
+    """(relative name, path) of every regular file under directory `top`, sorted
+    by name, following symbolic links; ExabricksError on a loop of links (a
+    directory that leads back to one that holds it)."""
+    out: list[tuple[str, Path]] = []
+
+    def visit(directory: Path, rel: str, held: frozenset) -> None:
+        st = os.stat(directory)
+        ident = (st.st_dev, st.st_ino)
+        if ident in held:
+            raise ExabricksError(f"{top}: a loop of symbolic links: {rel} leads back to a "
+                                 "directory that holds it")
+        if len(held) > _MAX_DEPTH:
+            raise ExabricksError(f"{top}: directories nested more than {_MAX_DEPTH} deep "
+                                 f"at {rel}")
+        held = held | {ident}
+        with os.scandir(directory) as it:
+            found = sorted(it, key=lambda e: e.name)
+        for e in found:
+            name = f"{rel}/{e.name}" if rel else e.name
+            try:
+                is_dir = e.is_dir(follow_symlinks=True)
+                is_file = not is_dir and e.is_file(follow_symlinks=True)
+            except OSError:
+                continue
+            if is_dir:
+                visit(Path(e.path), name, held)
+            elif is_file:
+                out.append((name, Path(e.path)))
+
+    visit(top, "", frozenset())
+    return out
 
 
 _CODE: list[str] = []
@@ -92,11 +138,13 @@ def code_digest() -> str:
     return _CODE[0]
 
 
-def key(source: str | os.PathLike, options: dict) -> str:
+def key(source: str | os.PathLike, options: dict, source_sha256: str | None = None) -> str:
     """The entry key of `source` built with ingest `options` (a JSON-able dict whose
-    file paths, such as --scalars files, are hashed in)."""
+    file paths, such as --scalars files, are hashed in); `source_sha256`: the
+    source's `source_digest`, where already known."""
     files = {name: source_digest(p) for name, p in sorted((options.get("scalars") or {}).items())}
-    material = {"cache": 1, "code": code_digest(), "source": source_digest(source),
+    material = {"cache": 1, "code": code_digest(),
+                "source": source_sha256 or source_digest(source),
                 "options": options, "files": files}
     return hashlib.sha256(json.dumps(material, sort_keys=True, default=str).encode()).hexdigest()
 
@@ -110,6 +158,71 @@ def mesh_key(paths) -> str:
     return hashlib.sha256(json.dumps(material, sort_keys=True).encode()).hexdigest()
 
 
+class EntryNotWritten(ExabricksError):
+    """An entry could not be written under a usable root (a full disk): what was
+    built can still be used, uncached."""
+
+
+def record(k: str, source_sha256: str) -> dict:
+    """What the structures of entry `k` carry in their provenance (meta key
+    `cache`): the key and the source's content hash, checked on load (`check`)."""
+    return {"key": k, "source_sha256": source_sha256}
+
+
+def check(objs, paths, k: str, source_sha256: str) -> None:
+    """ExabricksError (naming the file) unless every one of `objs` (loaded from
+    `paths`) records entry `k` and the source's content hash `source_sha256`: an
+    entry swapped with another's, or a member copied in from another entry, is
+    refused."""
+    for obj, where in zip(objs, paths):
+        recorded = obj.meta.get("cache") if isinstance(obj.meta, dict) else None
+        if not isinstance(recorded, dict):
+            raise ExabricksError(f"{where}: records no cache key (not built by this cache)")
+        if recorded.get("key") != k:
+            raise ExabricksError(f"{where}: belongs to another cache entry "
+                                 f"({str(recorded.get('key'))[:12]}..., not {k[:12]}...)")
+        if recorded.get("source_sha256") != source_sha256:
+            raise ExabricksError(f"{where}: was built from another source's content "
+                                 f"({str(recorded.get('source_sha256'))[:12]}..., not "
+                                 f"{source_sha256[:12]}...)")
+
+
+class Lease:
+    """A lock held on a directory of the cache while it is in use (shared: an entry
+    being read; exclusive: a build), released by `release` or when dropped."""
+
+    def __init__(self, fd: int):
+        self._fd = fd
+
+    def release(self) -> None:
+        if self._fd is not None:
+            os.close(self._fd)  # closing the descriptor releases the lock
+            self._fd = None
+
+    def __del__(self):
+        self.release()
+
+
+def _lock(directory: Path, how: int) -> Lease | None:
+    """A Lease of `directory` (not followed if a symbolic link), or None where it is
+    gone, not a directory or (with LOCK_NB) held by another process."""
+    try:
+        fd = os.open(directory, os.O_RDONLY | os.O_DIRECTORY | os.O_NOFOLLOW
+                     | getattr(os, "O_CLOEXEC", 0))
+    except OSError:
+        return None
+    try:
+        fcntl.flock(fd, how)
+        # Still the directory at that path (not removed, nor replaced, meanwhile)?
+        st, own = os.stat(directory, follow_symlinks=False), os.fstat(fd)
+        if (st.st_dev, st.st_ino) != (own.st_dev, own.st_ino):
+            raise FileNotFoundError(directory)
+    except OSError:
+        os.close(fd)
+        return None
+    return Lease(fd)
+
+
 @dataclass(frozen=True)
 class Cache:
     """The entries under `root`."""
@@ -117,78 +230,155 @@ class Cache:
     root: Path
 
     def paths(self, k: str, files=FILES) -> tuple[Path, ...] | None:
-        """The `files` of entry `k`, or None where there is none."""
+        """The `files` of entry `k`, or None where there is no whole one (a member
+        missing, or not a regular file; a symbolic link in the entry's place)."""
         entry = self.root / k
-        if not (entry / ENTRY).is_file() or not all((entry / f).is_file() for f in files):
+        if entry.is_symlink() or not (entry / ENTRY).is_file() or not all((entry / f).is_file() for f in files):
             return None
         return tuple(entry / f for f in files)
 
+    def lease(self, k: str) -> Lease | None:
+        """A shared lock on entry `k` while this process uses it (`clear` leaves it),
+        or None where there is no entry `k` now."""
+        return _lock(self.root / k, fcntl.LOCK_SH)
+
     def put(self, k: str, write, about: dict, files=FILES) -> tuple[Path, ...]:
         """Entry `k` made by `write(directory)` (which writes `files` into a private
-        directory), renamed into place; an entry that another process put there
-        first is kept and ours dropped."""
+        directory, locked while it is built), renamed into place; an entry that
+        another process put there first is kept and ours dropped, and a broken one
+        (not whole) is replaced. ExabricksError where the root cannot be written,
+        EntryNotWritten where the entry cannot (naming the entry, never the
+        private directory)."""
+        entry = self.root / k
         try:
             self.root.mkdir(parents=True, exist_ok=True)
-            building = Path(tempfile.mkdtemp(prefix=_BUILDING, dir=self.root))
+            building, held = self._building()
         except OSError as e:
             raise ExabricksError(f"{self.root}: cannot write the cache ({e.strerror or e}); "
                                  "give --cache DIR or --no-cache") from None
         try:
-            write(building)
-            (building / ENTRY).write_text(json.dumps(
-                {**about, "software": f"exabricks {__version__}", "created": time.time()},
-                sort_keys=True, default=str))
             try:
-                os.rename(building, self.root / k)
-            except OSError:
-                if self.paths(k, files) is None:
-                    raise
-                log.debug("%s: another process built this entry first", self.root / k)
+                write(building)
+                (building / ENTRY).write_text(json.dumps(
+                    {**about, "key": k, "software": f"exabricks {__version__}",
+                     "created": time.time()}, sort_keys=True, default=str))
+                for attempt in range(2):
+                    try:
+                        os.rename(building, entry)
+                        break
+                    except OSError:
+                        if self.paths(k, files) is not None:
+                            log.debug("%s: another process built this entry first", entry)
+                            break
+                        if attempt or not os.path.lexists(entry):
+                            raise
+                        log.debug("%s: a broken entry: replaced", entry)
+                        self.drop(k)
+            except OSError as e:
+                raise EntryNotWritten(f"{entry}: cannot write the cache entry "
+                                      f"({e.strerror or e})") from None
+            except ExabricksError as e:
+                raise EntryNotWritten(str(e).replace(str(building), str(entry))) from None
         finally:
-            shutil.rmtree(building, ignore_errors=True)
-        return self.paths(k, files)
+            held.release()
+            _discard(building)
+        found = self.paths(k, files)
+        if found is None:
+            raise EntryNotWritten(f"{entry}: cannot write the cache entry (it was removed "
+                                 "while it was written)")
+        return found
+
+    def _building(self) -> tuple[Path, Lease]:
+        """A private directory under the root, locked (exclusive) for a build."""
+        while True:
+            building = Path(tempfile.mkdtemp(prefix=_BUILDING, dir=self.root))
+            held = _lock(building, fcntl.LOCK_EX)
+            if held is not None:
+                return building, held
+            # `clear` removed it before we locked it: make another
 
     def drop(self, k: str) -> None:
-        """Remove entry `k` (a damaged one)."""
+        """Remove entry `k` (a damaged or a broken one; a symbolic link in its place
+        is removed, never what it points to)."""
         _remove(self.root / k)
 
     def entries(self) -> list[tuple[str, int, dict]]:
-        """(key, bytes, entry.json) of every entry."""
+        """(key, bytes, entry.json as a dict, {} where it is not one) of every entry."""
+        from .jsonfile import read_small
+
         out = []
         if not self.root.is_dir():
             return out
         for p in sorted(self.root.iterdir()):
             if _KEY.fullmatch(p.name) and not p.is_symlink() and (p / ENTRY).is_file():
                 try:
-                    about = json.loads((p / ENTRY).read_text())
-                except (OSError, ValueError):
+                    about = json.loads(read_small(p / ENTRY, "a cache entry's entry.json"))
+                except (OSError, ValueError, ExabricksError):
                     about = {}
-                out.append((p.name, _size(p), about))
+                out.append((p.name, _size(p), about if isinstance(about, dict) else {}))
         return out
 
     def clear(self) -> tuple[int, int]:
-        """Remove every entry and unfinished build: (entries removed, bytes freed)."""
+        """Remove every entry, whole or broken, and what is left of unfinished builds,
+        except what a live process holds: (entries removed, bytes freed)."""
         n = freed = 0
-        for k, size, _ in self.entries():
-            _remove(self.root / k)
-            n, freed = n + 1, freed + size
-        if self.root.is_dir():
-            for p in self.root.iterdir():
-                if p.name.startswith(_BUILDING) and p.is_dir() and not p.is_symlink():
-                    freed += _size(p)
-                    shutil.rmtree(p, ignore_errors=True)
+        if not self.root.is_dir():
+            return n, freed
+        for p in sorted(self.root.iterdir()):
+            if p.name.startswith(_BUILDING):
+                if p.is_symlink() or not p.is_dir():
+                    _unlink(p)  # left by an older exabricks: never followed
+                    continue
+            elif not (_KEY.fullmatch(p.name) and not p.is_symlink() and p.is_dir()
+                      and any(os.path.lexists(p / f) for f in (ENTRY, *FILES, *MESH_FILES))):
+                continue  # not ours
+            held = _lock(p, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            if held is None:
+                continue  # in use by a live process (or gone)
+            try:
+                size = _size(p)
+                if _remove(p):
+                    freed += size
+                    n += not p.name.startswith(_BUILDING)
+            finally:
+                held.release()
         return n, freed
 
 
-def _remove(entry: Path) -> None:
-    """Remove an entry: renamed aside first, so that no reader finds half of one."""
-    aside = entry.with_name(f"{_BUILDING}{entry.name[:16]}-{os.getpid()}")
+def _remove(entry: Path) -> bool:
+    """Remove an entry: renamed aside first, so that no reader finds half of one;
+    whether it was there."""
+    aside = entry.with_name(f"{_BUILDING}{entry.name[:16]}-{os.getpid()}-{time.monotonic_ns()}")
     try:
         os.rename(entry, aside)
     except OSError:
-        return
-    shutil.rmtree(aside, ignore_errors=True)
+        return False
+    _discard(aside)
+    return True
+
+
+def _discard(p: Path) -> None:
+    """Remove `p`: a directory with what it holds, a symbolic link (not followed) or
+    anything else."""
+    if p.is_dir() and not p.is_symlink():
+        shutil.rmtree(p, ignore_errors=True)
+    else:
+        _unlink(p)
+
+
+def _unlink(p: Path) -> None:
+    try:
+        p.unlink()
+    except OSError:
+        pass
 
 
 def _size(directory: Path) -> int:
-    return sum(p.stat().st_size for p in directory.rglob("*") if p.is_file() and not p.is_symlink())
+    total = 0
+    for p in directory.rglob("*"):
+        try:
+            st = p.stat(follow_symlinks=False)
+        except OSError:
+            continue
+        total += st.st_size if stat.S_ISREG(st.st_mode) else 0
+    return total

@@ -26,7 +26,8 @@ class Dataset:
     checked) when first used; `paths` are the files, where there are any, which the
     memory-budgeted and MPI renders read by parts."""
 
-    def __init__(self, structures=None, *, paths=None, source: dict | None = None, values=None):
+    def __init__(self, structures=None, *, paths=None, source: dict | None = None, values=None,
+                 lease=None):
         if structures is None and paths is None:
             raise ValueError("a dataset needs its structures or their files")
         if values is not None and paths is None:
@@ -35,6 +36,7 @@ class Dataset:
         self.paths = None if paths is None else tuple(Path(p) for p in paths)
         self.source = source or {}
         self.values = None if values is None else Path(values)
+        self._lease = lease  # a cache entry's, held while the dataset is in use
 
     @classmethod
     def from_files(cls, bricks_path, regions_path, bvh_path, *, values=None) -> Dataset:
@@ -187,25 +189,39 @@ def open_source(path, options: dict | None = None, *, cache: str | os.PathLike |
         structures = _build(path, given, desc)
         return Dataset(structures, source=about)
     store = cache_mod.Cache(Path(cache) if cache not in (None, True) else cache_mod.default_root())
-    k = cache_mod.key(path, {"cells_file": cells_file, **chosen})
-    paths = store.paths(k)
+    digest = cache_mod.source_digest(path)
+    k = cache_mod.key(path, {"cells_file": cells_file, **chosen}, digest)
+    lease = store.lease(k) if store.paths(k) is not None else None
+    paths = store.paths(k) if lease is not None else None
     if paths is not None:
         try:
             from .engine.device_data import load_structures
 
             log.debug("%s: structures from the cache (%s)", path, paths[0].parent)
-            return Dataset(load_structures(*paths), paths=paths, source=about)
+            structures = load_structures(*paths)
+            cache_mod.check(structures, paths, k, digest)
+            return Dataset(structures, paths=paths, source=about, lease=lease)
         except ExabricksError as e:
             log.warning("%s: a damaged cache entry (%s): building it again", path, e)
+            lease.release()
             store.drop(k)
+    elif store.paths(k) is None and os.path.lexists(store.root / k):
+        log.warning("%s: a broken cache entry (%s: not whole): building it again", path,
+                    store.root / k)
     structures = _build(path, given, desc)
+    record = cache_mod.record(k, digest)
+    structures = tuple(s.replace(meta={**s.meta, "cache": record}) for s in structures)
 
     def write(directory):
         for name, obj in zip(cache_mod.FILES, structures):
             schema.save(directory / name, obj)
 
-    paths = store.put(k, write, about)
-    return Dataset(structures, paths=paths, source=about)
+    try:
+        paths = store.put(k, write, about)
+    except cache_mod.EntryNotWritten as e:  # a full disk: the render goes on uncached
+        log.warning("%s: the structures are not cached: %s", path, e)
+        return Dataset(structures, source=about)
+    return Dataset(structures, paths=paths, source=about, lease=store.lease(k))
 
 
 def _is_cells_file(path, options) -> bool:

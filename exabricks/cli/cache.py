@@ -4,6 +4,8 @@ and kept, and the BVHs of mesh files (exabricks.cache)."""
 from __future__ import annotations
 
 import json
+import math
+import re
 from pathlib import Path
 
 import click
@@ -35,15 +37,18 @@ def info(root, as_json):
     total = sum(size for _, size, _ in entries)
     if as_json:
         click.echo(json.dumps({"root": str(store.root), "entries": len(entries), "bytes": total,
-                               "sources": [{"key": k, "bytes": size, **about}
-                                           for k, size, about in entries]}, sort_keys=True))
+                               "sources": [{**_finite(about), "key": k, "bytes": size}
+                                           for k, size, about in entries]},
+                              sort_keys=True, allow_nan=False))
         return
-    click.echo(f"{store.root}: {len(entries)} entr{'y' if len(entries) == 1 else 'ies'}, "
+    click.echo(f"{_escaped(str(store.root))}: {len(entries)} entr{'y' if len(entries) == 1 else 'ies'}, "
                f"{_size(total)}")
     for k, size, about in entries:
-        options = " ".join(f"{name}={_text(value)}" for name, value in
-                           sorted(about.get("options", {}).items()))
-        click.echo(f"  {k[:12]}  {_size(size):>9}  {about.get('path', '?')}  {options}".rstrip())
+        options = about.get("options")
+        options = " ".join(f"{_text(name)}={_text(value)}" for name, value in
+                           sorted(options.items())) if isinstance(options, dict) else ""
+        click.echo(f"  {k[:12]}  {_size(size):>9}  {_text(about.get('path', '?'))}  "
+                   f"{options}".rstrip())
 
 
 @cache.command()
@@ -64,8 +69,31 @@ def _size(n: int) -> str:
 
 
 def _text(value) -> str:
+    """`value` (any JSON value of an entry.json) as one line of text."""
     if isinstance(value, (list, tuple)):
         return ",".join(map(_text, value))
     if isinstance(value, dict):
-        return ",".join(f"{k}={_text(v)}" for k, v in value.items())
-    return str(value)
+        return ",".join(f"{_text(k)}={_text(v)}" for k, v in value.items())
+    return _escaped(str(value))
+
+
+# Control characters (a newline would forge an output line), line and paragraph
+# separators, and lone surrogates (a path's undecodable bytes) are written escaped.
+_UNPRINTABLE = re.compile("[\x00-\x1f\x7f-\x9f\u2028\u2029\ud800-\udfff]")
+
+
+def _escaped(text: str) -> str:
+    return _UNPRINTABLE.sub(lambda m: m.group().encode("unicode_escape", "backslashreplace")
+                            .decode("ascii") if not 0xD800 <= ord(m.group()) <= 0xDFFF
+                            else f"\\u{ord(m.group()):04x}", text)
+
+
+def _finite(value):
+    """`value` with every non-finite number (which JSON cannot hold) as null."""
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
+    if isinstance(value, dict):
+        return {str(k): _finite(v) for k, v in value.items()}
+    if isinstance(value, list):
+        return [_finite(v) for v in value]
+    return value
