@@ -33,11 +33,15 @@ import asyncio
 import hmac
 import json
 import logging
+import os
 import secrets
+import stat
+import threading
 from importlib import resources
 from pathlib import Path
 
 from ..errors import ExabricksError, one_line
+from .session import Cancelled
 
 log = logging.getLogger(__name__)
 
@@ -56,6 +60,8 @@ class Viewer:
         self.host = host
         self.port = port
         self.scene_out = None if scene_out is None else Path(scene_out)
+        if self.scene_out is not None:
+            _regular_output(self.scene_out)
         self.token = token or secrets.token_urlsafe(24)
         self.lock = asyncio.Lock()  # one frame on the device at a time
         self.runner = None
@@ -72,8 +78,8 @@ class Viewer:
 
         if request.host not in self._allowed_hosts():
             raise web.HTTPForbidden(text="unknown host")
-        given = request.query.get("token") or request.cookies.get(COOKIE) or ""
-        if not hmac.compare_digest(given.encode(), self.token.encode()):
+        given = request.query.get("token") or _cookie(request) or ""
+        if not hmac.compare_digest(given.encode("utf-8", "surrogateescape"), self.token.encode()):
             raise web.HTTPForbidden(text="a token is needed: open the URL that `exabricks view` printed")
 
     # -- handlers -------------------------------------------------------------
@@ -155,11 +161,13 @@ class Viewer:
             await self.runner.cleanup()
 
     def save(self, doc: dict) -> str | None:
-        """Write `doc` to --scene-out (atomically); its path, or None without one."""
+        """Write `doc` to --scene-out (atomically); its path, or None without one.
+        Called off the event loop (_in_thread): a write never holds the server up."""
         from ..output import write_output
 
         if self.scene_out is None:
             return None
+        _regular_output(self.scene_out)
         text = json.dumps(doc, indent=1) + "\n"
 
         def write(tmp):
@@ -180,6 +188,7 @@ class _Page:
         self.moving = False
         self.tag = 0  # the page's number of the wanted scene
         self.task = None
+        self.saves = set()  # saves under way (each a task)
 
     def want(self, doc: dict, moving: bool, tag=0) -> None:
         self.version += 1
@@ -198,11 +207,18 @@ class _Page:
                 self.good = doc
                 layer = session.layer(scene)
                 size = [scene.settings.width, scene.settings.height]
+                def cancelled(version=version):  # a newer change, or the page went away
+                    return version != self.version or self.ws.closed
+
                 for stage, staged in session.stages(scene, moving):
                     if version != self.version:
                         break
                     async with self.viewer.lock:
-                        frame = await _finished(loop.run_in_executor(None, session.draw, stage, staged))
+                        try:
+                            frame = await _finished(loop.run_in_executor(None, session.draw, stage, staged,
+                                                                         cancelled))
+                        except Cancelled:
+                            break
                     if version != self.version or self.ws.closed:
                         break
                     await self.ws.send_str(json.dumps({
@@ -240,16 +256,22 @@ class _Page:
                 await self.error('"scene" needs a scene object')
                 return
             self.want(doc, bool(message.get("moving", False)), message.get("version", 0))
-        elif kind == "save":
-            try:
-                doc = self.good
-                path = self.viewer.save(doc)
-            except ExabricksError as e:
-                await self.error(str(e))
-                return
-            await self.ws.send_str(json.dumps({"type": "saved", "scene": doc, "path": path}))
+        elif kind == "save":  # a task of its own: the page's messages go on meanwhile
+            self.saves.add(asyncio.ensure_future(self._save(self.good)))
         else:
             await self.error(f"unknown message type {one_line(kind)[:40]!r}")
+
+    async def _save(self, doc: dict) -> None:
+        try:
+            path = await _in_thread(self.viewer.save, doc)
+            if not self.ws.closed:
+                await self.ws.send_str(json.dumps({"type": "saved", "scene": doc, "path": path}))
+        except ExabricksError as e:
+            await self.error(str(e))
+        except (ConnectionError, RuntimeError) as e:  # the page went away
+            log.debug("view: %s", e)
+        finally:
+            self.saves.discard(asyncio.current_task())
 
     async def error(self, message: str) -> None:
         if not self.ws.closed:
@@ -259,6 +281,63 @@ class _Page:
         self.version += 1
         if self.task is not None:
             self.task.cancel()
+        for save in list(self.saves):
+            save.cancel()
+
+
+def _cookie(request) -> str | None:
+    """The token cookie, or None where the Cookie header cannot be parsed (a
+    non-ASCII byte, say): then the request simply has no token (403)."""
+    try:
+        return request.cookies.get(COOKIE)
+    except (ValueError, KeyError, UnicodeError) as e:
+        log.debug("view: unreadable cookie: %s", e)
+        return None
+
+
+def _regular_output(path: Path) -> None:
+    """Refuse --scene-out naming something other than a regular file (or nothing yet):
+    a FIFO, a device or a descriptor would hold a save up, so the viewer never
+    writes into one (exabricks.output writes into them for other commands)."""
+    try:
+        mode = os.stat(path).st_mode
+    except FileNotFoundError:
+        return
+    except OSError as e:
+        raise ExabricksError(f"--scene-out {path}: cannot look at it ({e.strerror or e})") from None
+    if stat.S_ISREG(mode):
+        return
+    kind = ("a directory" if stat.S_ISDIR(mode) else "a FIFO" if stat.S_ISFIFO(mode)
+            else "a device" if stat.S_ISCHR(mode) or stat.S_ISBLK(mode)
+            else "a socket" if stat.S_ISSOCK(mode) else "not a regular file")
+    raise ExabricksError(f"--scene-out {path}: is {kind}; the viewer saves scenes to a regular file only")
+
+
+def _in_thread(function, *args):
+    """`function(*args)` in a daemon thread of its own, awaited: a write that blocks
+    (a FIFO swapped in after the check) holds neither the loop nor the stop."""
+    loop = asyncio.get_running_loop()
+    future = loop.create_future()
+
+    def done(result, error):
+        if not future.done():
+            if error is None:
+                future.set_result(result)
+            else:
+                future.set_exception(error)
+
+    def run():
+        try:
+            result, error = function(*args), None
+        except BaseException as e:  # handed to the awaiting coroutine
+            result, error = None, e
+        try:
+            loop.call_soon_threadsafe(done, result, error)
+        except RuntimeError:  # the loop has closed meanwhile
+            pass
+
+    threading.Thread(target=run, name="exabricks-view-save", daemon=True).start()
+    return future
 
 
 async def _finished(future):

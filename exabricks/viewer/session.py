@@ -46,6 +46,16 @@ MAX_DOC_BYTES = 1 << 20
 # function has none of its own (the automatic one, a preset).
 SHOWN_KNOTS = 17
 AUTOMATIC_CACHE = 32  # automatic transfer functions kept
+# What one change may ask: width x height x spp of its scene (docs/view.md,
+# "Bounds"): 1280x800 at 32 spp, 4096x4096 at 2, 32768x1024 at 1.
+MAX_SAMPLES = 1 << 25
+# Pixels x spp drawn between two looks for a newer change: a frame larger than
+# this is drawn in tiles, and a newer change drops it between two tiles.
+TILE_SAMPLES = 1 << 16
+
+
+class Cancelled(Exception):
+    """A newer change came (or the page went away): the frame in progress was dropped."""
 
 
 @dataclass(frozen=True)
@@ -87,7 +97,49 @@ class Session:
         if len(json.dumps(doc)) > MAX_DOC_BYTES:
             raise ExabricksError(f"scene: larger than {MAX_DOC_BYTES} bytes")
         _no_files(doc, self.meshes)
-        return self.renderer.scene(self._resolved(doc))
+        scene = self.renderer.scene(self._builtin_presets(self._resolved(doc)))
+        s = scene.settings
+        asked = int(s.width) * int(s.height) * int(s.spp)
+        if asked > MAX_SAMPLES:
+            raise ExabricksError(f"scene: {s.width}x{s.height} at {s.spp} spp is {asked} samples; the viewer "
+                                 f"draws at most {MAX_SAMPLES} (width x height x spp) per change: "
+                                 "draw a larger frame with `exabricks render`")
+        return scene
+
+    def _builtin_presets(self, doc: dict) -> dict:
+        """`doc` with each volume layer that names a built-in preset given as the
+        inline preset that name stands for, stretched over the layer's range (what
+        `--transfer-function NAME` draws): the scene builder would look for a file
+        of that name first (relative to the working directory, for a scene object),
+        and no string from a page is ever opened as a path."""
+        from ..scene import choose_transfer_function
+        from ..transfer_function import builtin_presets
+
+        volumes = doc.get("volumes")
+        if not isinstance(volumes, list):
+            return doc
+        bricks = self.renderer.dataset.bricks
+        out = []
+        for i, entry in enumerate(volumes):
+            tf = entry.get("transfer_function") if isinstance(entry, dict) else None
+            if not isinstance(tf, str):
+                out.append(entry)
+                continue
+            if tf not in builtin_presets():  # _no_files refused it already
+                raise ExabricksError(f"scene: volumes[{i}].transfer_function: not a built-in preset")
+            field, value_range, scale = entry.get("field"), entry.get("range"), entry.get("scale")
+            if field not in bricks.fields:
+                raise ExabricksError(f"scene: volumes[{i}].field: expected one of {', '.join(bricks.fields)}")
+            try:
+                made = choose_transfer_function(bricks, field, tf, value_range=value_range, scale=scale,
+                                                builtin=True)
+            except (TypeError, ValueError) as e:
+                raise ExabricksError(f"scene: volumes[{i}]: {e}") from None
+            except ExabricksError as e:
+                raise ExabricksError(f"scene: volumes[{i}]: {e}") from None
+            out.append({k: v for k, v in entry.items() if k not in ("transfer_function", "range", "scale")}
+                       | {"transfer_function": made.to_paraview_dict()})
+        return {**doc, "volumes": out}
 
     def _resolved(self, doc: dict) -> dict:
         """`doc` with each automatic layer (`{"colormap": NAME}`, no opacity) given as
@@ -183,17 +235,26 @@ class Session:
             out.append(("converged", scene.replace(settings=replace(s, depth=False))))
         return out
 
-    def draw(self, stage: str, scene) -> Frame:
+    def draw(self, stage: str, scene, cancelled=None) -> Frame:
         """One stage's frame as PNG bytes: the pixels `render -o frame.png` writes of
         the same scene (composited over its opaque backdrop, exabricks.image_io), or
-        `Image.shown()` of a --transparent scene's."""
+        `Image.shown()` of a --transparent scene's. `cancelled()`, looked at between
+        the tiles of a frame larger than TILE_SAMPLES, raises Cancelled when true."""
         from PIL import Image as PILImage
 
         from ..annotate import png_backdrop
         from ..image_io import to_png_pixels
 
         started = time.perf_counter()
-        image = self._budgeted(scene) if self.budget is not None else self.renderer.render(scene)
+        s = scene.settings
+        if self.budget is not None:
+            image = self._budgeted(scene)
+        elif cancelled is None or int(s.width) * int(s.height) * int(s.spp) <= TILE_SAMPLES:
+            image = self.renderer.render(scene)
+        else:
+            image = self._tiled(scene, cancelled)
+        if cancelled is not None and cancelled():
+            raise Cancelled
         backdrop = png_backdrop(scene)
         pixels = image.shown() if backdrop is None else to_png_pixels(image.rgba, backdrop)[..., :3]
         out = io.BytesIO()
@@ -202,6 +263,40 @@ class Session:
         return Frame(out.getvalue(), stage, scene.settings.width, scene.settings.height,
                      scene.settings.spp, (time.perf_counter() - started) * 1e3,
                      float(st.get("samples_per_second", 0.0)), str(st.get("device", "")))
+
+    def _tiled(self, scene, cancelled):
+        """The frame drawn tile by tile (each the very pixels the whole frame has
+        there, Renderer.render_scene's `window`), Cancelled between two tiles once
+        `cancelled()` is true."""
+        from ..image import Image
+        from ..schema import memory_limit
+
+        s = scene.settings
+        width, height, spp = int(s.width), int(s.height), int(s.spp)
+        limit = memory_limit()
+        if limit is not None and width * height * 16 > limit:
+            raise ExabricksError(f"scene: a {width}x{height} frame needs more than the memory available")
+        device = self.renderer._on_device(scene.fields())
+        rgba = np.zeros((height, width, 4), np.float32)
+        if width * spp <= TILE_SAMPLES:
+            tiles = [(0, r, width, min(TILE_SAMPLES // (width * spp), height - r))
+                     for r in range(0, height, max(1, TILE_SAMPLES // (width * spp)))]
+        else:
+            side = max(8, int(np.sqrt(TILE_SAMPLES // spp)) // 8 * 8)
+            tiles = [(c, r, min(side, width - c), min(side, height - r))
+                     for r in range(0, height, side) for c in range(0, width, side)]
+        started, samples, stats = time.perf_counter(), 0, {}
+        for c, r, w, h in tiles:
+            if cancelled():
+                raise Cancelled
+            result = device.render_scene(scene, window=(c, r, w, h))
+            rgba[r:r + h, c:c + w] = result.rgba
+            samples += int(result.stats.get("samples", 0))
+            stats = result.stats
+        seconds = time.perf_counter() - started
+        stats = {**stats, "width": width, "height": height, "samples": samples, "ms": 1e3 * seconds,
+                 "samples_per_second": samples / seconds if seconds > 0 else 0.0}
+        return Image(rgba, None, {"settings": stats}, scene=scene)
 
     def _budgeted(self, scene):
         """The frame drawn domain by domain within the memory budget, as `render
