@@ -143,7 +143,8 @@ EB_INLINE float eb_ambient_occlusion(eb_frame *fr, float3 p_world, float3 n, uin
     float sum = 0.0f;
     for (int k = 0; k < fr->ao_samples; ++k) {
         uint index = sample * (uint)fr->ao_samples + (uint)k;
-        float u1 = eb_random(pixel, index, seed, 3u), u2 = eb_random(pixel, index, seed, 4u);
+        float2 u = eb_r2(pixel, index, seed, 3u);  /* stratified over the pixel's rays */
+        float u1 = u.x, u2 = u.y;
         float r = sqrt(u1), phi = 6.28318531f * u2;
         float3 d = r * cos(phi) * t + r * sin(phi) * b + sqrt(fmax(0.0f, 1.0f - u1)) * n;
         sum += eb_visibility(fr, p_world, normalize(d), eps, fr->ao_distance, rho);

@@ -89,11 +89,12 @@ __kernel void eb_render(__constant eb_params *P, int4 band, int sample_index,
 
     float jx = 0.5f, jy = 0.5f;
     if (spp > 1) {
-        jx = eb_random(pixel, (uint)sample_index, seed, 1u);
-        jy = eb_random(pixel, (uint)sample_index, seed, 2u);
+        float2 j = eb_r2(pixel, (uint)sample_index, seed, 1u);
+        jx = j.x;
+        jy = j.y;
     }
     eb_ray ray;
-    ray.rho = P->jitter ? eb_random(pixel, (uint)sample_index, seed, 0u) : 0.5f;
+    ray.rho = P->jitter ? eb_offset(col, row, (uint)sample_index, seed) : 0.5f;
     ray.pixel = pixel;
     ray.sample = (uint)sample_index;
     ray.seed = seed;

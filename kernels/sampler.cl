@@ -1,8 +1,9 @@
 /* Sample points along a ray, and the seeded random numbers that place them.
  *
- * Random numbers: interleaved-sampling offsets and sub-pixel positions are
- * hashes of (pixel, sample index, seed), so a frame is the same bit for bit
- * for the same seed, on any device and any work-group size.
+ * Sample numbers: interleaved-sampling offsets, sub-pixel positions and
+ * ambient-occlusion directions are low-discrepancy sequences shifted by seeded
+ * hashes of (pixel, seed) (below), so a frame is the same bit for bit for the
+ * same seed, on any device and any work-group size.
  *
  * Sub-intervals (paper §4.2-4.3, Fig. 5), shared by the integrator and the
  * uniform-grid marcher: the points t_k = (k + rho) dt, k integer, are
@@ -25,13 +26,43 @@ inline uint eb_hash(uint x)
     return x;
 }
 
-/* A uniform float in [0, 1) from (pixel, sample, seed, stream); `stream`
- * separates the independent numbers one sample needs (offset, x, y). The top 24
- * bits make the float exact and strictly below 1. */
-inline float eb_random(uint pixel, uint sample, uint seed, uint stream)
+/* Low-discrepancy numbers (issue 48; docs/design.md, "Sample offsets"): a
+ * sequence over the sample index, shifted per pixel by a seeded hash
+ * (Cranley-Patterson rotation), in 32-bit fixed point so that it stays exact
+ * for any index. Samples of one pixel are then spread evenly instead of at
+ * random, and a pixel's first offset varies across the image as interleaved
+ * gradient noise (Jimenez 2014), whose errors are of high frequency. */
+#define EB_GOLDEN 2654435769u  /* 2^32 / golden ratio: R1 */
+#define EB_R2_X 3242174889u    /* 2^32 / plastic number: R2 (Roberts 2018) */
+#define EB_R2_Y 2447445413u    /* 2^32 / plastic number^2 */
+
+inline float eb_fixed_to_unit(uint x)
 {
-    uint h = eb_hash(pixel ^ eb_hash(sample ^ eb_hash(seed ^ eb_hash(stream))));
-    return (float)(h >> 8) * (1.0f / 16777216.0f);
+    return (float)(x >> 8) * (1.0f / 16777216.0f);
+}
+
+/* The per-pixel shift of stream `stream` as 32-bit fixed point. */
+inline uint eb_shift(uint pixel, uint seed, uint stream)
+{
+    return eb_hash(pixel ^ eb_hash(seed ^ eb_hash(stream ^ 0x9e3779b9u)));
+}
+
+/* The interleaving offset in [0, 1) of sample `sample` of pixel (col, row). */
+inline float eb_offset(int col, int row, uint sample, uint seed)
+{
+    float x = (float)(col & 1023), y = (float)(row & 1023);
+    float g = 0.06711056f * x + 0.00583715f * y;
+    g = 52.9829189f * (g - floor(g));
+    float ign = g - floor(g);
+    uint base = (uint)(ign * 4294967040.0f) + eb_hash(seed ^ 0x85ebca6bu);
+    return eb_fixed_to_unit(base + sample * EB_GOLDEN);
+}
+
+/* Point `index` of the R2 sequence shifted for (pixel, seed, stream pair). */
+inline float2 eb_r2(uint pixel, uint index, uint seed, uint stream)
+{
+    return (float2)(eb_fixed_to_unit(eb_shift(pixel, seed, stream) + index * EB_R2_X),
+                    eb_fixed_to_unit(eb_shift(pixel, seed, stream + 1u) + index * EB_R2_Y));
 }
 
 /* The sub-intervals of one ray interval, produced one at a time. */

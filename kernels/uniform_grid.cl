@@ -62,7 +62,7 @@ __kernel void eb_uniform_render(int width, int height, uint seed, int jitter,
     if (col >= width || row >= height)
         return;
     uint pixel = (uint)row * (uint)width + (uint)col;
-    float rho = jitter ? eb_random(pixel, 0u, seed, 0u) : 0.5f;
+    float rho = jitter ? eb_offset(col, row, 0u, seed) : 0.5f;
     float3 dir_world = eb_camera_direction(cam_forward.xyz, cam_du.xyz, cam_dv.xyz,
                                            col, row, width, height, 0.5f, 0.5f);
     float3 org = eb_world_to_lattice(cam_origin.xyz, origin_world.xyz, inv_spacing.xyz);
