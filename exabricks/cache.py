@@ -149,12 +149,13 @@ def key(source: str | os.PathLike, options: dict, source_sha256: str | None = No
     return hashlib.sha256(json.dumps(material, sort_keys=True, default=str).encode()).hexdigest()
 
 
-def mesh_key(paths) -> str:
-    """The entry key of the BVH of the mesh files `paths` (in order), by content."""
+def mesh_key(paths, digests=None) -> str:
+    """The entry key of the BVH of the mesh files `paths` (in order), by content
+    (`digests`: their sha256, where already known)."""
     from .formats.provenance import sha256_file
 
     material = {"cache": 1, "kind": "meshes", "code": code_digest(),
-                "files": [sha256_file(p) for p in paths]}
+                "files": list(digests) if digests is not None else [sha256_file(p) for p in paths]}
     return hashlib.sha256(json.dumps(material, sort_keys=True).encode()).hexdigest()
 
 

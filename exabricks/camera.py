@@ -21,6 +21,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .constants import FLOAT32_MAX
 from .errors import ExabricksError
 
 CAMERA_KEYS = ("position", "look_at", "up", "fovy")
@@ -51,6 +52,10 @@ def _vector(value, key: str, where: str) -> tuple[float, float, float]:
             raise ExabricksError(f"{where}: camera '{key}' must be a list of 3 numbers, got {value!r}")
         if not math.isfinite(float(x)):
             raise ExabricksError(f"{where}: camera '{key}' has a non-finite value: {value!r}")
+        if abs(float(x)) > FLOAT32_MAX:
+            raise ExabricksError(f"{where}: camera '{key}' {_format_vector(value)} is beyond the "
+                                 f"float32 range the renderer computes in (magnitude at most "
+                                 f"{FLOAT32_MAX:.6g})")
         out.append(float(x))
     return (out[0], out[1], out[2])
 
@@ -60,6 +65,8 @@ def _scalar(value, key: str, where: str) -> float:
         raise ExabricksError(f"{where}: camera '{key}' must be a number, got {value!r}")
     if not math.isfinite(float(value)):
         raise ExabricksError(f"{where}: camera '{key}' is not finite: {value!r}")
+    if abs(float(value)) > FLOAT32_MAX:
+        raise ExabricksError(f"{where}: camera '{key}' {float(value):g} is beyond the float32 range")
     return float(value)
 
 
@@ -73,7 +80,13 @@ def _validated(position, look_at, up, fovy, where: str):
         raise ExabricksError(f"{where}: camera fovy must be in (0, 180) degrees, got {fovy:g}")
     view = np.subtract(look_at, position)
     view_length = float(np.linalg.norm(view))
-    if view_length == 0.0 or not math.isfinite(view_length):
+    if not math.isfinite(view_length) or view_length > FLOAT32_MAX:
+        raise ExabricksError(
+            f"{where}: camera position {_format_vector(position)} and look_at "
+            f"{_format_vector(look_at)} are too far apart: their distance overflows the float32 "
+            f"range the renderer computes in"
+        )
+    if view_length == 0.0:
         raise ExabricksError(
             f"{where}: camera position and look_at are the same point {_format_vector(position)}"
         )

@@ -25,6 +25,10 @@ MAX_TREE_DEPTH = 64
 # The default --max-brick-width: bricks at most this many cells wide per axis
 # (`brick`), and the width whose partition a cells file's piece runs are nodes of.
 MAX_BRICK_WIDTH = 32
+# The largest magnitude a float32 holds: the kernels read every float setting, camera
+# coordinate and data range as float32, so a value beyond it is refused (it would
+# overflow to infinity there).
+FLOAT32_MAX = float(np.finfo(np.float32).max)
 # Largest world coordinate a mesh vertex or an instance's mirror or translation may
 # hold: beyond it, float32 ray arithmetic overflows.
 MAX_COORDINATE = 1e30

@@ -16,6 +16,8 @@ read back (`load_mesh_set`).
 from __future__ import annotations
 
 import functools
+import hashlib
+import json
 import logging
 import os
 import struct
@@ -38,7 +40,7 @@ MAX_TRIANGLES = 1 << 26
 # Bytes a mesh file may hold (a binary STL of MAX_TRIANGLES is 3.4 GB).
 MAX_FILE_BYTES = 1 << 33
 # The format of a cached MeshSet (save_mesh_set).
-MESH_SET_VERSION = 2
+MESH_SET_VERSION = 3
 # Edges sharper than this stay sharp in smooth shading (corner_normals), as with
 # ParaView's normals filter's default feature angle.
 CREASE_DEGREES = 30.0
@@ -61,10 +63,19 @@ def read_mesh(path) -> Mesh:
     if path.suffix.lower() == ".stl":
         _check_binary_stl(path, size)
     check_memory(6 * size, where)  # the parser's text and its float64 arrays
+    import io
+
     import trimesh
 
+    suffix = path.suffix.lower()
+    source = str(path)
+    if suffix in (".obj", ".ply"):
+        with open(path, "rb") as f:
+            data = f.read(MAX_FILE_BYTES + 1)
+        source = io.BytesIO(_plain_obj(data, where) if suffix == ".obj" else _plain_ply(data, where))
     try:
-        loaded = trimesh.load(str(path), force="mesh", process=False, skip_materials=True)
+        loaded = trimesh.load(source, file_type=suffix[1:], force="mesh", process=False,
+                              skip_materials=True)
         vertices = np.asarray(loaded.vertices, np.float64)
         faces = np.asarray(loaded.faces)
     except ExabricksError:
@@ -72,6 +83,55 @@ def read_mesh(path) -> Mesh:
     except Exception as e:  # noqa: BLE001 - a parser's error on a hostile file, whatever it is
         raise ExabricksError(f"{where}: not a readable mesh ({type(e).__name__}: {e})") from None
     return _checked(where, vertices, faces)
+
+
+# Bytes beyond ASCII as '?' (bytes.translate).
+_ASCII = bytes(range(128)) + b"?" * 128
+
+
+def _plain_obj(data: bytes, where: str) -> bytes:
+    """An OBJ's text as ASCII the parser reads: without a UTF-8 byte-order mark, other
+    bytes beyond ASCII (in comments and names) as '?'; ExabricksError naming the line
+    of a face with index 0 (OBJ counts from 1)."""
+    if data.startswith(b"\xef\xbb\xbf"):
+        data = data[3:]
+    data = data.translate(_ASCII)
+    for number, line in enumerate(data.splitlines(), 1):
+        words = line.split()
+        if words[:1] in ([b"f"], [b"l"]):
+            for w in words[1:]:
+                index = w.split(b"/")
+                if any(i.strip() in (b"0", b"-0", b"+0") for i in index if i):
+                    raise ExabricksError(f"{where}: line {number}: face index 0 in "
+                                         f"{line.decode('ascii', 'replace').strip()!r} "
+                                         "(OBJ indices start at 1, or -1 from the end)")
+    return data
+
+
+def _plain_ply(data: bytes, where: str) -> bytes:
+    """A PLY's bytes with a header the parser reads: bytes beyond ASCII (comments) as
+    '?', the same length; an ASCII PLY's element counts checked against its lines."""
+    end = data.find(b"end_header", 0, 1 << 16)
+    if not data.startswith(b"ply") or end < 0:
+        return data  # the parser says what is wrong
+    stop = data.find(b"\n", end)
+    stop = len(data) if stop < 0 else stop + 1
+    header = data[:stop].translate(_ASCII)
+    lines = header.decode("ascii").splitlines()
+    if any(line.split()[:2] == ["format", "ascii"] for line in lines):
+        elements = [(w[1], int(w[2])) for w in (line.split() for line in lines)
+                    if len(w) == 3 and w[0] == "element" and w[2].isdigit()]
+        rows = [r for r in data[stop:].splitlines() if r.strip()]
+        expected = sum(n for _, n in elements)
+        if len(rows) < expected:
+            have = len(rows)
+            for name, n in elements:
+                if have < n:
+                    raise ExabricksError(f"{where}: the header says element {name!r} has {n:,} "
+                                         f"rows, but the file holds only {have:,} rows of "
+                                         "data for it")
+                have -= n
+    return header + data[stop:]
 
 
 def _mesh_file(path) -> tuple[Path, int]:
@@ -401,13 +461,18 @@ def mesh_set(paths) -> MeshSet:
 def _mesh_set(keys) -> MeshSet:
     from . import cache
 
+    from .formats.provenance import sha256_file
+
     paths = [_mesh_file(k[0])[0] for k in keys]
     store = cache.Cache(cache.default_root())
-    k = cache.mesh_key(paths)
+    digests = [sha256_file(p) for p in paths]
+    k = cache.mesh_key(paths, digests)
+    # The meshes' content as one hash: what the entry records beside its key.
+    source_sha256 = hashlib.sha256("\n".join(digests).encode()).hexdigest()
     found = store.paths(k, cache.MESH_FILES)
     if found is not None:
         try:
-            meshes = load_mesh_set(found[0], paths)
+            meshes = load_mesh_set(found[0], paths, k, source_sha256)
             log.debug("%s: the meshes' BVH from the cache", found[0])
             return meshes
         except ExabricksError as e:
@@ -417,25 +482,35 @@ def _mesh_set(keys) -> MeshSet:
     about = {"path": ", ".join(str(p.resolve()) for p in paths),
              "options": {"kind": "meshes", "triangles": meshes.n_triangles}}
     try:
-        store.put(k, lambda d: save_mesh_set(meshes, d / cache.MESH_FILES[0]), about,
-                  cache.MESH_FILES)
+        store.put(k, lambda d: save_mesh_set(meshes, d / cache.MESH_FILES[0],
+                                             cache.record(k, source_sha256)),
+                  about, cache.MESH_FILES)
     except (ExabricksError, OSError) as e:  # the frame goes on without the cache
         log.warning("the meshes' BVH is not cached: %s", e)
     return meshes
 
 
-def save_mesh_set(meshes: MeshSet, path: Path) -> None:
-    """`meshes` as an uncompressed .npz (MESH_SET_VERSION)."""
+def save_mesh_set(meshes: MeshSet, path: Path, record: dict | None = None) -> None:
+    """`meshes` as an uncompressed .npz (MESH_SET_VERSION); `record`: the cache
+    entry's key and content hash (exabricks.cache.record), as JSON text."""
+    extra = {} if record is None else {"cache": np.str_(json.dumps(record, sort_keys=True))}
     with open(path, "wb") as f:
         np.savez(f, version=np.int64(MESH_SET_VERSION), triangles=meshes.triangles,
-                 normals=meshes.normals, nodes=meshes.nodes, dropped=np.int64(meshes.dropped))
+                 normals=meshes.normals, nodes=meshes.nodes, dropped=np.int64(meshes.dropped),
+                 **extra)
 
 
-def load_mesh_set(path: Path, paths) -> MeshSet:
+def load_mesh_set(path: Path, paths, k: str | None = None,
+                  source_sha256: str | None = None) -> MeshSet:
     """The MeshSet of the mesh files `paths` that save_mesh_set wrote to `path`,
     checked as any input a kernel walks (ExabricksError naming `path`): stored,
     not compressed, arrays no larger than the file; finite triangles of known
-    meshes; a tree over them (formats.checks.check_tree) with finite boxes."""
+    meshes; a tree over them (formats.checks.check_tree) with finite boxes; and,
+    given the entry key `k`, that it records `k` and `source_sha256`
+    (exabricks.cache.check: an entry swapped with another's is refused)."""
+    from types import SimpleNamespace
+
+    from . import cache
     from .formats.checks import check_tree
 
     where = str(path)
@@ -448,9 +523,10 @@ def load_mesh_set(path: Path, paths) -> MeshSet:
             raise ExabricksError(f"{where}: not a stored .npz of meshes")
         with np.load(path, allow_pickle=False) as npz:
             names = ("version", "triangles", "normals", "nodes", "dropped")
-            if sorted(npz.files) != sorted(names):
+            if not set(names) <= set(npz.files) <= {*names, "cache"}:
                 raise ExabricksError(f"{where}: holds {sorted(npz.files)}, not a mesh set")
             version, triangles, normals, nodes, dropped = (npz[n] for n in names)
+            recorded = npz["cache"] if "cache" in npz.files else None
     except (OSError, ValueError, zipfile.BadZipFile, EOFError) as e:
         raise ExabricksError(f"{where}: not a readable mesh set ({e})") from None
     if version.shape != () or int(version) != MESH_SET_VERSION:
@@ -474,4 +550,11 @@ def load_mesh_set(path: Path, paths) -> MeshSet:
         raise ExabricksError(f"{where}: mesh BVH boxes that are not finite or are inverted")
     meshes = MeshSet(tuple(str(p) for p in paths), triangles, normals, nodes, int(dropped))
     check_tree(meshes.links[:, 0], meshes.links[:, 1], t, where, "mesh BVH", "triangle")
+    if k is not None:
+        try:
+            meta = {"cache": json.loads(str(recorded))} if recorded is not None \
+                and recorded.shape == () and recorded.dtype.kind == "U" else {}
+        except ValueError:
+            meta = {}
+        cache.check([SimpleNamespace(meta=meta)], [where], k, source_sha256)
     return meshes

@@ -43,6 +43,7 @@ from typing import Callable, Iterable
 
 from . import interrupt
 from .errors import ExabricksError
+from .jsonfile import kind_of
 
 # Short, fixed-length temporary names: the target's own name may already be
 # close to the file-system limit of 255 bytes.
@@ -162,8 +163,8 @@ def check_output(path, inputs: Iterable = ()) -> Path:
         raise ExabricksError(f"{path}: cannot write the output: {_describe(e)}") from None
     if st is not None and not (stat.S_ISREG(st.st_mode) or stat.S_ISCHR(st.st_mode)
                                or stat.S_ISFIFO(st.st_mode)):
-        kind = "a directory" if stat.S_ISDIR(st.st_mode) else "not a regular file, device or FIFO"
-        raise ExabricksError(f"{path}: cannot write the output there ({kind})")
+        raise ExabricksError(f"{path}: cannot write the output there ({kind_of(st.st_mode)}; "
+                             "the output is a regular file, a character device or a FIFO)")
     directory = target.parent
     if st is None and not directory.is_dir():
         raise ExabricksError(f"{path}: directory {directory} does not exist")

@@ -29,7 +29,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .constants import MAX_KNOTS
+from .constants import FLOAT32_MAX, MAX_KNOTS
 from .errors import ExabricksError
 from .scaling import SCALES
 
@@ -461,6 +461,9 @@ def _range(value_range, what: str) -> tuple[float, float]:
         raise ExabricksError(f"{what}: value range must be two numbers, got {value_range!r}") from None
     if not (math.isfinite(lo) and math.isfinite(hi)) or not lo < hi:
         raise ExabricksError(f"{what}: value range must be finite with low < high, got [{lo:g}, {hi:g}]")
+    if not math.isfinite(hi - lo) or max(abs(lo), abs(hi)) > FLOAT32_MAX:
+        raise ExabricksError(f"{what}: value range [{lo:g}, {hi:g}] is beyond the float32 range "
+                             f"the renderer computes in (magnitude at most {FLOAT32_MAX:.6g})")
     return lo, hi
 
 

@@ -38,7 +38,7 @@ HOSTILE = {
     "no-faces.obj": ("v 0 0 0\nv 1 0 0\nv 2 0 0\n", "no triangles"),
     "empty.ply": ("", "not a readable mesh"),
     "truncated.ply": ("ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nend_header\n1 2\n",
-                      "not a readable mesh"),
+                      "the header says element 'vertex' has 3 rows"),
     "mesh.json": ("{}", "OBJ, PLY or STL"),
 }
 

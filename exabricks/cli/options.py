@@ -8,7 +8,7 @@ import click
 
 from ..errors import ExabricksError
 from ..scene.model import AXES
-from ..scene.options import SCENE_OPTIONS
+from ..scene.options import SCENE_OPTIONS, float32_problem
 
 output_option = click.option(
     "-o", "--output", "output", required=True, type=click.Path(dir_okay=False),
@@ -30,11 +30,16 @@ def input_path(name: str, **kw):
 
 
 def finite(ctx, param, value):
-    """Refuse NaN and infinities in float options (single, nargs or repeatable)."""
+    """Refuse NaN, infinities and values beyond float32's range (the kernels read
+    float32) in float options (single, nargs or repeatable)."""
     flat = value if isinstance(value, tuple) else (value,)
-    flat = [x for v in flat for x in (v if isinstance(v, tuple) else (v,))]
-    if any(isinstance(x, float) and not math.isfinite(x) for x in flat):
+    flat = [x for v in flat for x in (v if isinstance(v, tuple) else (v,)) if isinstance(x, float)]
+    if any(not math.isfinite(x) for x in flat):
         raise click.BadParameter("values must be finite numbers")
+    for x in flat:
+        why = float32_problem(x)
+        if why is not None:
+            raise click.BadParameter(why)
     return value
 
 

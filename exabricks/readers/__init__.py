@@ -9,10 +9,13 @@ formats whose dependencies are missing (yt) cost nothing until asked for.
 from __future__ import annotations
 
 import importlib
+import os
 import re
+import stat
 from pathlib import Path
 
 from ..errors import ExabricksError
+from ..jsonfile import kind_of, not_regular
 from ..schema import Cells
 
 FORMATS = ("exajet", "amrex", "athena", "raw", "yt")
@@ -46,9 +49,14 @@ def guess_format(path: str | Path, *, dims=None, ask_yt: bool = True) -> str | N
     path = Path(path)
     if not path.exists():
         raise ExabricksError(f"{path}: no such file or directory")
+    _refuse_special(path)
     name = path.name
     if path.is_dir():
-        if (path / "Header").is_file() and (path / "Level_0").is_dir():
+        header = path / "Header"
+        if (path / "Level_0").is_dir() and header.exists():
+            why = not_regular(header)
+            if why is not None:
+                raise ExabricksError(f"{header}: the plotfile Header is {why}, not a regular file")
             return "amrex"
     elif name.endswith(".athdf"):
         return "athena"
@@ -60,9 +68,43 @@ def guess_format(path: str | Path, *, dims=None, ask_yt: bool = True) -> str | N
         return "raw"
     if path.with_name(name + ".hierarchy").is_file() or any(p.search(name) for p in _YT_NAME_PATTERNS):
         return "yt"
-    if ask_yt and _yt_claims(path):
+    if ask_yt and _safe_for_yt(path) and _yt_claims(path):
         return "yt"
     return None
+
+
+def _refuse_special(path: Path) -> None:
+    """ExabricksError unless `path` is a regular file or a directory: detection never
+    opens a FIFO or a device (an open would block, or read a device)."""
+    mode = path.stat().st_mode
+    if not (stat.S_ISREG(mode) or stat.S_ISDIR(mode)):
+        raise ExabricksError(f"{path}: {kind_of(mode)}, not a dataset file or directory")
+
+
+# Entries of a directory looked at before yt's front ends may open them.
+_MAX_PROBED_ENTRIES = 10_000
+
+
+def _safe_for_yt(path: Path) -> bool:
+    """Whether yt's front ends may probe `path`: they open files in a directory (and a
+    file's siblings) by name, so one FIFO or device among them would block or be read.
+    Raises ExabricksError naming the first such entry."""
+    folder = path if path.is_dir() else path.parent
+    try:
+        with os.scandir(folder) as entries:
+            for i, entry in enumerate(entries):
+                if i >= _MAX_PROBED_ENTRIES:
+                    return False
+                try:
+                    mode = os.stat(entry.path).st_mode
+                except OSError:
+                    continue  # a dangling link: nothing to open
+                if not (stat.S_ISREG(mode) or stat.S_ISDIR(mode)):
+                    raise ExabricksError(f"{path}: cannot tell its format: {entry.path} is "
+                                         f"{kind_of(mode)}, not a regular file; use --format")
+    except OSError:
+        return False
+    return True
 
 
 def _yt_claims(path: Path) -> bool:

@@ -32,6 +32,7 @@ import numpy as np
 from .. import schema
 from ..constants import LATTICE_DTYPE, LEVEL_DTYPE, MAX_LEVEL, VALUE_DTYPE, WORLD_DTYPE
 from ..errors import ExabricksError
+from ..jsonfile import not_regular
 from . import _blocks, _checks
 
 _INT = r"-?\d+"
@@ -202,6 +203,11 @@ class _Lines:
 
 
 def _read_text(where: Path, what: str) -> str:
+    why = not_regular(where)
+    if why == "no such file":
+        raise ExabricksError(f"{where}: missing ({what}; the plotfile is incomplete)")
+    if why is not None:
+        raise ExabricksError(f"{where}: cannot read the {what}: {why}, not a regular file")
     try:
         return where.read_text(encoding="ascii", errors="strict")
     except FileNotFoundError:

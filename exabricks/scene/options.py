@@ -13,6 +13,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from ..constants import FLOAT32_MAX
 from ..errors import ExabricksError
 from ..scaling import SCALES
 from .model import AXES, GRADIENTS, MAX_AO_SAMPLES, RECONSTRUCTIONS, SHADING_MODES, TF_LOOKUPS
@@ -27,7 +28,8 @@ class Option:
     "numbers" (comma-separated numbers in [0, 1], as many as one of `counts`,
     or any number), "flag" (--name/--no-name), "size" (bytes: 2G, 512MiB).
     `low`/`high` bound a float or int (open bounds when `low_open`,
-    `high_open`); floats must be finite unless `finite` is False (the camera
+    `high_open`); floats must be finite and within float32's range (FLOAT32_MAX:
+    the kernels read them as float32) unless `finite` is False (the camera
     vectors, which the camera itself checks and names).
     """
 
@@ -110,6 +112,7 @@ class Option:
             if axis not in AXES or position is None or not math.isfinite(position):
                 raise ExabricksError(f"{self.keyword}: expected an axis (x, y or z) and a finite "
                                      f"position, got {value!r}")
+            check_float32(position, self.keyword)
             return axis, position
         if self.nargs > 1:
             if isinstance(value, (str, bytes)) or not hasattr(value, "__len__") \
@@ -135,6 +138,8 @@ class Option:
                 number = int(number)
             elif self.finite and not math.isfinite(number):
                 raise ExabricksError(f"{self.keyword}: values must be finite numbers, got {value!r}")
+            elif self.finite:
+                check_float32(number, self.keyword)
             lo, hi = self.low, self.high
             if (lo is not None and (number < lo or (self.low_open and number == lo))) or \
                     (hi is not None and (number > hi or (self.high_open and number == hi))):
@@ -192,10 +197,14 @@ class Option:
         if self.kind == "flag":
             return {"description": self.description or "true or false", "type": "boolean"}
         node = {"type": {"float": "number", "int": "integer"}[self.kind]}
-        if self.low is not None:
-            node["exclusiveMinimum" if self.low_open else "minimum"] = self.low
-        if self.high is not None:
-            node["exclusiveMaximum" if self.high_open else "maximum"] = self.high
+        low, high = self.low, self.high
+        if self.kind == "float" and self.finite:
+            low = -FLOAT32_MAX if low is None else low
+            high = FLOAT32_MAX if high is None else high
+        if low is not None:
+            node["exclusiveMinimum" if self.low_open else "minimum"] = low
+        if high is not None:
+            node["exclusiveMaximum" if self.high_open else "maximum"] = high
         return {"description": self.description or self._words(), **node}
 
     def _words(self) -> str:
@@ -210,6 +219,20 @@ class Option:
         if lo is not None:
             return f"a number {'>' if self.low_open else '>='} {lo:g}"
         return "a number"
+
+
+def float32_problem(number: float) -> str | None:
+    """Why `number` cannot be a float32 setting of the kernels, or None when it can."""
+    if abs(number) > FLOAT32_MAX:
+        return f"{number:g} is beyond the float32 range (magnitude at most {FLOAT32_MAX:.6g})"
+    return None
+
+
+def check_float32(number: float, keyword: str) -> None:
+    """ExabricksError naming `keyword` when `number` overflows the kernels' float32."""
+    why = float32_problem(number)
+    if why is not None:
+        raise ExabricksError(f"{keyword}: {why}")
 
 
 def _one_of(choices) -> str:
