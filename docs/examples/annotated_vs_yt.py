@@ -1,11 +1,12 @@
 """The AMReX advection plotfile annotated by exabricks and by yt's
 `Scene.save_annotated`, side by side (docs/annotate.md, "Against yt").
 
-Run from the repository root:
+Runs from any folder (REPO is the checkout; the yt extra needed):
 
-    .venv/bin/python docs/examples/annotated_vs_yt.py [PLOTFILE] [-o OUT.png]
+    python REPO/docs/examples/annotated_vs_yt.py [PLOTFILE] [-o OUT.png]
 
-PLOTFILE defaults to ../shared/data/amrex-advection3d/plt00020. Both render the
+PLOTFILE defaults to the checkout's tests/data/amrex-advection3d/plt00020, OUT to
+docs/images/annotated/amrex-exabricks-vs-yt.png. Both render the
 field phi from the same perspective camera (the gallery's AMReX view) with the
 same colour map over the same range; each transfer function is its own tool's
 natural form (exabricks: viridis with piecewise-linear opacity knots; yt: viridis
@@ -30,7 +31,7 @@ from exabricks.annotate import annotate, facts_from_meta
 from exabricks.stages.ingest import ingest
 
 ROOT = Path(__file__).resolve().parents[2]
-PLOTFILE = ROOT.parent / "shared" / "data" / "amrex-advection3d" / "plt00020"
+PLOTFILE = ROOT / "tests" / "data" / "amrex-advection3d" / "plt00020"
 OUT = ROOT / "docs" / "images" / "annotated" / "amrex-exabricks-vs-yt.png"
 
 SIZE = 512
