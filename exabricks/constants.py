@@ -32,6 +32,13 @@ FLOAT32_MAX = float(np.finfo(np.float32).max)
 # Largest world coordinate a mesh vertex or an instance's mirror or translation may
 # hold: beyond it, float32 ray arithmetic overflows.
 MAX_COORDINATE = 1e30
+# Central differences step this many cells of the finest level at the point along
+# each axis (kernels/frame.cl): half a cell for volume samples (--gradient central,
+# the nearest reconstruction's face normals), a whole cell for iso-surface normals,
+# which averages the reconstruction's cell-scale terraces away (docs/design.md,
+# "Integration and images").
+CENTRAL_STEP_CELLS = 0.5
+ISO_CENTRAL_STEP_CELLS = 1.0
 # Samples one ray may take (per pixel sample): a sampling rate that would need
 # more is refused before rendering (and bounds every kernel loop).
 MAX_SAMPLES_PER_RAY = 1 << 20

@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .constants import MAX_SAMPLES_PER_RAY, MAX_TREE_DEPTH
+from .constants import CENTRAL_STEP_CELLS, ISO_CENTRAL_STEP_CELLS, MAX_SAMPLES_PER_RAY, MAX_TREE_DEPTH
 from .scene.model import MAX_INSTANCES, MAX_ISOSURFACES, MAX_MESH_HITS, MAX_SLICES
 from .scene.options import SCENE_OPTIONS
 
@@ -39,6 +39,8 @@ LIMITS = {
     "EB_LOD_LEVELS": LOD_LEVELS,
     "EB_MAX_MIP": MAX_MIP,
     "EB_MAX_COPIES": MAX_INSTANCES + 1,     # overlapping instances' copies, the data's included
+    "EB_CENTRAL_STEP": f"{CENTRAL_STEP_CELLS!r}f",  # central differences' step, cells:
+    "EB_ISO_CENTRAL_STEP": f"{ISO_CENTRAL_STEP_CELLS!r}f",  # of volume samples, of iso hits
 }
 TUNABLES = {
     "EB_QUEUE_SIZE": 64,   # the ordered walk's heap (traversal.cl); fuller walks re-trace

@@ -150,16 +150,18 @@ EB_INLINE void eb_fields(eb_basis_sums s, float *value)
 
 /* World-scaled gradient of field f at lattice point p (sums s, finest level
  * `level` there): analytic (paper §5.1.2, s must hold the derivative sums),
- * or central differences of the reconstructed field with a step of half a
- * cell of that level along each lattice axis (the analytic one where a
- * neighbour has no data). Scaled per field (gradient_scale): only its
- * direction matters. */
+ * or, where `step` > 0, central differences of the reconstructed field with a
+ * step of `step` cells of that level along each lattice axis (the analytic
+ * one where a neighbour has no data; EB_CENTRAL_STEP for volume samples,
+ * EB_ISO_CENTRAL_STEP for iso hits, where a whole cell averages the
+ * reconstruction's cell-scale terraces away). Scaled per field
+ * (gradient_scale): only its direction matters. */
 EB_INLINE float3 eb_field_gradient_by(eb_frame *fr, eb_basis_sums *s, float3 p, int level, int f,
-                                      int central)
+                                      float step)
 {
     float3 g = eb_basis_gradient(*s, f);
-    if (central) {
-        float h = ldexp(0.5f, level);
+    if (step > 0.0f) {
+        float h = ldexp(step, level);
         float d[3];
         int ok = 1;
         for (int a = 0; a < 3 && ok; ++a) {
@@ -177,7 +179,7 @@ EB_INLINE float3 eb_field_gradient_by(eb_frame *fr, eb_basis_sums *s, float3 p, 
 /* The gradient of field f as the frame's `gradient` setting says. */
 EB_INLINE float3 eb_field_gradient(eb_frame *fr, eb_basis_sums *s, float3 p, int level, int f)
 {
-    return eb_field_gradient_by(fr, s, p, level, f, fr->central);
+    return eb_field_gradient_by(fr, s, p, level, f, fr->central ? EB_CENTRAL_STEP : 0.0f);
 }
 
 #include "ray.cl"

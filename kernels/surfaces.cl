@@ -216,7 +216,8 @@ EB_COLD int eb_surface_hit(eb_frame *fr, eb_ray *ray, eb_ray_state *st, float t,
     if (j >= 0) {
         int4 iso = fr->surf.iso[j];
         n = eb_field_gradient_by(fr, &s, p, level, iso.x,
-                                 fr->central || fr->P->iso_gradient == EB_ISO_GRADIENT_CENTRAL);
+                                 fr->central || fr->P->iso_gradient == EB_ISO_GRADIENT_CENTRAL
+                                     ? EB_ISO_CENTRAL_STEP : 0.0f);
         rgb = iso.y >= 0 ? eb_lookup(fr->look, iso.z, iso.w, value[iso.y]).xyz
                          : fr->surf.iso_color[j].xyz;
         a = fr->surf.iso_value[j].y;

@@ -8,7 +8,7 @@ faces of the outermost domains lie at infinity and every box is half-open
 (lower <= p < upper), so each point of space lies in exactly one domain.
 
 `domain_data` is what a domain's renderer loads: the regions whose boxes overlap
-the domain (grown by a halo where central differences look half a cell outside
+the domain (grown by a halo where central differences look a cell outside
 it), the bricks those regions list cropped to the cells that can reach the
 domain, and a BVH over the regions. A frame of the domain (kernels/frame.cl `eb_in_domain`) then takes
 exactly the samples of the whole frame that lie in the domain: the same
@@ -254,14 +254,21 @@ def _cut(block: np.ndarray, size: np.ndarray, share: float) -> tuple[int, int]:
 
 
 def domain_options(bricks: schema.Bricks, scene) -> dict:
-    """`domain_data`'s options for frames of `scene`: a halo of half a cell of the
-    coarsest level where normals come from central differences (kernels/frame.cl
-    eb_field_gradient looks that far outside the domain), and no cropping of the
-    bricks under level of detail (their mip levels are made from whole bricks)."""
+    """`domain_data`'s options for frames of `scene`: a halo of as many cells of
+    the coarsest level as central differences step (CENTRAL_STEP_CELLS for volume
+    samples, ISO_CENTRAL_STEP_CELLS for iso hits: kernels/frame.cl
+    eb_field_gradient_by looks that far outside the domain), and no cropping of
+    the bricks under level of detail (their mip levels are made from whole
+    bricks)."""
+    from ..constants import CENTRAL_STEP_CELLS, ISO_CENTRAL_STEP_CELLS
+
     central = scene.lighting.gradient == "central" or scene.settings.reconstruction == "nearest"
+    steps = [CENTRAL_STEP_CELLS] if central else []
+    if scene.isosurfaces and (central or scene.lighting.iso_gradient == "central"):
+        steps.append(ISO_CENTRAL_STEP_CELLS)
     halo = 0.0
-    if scene.lighting.shading != "none" and central and bricks.n_bricks:
-        halo = float(2.0 ** int(bricks.level.max())) / 2.0
+    if scene.lighting.shading != "none" and steps and bricks.n_bricks:
+        halo = float(2.0 ** int(bricks.level.max())) * max(steps)
     return {"halo": halo, "crop": not scene.settings.lod > 0}
 
 
@@ -271,7 +278,7 @@ def domain_data(bricks: schema.Bricks, regions: schema.Regions, lower, upper, *,
     """(bricks, regions, bvh) of the domain [lower, upper) (module docstring).
 
     `halo` (lattice units) grows the domain for lookups outside it (central
-    differences: half a cell of the coarsest level). The regions that meet the
+    differences: up to a cell of the coarsest level). The regions that meet the
     grown domain are kept whole with their lists; each brick they list is cropped
     to its cells within one cell width of the grown domain (a cell's basis
     support reaches half its width beyond it, so no sample of the domain loses a
