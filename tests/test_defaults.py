@@ -17,6 +17,7 @@ SOURCES = {"amrex": (AMREX, ()), "athena": (ATHENA, ("--field", "rho")),
            "gerris": (GERRIS, ("--field", "T")), "enzo": (ENZO, ("--field", "Density"))}
 
 
+@pytest.mark.slow  # four renders of real data from their sources: in the slow suite (CI runs it)
 @pytest.mark.parametrize("name", sorted(SOURCES))
 def test_the_default_picture_shows_the_structure(name, tmp_path):
     source, field = SOURCES[name]

@@ -271,10 +271,13 @@ def _folder(prepared: Path, tmp_path: Path) -> Path:
 
 
 def _docs_with_examples():
+    # Every run is in the slow suite (CI runs it): together they take about a minute
+    # on 2 cores, which `make test` cannot spare; the checks of the scene files and
+    # of the exemptions below stay in the fast one.
     for doc in DOCS:
         run = [e for e in examples(doc)[0] if not _is_setup(e)]
         if any(not slow(e) for e in run):
-            yield pytest.param(doc, False, id=doc)
+            yield pytest.param(doc, False, id=doc, marks=pytest.mark.slow)
         if any(slow(e) for e in run):
             yield pytest.param(doc, True, id=f"{doc}-slow", marks=pytest.mark.slow)
 
