@@ -9,8 +9,8 @@ It is made from the field's *volume-weighted* histogram on its scaled axis
    unheated fluid around a plume). It and the bins around it that hold at least
    `AMBIENT_SHOULDER` of the mode's volume (the ambient medium's own noise) are
    transparent.
-2. Opacity then grows with the square of the distance from that band on the
-   scaled axis (`RAMP_POWER`), on each side, to its largest value at the
+2. Opacity then grows with the fourth power of the distance from that band on
+   the scaled axis (`RAMP_POWER`), on each side, to its largest value at the
    field's extremes: what differs most from the surroundings shows most.
 3. The opacity's height is set so that the rays of the default view through
    the visible part cross an optical depth of at most about `TARGET_DEPTH`
@@ -33,7 +33,7 @@ import numpy as np
 
 from .field_statistics import field_range, opacity_columns, smallest_positive, volume_histogram
 from .scaling import default_threshold, resolve, scaled_range
-from .transfer_function import TransferFunction, widen_degenerate_range
+from .transfer_function import TransferFunction, strictly_increasing, widen_degenerate_range
 
 # Bins of the volume-weighted histogram over the scaled range.
 HISTOGRAM_BINS = 256
@@ -81,16 +81,21 @@ def opacity_shape(axis_range, band, bins: int = HISTOGRAM_BINS) -> np.ndarray:
     t = np.linspace(0.0, 1.0, RAMP_KNOTS)
     left = [(low - (low - a) * u, u ** RAMP_POWER) for u in t[::-1]] if low > a else [(low, 0.0)]
     right = [(high + (b - high) * u, u ** RAMP_POWER) for u in t] if high < b else [(high, 0.0)]
-    knots = np.asarray(left + right, np.float64)
-    return knots[np.concatenate([[True], np.diff(knots[:, 0]) > 0])]
+    return strictly_increasing(np.asarray(left + right, np.float64))
+
+
+def _opacity_by_bin(histogram: np.ndarray, shape: np.ndarray, axis_range):
+    """(bin centres on the scaled axis, volume x `shape` in each bin)."""
+    a, b = axis_range
+    centres = a + (np.arange(len(histogram)) + 0.5) * (b - a) / len(histogram)
+    return centres, histogram * np.interp(centres, shape[:, 0], shape[:, 1])
 
 
 def visible_span(histogram: np.ndarray, shape: np.ndarray, axis_range) -> tuple[float, float]:
     """The span of the scaled axis that holds all but COLOUR_TRIM of the opacity
     (volume x shape) at each end: where the colours go."""
     a, b = axis_range
-    centres = a + (np.arange(len(histogram)) + 0.5) * (b - a) / len(histogram)
-    weight = histogram * np.interp(centres, shape[:, 0], shape[:, 1])
+    centres, weight = _opacity_by_bin(histogram, shape, axis_range)
     if not weight.sum() > 0:
         return a, b
     cumulative = np.cumsum(weight) / weight.sum()
@@ -108,6 +113,16 @@ def field_axis(bricks, field: str, scale: str | None = None):
     return resolve(scale, data_range, floor), default_threshold(data_range), data_range, floor
 
 
+def _ambient_shape(bricks, field: str, scale, value_range):
+    """(scale, threshold, scaled axis, histogram, ambient band, opacity shape) of
+    `field` over `value_range` (None: its finite range)."""
+    scale, threshold, data_range, floor = field_axis(bricks, field, scale)
+    axis = scaled_range(tuple(value_range) if value_range else data_range, scale, threshold, floor)
+    histogram = volume_histogram(bricks, field, scale, threshold, axis, HISTOGRAM_BINS)
+    band = ambient_band(histogram)
+    return scale, threshold, axis, histogram, band, opacity_shape(axis, band)
+
+
 def automatic_transfer_function(bricks, field: str, *, scale: str | None = None,
                                 value_range=None, colormap: str = "viridis",
                                 unit_distance: float | None = None) -> TransferFunction:
@@ -117,10 +132,7 @@ def automatic_transfer_function(bricks, field: str, *, scale: str | None = None,
     range the colours span (default: the field's finite range). `unit_distance`:
     the world thickness alpha is the opacity of (default: the finest cell width).
     """
-    scale, threshold, data_range, floor = field_axis(bricks, field, scale)
-    axis = scaled_range(tuple(value_range) if value_range else data_range, scale, threshold, floor)
-    histogram = volume_histogram(bricks, field, scale, threshold, axis, HISTOGRAM_BINS)
-    shape = opacity_shape(axis, ambient_band(histogram))
+    scale, threshold, axis, histogram, _, shape = _ambient_shape(bricks, field, scale, value_range)
     colours = TransferFunction.from_colormap(colormap, axis if value_range else visible_span(histogram, shape, axis))
     unit = TransferFunction(colours.rgb_points, shape, DEFAULT_NAME).on_scale(scale, threshold)
     sigma = _sigma_for_depth(bricks, field, unit, unit_distance)
@@ -137,13 +149,8 @@ def suggested_iso_value(bricks, field: str, *, scale: str | None = None) -> floa
     no such side, the ambient value."""
     from .scaling import inverse
 
-    scale, threshold, data_range, floor = field_axis(bricks, field, scale)
-    a, b = scaled_range(data_range, scale, threshold, floor)
-    histogram = volume_histogram(bricks, field, scale, threshold, (a, b), HISTOGRAM_BINS)
-    band = ambient_band(histogram)
-    shape = opacity_shape((a, b), band)
-    centres = a + (np.arange(HISTOGRAM_BINS) + 0.5) * (b - a) / HISTOGRAM_BINS
-    weight = histogram * np.interp(centres, shape[:, 0], shape[:, 1])
+    scale, threshold, axis, histogram, band, shape = _ambient_shape(bricks, field, scale, None)
+    centres, weight = _opacity_by_bin(histogram, shape, axis)
     below, above = weight[:band[0]], weight[band[1] + 1:]
     upper = HISTOGRAM_BINS - 1 - band[1] >= band[0]
     side, at = (above, centres[band[1] + 1:]) if upper else (below, centres[:band[0]])

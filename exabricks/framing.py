@@ -2,7 +2,7 @@
 "Defaults that show the data").
 
 The default camera frames what the volume layers make visible, not the whole
-domain: `visible_box` is the box holding all but `TRIM` of the opacity
+domain: `visible_corners` is the box holding all but `TRIM` of the opacity
 (extinction x volume) of a layer on each side of each axis, and `framed_camera`
 looks at it from the three-quarter direction at the distance where its corners
 fill the frame up to `MARGIN`.

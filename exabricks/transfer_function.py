@@ -240,9 +240,7 @@ class TransferFunction:
         def remap(points):
             out = points.copy()
             out[:, 0] = inverse(lo + (forward(points[:, 0], *axis) - x0) * stretch, *axis)
-            if self.scale == "linear":
-                return out
-            return out[np.concatenate([[True], np.diff(out[:, 0]) > 0])]  # knots merged by rounding
+            return out if self.scale == "linear" else strictly_increasing(out)
 
         return TransferFunction(remap(self.rgb_points), remap(self.alpha_points), self.name, *axis)
 
@@ -263,9 +261,7 @@ class TransferFunction:
         def dense(points):
             xs = np.union1d(points[:, 0], grid)
             columns = [np.interp(xs, points[:, 0], points[:, c]) for c in range(1, points.shape[1])]
-            x = inverse(xs, scale, threshold)
-            keep = np.concatenate([[True], np.diff(x) > 0])  # float64 rounding of far ends
-            return np.column_stack([x] + columns)[keep]
+            return strictly_increasing(np.column_stack([inverse(xs, scale, threshold)] + columns))
 
         return TransferFunction(dense(self.rgb_points), dense(self.alpha_points), self.name, scale,
                                 float(threshold))
@@ -452,6 +448,12 @@ def lookup_table(xs: np.ndarray, rgba: np.ndarray) -> LookupTable:
             break
     rows = np.concatenate([[[x0, k / span, float(k), 0.0]], table]).astype(np.float32)
     return LookupTable(rows, error_rgb, error_alpha)
+
+
+def strictly_increasing(knots: np.ndarray) -> np.ndarray:
+    """`knots` (rows [x, ...], x non-decreasing) without the rows whose x repeats the
+    row before: knots that float64 rounding merged on a mapped axis."""
+    return knots[np.concatenate([[True], np.diff(knots[:, 0]) > 0])]
 
 
 def _range(value_range, what: str) -> tuple[float, float]:

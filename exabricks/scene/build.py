@@ -166,6 +166,11 @@ def _camera(bricks, file: SceneFile, camera_path, f, instances=(), volumes=(), a
         camera = Camera.from_dict({"fovy": DEFAULT_FOVY, **inline}, source=file.at("camera"))
     elif inline is not None:
         camera = _within(file.at("camera"), Camera.from_json, file.camera_file())
+    elif f["position"] is not None and f["look_at"] is not None:
+        # The flags place the camera whole: nothing to frame (a pass over the data saved).
+        from ..camera import DEFAULT_UP
+
+        camera = Camera(tuple(f["position"]), tuple(f["look_at"]), DEFAULT_UP, DEFAULT_FOVY)
     else:
         # What the volume layers make visible (else the whole dataset), on every copy:
         # boxes along the view's axes (tightest) unless copies turn them.
