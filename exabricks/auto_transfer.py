@@ -53,6 +53,10 @@ DEPTH_QUANTILE = 0.9
 COLUMN_BINS = 96
 # Most points per axis a cell is spread over its columns with.
 SPLAT = 8
+# Intervals of the lattice over the scaled axis that every knot lies on, so that
+# a linear-scaled function is looked up exactly from a table of at most this
+# many intervals (transfer_function.lookup_table; 16 KiB a layer).
+KNOT_LATTICE = 4 * HISTOGRAM_BINS
 # The most opacity per unit distance any value gets.
 MAX_ALPHA = 0.9
 DEFAULT_NAME = "automatic"
@@ -82,6 +86,17 @@ def opacity_shape(axis_range, band, bins: int = HISTOGRAM_BINS) -> np.ndarray:
     left = [(low - (low - a) * u, u ** RAMP_POWER) for u in t[::-1]] if low > a else [(low, 0.0)]
     right = [(high + (b - high) * u, u ** RAMP_POWER) for u in t] if high < b else [(high, 0.0)]
     return strictly_increasing(np.asarray(left + right, np.float64))
+
+
+def on_lattice(knots: np.ndarray, axis_range) -> np.ndarray:
+    """`knots` (rows [x, ...]) with each x moved to the nearest node of
+    KNOT_LATTICE even intervals over `axis_range`, those that land on the node
+    of the one before dropped."""
+    a, b = axis_range
+    at = np.rint((knots[:, 0] - a) * (KNOT_LATTICE / (b - a)))
+    snapped = knots.copy()
+    snapped[:, 0] = a + (b - a) * (at / KNOT_LATTICE)
+    return strictly_increasing(snapped)
 
 
 def _opacity_by_bin(histogram: np.ndarray, shape: np.ndarray, axis_range):
@@ -134,7 +149,8 @@ def automatic_transfer_function(bricks, field: str, *, scale: str | None = None,
     """
     scale, threshold, axis, histogram, _, shape = _ambient_shape(bricks, field, scale, value_range)
     colours = TransferFunction.from_colormap(colormap, axis if value_range else visible_span(histogram, shape, axis))
-    unit = TransferFunction(colours.rgb_points, shape, DEFAULT_NAME).on_scale(scale, threshold)
+    unit = TransferFunction(on_lattice(colours.rgb_points, axis), on_lattice(shape, axis),
+                            DEFAULT_NAME).on_scale(scale, threshold)
     sigma = _sigma_for_depth(bricks, field, unit, unit_distance)
     alpha = unit.alpha_points.copy()
     alpha[:, 1] = np.minimum(1.0 - np.exp(-sigma * alpha[:, 1]), MAX_ALPHA)

@@ -22,6 +22,7 @@ at its last.
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 from importlib import resources
@@ -298,6 +299,12 @@ class TransferFunction:
             out[..., c] = np.interp(v, self.rgb_points[:, 0], self.rgb_points[:, c + 1])
         out[..., 3] = np.interp(v, self.alpha_points[:, 0], self.alpha_points[:, 1])
         return out
+
+    @functools.cached_property
+    def table(self) -> LookupTable:
+        """`lookup_table` of the merged knots, made once per transfer function (a
+        renderer looks it up every frame of every domain)."""
+        return lookup_table(*self.merged_knots(np.float64))
 
     def merged_knots(self, dtype=np.float32):
         """Knots of the whole RGBA function: ``(xs (K,), rgba (K, 4))`` in `dtype`.

@@ -13,7 +13,7 @@ import pytest
 
 from exabricks import schema
 from exabricks.auto_transfer import (
-    ambient_band, automatic_transfer_function, opacity_shape, suggested_iso_value,
+    KNOT_LATTICE, ambient_band, automatic_transfer_function, opacity_shape, suggested_iso_value,
 )
 from exabricks.camera import Camera
 from exabricks.engine.renderer import Renderer
@@ -115,7 +115,10 @@ def test_the_automatic_transfer_function():
     assert tf.evaluate(0.0)[3] == 0.0 and tf.evaluate(0.8)[3] > 0.1
     assert 0 < tf.alpha_points[:, 1].max() <= 0.9
     table = lookup_table(*tf.merged_knots(np.float64))
-    assert max(table.error_rgb, table.error_alpha) <= 1.0 / 1024
+    # its knots on KNOT_LATTICE: an exact table of at most that many intervals
+    assert len(table.rows) - 2 <= KNOT_LATTICE and table.rows.nbytes <= 16 * (KNOT_LATTICE + 2)
+    assert max(table.error_rgb, table.error_alpha) <= 1e-12
+    assert tf.table is tf.table  # made once per function
     hist = np.zeros(10)
     hist[[2, 3, 4]] = [0.04, 1.0, 0.06]
     assert ambient_band(hist) == (3, 4)

@@ -22,7 +22,7 @@ from exabricks.image_io import read_image
 from exabricks.sizes import parse_size
 from exabricks.engine.partition import domain_plan, domain_bytes
 from exabricks.engine.renderer import Renderer
-from exabricks.engine.streaming import (HELD, PER_BRICK, SLACK, Budgeted, Resident, image_bytes,
+from exabricks.engine.streaming import (HELD, SLACK, Budgeted, Resident, fixed_bytes, image_bytes,
                                         render_steps, render_tiled)
 
 from conftest import GERRIS, assert_one_error_line, peak_rss
@@ -75,7 +75,7 @@ def budget_for(name, scene, domains: int) -> int:
     """A budget whose domains each hold at most 1/`domains` of the whole: at least
     that many domains."""
     n_bricks = loaded(name)[0].bricks.n_bricks
-    return int(image_bytes(scene) + PER_BRICK * n_bricks + SLACK * whole_bytes(name, scene) / domains) + 1
+    return int(fixed_bytes(scene, n_bricks) + SLACK * whole_bytes(name, scene) / domains) + 1
 
 
 def same(a, b):
@@ -154,7 +154,7 @@ def test_a_budget_too_small_says_what_it_needs():
         Budgeted(built.bricks, built.regions, scene, image_bytes(scene))
     with pytest.raises(ExabricksError, match="too small for this dataset: the smallest domain"):
         Budgeted(built.bricks, built.regions, scene,
-                 image_bytes(scene) + PER_BRICK * built.bricks.n_bricks + 200)
+                 fixed_bytes(scene, built.bricks.n_bricks) + 200)
 
 
 def test_steps_offer_every_image_so_far_and_stop_at_the_deadline():

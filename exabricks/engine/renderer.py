@@ -61,7 +61,7 @@ from ..kernel_abi import LOD_LEVELS, PACKET_WIDTH
 from ..errors import ExabricksError
 from ..mesh import mesh_set
 from ..scene import Lighting, Scene, Settings, VolumeLayer
-from ..transfer_function import TABLE_TOLERANCE, knot_buckets, lookup_table
+from ..transfer_function import TABLE_TOLERANCE, knot_buckets
 from . import instances
 from .device_data import DatasetScale, DeviceDataset, gradient_scales
 from .grouped import Grouped
@@ -541,9 +541,8 @@ def frame_arrays(scene: Scene, device_dataset: DeviceDataset,
         first, n = knots(volume.transfer_function)
         offset = sum(len(b) for b in buckets)
         buckets.append(knot_buckets(xs[-1]))
-        table = (lookup_table(*volume.transfer_function.merged_knots(np.float64))
-                 if scene.settings.tf_lookup == "table" else None)
-        exact = table is None or max(table.error_rgb, table.error_alpha) > TABLE_TOLERANCE
+        table = _table(volume, scene.settings)
+        exact = table is None
         table_at.append(-1 if exact else floats.add(table.rows, 4) // 4)
         tables.append({"lookup": "exact"} if exact else
                       {"lookup": "table", "intervals": len(table.rows) - 2,
@@ -599,6 +598,20 @@ def frame_arrays(scene: Scene, device_dataset: DeviceDataset,
         "copy_rows": 0 if copies is None else copies.shape[1],
     }
     return (floats.array(), ints.array()), params, tables
+
+
+def _table(volume, settings):
+    """The lookup table of a volume layer, or None where it is looked up exactly
+    (--tf-lookup exact, or its table further than TABLE_TOLERANCE from the knots)."""
+    if settings.tf_lookup != "table":
+        return None
+    table = volume.transfer_function.table
+    return None if max(table.error_rgb, table.error_alpha) > TABLE_TOLERANCE else table
+
+
+def table_bytes(scene: Scene) -> int:
+    """Bytes of the lookup tables that `frame_arrays` puts in the look of `scene`."""
+    return sum(t.rows.nbytes for t in (_table(v, scene.settings) for v in scene.volumes) if t)
 
 
 def over_background(rgba: np.ndarray, background) -> np.ndarray:

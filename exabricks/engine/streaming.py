@@ -40,7 +40,7 @@ from ..errors import ExabricksError
 from .device_data import DatasetScale
 from .partition import (GRAIN, budget_partition, eye_lattice, mib, domain_data, domain_options,
                         region_blocks)
-from .renderer import Renderer, RenderResult, over_background
+from .renderer import Renderer, RenderResult, over_background, table_bytes
 
 # A domain's bytes (partition.domain_bytes) times this must fit the budget left
 # after the images: while a domain is made, its copies from the files, its
@@ -57,6 +57,11 @@ PER_BRICK = 5
 # twice, within it (docs/benchmarks.md, "Domains kept across samples, bands and
 # frames").
 HELD = 2
+# Copies of a frame's transfer-function lookup tables (renderer.table_bytes) while
+# a domain draws: the transfer function's own, the look's host array and its
+# device buffer. A log-scaled function's irregular knots take tables of up to
+# 1 MiB a layer.
+TABLE_COPIES = 3
 
 
 def image_bytes(scene, tile=None) -> int:
@@ -66,6 +71,14 @@ def image_bytes(scene, tile=None) -> int:
     width, height = int(scene.settings.width), int(scene.settings.height)
     rows = height if tile is None else min(int(tile[1]), height)
     return 4 * width * rows * 16
+
+
+def fixed_bytes(scene, n_bricks: int, tile=None) -> int:
+    """Host bytes a budgeted frame of `scene` holds whatever its domains: the
+    images (image_bytes), the transfer-function lookup tables while a domain
+    draws (TABLE_COPIES) and the indices over the dataset's `n_bricks` bricks
+    (PER_BRICK)."""
+    return image_bytes(scene, tile) + TABLE_COPIES * table_bytes(scene) + PER_BRICK * n_bricks
 
 
 class Resident:
@@ -133,16 +146,17 @@ class Budgeted:
         # ceil(spp / that) times instead of spp times
         frame = image_bytes(scene, self.tile) // 4
         self.samples_per_read = int(min(scene.settings.spp, 1 + (self.budget // 4) // max(frame, 1)))
-        fixed = (image_bytes(scene, self.tile) + (self.samples_per_read - 1) * frame
-                 + PER_BRICK * self.bricks.n_bricks + reads)
+        self.tables = table_bytes(scene)
+        fixed = (fixed_bytes(scene, self.bricks.n_bricks, self.tile)
+                 + (self.samples_per_read - 1) * frame + reads)
         # a domain being made takes SLACK times its bytes; one made on a thread while
         # the one before it draws (prefetch) takes that beside the one drawing
         room = int((self.budget - fixed) / (SLACK + HELD if self.prefetch else SLACK))
         if room <= 0:
             raise ExabricksError(
                 f"a memory budget of {mib(self.budget)} leaves nothing for the data besides "
-                f"{mib(fixed)} of images, indices over the dataset's {self.bricks.n_bricks:,} "
-                f"bricks and reads from its files")
+                f"{mib(fixed)} of images, transfer-function tables, indices over the "
+                f"dataset's {self.bricks.n_bricks:,} bricks and reads from its files")
         self.options, self.room, self.capacity = options, room, self.budget - fixed
         self._settle()
         self._cache.clear()
@@ -161,7 +175,8 @@ class Budgeted:
                     "raise the budget or leave them out")
 
     def order(self, scene) -> list[int]:
-        if domain_options(self.bricks, scene) != self.options or set(scene.fields()) - set(self.fields):
+        if (domain_options(self.bricks, scene) != self.options or set(scene.fields()) - set(self.fields)
+                or table_bytes(scene) > self.tables):
             self.fields = scene.fields()
             self.scale = DatasetScale.of(self.bricks, self.fields)
             self._plan(scene)
