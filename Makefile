@@ -10,7 +10,7 @@ OUT    ?= out
 DATA    = exabricks/data/gerris-plume
 SUDO   := $(shell [ "$$(id -u)" = 0 ] || echo sudo)
 
-.PHONY: setup system-deps demo lint test test-slow fuzz test-slurm test-all bench bench-large gallery clean browser-deps
+.PHONY: setup system-deps demo lint test test-slow fuzz test-slurm test-gauge kernel-resources test-all bench bench-large gallery clean browser-deps
 
 system-deps:
 	@if ! ls /etc/OpenCL/vendors/*.icd >/dev/null 2>&1; then \
@@ -77,7 +77,7 @@ WORKERS ?= 2
 # The fast suite (minutes): everything but the `slow` tests; each fuzzer runs a
 # few examples (EXABRICKS_FUZZ_EXAMPLES, default in tests/conftest.py).
 test: setup
-	$(PY) -m pytest -q -n $(WORKERS) --dist loadfile -m "not slow and not slurm"
+	$(PY) -m pytest -q -n $(WORKERS) --dist loadfile -m "not slow and not slurm and not gauge"
 
 # Headless Chromium and its driver for the viewer's browser tests (tests/test_view.py).
 browser-deps:
@@ -102,7 +102,16 @@ test-slurm: setup
 	EXABRICKS_SLURM=1 $(PY) -m pytest -q -m "slurm"
 
 # What CI runs: the linter and all four suites.
-test-all: lint test test-slow fuzz test-slurm
+# The kernels' NVIDIA registers, stack and spills against their budgets, offline
+# (../shared/tools/gpu-proxy, set up once by its setup.sh; benchmarks/gpu_gauge.py).
+test-gauge: setup
+	$(PY) -m pytest -q -m "gauge"
+
+# The same figures as a table in docs/benchmarks.md.
+kernel-resources: setup
+	$(PY) -m benchmarks.gpu_gauge --write-docs
+
+test-all: lint test test-slow fuzz test-gauge test-slurm
 
 # Every benchmark, in order, each replacing its own "## section" of docs/benchmarks.md
 # (median of 5 runs after a warm-up; figures are only meaningful on a quiet machine).
