@@ -1,15 +1,19 @@
 """`exabricks view` against hostile inputs (issue 49, the viewer's part): a frame
-in progress is cancelled by a newer change within a second, and one change may
-ask only so much; a FIFO or a device as --scene-out is refused and a save never
-holds the server's loop; a built-in preset name never makes the server read a
-file; a non-ASCII cookie gets 403, not 500."""
+in progress is cancelled by a newer change within a second, under a memory
+budget too, and one change may ask only so much; a FIFO or a device as
+--scene-out is refused and a save never holds the server's loop; a built-in
+preset name never makes the server read a file; a non-ASCII cookie gets 403, not
+500; listening on every interface, the server answers this machine's own
+addresses (and no other name) and warns that the token alone guards it."""
 
 from __future__ import annotations
 
 import asyncio
+import ipaddress
 import json
 import logging
 import os
+import socket
 import threading
 import time
 
@@ -142,16 +146,88 @@ def test_a_save_never_holds_the_servers_loop(tmp_path, monkeypatch):
         os.close(fd)
 
 
+def own_address() -> str:
+    """An address of this machine that is not loopback (the one its route out
+    leaves from; connecting a UDP socket sends nothing), else the test is skipped."""
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as probe:
+        try:
+            probe.connect(("10.255.255.255", 1))
+            address = probe.getsockname()[0]
+        except OSError:
+            address = None
+    if address is None or ipaddress.ip_address(address).is_loopback:
+        pytest.skip("this machine has no address but loopback")
+    return address
+
+
+def test_every_interface_answers_this_machines_addresses_and_warns():
+    """`--host 0.0.0.0`: a page opened at this machine's own address is served and
+    its websocket's Origin accepted; any other name still gets 403 (DNS rebinding),
+    and so does a request without the token; the server warns, once started, that it
+    is reachable from the network, with a URL that works. On loopback, no warning."""
+    from exabricks.viewer.server import Viewer
+
+    address = own_address()
+    viewer = Viewer(StubSession(), host="0.0.0.0")
+
+    async def body(base):
+        port = base.rsplit(":", 1)[1]
+        mine = f"http://{address}:{port}"
+        async with aiohttp.ClientSession() as s:
+            async def get(url, **headers):
+                async with s.get(url, headers=headers) as r:
+                    return r.status
+
+            statuses = [await get(f"{mine}/?token={viewer.token}"),
+                        await get(f"{mine}/viewer.js?token={viewer.token}"),
+                        await get(f"{base}/?token={viewer.token}"),
+                        await get(f"{mine}/?token={viewer.token}", Host=f"evil.example:{port}"),
+                        await get(f"{mine}/?token={viewer.token}", Host=f"{address}.nip.io:{port}"),
+                        await get(f"{mine}/")]
+            if viewer.warning:  # the URL it names for another machine works
+                statuses.append(await get(viewer.warning.split()[-1]))
+            async with s.ws_connect(f"{mine}/ws?token={viewer.token}", headers={"Origin": mine}) as ws:
+                init = json.loads((await asyncio.wait_for(ws.receive(), 10)).data)
+            with pytest.raises(aiohttp.WSServerHandshakeError) as refused:
+                await s.ws_connect(f"{mine}/ws?token={viewer.token}", headers={"Origin": "http://evil.example"})
+        return statuses, init, refused.value.status
+
+    statuses, init, refused = serving(viewer, body)
+    assert statuses == [200, 200, 200, 403, 403, 403, 200], statuses
+    assert init["type"] == "init" and refused == 403
+    assert "reachable from the network" in viewer.warning and "only by its token" in viewer.warning
+    assert f"token={viewer.token}" in viewer.warning and "0.0.0.0" not in viewer.warning.split()[-1]
+
+    loopback = Viewer(StubSession())
+    serving(loopback, lambda base: asyncio.sleep(0))
+    assert loopback.warning is None
+
+
 # -- a real Session (the device) ---------------------------------------------------
+
+BUDGET = 4 << 20  # the Gerris plume in 4 domains at 100x60
 
 
 @pytest.fixture(scope="module")
-def session(tmp_path_factory):
+def cache(tmp_path_factory):
+    return tmp_path_factory.mktemp("cache")
+
+
+@pytest.fixture(scope="module")
+def session(cache):
     import exabricks as eb
     from exabricks.viewer.session import Session
 
-    return Session(eb.open(GERRIS, cache=tmp_path_factory.mktemp("cache")),
-                   options={"field": "T", "size": (64, 48)})
+    return Session(eb.open(GERRIS, cache=cache), options={"field": "T", "size": (64, 48)})
+
+
+@pytest.fixture(scope="module")
+def budgeted(cache):
+    """A viewer's session under `--memory-budget` (frames streamed domain by domain)."""
+    import exabricks as eb
+    from exabricks.viewer.session import Session
+
+    return Session(eb.open(GERRIS, cache=cache), options={"field": "T", "size": (64, 48)}, budget=BUDGET)
 
 
 def test_a_builtin_preset_name_never_reads_a_file(session, tmp_path, monkeypatch):
@@ -195,6 +271,88 @@ def test_a_tiled_frame_is_the_whole_frame(session, monkeypatch):
         monkeypatch.setattr(module, "TILE_SAMPLES", budget)
         tiled = session.draw("converged", scene, cancelled=lambda: False)
         assert tiled.png == whole.png
+
+
+def test_a_budgeted_frame_in_tiles_is_the_whole_frame(budgeted, monkeypatch):
+    """Under a memory budget, the frame drawn in tiles of columns (so that a newer
+    change can drop it) is the frame `render --memory-budget` draws, pixel for pixel."""
+    from exabricks.viewer import session as module
+
+    scene = budgeted.check({**budgeted.doc, "size": [100, 60], "spp": 3})
+    whole = budgeted.draw("converged", scene)
+    assert budgeted._domains[1].n_domains > 1
+    monkeypatch.setattr(module, "TILE_SAMPLES", 60 * 16)  # 16 columns a tile
+    tiled = budgeted.draw("converged", scene, cancelled=lambda: False)
+    assert tiled.png == whole.png
+
+
+def test_a_budgeted_frame_is_dropped_by_a_newer_change(budgeted, monkeypatch):
+    """Under a memory budget, a newer change drops the frame at the next tile,
+    domain or sample: nothing more is drawn of it (sample by sample at 1 spp;
+    samples drawn together with each domain read at 4)."""
+    from exabricks.engine.renderer import Renderer
+    from exabricks.viewer import session as module
+    from exabricks.viewer.session import Cancelled
+
+    drawn, newer = [], threading.Event()
+    render_scene = Renderer.render_scene
+
+    def drawing(self, *args, **kwargs):  # a newer change comes while the first tile draws
+        drawn.append(kwargs.get("window"))
+        newer.set()
+        return render_scene(self, *args, **kwargs)
+
+    monkeypatch.setattr(Renderer, "render_scene", drawing)
+    monkeypatch.setattr(module, "TILE_SAMPLES", 60 * 16)  # 16 columns a tile
+    for spp in (1, 4):
+        scene = budgeted.check({**budgeted.doc, "size": [100, 60], "spp": spp})
+        drawn.clear()
+        newer.clear()
+        with pytest.raises(Cancelled):
+            budgeted.draw("converged", scene, cancelled=newer.is_set)
+        assert len(drawn) == 1 and budgeted._domains[1].n_domains > 1, (spp, len(drawn))
+
+
+def cancelled_after(session, size, spp) -> float:
+    """Seconds from a newer change to the drop of a frame of `size` at `spp`
+    drawn for a second."""
+    from exabricks.viewer.session import Cancelled
+
+    scene = session.check({**session.doc, "size": list(size), "spp": spp})
+    newer = threading.Event()
+    outcome = []
+
+    def draw():
+        try:
+            session.draw("converged", scene, cancelled=newer.is_set)
+            outcome.append("drawn")
+        except Cancelled:
+            outcome.append(time.perf_counter())
+
+    thread = threading.Thread(target=draw)
+    thread.start()
+    time.sleep(1.0)
+    asked = time.perf_counter()
+    newer.set()
+    thread.join(30)
+    assert not thread.is_alive() and outcome and outcome[0] != "drawn", outcome
+    return outcome[0] - asked
+
+
+@pytest.mark.slow
+def test_the_largest_budgeted_frame_is_cancelled_within_a_second(cache):
+    """Under a memory budget too: the largest frames one change may ask (under a
+    budget that holds their images) are dropped within a second of the newer change."""
+    import exabricks as eb
+    from exabricks.viewer.session import MAX_SAMPLES, Session
+
+    dataset = eb.open(GERRIS, cache=cache)
+    for budget, size, spp in ((3 << 30, (32768, MAX_SAMPLES // 32768), 1), (8 << 20, (1024, 32), 1024)):
+        session = Session(dataset, options={"field": "T", "size": (64, 48)}, budget=budget)
+        took = cancelled_after(session, size, spp)
+        print(f"--memory-budget {session.budget >> 20}M, {size[0]}x{size[1]} at {spp} spp: "
+              f"cancelled {took * 1e3:.0f} ms after the newer change")
+        assert took < 1.0, took
 
 
 @pytest.mark.slow

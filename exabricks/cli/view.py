@@ -47,6 +47,8 @@ def view(inputs, device, host, port, scene_out, open_browser, **options):
 
     def announce(url):
         click.echo(f"exabricks view: {url}", err=True)
+        if viewer.warning:
+            click.echo(f"exabricks view: warning: {viewer.warning}", err=True)
         click.echo("  (Ctrl-C stops it)", err=True)
         import sys
 

@@ -294,7 +294,7 @@ class Budgeted:
 
 
 def render_steps(domains, scene, *, band=None, tile_width=None, deadline: float | None = None,
-                 on_image=None) -> RenderResult:
+                 on_image=None, stop=None) -> RenderResult:
     """One frame of `scene` from `domains` (Resident or Budgeted) step by step
     (module docstring). `on_image(rgba, progress)` is called after every step
     but the last with the premultiplied image so far (over the background) and
@@ -304,7 +304,13 @@ def render_steps(domains, scene, *, band=None, tile_width=None, deadline: float 
     `band` (first row, rows): draw only those rows of the frame, in tiles of
     `tile_width` columns (render_tiled; no deadline or on_image then); the
     result is the band. A domain is read only when its footprint on the screen
-    meets a tile, and then draws only the tiles it meets."""
+    meets a tile, and then draws only the tiles it meets. Without `band`,
+    `tile_width` draws the whole frame in tiles of that many columns, every
+    domain only once for each sample (or samples_per_read samples) all the same.
+
+    `stop()`, called before every tile of every domain and sample (and before a
+    domain is read), ends the frame by raising (the viewer's Cancelled: a newer
+    change came): a frame is dropped within one tile's drawing."""
     cfg = scene.settings
     spp, width, height = int(cfg.spp), int(cfg.width), int(cfg.height)
     row0, rows = (0, height) if band is None else (int(band[0]), int(band[1]))
@@ -326,7 +332,7 @@ def render_steps(domains, scene, *, band=None, tile_width=None, deadline: float 
     if several and group > 1:
         for first in range(0, spp, group):
             over, stats, n = _group(domains, scene, plain, order, meets, whole, rows, width,
-                                    range(first, min(spp, first + group)), total)
+                                    range(first, min(spp, first + group)), total, stop)
             samples += n
         done_samples, done_domains, drawn = spp, len(order), rows
     for sample in range(done_samples, spp):
@@ -337,6 +343,8 @@ def render_steps(domains, scene, *, band=None, tile_width=None, deadline: float 
             if k and deadline is not None and time.perf_counter() > deadline:
                 break
             for tile in meets[index]:
+                if stop is not None:
+                    stop()
                 c, _, w, _ = tile
                 front = None
                 if several and over is not None:
@@ -393,17 +401,20 @@ def render_steps(domains, scene, *, band=None, tile_width=None, deadline: float 
     return RenderResult(rgba, depth, stats)
 
 
-def _group(domains, scene, plain, order, meets, whole, rows, width, group, total):
+def _group(domains, scene, plain, order, meets, whole, rows, width, group, total, stop=None):
     """The samples `group` of a frame drawn domain after domain, each domain made
     once for all of them (its rays of each sample continuing that sample's image
     in front), their images added into `total`: (the last sample's image, the
-    last stats, samples taken). No depth: a depth frame has one domain."""
+    last stats, samples taken); `stop()` before every tile of every sample
+    (render_steps). No depth: a depth frame has one domain."""
     overs = dict.fromkeys(group)
     stats, samples = {}, 0
     for index in order:
         for tile in meets[index]:
             c, _, w, _ = tile
             for sample in group:
+                if stop is not None:
+                    stop()
                 over = overs[sample]
                 front = None if over is None else (over if whole else np.ascontiguousarray(over[:, c:c + w]))
                 result = domains.domain(index, scene).render_scene(

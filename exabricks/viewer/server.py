@@ -5,8 +5,11 @@ Security, as a Jupyter server has it (docs/view.md):
 - it listens on the loopback interface unless told otherwise (`--host`);
 - every request needs the random token of the printed URL, as `?token=` or as the
   cookie the page gets with it; anything else is 403;
-- the Host header must name this server (no DNS rebinding), and a websocket's
-  Origin must be this server's own page;
+- the Host header must name this server (no DNS rebinding): the loopback names,
+  `--host`, and, listening on every interface (`--host 0.0.0.0` or `::`), this
+  machine's names and addresses (_own_names); a websocket's Origin must be this
+  server's own page; listening beyond the loopback interface, it warns once
+  (Viewer.warning) that the token alone guards it;
 - nothing a page sends names a file: the page reads its assets by fixed names, and a
   scene from the page may hold no file reference but the mesh files the viewer was
   started with (session._no_files);
@@ -31,10 +34,12 @@ from __future__ import annotations
 
 import asyncio
 import hmac
+import ipaddress
 import json
 import logging
 import os
 import secrets
+import socket
 import stat
 import threading
 from importlib import resources
@@ -49,6 +54,9 @@ COOKIE = "exabricks_view_token"
 ASSETS = {"/": ("index.html", "text/html"), "/viewer.js": ("viewer.js", "text/javascript"),
           "/viewer.css": ("viewer.css", "text/css")}
 MAX_MESSAGE = 1 << 20
+# Addresses that mean every interface (and the loopback address its URL names).
+WILDCARDS = {"0.0.0.0": "127.0.0.1", "::": "::1", "": "127.0.0.1"}
+SIOCGIFADDR = 0x8915  # Linux's ioctl for an interface's IPv4 address
 
 
 class Viewer:
@@ -66,17 +74,19 @@ class Viewer:
         self.lock = asyncio.Lock()  # one frame on the device at a time
         self.runner = None
         self.sockets = set()  # the open pages' websockets, closed on stopping
+        self.names = set()  # this machine's names and addresses, listening on every interface
+        self.warning = None  # one line, listening beyond the loopback interface
 
     # -- checks ---------------------------------------------------------------
 
     def _allowed_hosts(self) -> set[str]:
-        names = {"127.0.0.1", "localhost", "[::1]", self.host}
-        return {f"{n}:{self.port}" for n in names}
+        names = {"127.0.0.1", "localhost", "::1", self.host, *self.names}
+        return {f"{_url_host(n)}:{self.port}".lower() for n in names}
 
     def _check(self, request) -> None:
         from aiohttp import web
 
-        if request.host not in self._allowed_hosts():
+        if request.host.lower() not in self._allowed_hosts():
             raise web.HTTPForbidden(text="unknown host")
         given = request.query.get("token") or _cookie(request) or ""
         if not hmac.compare_digest(given.encode("utf-8", "surrogateescape"), self.token.encode()):
@@ -103,7 +113,7 @@ class Viewer:
 
         self._check(request)
         origin = request.headers.get("Origin")
-        if origin is not None and origin not in {f"http://{h}" for h in self._allowed_hosts()}:
+        if origin is not None and origin.lower() not in {f"http://{h}" for h in self._allowed_hosts()}:
             raise web.HTTPForbidden(text="cross-origin websocket refused")
         ws = web.WebSocketResponse(max_msg_size=MAX_MESSAGE, heartbeat=30)
         await ws.prepare(request)
@@ -146,9 +156,24 @@ class Viewer:
             await self.runner.cleanup()
             raise ExabricksError(f"--host {self.host} --port {self.port}: cannot listen there "
                                  f"({e.strerror or e})") from None
+        bound = [sock.getsockname()[0] for sock in site._server.sockets]
         self.port = site._server.sockets[0].getsockname()[1]
-        host = f"[{self.host}]" if ":" in self.host else self.host
-        return f"http://{host}:{self.port}/?token={self.token}"
+        url = f"http://{_url_host(WILDCARDS.get(self.host, self.host))}:{self.port}/?token={self.token}"
+        if self.host in WILDCARDS:
+            self.names = _own_names()
+        if not all(_loopback(a) for a in bound):
+            elsewhere = url
+            if self.host in WILDCARDS:
+                # an address of this machine another one can reach (of the family
+                # listened on first, link-local last), else its name
+                outside = sorted((a for a in self.names if _address(a) is not None and not _loopback(a)),
+                                 key=lambda a: ((":" in a) != (":" in self.host),
+                                                _address(a).is_link_local, a))
+                name = outside[0] if outside else socket.getfqdn()
+                elsewhere = f"http://{_url_host(name)}:{self.port}/?token={self.token}"
+            self.warning = (f"--host {self.host}: the viewer is reachable from the network, guarded "
+                            f"only by its token; from another machine open {elsewhere}")
+        return url
 
     async def stop(self) -> None:
         """Close the open pages' websockets (else the server waits out aiohttp's
@@ -283,6 +308,58 @@ class _Page:
             self.task.cancel()
         for save in list(self.saves):
             save.cancel()
+
+
+def _url_host(name: str) -> str:
+    """`name` as a URL's (and a Host header's) host: an IPv6 address in brackets."""
+    return f"[{name}]" if ":" in name else name
+
+
+def _address(name: str):
+    """The IP address `name` is, or None (a host name)."""
+    try:
+        return ipaddress.ip_address(name.split("%")[0])
+    except ValueError:
+        return None
+
+
+def _loopback(name: str) -> bool:
+    address = _address(name)
+    return name == "localhost" if address is None else address.is_loopback
+
+
+def _own_names() -> set[str]:
+    """This machine's names and addresses, any of which a page on another machine
+    may name in its Host header when the server listens on every interface: the
+    host name and its FQDN, what they resolve to, and each interface's addresses
+    (on Linux: the first IPv4 address of each by SIOCGIFADDR, every IPv6 one from
+    /proc/net/if_inet6). Never an error: what cannot be found is left out."""
+    names = {socket.gethostname(), socket.getfqdn()} - {""}
+    for name in list(names):
+        try:
+            names |= {info[4][0].split("%")[0] for info in socket.getaddrinfo(name, None)}
+        except (OSError, UnicodeError):
+            pass
+    try:
+        import fcntl
+        import struct
+
+        with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as probe:
+            for _, interface in socket.if_nameindex():
+                try:
+                    request = struct.pack("256s", interface.encode()[:15])
+                    names.add(socket.inet_ntoa(fcntl.ioctl(probe.fileno(), SIOCGIFADDR, request)[20:24]))
+                except OSError:  # no IPv4 address there
+                    pass
+    except (ImportError, OSError, AttributeError):  # not Linux
+        pass
+    try:
+        with open("/proc/net/if_inet6") as f:
+            for line in f:
+                names.add(ipaddress.IPv6Address(bytes.fromhex(line.split()[0])).compressed)
+    except (OSError, ValueError, IndexError):
+        pass
+    return names
 
 
 def _cookie(request) -> str | None:

@@ -239,7 +239,8 @@ class Session:
         """One stage's frame as PNG bytes: the pixels `render -o frame.png` writes of
         the same scene (composited over its opaque backdrop, exabricks.image_io), or
         `Image.shown()` of a --transparent scene's. `cancelled()`, looked at between
-        the tiles of a frame larger than TILE_SAMPLES, raises Cancelled when true."""
+        the tiles of a frame larger than TILE_SAMPLES (under a memory budget, also
+        between its domains and samples), raises Cancelled when true."""
         from PIL import Image as PILImage
 
         from ..annotate import png_backdrop
@@ -248,7 +249,7 @@ class Session:
         started = time.perf_counter()
         s = scene.settings
         if self.budget is not None:
-            image = self._budgeted(scene)
+            image = self._budgeted(scene, cancelled)
         elif cancelled is None or int(s.width) * int(s.height) * int(s.spp) <= TILE_SAMPLES:
             image = self.renderer.render(scene)
         else:
@@ -298,18 +299,31 @@ class Session:
                  "samples_per_second": samples / seconds if seconds > 0 else 0.0}
         return Image(rgba, None, {"settings": stats}, scene=scene)
 
-    def _budgeted(self, scene):
-        """The frame drawn domain by domain within the memory budget, as `render
-        --memory-budget` draws it (exabricks.engine.streaming)."""
+    def _budgeted(self, scene, cancelled=None):
+        """The frame drawn domain by domain within the memory budget, the pixels
+        `render --memory-budget` draws (exabricks.engine.streaming); with
+        `cancelled`, in tiles of whole columns of at most TILE_SAMPLES pixels (each
+        domain drawn once a sample all the same), Cancelled before any tile, domain
+        or sample once `cancelled()` is true."""
         from ..engine.streaming import Budgeted, render_steps
         from ..image import Image
+
+        stop = tile_width = None
+        if cancelled is not None:
+            def stop():
+                if cancelled():
+                    raise Cancelled
+
+            width, height = int(scene.settings.width), int(scene.settings.height)
+            if width * height > TILE_SAMPLES:  # each step draws one sample
+                tile_width = max(1, TILE_SAMPLES // height)
         key = (scene.fields(), scene.settings.width, scene.settings.height)
         if self._domains is None or self._domains[0] != key:
             paths = self.renderer.dataset.paths
             bricks, regions, _ = self.renderer.dataset.load("data")
             self._domains = (key, Budgeted(bricks, regions, scene, self.budget, device=self.device,
                                            where=tuple(map(str, paths[:2]))))
-        result = render_steps(self._domains[1], scene)
+        result = render_steps(self._domains[1], scene, tile_width=tile_width, stop=stop)
         return Image(result.rgba, None, {"settings": result.stats}, scene=scene)
 
 
