@@ -12,11 +12,21 @@ probe therefore enqueue their work in chunks of well under a second. A signal
 whose exception was swallowed by library code (a finaliser, a thread) is still
 recorded: `raise_pending` re-raises it, and `write_output` calls it before
 putting an output in place.
+
+A signal that lands while the main thread imports a module is held until the
+outermost import returns (`install` routes the `import` statement through
+`_deferring_import`): an exception raised inside the initialisation of a
+native extension (pyopencl's nanobind types, numba's C modules) aborts the
+process or leaves a half-made module behind, where it should end the run with
+the interrupted line.
 """
 
 from __future__ import annotations
 
+import builtins
 import signal
+import sys
+import threading
 
 
 SIGNALS = tuple(s for s in (signal.SIGTERM, getattr(signal, "SIGHUP", None), signal.SIGINT) if s)
@@ -39,8 +49,23 @@ class Interrupted(BaseException):
         return 128 + self.signum
 
 
+# Imports the main thread is inside (`_deferring_import`), whether signals wait for
+# `install` (install(hold=True)), and a signal held meanwhile.
+_importing = 0
+_holding = False
+_held: list[int] = []
+_import = builtins.__import__
+
+
 def _handler(signum, frame):
     _received.append(signum)
+    if _importing or _holding:
+        _held.append(signum)
+    else:
+        _stop(signum)
+
+
+def _stop(signum: int):
     for cleanup in _cleanups:
         cleanup()
     for s in SIGNALS:  # a second signal must not interrupt the clean exit
@@ -54,13 +79,44 @@ def at_signal(cleanup) -> None:
         _cleanups.append(cleanup)
 
 
-def install() -> None:
-    """Route SIGTERM, SIGHUP and SIGINT to `Interrupted` (main thread only)."""
+def _deferring_import(*args, **kwargs):
+    """builtins.__import__, with a signal to the main thread held until the
+    outermost import returns (module docstring)."""
+    global _importing
+    if threading.current_thread() is not threading.main_thread():
+        return _import(*args, **kwargs)
+    _importing += 1
+    try:
+        return _import(*args, **kwargs)
+    finally:
+        _importing -= 1
+        if not (_importing or _holding) and _held:
+            _stop(_held.pop(0))
+
+
+def _unraisable(unraisable) -> None:
+    """sys.unraisablehook: an `Interrupted` that a callback from native code
+    swallowed (llvmlite's object cache while numba loads a function) is not
+    reported; it is recorded, and `raise_pending` raises it again."""
+    if not isinstance(unraisable.exc_value, Interrupted):
+        sys.__unraisablehook__(unraisable)
+
+
+def install(hold: bool = False) -> None:
+    """Route SIGTERM, SIGHUP and SIGINT to `Interrupted` (main thread only),
+    held during imports. `hold`: held until `install()` is called again (where
+    the caller can catch `Interrupted`), which raises one that came meanwhile."""
+    global _holding
+    _holding = hold
+    builtins.__import__ = _deferring_import
+    sys.unraisablehook = _unraisable
     for s in SIGNALS:
         try:
             signal.signal(s, _handler)
         except (ValueError, OSError):  # not the main thread, or an embedded interpreter
             pass
+    if not hold and _held:
+        _stop(_held.pop(0))
 
 
 def ignore() -> None:

@@ -6,6 +6,7 @@ a scheduler about a complete output."""
 from __future__ import annotations
 
 import os
+import random
 import signal
 import subprocess
 import sys
@@ -13,6 +14,7 @@ import time
 
 import pytest
 
+from conftest import FUZZ_EXAMPLES
 from test_hostile import TIMEOUT
 
 
@@ -36,4 +38,34 @@ def test_a_signal_once_the_output_is_in_place(signum, plume_trio, tmp_path):
             assert lines == [f"error: interrupted ({signal.Signals(signum).name})"], err
         else:
             assert lines == [], err
+        assert not [p for p in os.listdir(tmp_path) if p.endswith(".tmp")]
+
+
+@pytest.mark.fuzz
+def test_a_signal_during_start_up(plume_trio, tmp_path):
+    """A signal at a random moment of a render's start-up (the imports of
+    pyopencl's nanobind modules and numba's C modules, numba's cache, the kernel
+    build; issue 49, item 10) ends it with the interrupted line and 128 + N, or
+    it finished first; or the signal came before Python ran any of the command
+    (death by the signal; for SIGINT, Python's own KeyboardInterrupt). Never an
+    abort, an internal error or a message from a swallowed exception."""
+    rng = random.Random(49)
+    args = [sys.executable, "-m", "exabricks.cli.main", "render", *plume_trio,
+            "-o", str(tmp_path / "s.png"), "--size", "64", "64"]
+    start = time.perf_counter()
+    subprocess.run(args, check=True, capture_output=True, timeout=TIMEOUT)
+    whole = time.perf_counter() - start
+    for attempt in range(max(6, FUZZ_EXAMPLES // 3)):
+        signum = (signal.SIGTERM, signal.SIGHUP, signal.SIGINT)[attempt % 3]
+        proc = subprocess.Popen(args, stderr=subprocess.PIPE, text=True)
+        time.sleep(rng.uniform(0.0, whole))
+        proc.send_signal(signum)
+        err = proc.communicate(timeout=TIMEOUT)[1]
+        lines = [line for line in err.splitlines() if line.strip()]
+        name = signal.Signals(signum).name
+        before = proc.returncode == -signum and (
+            not lines or signum == signal.SIGINT and lines[-1] == "KeyboardInterrupt"
+            and "exabricks/cli" not in err)
+        assert (proc.returncode == 128 + signum and lines == [f"error: interrupted ({name})"]
+                or proc.returncode == 0 and not lines or before), (name, proc.returncode, err)
         assert not [p for p in os.listdir(tmp_path) if p.endswith(".tmp")]

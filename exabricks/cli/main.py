@@ -1,6 +1,12 @@
 """The `exabricks` click group and the one place where errors become exit statuses."""
+# ruff: noqa: E402 (run as a program, the signal handlers go in before the imports)
 
 from __future__ import annotations
+
+from .. import interrupt
+
+if __name__ == "__main__":  # python -m exabricks.cli.main: signals held from here to main()
+    interrupt.install(hold=True)
 
 import logging
 import os
@@ -9,7 +15,7 @@ import warnings
 
 import click
 
-from .. import __version__, interrupt
+from .. import __version__
 from ..errors import ExabricksError, one_line
 
 COMMANDS = (
@@ -99,13 +105,13 @@ def main(argv=None) -> None:
     debug = os.environ.get("EXABRICKS_DEBUG", "") not in ("", "0") or "--debug" in (
         argv if argv is not None else sys.argv[1:]
     )
-    interrupt.install()
     if not debug:
         # numpy's RuntimeWarnings (overflow, invalid value) would precede the one
         # `error:` line; every condition that matters is checked and named instead.
         warnings.simplefilter("ignore", RuntimeWarning)
     try:
         try:
+            interrupt.install()
             # Without standalone mode click *returns* the status of ctx.exit(N) instead of raising.
             status = cli.main(args=argv, prog_name="exabricks", standalone_mode=False)
             interrupt.raise_pending()
