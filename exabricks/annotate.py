@@ -29,6 +29,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .constants import MAX_TITLE_CHARS
 from .errors import ExabricksError
 from .image_io import to_png_pixels
 from .scene import Scene
@@ -370,6 +371,18 @@ def _ticks(lo: float, hi: float, n: int) -> tuple[np.ndarray, list[str]]:
     return ticks, labels
 
 
+def checked_title(title) -> str | None:
+    """`title` stripped (None for none or blanks); ExabricksError for what is not text
+    or is longer than MAX_TITLE_CHARS (one line above the frame)."""
+    if title is not None and not isinstance(title, str):
+        raise ExabricksError(f"title must be text, got {type(title).__name__}")
+    title = (title.strip() or None) if title else None
+    if title is not None and len(title) > MAX_TITLE_CHARS:
+        raise ExabricksError(f"title: {len(title):,} characters, more than the one line above "
+                             f"the frame holds (at most {MAX_TITLE_CHARS})")
+    return title
+
+
 def annotation_layout(frame_shape, scene: Scene, *, facts=None, title=None) -> Layout:
     """Where `annotate` puts the frame and each annotation, for a frame of
     `frame_shape` (H, W[, ...]) pixels drawn from `scene`. Arguments as `annotate`."""
@@ -379,9 +392,7 @@ def annotation_layout(frame_shape, scene: Scene, *, facts=None, title=None) -> L
     if height < 1 or width < 1:
         raise ExabricksError(f"frame size must be positive, got {width}x{height}")
     facts = _checked_facts(facts)
-    if title is not None and not isinstance(title, str):
-        raise ExabricksError(f"title must be text, got {type(title).__name__}")
-    title = (title.strip() or None) if title else None
+    title = checked_title(title)
     units = facts["field_units"]
     f = font_size(height, width)
     small = TICK_FONT * f

@@ -130,16 +130,18 @@ def probe(dataset, points, field: str | None = None, *, reconstruction: str = "b
     "vertex" (trilinear in stitched vertex values)."""
     from .scene import RECONSTRUCTIONS
     from .stages.probe import probe as probe_points
+    from .stages.probe import world_points
 
     if reconstruction not in RECONSTRUCTIONS:
         raise ExabricksError(f"reconstruction: expected one of {', '.join(RECONSTRUCTIONS)}, "
                              f"got {reconstruction!r}")
+    points = world_points(points)  # before the dataset is opened (and perhaps built)
     dataset = open(dataset)
     bricks, regions, bvh = dataset.structures()
     if field is not None and field not in bricks.fields:
         raise ExabricksError(f"no field {field!r} (fields: {', '.join(bricks.fields)})")
-    return probe_points(bricks, regions, bvh, np.asarray(points, dtype=np.float64), field=field,
-                        device=device, reconstruction=reconstruction)
+    return probe_points(bricks, regions, bvh, points, field=field, device=device,
+                        reconstruction=reconstruction)
 
 
 class Renderer:

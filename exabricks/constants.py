@@ -46,6 +46,11 @@ MAX_SAMPLES_PER_RAY = 1 << 20
 # and matplotlib's tables have at most a few hundred; the cap bounds the cost of
 # checking a hostile preset and the image metadata that embeds it.
 MAX_KNOTS = 4096
+# Characters of an annotated picture's title: one line above the frame, which the
+# picture widens to hold (200 characters at the title's size are about 2,000 pixels
+# beside a 512-pixel frame); a longer text is refused, not drawn for minutes into a
+# picture hundreds of thousands of pixels wide.
+MAX_TITLE_CHARS = 200
 
 # ingest's vocabulary (exabricks.stages.ingest), here so that the command line declares
 # ingest's options without importing the stage.

@@ -177,7 +177,9 @@ def open_source(path, options: dict | None = None, *, cache: str | os.PathLike |
     if unknown:
         raise ExabricksError(f"{path}: unknown ingest option(s) {', '.join(unknown)} "
                              f"(ingest takes {', '.join(defaults)})")
-    if not Path(path).exists():
+    from .readers import given_path
+
+    if not given_path(path).exists():
         raise ExabricksError(f"{path}: no such file or directory")
     if not (Path(path).is_file() or Path(path).is_dir()):
         raise ExabricksError(f"{path}: not a regular file or a directory (a source is a file or "

@@ -20,6 +20,7 @@ import hashlib
 import json
 import logging
 import os
+import stat
 import struct
 import zipfile
 from dataclasses import dataclass
@@ -31,6 +32,7 @@ import numpy as np
 from .constants import MAX_COORDINATE, MAX_TREE_DEPTH
 from .errors import ExabricksError
 from .formats.memory import check_memory
+from .jsonfile import kind_of
 
 log = logging.getLogger(__name__)
 
@@ -142,9 +144,11 @@ def _mesh_file(path) -> tuple[Path, int]:
         raise ExabricksError(f"{where}: a mesh must be an OBJ, PLY or STL file "
                              f"(found the suffix {path.suffix or 'none'!r})")
     try:
-        size = path.stat().st_size
-        if not path.is_file():
-            raise ExabricksError(f"{where}: not a regular file")
+        st = path.stat()
+        size = st.st_size
+        if not stat.S_ISREG(st.st_mode):
+            raise ExabricksError(f"{where}: cannot read the mesh: {kind_of(st.st_mode)}, not a "
+                                 "regular file")
     except OSError as e:
         raise ExabricksError(f"{where}: cannot read the mesh: {e.strerror or e}") from None
     if size > MAX_FILE_BYTES:

@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import logging
 import os
+import threading
 import time
 from contextlib import contextmanager
 from dataclasses import dataclass
@@ -209,7 +210,7 @@ def program_for(context, defines=(), source_name: str = ENTRY_SOURCE):
         what = "the renderer" if source_name == ENTRY_SOURCE else f"kernels/{source_name}"
         start = time.perf_counter()
         try:
-            with _compiling(what, device):
+            with _compiler_stderr() as terminal, _compiling(what, device, terminal):
                 _PROGRAMS[key] = cl.Program(context, source).build(options=options)
         except cl.RuntimeError as e:
             raise ExabricksError(f"{directory / source_name}: OpenCL build failed: {e}") from None
@@ -238,19 +239,79 @@ def _device_name(device) -> str:
 
 
 @contextmanager
-def _compiling(what: str, device: str):
-    """The terminal line of a compile of `what` for `device` (progress.waiting), shown
-    when it takes long; consecutive compiles (a frame's programs, then its kernel's
-    work-group function) share one line and one clock."""
+def _compiling(what: str, device: str, stream=None):
+    """The terminal line of a compile of `what` for `device` (progress.waiting, on
+    `stream`: default stderr), shown when it takes long; consecutive compiles (a
+    frame's programs, then its kernel's work-group function) share one line and one
+    clock."""
     now = time.perf_counter()
     since = _last_shown["since"] if now - _last_shown["until"] < _CONTINUE_SECONDS else now
     message = f"compiling {what} for {device} (first use of these options; cached afterwards)…"
-    with progress.waiting(message, since=since) as wait:
+    with progress.waiting(message, since=since, stream=stream) as wait:
         try:
             yield wait
         finally:
             if wait.shown:
                 _last_shown.update(since=wait.since, until=time.perf_counter())
+
+
+# One build at a time holds file descriptor 2 aside (`_compiler_stderr`).
+_STDERR_HELD = threading.Lock()
+
+
+@contextmanager
+def _compiler_stderr():
+    """Hold what is written to file descriptor 2 during a program build aside, and
+    write it there afterwards unless a signal came meanwhile; yields a stream on the
+    real stderr (for the build's terminal line).
+
+    PoCL compiles in the process with clang, which writes its "1 error generated."
+    to descriptor 2 itself, and whose own handlers of SIGINT and SIGTERM remove the
+    temporary file it is writing before Python's handler sees the signal: the
+    interrupted build fails, and its compiler output would precede the run's one
+    `error: interrupted` line (exabricks.interrupt). A build that fails without a
+    signal shows its output as before (and its log is in the error)."""
+    import sys
+    import tempfile
+
+    from . import interrupt
+
+    def flush():
+        try:
+            sys.stderr.flush()
+        except (AttributeError, OSError, ValueError):
+            pass
+
+    with _STDERR_HELD:
+        flush()
+        try:
+            saved = os.dup(2)
+        except OSError:  # no stderr to hold aside
+            saved = None
+        if saved is None:
+            yield None
+            return
+        quiet = False
+        try:
+            with tempfile.TemporaryFile() as held, os.fdopen(
+                    os.dup(saved), "w", encoding=getattr(sys.stderr, "encoding", None) or "utf-8",
+                    errors="backslashreplace") as terminal:
+                os.dup2(held.fileno(), 2)
+                try:
+                    yield terminal
+                except BaseException as e:
+                    quiet = not isinstance(e, Exception)  # Interrupted, KeyboardInterrupt
+                    raise
+                finally:
+                    flush()  # what Python wrote meanwhile is held too
+                    os.dup2(saved, 2)
+                    if not quiet and interrupt.pending() is None:
+                        held.seek(0)
+                        data = held.read()
+                        while data:
+                            data = data[os.write(2, data):]
+        finally:
+            os.close(saved)
 
 
 def _log_compile(what: str, seconds: float) -> None:

@@ -23,8 +23,10 @@ TICK_SECONDS = 0.25
 SPINNER = "|/-\\"
 
 
-def enabled() -> bool:
-    return sys.stderr.isatty() and os.environ.get("EXABRICKS_QUIET", "") in ("", "0")
+def enabled(stream=None) -> bool:
+    """Whether to draw on `stream` (default: stderr): a terminal, and no -q."""
+    stream = sys.stderr if stream is None else stream
+    return stream.isatty() and os.environ.get("EXABRICKS_QUIET", "") in ("", "0")
 
 
 def bar(total=None, desc: str = "", unit: str = "it", disable: bool = False, **kw) -> tqdm:
@@ -67,18 +69,21 @@ def _width(stream) -> int:
 
 
 @contextmanager
-def waiting(message: str, *, after: float | None = None, since: float | None = None):
+def waiting(message: str, *, after: float | None = None, since: float | None = None,
+            stream=None):
     """Say `message` on a terminal, with the seconds ticking and a spinner, once the block
     has taken `after` seconds (default announce_after()) counted from `since`
     (time.perf_counter(); default now); the line goes when the block ends. Off a
     terminal or under -q nothing is written. The block must wait without the GIL
-    (in a driver call, sleeping, reading files) for the line to tick. Yields a Wait."""
+    (in a driver call, sleeping, reading files) for the line to tick. `stream`: where
+    the line goes (default stderr; a kernel build's own stderr is held aside,
+    exabricks.opencl). Yields a Wait."""
     wait = Wait(time.perf_counter() if since is None else since)
     after = announce_after() if after is None else after
-    stream = sys.stderr
+    stream = sys.stderr if stream is None else stream
     done = threading.Event()
     thread = None
-    if enabled():
+    if enabled(stream):
 
         def draw():
             if done.wait(max(0.0, wait.since + after - time.perf_counter())):

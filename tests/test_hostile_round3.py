@@ -2,14 +2,16 @@
 each reproduced once and kept as a regression test: FIFOs that hung format
 detection, options that overflow the float32 the kernels read, mesh cache entries
 swapped with each other, meshes refused with the parser's internals, the library's
-kinds of error, and messages that blamed the wrong thing. Each ends in success or
-one `error:` line with exit 1, with nothing half-written."""
+kinds of error, messages that blamed the wrong thing, and the compiler's line before
+the interrupted one. Each ends in success or one `error:` line with exit 1, with
+nothing half-written."""
 
 from __future__ import annotations
 
 import os
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import numpy as np
@@ -17,7 +19,7 @@ import pytest
 
 from exabricks.errors import ExabricksError
 
-from conftest import GERRIS, assert_one_error_line
+from conftest import DEVICES, GERRIS, assert_one_error_line
 
 TIMEOUT = 120
 
@@ -209,3 +211,127 @@ def test_broken_meshes_name_the_real_problem(tmp_path, name, data, needles):
         read_mesh(path)
     for n in needles:
         assert n in str(info.value), str(info.value)
+
+
+# ---------------------------------------------------------------------------
+# 16. the library's kinds of error: ExabricksError naming the input, never a
+# ValueError from deep inside
+
+
+@pytest.fixture(scope="module")
+def plume_dataset():
+    import exabricks as eb
+    return eb.open(GERRIS)
+
+
+NAN, INF = float("nan"), float("inf")
+
+
+@pytest.mark.parametrize("call,needles", [
+    (lambda eb, ds, tmp: eb.open(""), ("empty path",)),
+    (lambda eb, ds, tmp: eb.render(ds, spp=NAN, size=(8, 8)), ("spp", "nan")),
+    (lambda eb, ds, tmp: eb.Renderer(ds).scene(spp=NAN), ("spp", "nan")),
+    (lambda eb, ds, tmp: eb.render(ds, size=(NAN, 8)), ("size", "nan")),
+    (lambda eb, ds, tmp: eb.render(ds, seed=INF, size=(8, 8)), ("seed", "inf")),
+    (lambda eb, ds, tmp: eb.render(ds, spp=1 + 2j, size=(8, 8)), ("spp", "(1+2j)")),
+    (lambda eb, ds, tmp: eb.render_job(ds, tmp / "r.png", spp=NAN, size=(8, 8)), ("spp", "nan")),
+    (lambda eb, ds, tmp: eb.render_job(ds, tmp / "r.txt", size=(8, 8)), (".exr or .png",)),
+    (lambda eb, ds, tmp: eb.render_job(ds, tmp / "r.png", title="t", size=(8, 8)), ("--annotate",)),
+    (lambda eb, ds, tmp: eb.probe(ds, "pts"), ("points", "'pts'", "numpy.load")),
+    (lambda eb, ds, tmp: eb.probe(ds, [[0, 0, 0], [1, 2]]), ("points", "(N, 3)")),
+    (lambda eb, ds, tmp: eb.probe(ds, [[None, 0, 0]]), ("points", "object")),
+], ids=["open-empty", "render-spp-nan", "scene-spp-nan", "size-nan", "seed-inf", "spp-complex",
+        "job-spp-nan", "job-suffix", "job-title", "probe-string", "probe-ragged", "probe-none"])
+def test_the_library_raises_exabricks_errors_naming_the_input(plume_dataset, tmp_path, call,
+                                                              needles):
+    import exabricks as eb
+    with pytest.raises(eb.ExabricksError) as info:
+        call(eb, plume_dataset, tmp_path)
+    for n in needles:
+        assert n in str(info.value), str(info.value)
+    assert not any(tmp_path.iterdir())
+
+
+@pytest.mark.parametrize("points", [np.array([[1 + 1j, 0, 0]]), [[0.5, 0.5, 0.5j]],
+                                    np.zeros((2, 3), np.complex64)], ids=["array", "list", "zero-imag"])
+def test_complex_points_are_refused_not_cut_to_their_real_part(plume_dataset, points):
+    import warnings
+
+    import exabricks as eb
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # numpy's ComplexWarning: the cast must not happen
+        with pytest.raises(eb.ExabricksError, match="points: complex"):
+            eb.probe(plume_dataset, points)
+
+
+def test_a_fifo_given_as_a_mesh_is_not_called_missing(plume_dataset, tmp_path):
+    import exabricks as eb
+    fifo = tmp_path / "m.obj"
+    os.mkfifo(fifo)
+    with pytest.raises(eb.ExabricksError) as info:
+        eb.Renderer(plume_dataset).scene(mesh=str(fifo))
+    assert "a FIFO" in str(info.value) and "no such file" not in str(info.value), str(info.value)
+    with pytest.raises(eb.ExabricksError, match="mesh: .*no such file"):
+        eb.Renderer(plume_dataset).scene(mesh=str(tmp_path / "gone.obj"))
+    out = tmp_path / "r.png"
+    assert_one_error_line(run("render", GERRIS, "--mesh", fifo, "--size", "8", "8", "-o", out),
+                          str(fifo), "a FIFO, not a regular file")
+    assert not out.exists()
+
+
+def test_a_title_longer_than_a_line_is_refused_before_drawing(plume_dataset, tmp_path):
+    import exabricks as eb
+    from exabricks.constants import MAX_TITLE_CHARS
+    image = eb.Image(np.zeros((8, 8, 4), np.float32), scene=eb.Renderer(plume_dataset).scene(
+        size=(8, 8)))
+    out = tmp_path / "t.png"
+    with pytest.raises(eb.ExabricksError, match=f"title: 100,000 characters.*{MAX_TITLE_CHARS}"):
+        image.save(out, annotate=True, title="x" * 100_000)
+    assert not out.exists()
+    image.save(out, annotate=True, title="x" * MAX_TITLE_CHARS)  # the longest allowed is drawn
+    assert out.is_file()
+    out.unlink()
+    proc = run("render", GERRIS, "--annotate", "--title", "x" * 100_000, "--size", "8", "8",
+               "-o", out)
+    assert proc.returncode == 2 and "--title" in proc.stderr and "Traceback" not in proc.stderr, \
+        proc.stderr
+    assert not out.exists()
+
+
+# ---------------------------------------------------------------------------
+# 17. a signal during a kernel build: the compiler's "1 error generated." stays unsaid
+
+
+def test_a_signal_during_a_kernel_build_leaves_one_error_line(plume_trio, tmp_path):
+    """PoCL compiles in the process with clang, whose own handlers of SIGINT and SIGTERM
+    remove the temporary file it is writing: a signal then makes the build fail with
+    "1 error generated." on stderr, before the run's `error: interrupted`. The signals
+    go, in a burst, from the moment that temporary file appears in PoCL's (empty)
+    kernel cache until the process ends."""
+    import signal
+
+    if not DEVICES:
+        pytest.skip("no OpenCL device")
+    cache = tmp_path / "pocl"
+    cache.mkdir()
+    env = {**os.environ, "POCL_CACHE_DIR": str(cache), "PYOPENCL_NO_CACHE": "1"}
+    out = tmp_path / "r.png"
+    proc = subprocess.Popen([sys.executable, "-m", "exabricks.cli.main", "render", *plume_trio,
+                             "--size", "8", "8", "-o", out], env=env, stdout=subprocess.DEVNULL,
+                            stderr=subprocess.PIPE, text=True)
+    try:
+        firing = False
+        while proc.poll() is None:
+            firing = firing or any(name.endswith(".tmp") for name in os.listdir(cache))
+            if firing:
+                proc.send_signal(signal.SIGINT)
+            time.sleep(0.0005)
+        stderr = proc.communicate(timeout=TIMEOUT)[1]
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    if not firing:
+        pytest.skip("the driver wrote no compiler temporary file (not PoCL's in-process clang)")
+    assert proc.returncode == 130 and stderr.splitlines() == ["error: interrupted (SIGINT)"], \
+        (proc.returncode, stderr)
+    assert not out.exists()

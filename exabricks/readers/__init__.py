@@ -46,7 +46,7 @@ def guess_format(path: str | Path, *, dims=None, ask_yt: bool = True) -> str | N
     """`detect_format`'s answer, or None where no format claims `path` (`ask_yt`:
     whether to ask yt's front ends, which takes seconds, about a name no rule knows).
     Raises ExabricksError for a missing path and a raw volume without `dims`."""
-    path = Path(path)
+    path = given_path(path)
     if not path.exists():
         raise ExabricksError(f"{path}: no such file or directory")
     _refuse_special(path)
@@ -66,11 +66,20 @@ def guess_format(path: str | Path, *, dims=None, ask_yt: bool = True) -> str | N
         if dims is None:
             raise ExabricksError(f"{path}: a raw volume needs its size: give --dims X Y Z")
         return "raw"
-    if path.with_name(name + ".hierarchy").is_file() or any(p.search(name) for p in _YT_NAME_PATTERNS):
+    enzo = bool(name) and path.with_name(name + ".hierarchy").is_file()  # "." has no name
+    if enzo or any(p.search(name) for p in _YT_NAME_PATTERNS):
         return "yt"
     if ask_yt and _safe_for_yt(path) and _yt_claims(path):
         return "yt"
     return None
+
+
+def given_path(path) -> Path:
+    """`path` as a Path; ExabricksError for an empty one, which pathlib would take for
+    the current directory (an unset variable in a script, not a wish to read ".")."""
+    if isinstance(path, (str, bytes, os.PathLike)) and not os.fspath(path):
+        raise ExabricksError(f"{path!r}: an empty path: give a file or a directory")
+    return Path(path)
 
 
 def _refuse_special(path: Path) -> None:

@@ -13,8 +13,9 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from ..constants import FLOAT32_MAX
+from ..constants import FLOAT32_MAX, MAX_TITLE_CHARS
 from ..errors import ExabricksError
+from ..jsonfile import not_regular
 from ..scaling import SCALES
 from .model import AXES, GRADIENTS, MAX_AO_SAMPLES, RECONSTRUCTIONS, SHADING_MODES, TF_LOOKUPS
 
@@ -128,12 +129,17 @@ class Option:
         bad = ExabricksError(f"{self.keyword}: expected {self._expected()}, got {value!r}")
         kind = self.kind
         if kind in ("float", "int"):
-            if isinstance(value, bool) or not isinstance(value, (int, float)) and not hasattr(
-                    value, "__float__"):
+            # numpy's complex numbers have __float__, which drops the imaginary part
+            complex_ = isinstance(value, complex) or getattr(getattr(value, "dtype", None),
+                                                             "kind", "") == "c"
+            if isinstance(value, bool) or complex_ or not hasattr(value, "__float__"):
                 raise bad
-            number = float(value)
+            try:
+                number = float(value)
+            except (TypeError, ValueError, OverflowError):
+                raise bad from None
             if kind == "int":
-                if number != int(number):
+                if not math.isfinite(number) or number != int(number):
                     raise bad
                 number = int(number)
             elif self.finite and not math.isfinite(number):
@@ -168,8 +174,10 @@ class Option:
 
             return parse_size(value)
         if kind == "file":
-            if not isinstance(value, (str, os.PathLike)) or not os.path.isfile(value):
-                raise ExabricksError(f"{self.keyword}: no such file: {value!r}")
+            why = not_regular(value) if isinstance(value, (str, os.PathLike)) else "not a path"
+            if why is not None:
+                raise ExabricksError(f"{self.keyword}: expected a regular file, got {value!r} "
+                                     f"({why})")
             return os.fspath(value)
         if not isinstance(value, (str, os.PathLike)):
             raise bad
@@ -395,7 +403,8 @@ JOB_OPTIONS = (
     Option("annotate", "Draw a .png with colour bars (the volume's with its opacity curve), field "
            "names and units, the simulation time, a scale bar and an axes triad beside the frame "
            "(docs/annotate.md); an .exr stays the raw integration.", kind="flag"),
-    Option("title", "With --annotate: a title above the frame.", kind="text", metavar="TEXT"),
+    Option("title", f"With --annotate: a title above the frame (one line, at most "
+           f"{MAX_TITLE_CHARS} characters).", kind="text", metavar="TEXT"),
     Option("tile", "Draw the frame in tiles of W x H pixels, a row of tiles at a time, each "
            "written to the output file as it is done: only a band of H rows is ever in memory "
            "(posters far larger than memory; with --memory-budget the budget counts the band, "

@@ -209,8 +209,14 @@ def _prepare(dataset, output, scene_path, camera_path, path_file,
 
 
 def _check_annotate(output, annotate, title, tile) -> None:
+    from ..annotate import checked_title
+
     if title is not None and not annotate:
         raise UsageError("--title goes with --annotate")
+    try:
+        checked_title(title)  # now, not after the frame is drawn
+    except ExabricksError as e:
+        raise UsageError(f"--{e}") from None
     if annotate and Path(output).suffix.lower() != ".png":
         raise UsageError("--annotate draws on a .png; an .exr stays the raw integration")
     if annotate and tile is not None:
