@@ -49,16 +49,22 @@ come from, measured with the gauge on the GPU default variant (registers / stack
 
 | change (experiments, not committed) | eb_render |
 |---|---|
+| ae2d53f's parent | 128 / 1648 |
+| ae2d53f | 168 / 1648 |
 | none (ed8e089) | 168 / 1728 |
 | the nine BVH and region offsets (`P->node_lower_at` ...) as the constant 0 | 158 / 1728 |
 | every `P->*_at` offset as the constant 0 | 160 / 1728 |
 | eb_params passed by value instead of in a `__constant` buffer | 168 / 2176 |
+| eb_frame's ten scalars (step_base ... lod_scale) read from `P` where used | 168 / 1648 |
 
-So the grouped buffers' offsets account for at most 10 of them; the rest is the
-frame's scalars, read from a `__constant` buffer through a pointer (an `LDC` into a
-register, held across the sample loop) where kernel arguments were operands read
-from the parameter bank at each use. Passed by value, the struct is copied to the
-stack because eb_frame keeps its address.
+So the grouped buffers' offsets account for at most 10 of them, and the frame's
+scalars for none (held on the stack as part of eb_frame: 80 B); passed by value,
+the struct is copied to the stack because eb_frame keeps its address. What holds
+the other 30 is still to be found in the `.ptx` (`ptx_proxy.sh --keep DIR`) of
+ae2d53f against its parent. A guess to test first: kernel arguments were operands
+read from the parameter bank at each use, where every value read through the
+`__constant` pointer, hoisted out of the sample loop, takes a register for the
+whole loop.
 """
 ROW = re.compile(r"^\| (?P<variant>[^|]+) \| (?P<function>\w+) \| (?P<registers>\d+) \| "
                  r"(?P<stack>\d+) \| (?P<stores>\d+) \| (?P<loads>\d+) \|")
