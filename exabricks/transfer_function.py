@@ -315,6 +315,8 @@ class TransferFunction:
         linear between its own knots, hence between any finer set of knots.
         """
         xs = np.union1d(self.rgb_points[:, 0], self.alpha_points[:, 0])
+        if np.dtype(dtype) == np.float32:
+            xs = _apart_in_float32(xs)
         return xs.astype(dtype), self.evaluate(xs).astype(dtype)
 
     def any_alpha(self, lo, hi) -> np.ndarray:
@@ -455,6 +457,26 @@ def lookup_table(xs: np.ndarray, rgba: np.ndarray) -> LookupTable:
             break
     rows = np.concatenate([[[x0, k / span, float(k), 0.0]], table]).astype(np.float32)
     return LookupTable(rows, error_rgb, error_alpha)
+
+
+def _apart_in_float32(xs: np.ndarray) -> np.ndarray:
+    """The sorted knots `xs` less those whose float32 distance to the knot kept
+    before them is below float32's smallest normal number (the last knot is kept,
+    in place of the one before it): the kernels flush such a distance to zero and
+    would divide by it. Only knots within 1.2e-38 of each other go (a log axis
+    reaching down to float32's underflow), where the function changes by nothing
+    a frame can show."""
+    x32 = xs.astype(np.float32)
+    tiny = np.finfo(np.float32).tiny
+    if len(xs) < 2 or (np.diff(x32) >= tiny).all():
+        return xs
+    keep = [0]
+    for i in range(1, len(xs)):
+        if x32[i] - x32[keep[-1]] >= tiny:
+            keep.append(i)
+        elif i == len(xs) - 1 and len(keep) > 1:
+            keep[-1] = i
+    return xs[keep]
 
 
 def strictly_increasing(knots: np.ndarray) -> np.ndarray:

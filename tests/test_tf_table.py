@@ -197,3 +197,17 @@ def test_table_frames_equal_exact_frames_on_real_data(path, field, device, rng, 
             assert got.rgba[..., 3].mean() > 0.01
             want = frame(renderer, camera, nodes, "exact", shading)
             np.testing.assert_allclose(got.rgba, want.rgba, rtol=0, atol=2e-5)
+
+
+def test_knots_the_kernels_cannot_tell_apart_are_merged():
+    """A log axis down to float32's underflow (the synthetic series' phi reaches
+    6e-38) laid knots 1e-40 apart, which the kernels' flushed arithmetic divided
+    by: NaN pixels. The float32 knots keep a normal distance between them."""
+    xs = np.array([5.93e-38, 8.2892e-38, 8.3001e-38, 1.1586e-37, 1e-30, 1.0])
+    tf = TransferFunction(np.column_stack([xs, np.linspace(0, 1, 6), np.zeros(6), np.ones(6)]),
+                          np.column_stack([xs, np.linspace(0, 1, 6)]))
+    x32, rgba = tf.merged_knots(np.float32)
+    assert (np.diff(x32) >= np.finfo(np.float32).tiny).all() and x32[-1] == 1.0 and x32[0] == np.float32(xs[0])
+    assert len(x32) == 5 and np.isfinite(rgba).all()
+    x64, _ = tf.merged_knots(np.float64)
+    assert len(x64) == 6  # the exact function keeps them all
