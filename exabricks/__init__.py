@@ -20,6 +20,7 @@ __version__ = "0.1.0"
 _PUBLIC = {
     "open": "api", "render": "api", "render_job": "api", "probe": "api", "Renderer": "api",
     "Dataset": "dataset", "Image": "image", "Scene": "scene", "ExabricksError": "errors",
+    "open_series": "series", "render_series": "series", "Series": "series",
 }
 
 __all__ = ["__version__", *sorted(_PUBLIC)]
@@ -30,6 +31,7 @@ if TYPE_CHECKING:
     from .errors import ExabricksError  # noqa: F401
     from .image import Image  # noqa: F401
     from .scene import Scene  # noqa: F401
+    from .series import Series, open_series, render_series  # noqa: F401
 
 
 def __getattr__(name: str):

@@ -35,7 +35,8 @@ class Dataset:
         self._structures = structures
         self.paths = None if paths is None else tuple(Path(p) for p in paths)
         self.source = source or {}
-        self.values = None if values is None else Path(values)
+        # a values file, or a step's values made in memory (exabricks.series)
+        self.values = values if values is None or isinstance(values, schema.Values) else Path(values)
         self._lease = lease  # a cache entry's, held while the dataset is in use
 
     @classmethod
@@ -65,9 +66,17 @@ class Dataset:
             return bricks, regions, bvh
         from .stages.values import with_values
 
-        step = schema.load(self.values, "values", mapped=True, checked=True)
-        return with_values(bricks, regions, bvh, step, where=str(self.values),
+        step = self.values
+        if not isinstance(step, schema.Values):
+            step = schema.load(self.values, "values", mapped=True, checked=True)
+        return with_values(bricks, regions, bvh, step, where=self._values_where,
                            bricks_where=str(self.paths[0]))
+
+    @property
+    def _values_where(self) -> str:
+        """The values file, or the source whose step was made in memory."""
+        return self.source.get("path", "the step") if isinstance(self.values, schema.Values) \
+            else str(self.values)
 
     @property
     def bricks(self) -> schema.Bricks:
@@ -81,7 +90,8 @@ class Dataset:
             return self._structures[0].meta
         meta = schema.peek(self.paths[0])[2]
         if self.values is not None:  # the step's own time (with_values does the same)
-            step = schema.peek(self.values)[2]
+            step = self.values.meta if isinstance(self.values, schema.Values) \
+                else schema.peek(self.values)[2]
             meta = {**meta, **({"source": step["source"]} if "source" in step else {})}
         return meta
 
@@ -107,7 +117,8 @@ class Dataset:
     def inputs(self) -> list:
         """The files an output must not replace."""
         files = [self.source["path"]] if "path" in self.source else []
-        return files + list(self.paths or ()) + ([self.values] if self.values else [])
+        step = [self.values] if isinstance(self.values, Path) else []
+        return files + list(self.paths or ()) + step
 
     def describe(self) -> dict:
         """The image metadata's dataset: the three files (where there are), the source
@@ -115,7 +126,7 @@ class Dataset:
         out = {}
         if self.paths is not None:
             out.update(zip(("bricks", "regions", "bvh"), map(str, self.paths)))
-        if self.values is not None:
+        if isinstance(self.values, Path):
             out["values"] = str(self.values)
         if self.source:
             out["built_from"] = self.source

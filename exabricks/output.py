@@ -290,3 +290,16 @@ def remove_temporaries() -> None:
 
 
 interrupt.at_signal(remove_temporaries)
+
+
+def write_json(path, doc, *, inputs: Iterable = ()) -> None:
+    """`doc` as an indented JSON file at `path`, atomically (`write_output`)."""
+    import json
+
+    text = json.dumps(doc, indent=1) + "\n"
+
+    def write(tmp):
+        with open(tmp, "w") as f:
+            f.write(text)
+
+    write_output(path, write, inputs=inputs)

@@ -67,6 +67,9 @@ EXEMPT = [
     ("docs/time-series.md", r"plt00000", "block",
      "a run's steps on one hierarchy (plt00000, plt00010, ...): none ships; tests/test_values.py runs "
      "values and render --values on a series"),
+    ("docs/time-series.md", r"run/plt\*", "command",
+     "a run's steps (run/plt*): none ships; tests/test_series.py runs open_series, render_series and "
+     "the series command on workflows/make_series.py's series"),
     ("docs/workflows.md", r"steps/\*/", "command", "the steps a series pipeline writes (make series)"),
     ("docs/annotate.md", r"annotate\(rgba, scene", "block",
      "the function's signature over names the text defines (rgba, scene, bricks)"),

@@ -31,6 +31,7 @@ COMMANDS = (
     "probe",
     "compare",
     "movie",
+    "series",
     "info",
     "devices",
     "camera",

@@ -6,11 +6,8 @@ import glob
 import os
 
 import click
-import numpy as np
 
-from .. import progress
 from ..errors import ExabricksError
-from ..output import check_output, write_output
 from .options import finite, numbers, output_option
 
 
@@ -59,41 +56,8 @@ def movie(frames, output, fps, crf, codec, background):
     writer does. yuv420p needs an even width and height: an odd one is padded by
     one column or row of the background colour, not rescaled.
     """
-    from ..image_io import read_image
-    from ..stages.movie import DEFAULT_CRF, movie_format, video_frame, write_gif, write_mp4
+    from ..stages.movie import make_movie, movie_format
 
-    kind = movie_format(output)
-    if kind == ".gif" and (crf is not None or codec is not None):
+    if movie_format(output) == ".gif" and (crf is not None or codec is not None):
         raise click.UsageError("--crf and --codec apply to .mp4 output")
-    paths = expand_frames(frames)
-    check_output(output, paths)
-
-    def frames_of(bar):
-        first = None
-        for path in paths:
-            rgba, _ = read_image(path)
-            if first is None:
-                first = (path, rgba.shape)
-            elif rgba.shape != first[1]:
-                raise ExabricksError(
-                    f"{path}: {rgba.shape[1]}x{rgba.shape[0]} pixels, but {first[0]} is "
-                    f"{first[1][1]}x{first[1][0]} (all frames must have one size)")
-            bad = int(np.count_nonzero(~np.isfinite(rgba)))
-            if bad:
-                raise ExabricksError(f"{path}: {bad} non-finite values")
-            yield video_frame(rgba, background, even=kind == ".mp4")
-            bar.update()
-
-    def write(tmp):
-        with progress.bar(total=len(paths), desc="movie", unit="frame") as bar:
-            if kind == ".mp4":
-                write_mp4(tmp, frames_of(bar), fps=fps, crf=DEFAULT_CRF if crf is None else crf,
-                          codec=codec or "h264", name=output)
-                return
-            try:
-                write_gif(tmp, frames_of(bar), fps=fps)
-            except (OSError, ValueError) as e:  # Pillow's
-                raise ExabricksError(f"{output}: cannot write the GIF: "
-                                     f"{getattr(e, 'strerror', None) or e}") from None
-
-    write_output(output, write, inputs=paths)
+    make_movie(expand_frames(frames), output, fps=fps, crf=crf, codec=codec, background=background)

@@ -169,3 +169,46 @@ def write_gif(path, frames: Iterator[np.ndarray], *, fps: float) -> int:
     images[0].save(path, format="GIF", save_all=True, append_images=images[1:],
                    duration=delay_ms, loop=0, disposal=1)
     return len(images)
+
+
+def make_movie(paths, output, *, fps: float, crf: int | None = None, codec: str | None = None,
+               background=(0.0, 0.0, 0.0)) -> None:
+    """`exabricks movie`: the images `paths` (.png or .exr, all of one size, in this
+    order) into the movie `output` (.mp4 or .gif by its suffix), transparent pixels
+    over `background`, atomically, with a progress bar on a terminal."""
+    from .. import progress
+    from ..image_io import read_image
+    from ..output import check_output, write_output
+
+    kind = movie_format(output)
+    check_output(output, paths)
+
+    def frames_of(bar):
+        first = None
+        for path in paths:
+            rgba, _ = read_image(path)
+            if first is None:
+                first = (path, rgba.shape)
+            elif rgba.shape != first[1]:
+                raise ExabricksError(
+                    f"{path}: {rgba.shape[1]}x{rgba.shape[0]} pixels, but {first[0]} is "
+                    f"{first[1][1]}x{first[1][0]} (all frames must have one size)")
+            bad = int(np.count_nonzero(~np.isfinite(rgba)))
+            if bad:
+                raise ExabricksError(f"{path}: {bad} non-finite values")
+            yield video_frame(rgba, background, even=kind == ".mp4")
+            bar.update()
+
+    def write(tmp):
+        with progress.bar(total=len(paths), desc="movie", unit="frame") as bar:
+            if kind == ".mp4":
+                write_mp4(tmp, frames_of(bar), fps=fps, crf=DEFAULT_CRF if crf is None else crf,
+                          codec=codec or "h264", name=output)
+                return
+            try:
+                write_gif(tmp, frames_of(bar), fps=fps)
+            except (OSError, ValueError) as e:  # Pillow's
+                raise ExabricksError(f"{output}: cannot write the GIF: "
+                                     f"{getattr(e, 'strerror', None) or e}") from None
+
+    write_output(output, write, inputs=paths)

@@ -23,6 +23,11 @@ from .. import schema
 from ..constants import VALUE_DTYPE
 from ..errors import ExabricksError
 
+class CellsDiffer(ExabricksError):
+    """A step whose leaf cells (or world frame) are not the bricks' cells: it needs
+    structures of its own."""
+
+
 REGION_CHUNK = 1 << 16  # regions per step of the range pass (mapped values handed back after each)
 
 
@@ -36,12 +41,12 @@ def step_values(cells: schema.Cells, bricks: schema.Bricks, *, where: str = "the
                              f"{bricks_where} {list(bricks.fields)} (choose them with --field)")
     if not (np.array_equal(cells.origin_world, bricks.origin_world)
             and np.array_equal(cells.spacing_world, bricks.spacing_world)):
-        raise ExabricksError(f"{where}: its world frame (origin, spacing) is not that of "
-                             f"{bricks_where}: the cells differ, rebuild the structures")
+        raise CellsDiffer(f"{where}: its world frame (origin, spacing) is not that of "
+                          f"{bricks_where}: the cells differ, rebuild the structures")
     n = int(bricks.values.shape[1])
     if cells.n_cells != n:
-        raise ExabricksError(f"{where}: {cells.n_cells:,} leaf cells, {bricks_where} hold {n:,}: "
-                             "the cells differ, rebuild the structures")
+        raise CellsDiffer(f"{where}: {cells.n_cells:,} leaf cells, {bricks_where} hold {n:,}: "
+                          "the cells differ, rebuild the structures")
     lower = np.asarray(cells.lower_lattice)
     cell_lo, cell_hi = _extent(lower)
     brick_lo, _ = _extent(bricks.lower_lattice)
@@ -60,18 +65,18 @@ def step_values(cells: schema.Cells, bricks: schema.Bricks, *, where: str = "the
     del cell_key, slot_key
     if differ >= 0:
         i = int(by_cell[differ])
-        raise ExabricksError(f"{where}: cell {i} at {lower[i].tolist()} (level {int(cells.level[i])}) "
-                             f"is not a cell of {bricks_where}: the cells differ, rebuild the "
-                             "structures")
+        raise CellsDiffer(f"{where}: cell {i} at {lower[i].tolist()} (level {int(cells.level[i])}) "
+                          f"is not a cell of {bricks_where}: the cells differ, rebuild the "
+                          "structures")
     source = np.empty(n, np.int64)
     source[by_slot] = by_cell  # slot s of the bricks holds cell source[s]
     del by_cell, by_slot
     wrong = np.flatnonzero(np.asarray(cells.level)[source] != slot_level)
     if wrong.size:
         i = int(source[wrong[0]])
-        raise ExabricksError(f"{where}: cell {i} at {lower[i].tolist()} is level "
-                             f"{int(cells.level[i])}, in {bricks_where} level "
-                             f"{int(slot_level[wrong[0]])}: the cells differ, rebuild the structures")
+        raise CellsDiffer(f"{where}: cell {i} at {lower[i].tolist()} is level "
+                          f"{int(cells.level[i])}, in {bricks_where} level "
+                          f"{int(slot_level[wrong[0]])}: the cells differ, rebuild the structures")
     values = np.empty((cells.n_fields, n), VALUE_DTYPE)
     for f in range(cells.n_fields):
         np.take(np.asarray(cells.values[f], VALUE_DTYPE), source, out=values[f])

@@ -188,18 +188,12 @@ class Viewer:
     def save(self, doc: dict) -> str | None:
         """Write `doc` to --scene-out (atomically); its path, or None without one.
         Called off the event loop (_in_thread): a write never holds the server up."""
-        from ..output import write_output
+        from ..output import write_json
 
         if self.scene_out is None:
             return None
         _regular_output(self.scene_out)
-        text = json.dumps(doc, indent=1) + "\n"
-
-        def write(tmp):
-            with open(tmp, "w") as f:
-                f.write(text)
-
-        write_output(self.scene_out, write)
+        write_json(self.scene_out, doc)
         return str(self.scene_out)
 
 

@@ -1,0 +1,179 @@
+"""Time series from Python (docs/time-series.md, "In Python"): `open_series`
+takes the steps of a run, `render_series` draws them with one scene and makes
+the movie.
+
+    import exabricks as eb
+    series = eb.open_series("run/plt*", fields=["phi"])
+    eb.render_series(series, "frames", movie="phi.mp4", field="phi")
+
+A step on the first step's hierarchy (the same leaf cells) is its values on the
+first step's structures (`exabricks values`, made in memory); any other step is
+built through the cache as `eb.open` builds it. Either way it draws what its own
+`render SOURCE` draws (docs/time-series.md, "What render --values does").
+"""
+
+from __future__ import annotations
+
+import glob
+import os
+from pathlib import Path
+
+from .dataset import Dataset
+from .errors import ExabricksError
+
+
+class Series:
+    """The steps of a time series, in natural order of their names; `series[i]`
+    and iteration give each step's Dataset (module docstring)."""
+
+    def __init__(self, steps, *, fields=None, cache=None, **ingest_options):
+        self.steps = tuple(Path(s) for s in steps)
+        if not self.steps:
+            raise ExabricksError("a series needs at least one step")
+        self._open = {"fields": fields, "cache": cache, **ingest_options}
+        self._first: Dataset | None = None
+        self._ranges: dict[str, tuple[float, float]] = {}
+
+    def __len__(self) -> int:
+        return len(self.steps)
+
+    def __iter__(self):
+        return (self[i] for i in range(len(self)))
+
+    def __getitem__(self, i: int) -> Dataset:
+        step = self.steps[i]  # IndexError beyond the last, as a sequence's
+        first = self.first
+        if step == self.steps[0]:
+            return first
+        from .dataset import source_cells
+        from .stages.values import CellsDiffer
+        from .structures import values_of
+
+        options = {k: v for k, v in self._open.items() if k != "cache" and v is not None}
+        if "fields" in options:
+            options["fields"] = (options["fields"],) if isinstance(options["fields"], str) \
+                else tuple(options["fields"])
+        try:
+            cells = source_cells(step, options)
+            values = values_of(cells, first.bricks, [step], where=str(step),
+                               bricks_where=str(self.steps[0]))
+        except CellsDiffer:
+            return self._opened(step)
+        about = {"path": str(step), "on_hierarchy_of": str(self.steps[0])}
+        if first.paths is None:
+            from .stages.values import with_values
+
+            return Dataset(with_values(*first.structures(), values, where=str(step),
+                                       bricks_where=str(self.steps[0])), source=about)
+        return Dataset(paths=first.paths, values=values, source=about)
+
+    @property
+    def first(self) -> Dataset:
+        """The first step's dataset, whose structures serve every step on its hierarchy."""
+        if self._first is None:
+            self._first = self._opened(self.steps[0])
+        return self._first
+
+    def _opened(self, step: Path) -> Dataset:
+        from .api import open as open_source
+
+        return open_source(step, **{k: v for k, v in self._open.items() if v is not None})
+
+    def field_range(self, field: str) -> tuple[float, float]:
+        """(min, max) of the finite values of `field` over every step: the colour
+        range that one movie of the series shares."""
+        if field not in self._ranges:
+            from .field_statistics import field_range
+
+            lo, hi = float("inf"), float("-inf")
+            for dataset in self:
+                if field not in dataset.fields:
+                    raise ExabricksError(f"{dataset.source.get('path')}: no field {field!r} "
+                                         f"(fields: {', '.join(dataset.fields)})")
+                a, b = field_range(dataset.bricks, field)
+                lo, hi = min(lo, a), max(hi, b)
+            self._ranges[field] = (lo, hi)
+        return self._ranges[field]
+
+    def __repr__(self) -> str:
+        return f"<exabricks.Series of {len(self)} steps: {self.steps[0]} .. {self.steps[-1]}>"
+
+
+def open_series(steps, *, fields=None, cache=None, **ingest_options) -> Series:
+    """The steps of a series: a glob pattern (`"run/plt*"`, matches in natural order
+    of their names: plt10 after plt9), a path, or a list of them (each pattern's
+    matches in that order), each step anything `eb.open` takes as a source, read
+    with the same `fields`, `cache` and ingest options."""
+    from .stages.movie import natural_sorted
+
+    found = []
+    for given in [steps] if isinstance(steps, (str, os.PathLike)) else list(steps):
+        text = os.fspath(given)
+        if glob.has_magic(text):
+            matched = natural_sorted(glob.glob(text))
+            if not matched:
+                raise ExabricksError(f"{text}: no steps match")
+            found += matched
+        elif os.path.lexists(text):
+            found.append(text)
+        else:
+            raise ExabricksError(f"{text}: no such file or directory")
+    return Series(found, fields=fields, cache=cache, **ingest_options)
+
+
+def render_series(series, directory, *, movie=None, fps: float = 10.0, suffix: str = ".png",
+                  device: str | None = None, **options) -> list[Path]:
+    """Every step of `series` (a Series, or what `open_series` takes) drawn with one
+    scene into `directory` (made if missing) as STEPNAME + `suffix`, and with
+    `movie` (.mp4 or .gif) the movie of the frames at `fps`; returns the frames.
+
+    The scene is the first step's, with `options` (eb.render's), its colours over
+    the series' range of the field (`Series.field_range`) unless `range` or a
+    transfer function is given, and one camera for every step, so that the
+    frames differ by the data alone: unless `position` and `look_at` are given,
+    the default view of the whole domain (what is visible moves through it). It
+    is written as `directory/scene.json`: `exabricks render STEP --scene
+    scene.json -o FRAME` draws each frame again."""
+    from . import progress
+    from .api import Renderer
+    from .output import write_json
+    from .scene import scene_to_dict
+    from .stages.movie import make_movie
+
+    if not isinstance(series, Series):
+        series = open_series(series)
+    directory = Path(directory)
+    if directory.exists() and not directory.is_dir():
+        raise ExabricksError(f"{directory}: not a directory")
+    directory.mkdir(parents=True, exist_ok=True)
+    first = Renderer(series.first, device=device)
+    if options.get("position") is None or options.get("look_at") is None:
+        options = {**options, **_domain_view(series.first, options)}
+    if not any(options.get(k) is not None for k in ("range", "transfer_function")):
+        field = options.get("field") or first.scene(**options).volumes[0].field
+        options = {**options, "range": series.field_range(field)}
+    scene = first.scene(**options)
+    write_json(directory / "scene.json", scene_to_dict(scene))
+    frames = []
+    with progress.bar(total=len(series), desc="series", unit="step") as bar:
+        for i, dataset in enumerate(series):
+            image = (first if i == 0 else Renderer(dataset, device=device)).render(scene)
+            frames.append(directory / (series.steps[i].name + suffix))
+            image.save(frames[-1])
+            bar.update()
+    if movie is not None:
+        make_movie(frames, movie, fps=fps)
+    return frames
+
+
+def _domain_view(dataset, options) -> dict:
+    """`position`, `look_at` and `up` of the default three-quarter view framing the
+    whole domain of `dataset` (exabricks.framing) for the frame size in `options`."""
+    from .camera import box_corners
+    from .framing import framed_camera
+
+    width, height = options.get("size") or (None, None)
+    aspect = width / height if width and height else 1.0
+    fovy = options.get("fovy") or 30.0
+    camera = framed_camera(box_corners(*dataset.bounds), aspect=aspect, fovy=fovy)
+    return {"position": camera.position, "look_at": camera.look_at, "up": camera.up}
