@@ -359,27 +359,9 @@ def test_the_largest_budgeted_frame_is_cancelled_within_a_second(cache):
 def test_the_largest_frame_is_cancelled_within_a_second(session):
     """A frame of the largest size one change may ask, at the most samples, is
     dropped within a second of the newer change."""
-    from exabricks.viewer.session import MAX_SAMPLES, Cancelled
+    from exabricks.viewer.session import MAX_SAMPLES
 
     for size, spp in (((32768, MAX_SAMPLES // 32768), 1), ((1024, 32), 1024)):
-        scene = session.check({**session.doc, "size": list(size), "spp": spp})
-        newer = threading.Event()
-        outcome = []
-
-        def draw(scene=scene, newer=newer, outcome=outcome):
-            try:
-                session.draw("converged", scene, cancelled=newer.is_set)
-                outcome.append("drawn")
-            except Cancelled:
-                outcome.append(time.perf_counter())
-
-        thread = threading.Thread(target=draw)
-        thread.start()
-        time.sleep(1.0)
-        asked = time.perf_counter()
-        newer.set()
-        thread.join(30)
-        assert not thread.is_alive() and outcome and outcome[0] != "drawn", outcome
-        took = outcome[0] - asked
+        took = cancelled_after(session, size, spp)
         print(f"{size[0]}x{size[1]} at {spp} spp: cancelled {took * 1e3:.0f} ms after the newer change")
         assert took < 1.0, took
