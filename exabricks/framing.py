@@ -61,6 +61,18 @@ def visible_corners(bricks, field: str, transfer_function, *, axes=None, trim: f
     return box_corners(lower, upper) @ axes
 
 
+def visible_points(bricks, volumes, *, axes=None) -> np.ndarray:
+    """(n, 3) world corners of the boxes (edges along the rows of `axes`) that the
+    volume layers `volumes` make visible of `bricks` (`visible_corners`), else
+    the corners of the dataset's world box."""
+    from .camera import box_corners
+    from .formats.kinds import world_bounds
+
+    boxes = [visible_corners(bricks, v.field, v.transfer_function, axes=axes) for v in volumes]
+    return np.concatenate([b for b in boxes if b is not None]
+                          or [box_corners(*world_bounds(bricks))])
+
+
 def framed_camera(points_world, *, aspect: float = 1.0, fovy: float = 30.0,
                   margin: float = MARGIN) -> Camera:
     """The three-quarter view (`view_axes`) of the world points `points_world`

@@ -131,9 +131,9 @@ def render_series(series, directory, *, movie=None, fps: float = 10.0, suffix: s
     the series' range of the field (`Series.field_range`) unless `range` or a
     transfer function is given, and one camera for every step, so that the
     frames differ by the data alone: unless `position` and `look_at` are given,
-    the default view of the whole domain (what is visible moves through it). It
-    is written as `directory/scene.json`: `exabricks render STEP --scene
-    scene.json -o FRAME` draws each frame again."""
+    the default view framing what is visible at any step. It is written as
+    `directory/scene.json`: `exabricks render STEP --scene scene.json -o FRAME`
+    draws each frame again."""
     from . import progress
     from .api import Renderer
     from .output import write_json
@@ -147,12 +147,15 @@ def render_series(series, directory, *, movie=None, fps: float = 10.0, suffix: s
         raise ExabricksError(f"{directory}: not a directory")
     directory.mkdir(parents=True, exist_ok=True)
     first = Renderer(series.first, device=device)
-    if options.get("position") is None or options.get("look_at") is None:
-        options = {**options, **_domain_view(series.first, options)}
+    placed = options.get("position") is not None and options.get("look_at") is not None
+    if not placed:  # the first step's framing is replaced below: none made
+        options = {**options, **_whole_view(series.first)}
     if not any(options.get(k) is not None for k in ("range", "transfer_function")):
         field = options.get("field") or first.scene(**options).volumes[0].field
         options = {**options, "range": series.field_range(field)}
     scene = first.scene(**options)
+    if not placed and not scene.instances:
+        scene = scene.replace(camera=_framed_over(series, scene, options))
     write_json(directory / "scene.json", scene_to_dict(scene))
     frames = []
     with progress.bar(total=len(series), desc="series", unit="step") as bar:
@@ -166,14 +169,25 @@ def render_series(series, directory, *, movie=None, fps: float = 10.0, suffix: s
     return frames
 
 
-def _domain_view(dataset, options) -> dict:
-    """`position`, `look_at` and `up` of the default three-quarter view framing the
-    whole domain of `dataset` (exabricks.framing) for the frame size in `options`."""
+def _whole_view(dataset) -> dict:
+    """`position` and `look_at` of the default view of the whole domain."""
     from .camera import box_corners
     from .framing import framed_camera
 
-    width, height = options.get("size") or (None, None)
-    aspect = width / height if width and height else 1.0
-    fovy = options.get("fovy") or 30.0
-    camera = framed_camera(box_corners(*dataset.bounds), aspect=aspect, fovy=fovy)
-    return {"position": camera.position, "look_at": camera.look_at, "up": camera.up}
+    camera = framed_camera(box_corners(*dataset.bounds))
+    return {"position": camera.position, "look_at": camera.look_at}
+
+
+def _framed_over(series, scene, options):
+    """The default three-quarter view framing what the volume layers of `scene`
+    make visible at any step of `series` (exabricks.framing), with the `up` and
+    `fovy` of `options`."""
+    import numpy as np
+
+    from .framing import framed_camera, view_axes, visible_points
+
+    corners = np.concatenate([visible_points(dataset.bricks, scene.volumes, axes=view_axes())
+                              for dataset in series])
+    s = scene.settings
+    camera = framed_camera(corners, aspect=s.width / s.height, fovy=scene.camera.fovy)
+    return camera.with_overrides(up=options.get("up"))

@@ -155,9 +155,7 @@ def _file_colour(file: SceneFile, spec: dict, *path) -> _Colour:
 
 
 def _camera(bricks, file: SceneFile, camera_path, f, instances=(), volumes=(), aspect=1.0) -> Camera:
-    from .. import schema
-    from ..camera import box_corners
-    from ..framing import framed_camera, view_axes, visible_corners
+    from ..framing import framed_camera, view_axes, visible_points
 
     inline = file.get("camera")
     if camera_path is not None:
@@ -174,10 +172,7 @@ def _camera(bricks, file: SceneFile, camera_path, f, instances=(), volumes=(), a
     else:
         # What the volume layers make visible (else the whole dataset), on every copy:
         # boxes along the view's axes (tightest) unless copies turn them.
-        axes = None if instances else view_axes()
-        boxes = [visible_corners(bricks, v.field, v.transfer_function, axes=axes) for v in volumes]
-        corners = np.concatenate([b for b in boxes if b is not None]
-                                 or [box_corners(*schema.world_bounds(bricks))])
+        corners = visible_points(bricks, volumes, axes=None if instances else view_axes())
         placed = np.concatenate([corners] + [corners @ r.T + t for r, t in
                                              (i.affine() for i in instances)])
         camera = framed_camera(placed, aspect=aspect)
