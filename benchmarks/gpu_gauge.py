@@ -56,15 +56,17 @@ come from, measured with the gauge on the GPU default variant (registers / stack
 | every `P->*_at` offset as the constant 0 | 160 / 1728 |
 | eb_params passed by value instead of in a `__constant` buffer | 168 / 2176 |
 | eb_frame's ten scalars (step_base ... lod_scale) read from `P` where used | 168 / 1648 |
+| every scalar of `P` but counts and offsets as a literal constant | 166 / 2048 |
 
 So the grouped buffers' offsets account for at most 10 of them, and the frame's
-scalars for none (held on the stack as part of eb_frame: 80 B); passed by value,
+scalars for none (held on the stack as part of eb_frame: 80 B; the preprocessed
+programs of ae2d53f and its parent have the same private arrays); passed by value,
 the struct is copied to the stack because eb_frame keeps its address. What holds
 the other 30 is still to be found in the `.ptx` (`ptx_proxy.sh --keep DIR`) of
-ae2d53f against its parent. A guess to test first: kernel arguments were operands
-read from the parameter bank at each use, where every value read through the
-`__constant` pointer, hoisted out of the sample loop, takes a register for the
-whole loop.
+ae2d53f against its parent. A guess to test next: the 84 pointer arguments were
+reloaded from the parameter bank where needed, where each pointer now derived from
+a grouped buffer (base + offset, 64 bits) is computed once and held in two
+registers across the sample loop.
 """
 ROW = re.compile(r"^\| (?P<variant>[^|]+) \| (?P<function>\w+) \| (?P<registers>\d+) \| "
                  r"(?P<stack>\d+) \| (?P<stores>\d+) \| (?P<loads>\d+) \|")
