@@ -13,7 +13,7 @@
  * any beyond are summed unsorted (still correct, only no longer in the
  * regions' order). */
 
-/* exabricks.render.cell_location.BrickTree on the device. */
+/* exabricks.engine.cell_location.BrickTree on the device. */
 typedef struct {
     __global const float *lower;    /* node boxes: union of the supports below, lattice units */
     __global const float *upper;    /* (n, 3) corners: traversal.cl, EB_CORNER */

@@ -1,7 +1,7 @@
 /* The dataset's buffers (EB_DATASET_ARGS) as the structures the kernels walk.
  *
  * The host groups the dataset's arrays by element type
- * (exabricks.render.device_data.DeviceDataset) and says where each starts in the
+ * (exabricks.engine.device_data.DeviceDataset) and says where each starts in the
  * frame's eb_params (exabricks.kernel_abi.PARAMS, the "*_at" members):
  *   geometry  float:  BVH node and region boxes, (n, 3) lower and upper corners;
  *   links     int:    BVH (first, count) links, then its leaf-order region ids;

@@ -61,7 +61,7 @@ typedef struct {
 } eb_frame;
 
 #ifdef EB_DOMAIN
-/* Data-parallel rendering (exabricks.render.partition): a frame of one domain of a
+/* Data-parallel rendering (exabricks.engine.partition): a frame of one domain of a
  * k-d partition of space takes exactly the samples (and slice hits) at lattice
  * points inside the domain's half-open box, so that the domains' images,
  * composited in visibility order, hold every sample of the whole frame once. */
@@ -83,7 +83,7 @@ EB_INLINE eb_basis_sums eb_sample_region(eb_frame *fr, int r, float3 p, const in
 }
 
 /* The sums at lattice point p in region r with the bricks seen at `level`
- * (level of detail: exabricks.render.lod; the finest level otherwise). */
+ * (level of detail: exabricks.engine.lod; the finest level otherwise). */
 EB_INLINE eb_basis_sums eb_sample_region_at(eb_frame *fr, int r, float3 p, int level,
                                             const int grad)
 {

@@ -3,7 +3,7 @@
  * analytic gradient (paper §5.1.2), or, built with -DEB_RECON_NEAREST or
  * -DEB_RECON_VERTEX, the value of the containing leaf cell (Kähler & Abel) or
  * trilinear interpolation of stitched vertex values within the containing
- * brick (Kähler & Hege; exabricks.render.vertex). All three return their
+ * brick (Kähler & Hege; exabricks.engine.vertex). All three return their
  * result as eb_basis_sums (weight 1 for the other two), so everything
  * downstream is the same.
  *
@@ -37,7 +37,7 @@ typedef struct {
     __global const float *vertex_values;
     long vertex_stride;
     /* render --lod: per brick EB_MAX_MIP offsets of its mip levels 1.. in
-     * mip_values (exabricks.render.lod), fields mip_stride apart. */
+     * mip_values (exabricks.engine.lod), fields mip_stride apart. */
     __global const long *mip_offset;
     __global const float *mip_values;
     long mip_stride;
@@ -128,7 +128,7 @@ EB_INLINE void eb_add_brick(eb_bricks bricks, int b, float3 p, eb_basis_sums *s,
  * that is coarser than its own, from its mip level (level - own level, at most
  * EB_MAX_MIP): cells 2**m times wider anchored at the brick's lower corner,
  * ceil(N / 2**m) per axis, each the mean of the brick's cells inside it
- * (exabricks.render.lod). */
+ * (exabricks.engine.lod). */
 EB_INLINE void eb_add_brick_lod(eb_bricks bricks, int b, float3 p, int level, eb_basis_sums *s,
                                 const int want_gradient)
 {

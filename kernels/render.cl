@@ -13,7 +13,7 @@
  * frame.cl eb_in_domain): where use_front, the premultiplied RGBA of this sample
  * composited so far in front of the domain (one per pixel of the band), which
  * the domain's rays continue from (so that early ray termination carries
- * across domains; exabricks.render.streaming). */
+ * across domains; exabricks.engine.streaming). */
 #ifdef EB_DOMAIN
 #define EB_DOMAIN_ARGS , __global const float4 *front
 #else

@@ -23,7 +23,7 @@
 
 /* Box i's corner from an (n, 3) float32 array of corners: the boxes of the
  * BVH, the regions and the cell-location tree are read in the layout their
- * files hold them (grouped by exabricks.render.device_data, dataset.cl). */
+ * files hold them (grouped by exabricks.engine.device_data, dataset.cl). */
 #define EB_CORNER(corners, i) vload3((i), (corners))
 
 /* exabricks.schema.Bvh on the device: node boxes, (first, count) links, the
