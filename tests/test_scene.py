@@ -506,3 +506,28 @@ def test_cli_writes_the_scene_into_the_image_metadata(trio, tmp_path):
     assert meta["scene"]["volumes"][0]["field"] == "T" and meta["scene"]["jitter"] is False
     assert meta["transfer_function"] == meta["scene"]["volumes"][0]["transfer_function"]
     assert meta["camera"] == meta["scene"]["camera"]
+
+
+def test_a_scene_object_is_held_to_the_limits_of_its_options():
+    """eb.Scene.replace(...) builds a scene without the command line's parsing: its
+    check takes each setting's limits from the option that declares it (issue 50,
+    item 4), so a negative shininess or a NaN specular weight is refused."""
+    import dataclasses
+
+    from exabricks.camera import Camera
+    from exabricks.scene import Scene
+    from exabricks.scene.options import SCENE_OPTIONS
+
+    scene = Scene(Camera((0, 0, 5), (0, 0, 0), (0, 1, 0)))
+    scene.check()
+    for part, change, name in (("lighting", {"shininess": -5.0}, "shininess"),
+                               ("lighting", {"specular": float("nan")}, "specular"),
+                               ("lighting", {"shading": "bogus"}, "shading"),
+                               ("lighting", {"ao_samples": 10_000}, "ao_samples"),
+                               ("settings", {"lod": -1.0}, "lod"),
+                               ("settings", {"spp": 0}, "spp"),
+                               ("settings", {"max_opacity": 2.0}, "max_opacity")):
+        bad = scene.replace(**{part: dataclasses.replace(getattr(scene, part), **change)})
+        with pytest.raises(ExabricksError, match=f"^{name}: "):
+            bad.check()
+    assert {o.name for o in SCENE_OPTIONS if o.target} >= {"shininess", "specular", "spp", "lod"}

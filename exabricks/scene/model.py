@@ -16,28 +16,11 @@ from ..camera import Camera
 from ..constants import MAX_COORDINATE
 from ..errors import ExabricksError
 from ..transfer_function import TransferFunction
-
-SHADING_MODES = ("headlight", "none")
-GRADIENTS = ("analytic", "central")
-# How a point's value comes from the cells (docs/design.md, "Reconstructions: basis, nearest,
-# vertex").
-RECONSTRUCTIONS = ("basis", "nearest", "vertex")
-# How a volume layer's transfer function is read per sample (docs/design.md,
-# "Transfer-function tables"): from a lookup table, or from its knots.
-TF_LOOKUPS = ("table", "exact")
-
-# Limits of one frame (the kernels keep these in private arrays).
-MAX_VOLUMES = 8
-MAX_ISOSURFACES = 32
-MAX_SLICES = 8
-MAX_CLIP_PLANES = 16
-MAX_AO_SAMPLES = 256
-MAX_MESHES = 16
-# Instances besides the identity (exabricks.engine.instances).
-MAX_INSTANCES = 7
-AXES = ("x", "y", "z")
-# Mesh hits a ray composites, the nearest (kernels/mesh.cl).
-MAX_MESH_HITS = 8
+from .options import SCENE_OPTIONS
+from .modes import (  # noqa: F401 (the scene package's names)
+    SHADING_MODES, GRADIENTS, RECONSTRUCTIONS, TF_LOOKUPS, MAX_VOLUMES, MAX_ISOSURFACES, MAX_SLICES,
+    MAX_CLIP_PLANES, MAX_AO_SAMPLES, MAX_MESHES, MAX_INSTANCES, AXES, MAX_MESH_HITS,
+)
 
 DEFAULT_COLORMAP = "viridis"
 DEFAULT_FOVY = 30.0
@@ -221,26 +204,9 @@ class Scene:
         for items, most, what in lim:
             if len(items) > most:
                 raise ExabricksError(f"{len(items)} {what}: at most {most} per frame")
-        if self.lighting.shading not in SHADING_MODES:
-            raise ExabricksError(f"unknown shading {self.lighting.shading!r} "
-                                 f"(one of {', '.join(SHADING_MODES)})")
-        if self.settings.reconstruction not in RECONSTRUCTIONS:
-            raise ExabricksError(f"unknown reconstruction {self.settings.reconstruction!r} "
-                                 f"(one of {', '.join(RECONSTRUCTIONS)})")
-        if self.settings.tf_lookup not in TF_LOOKUPS:
-            raise ExabricksError(f"unknown transfer-function lookup {self.settings.tf_lookup!r} "
-                                 f"(one of {', '.join(TF_LOOKUPS)})")
-        if not (np.isfinite(self.settings.lod) and self.settings.lod >= 0):
-            raise ExabricksError(f"--lod must be 0 (off) or a positive number of pixels, "
-                                 f"got {self.settings.lod}")
-        for gradient in (self.lighting.gradient, self.lighting.iso_gradient):
-            if gradient not in GRADIENTS:
-                raise ExabricksError(f"unknown gradient {gradient!r} (one of {', '.join(GRADIENTS)})")
-        if not 0 <= self.lighting.ao_samples <= MAX_AO_SAMPLES:
-            raise ExabricksError(f"ambient occlusion samples must lie in 0..{MAX_AO_SAMPLES}")
-        d = self.lighting.ao_distance
-        if d is not None and not (np.isfinite(d) and d > 0):
-            raise ExabricksError(f"ambient occlusion distance must be positive, got {d}")
+        for option in SCENE_OPTIONS:  # each setting within the limits declared on its option
+            if option.target is not None:
+                option.coerce(option.value_in(self))
         for s in self.isosurfaces:
             if not np.isfinite(s.value):
                 raise ExabricksError(f"iso-value {s.value} of field {s.field!r} is not finite")

@@ -17,7 +17,7 @@ from ..constants import FLOAT32_MAX, MAX_TITLE_CHARS
 from ..errors import ExabricksError
 from ..jsonfile import not_regular
 from ..scaling import SCALES
-from .model import AXES, GRADIENTS, MAX_AO_SAMPLES, RECONSTRUCTIONS, SHADING_MODES, TF_LOOKUPS
+from .modes import AXES, GRADIENTS, MAX_AO_SAMPLES, RECONSTRUCTIONS, SHADING_MODES, TF_LOOKUPS
 
 
 @dataclass(frozen=True)

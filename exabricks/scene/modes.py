@@ -1,0 +1,25 @@
+"""The modes a scene chooses among and the limits of one frame, which the scene
+model (exabricks.scene.model) and the option table (exabricks.scene.options)
+both read."""
+
+SHADING_MODES = ("headlight", "none")
+GRADIENTS = ("analytic", "central")
+# How a point's value comes from the cells (docs/design.md, "Reconstructions: basis, nearest,
+# vertex").
+RECONSTRUCTIONS = ("basis", "nearest", "vertex")
+# How a volume layer's transfer function is read per sample (docs/design.md,
+# "Transfer-function tables"): from a lookup table, or from its knots.
+TF_LOOKUPS = ("table", "exact")
+
+# Limits of one frame (the kernels keep these in private arrays).
+MAX_VOLUMES = 8
+MAX_ISOSURFACES = 32
+MAX_SLICES = 8
+MAX_CLIP_PLANES = 16
+MAX_AO_SAMPLES = 256
+MAX_MESHES = 16
+# Instances besides the identity (exabricks.engine.instances).
+MAX_INSTANCES = 7
+AXES = ("x", "y", "z")
+# Mesh hits a ray composites, the nearest (kernels/mesh.cl).
+MAX_MESH_HITS = 8
