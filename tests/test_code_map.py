@@ -64,3 +64,21 @@ def test_the_contents_of_design_md_are_its_sections():
     headings = [h for h in re.findall(r"^## (.+)$", text, re.M)]
     assert listed == headings, (f"not listed: {[h for h in headings if h not in listed]}, "
                                 f"not a section: {[c for c in listed if c not in headings]}")
+
+
+def test_the_flag_table_of_scene_md_is_the_declared_options():
+    """docs/scene.md's flag table names every render option declared in
+    exabricks.scene.options (the scene's and the job's) and no other."""
+    from exabricks.scene.options import JOB_OPTIONS, SCENE_OPTIONS
+
+    text = (ROOT / "docs" / "scene.md").read_text()
+    table = text[text.index("| Flag | Scene key | Meaning |"):]
+    table = table[:table.index("\n\n")]
+    named = set()
+    for line in table.splitlines()[2:]:
+        for flag in re.findall(r"--([a-z][a-z-]*)", line.split("|")[1]):
+            named.add(flag)
+    declared = {o.flag.removeprefix("--") for o in (*SCENE_OPTIONS, *JOB_OPTIONS)}
+    negated = {f"no-{o.flag.removeprefix('--')}" for o in (*SCENE_OPTIONS, *JOB_OPTIONS) if o.kind == "flag"}
+    named -= negated
+    assert named == declared, f"not in the table: {sorted(declared - named)}, not declared: {sorted(named - declared)}"
