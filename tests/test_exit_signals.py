@@ -55,7 +55,7 @@ def test_a_signal_during_start_up(plume_trio, tmp_path):
     start = time.perf_counter()
     subprocess.run(args, check=True, capture_output=True, timeout=TIMEOUT)
     whole = time.perf_counter() - start
-    for attempt in range(max(6, FUZZ_EXAMPLES // 3)):
+    for attempt in range(max(3, FUZZ_EXAMPLES // 3)):
         signum = (signal.SIGTERM, signal.SIGHUP, signal.SIGINT)[attempt % 3]
         proc = subprocess.Popen(args, stderr=subprocess.PIPE, text=True)
         time.sleep(rng.uniform(0.0, whole))
