@@ -19,7 +19,7 @@ from __future__ import annotations
 import numpy as np
 
 from .constants import CENTRAL_STEP_CELLS, ISO_CENTRAL_STEP_CELLS, MAX_SAMPLES_PER_RAY, MAX_TREE_DEPTH
-from .scene.model import MAX_INSTANCES, MAX_ISOSURFACES, MAX_MESH_HITS, MAX_SLICES
+from .scene.modes import MAX_INSTANCES, MAX_ISOSURFACES, MAX_MESH_HITS, MAX_SLICES
 from .scene.options import SCENE_OPTIONS
 
 # Samples a ray reconstructs at once on CPU devices (kernels/packet.cl): sixteen

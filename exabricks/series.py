@@ -30,6 +30,8 @@ class Series:
         self.steps = tuple(Path(s) for s in steps)
         if not self.steps:
             raise ExabricksError("a series needs at least one step")
+        if fields is not None:
+            fields = (fields,) if isinstance(fields, str) else tuple(fields)
         self._open = {"fields": fields, "cache": cache, **ingest_options}
         self._first: Dataset | None = None
         self._ranges: dict[str, tuple[float, float]] = {}
@@ -50,9 +52,6 @@ class Series:
         from .structures import values_of
 
         options = {k: v for k, v in self._open.items() if k != "cache" and v is not None}
-        if "fields" in options:
-            options["fields"] = (options["fields"],) if isinstance(options["fields"], str) \
-                else tuple(options["fields"])
         try:
             cells = source_cells(step, options)
             values = values_of(cells, first.bricks, [step], where=str(step),
@@ -133,11 +132,13 @@ def render_series(series, directory, *, movie=None, fps: float = 10.0, suffix: s
     frames differ by the data alone: unless `position` and `look_at` are given,
     the default view framing what is visible at any step. It is written as
     `directory/scene.json`: `exabricks render STEP --scene scene.json -o FRAME`
-    draws each frame again."""
+    draws each frame again. The range and the framing are passes over every
+    step before the frames: `range` and `position` with `look_at` save them."""
     from . import progress
     from .api import Renderer
     from .output import write_json
     from .scene import scene_to_dict
+    from .scene.build import default_field
     from .stages.movie import make_movie
 
     if not isinstance(series, Series):
@@ -151,7 +152,7 @@ def render_series(series, directory, *, movie=None, fps: float = 10.0, suffix: s
     if not placed:  # the first step's framing is replaced below: none made
         options = {**options, **_whole_view(series.first)}
     if not any(options.get(k) is not None for k in ("range", "transfer_function")):
-        field = options.get("field") or first.scene(**options).volumes[0].field
+        field = options.get("field") or default_field(series.first.fields)
         options = {**options, "range": series.field_range(field)}
     scene = first.scene(**options)
     if not placed and not scene.instances:

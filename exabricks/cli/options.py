@@ -7,7 +7,7 @@ import math
 import click
 
 from ..errors import ExabricksError
-from ..scene.model import AXES
+from ..scene.modes import AXES
 from ..scene.options import SCENE_OPTIONS, float32_problem
 
 output_option = click.option(
@@ -256,13 +256,16 @@ def ingest_given(kwargs: dict) -> dict:
     return {k: v for k, v in kwargs.items() if v != defaults[k]}
 
 
+cache_option = click.option(
+    "--cache", "cache", default=None, metavar="DIR", type=click.Path(file_okay=False),
+    help="Where a source's built structures are kept [default: $EXABRICKS_CACHE, else "
+    "$XDG_CACHE_HOME/exabricks, else ~/.cache/exabricks].")
+
+
 def dataset_arguments(command):
     """SOURCE | BRICKS REGIONS BVH, with the ingest options and the cache's (the
     commands that take a dataset: render, probe); `dataset_from` makes it."""
-    command = click.option(
-        "--cache", "cache", default=None, metavar="DIR", type=click.Path(file_okay=False),
-        help="Where a source's built structures are kept [default: $EXABRICKS_CACHE, else "
-        "$XDG_CACHE_HOME/exabricks, else ~/.cache/exabricks].")(command)
+    command = cache_option(command)
     command = click.option(
         "--no-cache", "no_cache", is_flag=True,
         help="Build a source's structures in memory only.")(command)

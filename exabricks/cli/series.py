@@ -7,7 +7,8 @@ from __future__ import annotations
 import click
 
 from ..scene.options import SCENE_OPTIONS
-from .options import declared, device_option, finite, ingest_given, ingest_kwargs, ingest_options
+from .options import (cache_option, declared, device_option, finite, ingest_given, ingest_kwargs,
+                      ingest_options)
 
 
 @click.command()
@@ -21,8 +22,7 @@ from .options import declared, device_option, finite, ingest_given, ingest_kwarg
 @click.option("--exr", is_flag=True, help="Frames as .exr (float RGBA) instead of .png.")
 @declared(*SCENE_OPTIONS)
 @device_option
-@click.option("--cache", "cache", default=None, metavar="DIR", type=click.Path(file_okay=False),
-              help="Where the steps' built structures are kept [default: as render's].")
+@cache_option
 @ingest_options("--fields")
 def series(steps, directory, movie, fps, exr, device, cache, **options):
     """Render every step of a time series with one scene: STEPS are sources (anything
@@ -30,8 +30,8 @@ def series(steps, directory, movie, fps, exr, device, cache, **options):
     A step on the first step's hierarchy (the same leaf cells) is drawn as its
     values on the first step's structures; any other is built through the cache.
     The colours span the field's range over the whole series unless --range or a
-    transfer function is given, and one camera (the whole domain unless
-    --position and --look-at) serves every frame (docs/time-series.md)."""
+    transfer function is given, and one camera (framing what is visible at any
+    step, unless --position and --look-at) serves every frame (docs/time-series.md)."""
     from ..series import open_series, render_series
 
     ingest = ingest_given(ingest_kwargs(options))

@@ -32,7 +32,8 @@ import numpy as np
 
 from ..camera import Camera, box_corners
 from ..errors import ExabricksError
-from ..scene.model import MAX_CLIP_PLANES, Clip, Scene
+from ..scene.model import Clip, Scene
+from ..scene.modes import MAX_CLIP_PLANES
 
 # The lattice box of an instance's frame: all of it (kernels/frame.cl eb_in_domain).
 EVERYWHERE = ((-1e30,) * 3 + (0.0,), (1e30,) * 3 + (0.0,))

@@ -10,9 +10,10 @@ clipping, lighting, background and render settings (docs/scene.md).
 
 from .build import choose_transfer_function, field_range, scene_from_options
 from .file import read_scene_file, scene_file_references, scene_schema
-from .model import (DEFAULT_COLORMAP, DEFAULT_FOVY, GRADIENTS, MAX_AO_SAMPLES, MAX_CLIP_PLANES,
-                    MAX_ISOSURFACES, MAX_SLICES, MAX_VOLUMES, RECONSTRUCTIONS, SHADING_MODES, Clip,
-                    Instance, IsoSurface, Lighting, MeshLayer, Scene, Settings, Slice, VolumeLayer)
+from .model import (DEFAULT_COLORMAP, DEFAULT_FOVY, Clip, Instance, IsoSurface, Lighting, MeshLayer,
+                    Scene, Settings, Slice, VolumeLayer)
+from .modes import (GRADIENTS, MAX_AO_SAMPLES, MAX_CLIP_PLANES, MAX_ISOSURFACES, MAX_SLICES, MAX_VOLUMES,
+                    RECONSTRUCTIONS, SHADING_MODES)
 from .options import FLAGS, JOB_OPTIONS, SCENE_OPTIONS, Option, check_flags
 from .serialise import scene_to_dict
 

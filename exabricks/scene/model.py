@@ -16,11 +16,9 @@ from ..camera import Camera
 from ..constants import MAX_COORDINATE
 from ..errors import ExabricksError
 from ..transfer_function import TransferFunction
+from .modes import (AXES, MAX_CLIP_PLANES, MAX_INSTANCES, MAX_ISOSURFACES, MAX_MESHES, MAX_SLICES,
+                    MAX_VOLUMES)
 from .options import SCENE_OPTIONS
-from .modes import (  # noqa: F401 (the scene package's names)
-    SHADING_MODES, GRADIENTS, RECONSTRUCTIONS, TF_LOOKUPS, MAX_VOLUMES, MAX_ISOSURFACES, MAX_SLICES,
-    MAX_CLIP_PLANES, MAX_AO_SAMPLES, MAX_MESHES, MAX_INSTANCES, AXES, MAX_MESH_HITS,
-)
 
 DEFAULT_COLORMAP = "viridis"
 DEFAULT_FOVY = 30.0

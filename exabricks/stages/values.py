@@ -23,6 +23,7 @@ from .. import schema
 from ..constants import VALUE_DTYPE
 from ..errors import ExabricksError
 
+
 class CellsDiffer(ExabricksError):
     """A step whose leaf cells (or world frame) are not the bricks' cells: it needs
     structures of its own."""
