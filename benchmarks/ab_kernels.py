@@ -121,25 +121,30 @@ class Version:
 
     def __init__(self, package: str, options):
         self.name = package
-        self.opencl = importlib.import_module(f"{package}.opencl")
+        self.opencl = self.module("device.opencl", "opencl")
         self.opencl.BUILD_OPTIONS = (*self.opencl.BUILD_OPTIONS, *options)
-        self.module = lambda name: importlib.import_module(f"{package}.{name}")
+
+    def module(self, *names):
+        """The first of `names` (the package's name for a module now, then its
+        earlier names) that this version has."""
+        for name in names:
+            try:
+                return importlib.import_module(f"{self.name}.{name}")
+            except ModuleNotFoundError:
+                continue
+        raise ModuleNotFoundError(f"{self.name} has none of {names}")
 
     def build(self, path: Path, fields):
         cells = self.module("readers").read(path, fields=list(fields))
-        bricks = self.module("stages.brick").build_bricks(cells)
-        regions = self.module("stages.regions").build_regions(bricks)
-        bvh = self.module("stages.bvh").build_bvh(regions)
+        bricks = self.module("builders.bricks", "stages.brick").build_bricks(cells)
+        regions = self.module("builders.regions", "stages.regions").build_regions(bricks)
+        bvh = self.module("builders.bvh", "stages.bvh").build_bvh(regions)
         self.structures = bricks, regions, bvh
         return cells
 
     def renderer(self, fields, **kw):
-        for name in ("engine.renderer", "render.renderer", "stages.render"):
-            try:  # the package's name for it now, before the library's eb.render, before 19d5715
-                module = self.module(name)
-                break
-            except ModuleNotFoundError:
-                continue
+        # before the library's eb.render, and before 19d5715
+        module = self.module("engine.renderer", "render.renderer", "stages.render")
         return module.Renderer(*self.structures, fields=fields, **kw)
 
     def scene(self, scene_file: Path, flags: dict):
@@ -150,9 +155,9 @@ class Version:
 @contextlib.contextmanager
 def versions_of(base_root: Path, base_options=(), options=()):
     """{"base": Version, "this": Version}: the package of checkout `base_root` and the
-    working tree's, with their build options extended; exabricks.opencl's options
+    working tree's, with their build options extended; exabricks.device.opencl's options
     come back, and the base package leaves sys.modules, afterwards."""
-    from exabricks import opencl
+    from exabricks.device import opencl
 
     saved = opencl.BUILD_OPTIONS
     import_version(base_root, BASE_NAME)

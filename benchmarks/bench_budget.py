@@ -45,9 +45,9 @@ TABLE_HEAD = ("| dataset | budget | budget bytes | files | domains | command s |
 def tiny_scene(d: Path, field: str) -> list[Path]:
     """A 4^3-cell dataset of one field named `field` (the baseline's)."""
     from exabricks import schema
-    from exabricks.stages.brick import build_bricks
-    from exabricks.stages.bvh import build_bvh
-    from exabricks.stages.regions import build_regions
+    from exabricks.builders.bricks import build_bricks
+    from exabricks.builders.bvh import build_bvh
+    from exabricks.builders.regions import build_regions
 
     g = np.stack(np.meshgrid(*[np.arange(4)] * 3, indexing="ij"), -1).reshape(-1, 3)
     cells = schema.Cells(fields=(field,), origin_world=np.zeros(3), spacing_world=np.ones(3),
@@ -122,7 +122,7 @@ def make_layouts(d: Path) -> dict[str, tuple[list[Path], str]]:
 def bench_layouts(tmp: Path, size: int) -> list[str]:
     """Rows: each layout of `make_layouts` under each of LAYOUT_BUDGETS, against the
     same budgeted command on the 64-cell dataset."""
-    from exabricks.image_io import read_image
+    from exabricks.film.image_io import read_image
 
     eb = benchdoc.exabricks_command()
     rows = []
@@ -149,7 +149,7 @@ def bench_dataset(name: str, d: Path, field: str, size: int, tmp: Path,
     """Table rows: the in-memory render, then each (fraction k, extra flags) of `runs`
     (default: every FRACTIONS, whole frames and bands of TILE_ROWS rows) under a
     budget of 1/k of the files."""
-    from exabricks.image_io import read_image
+    from exabricks.film.image_io import read_image
 
     eb = benchdoc.exabricks_command()
     files = [d / f"{n}.npz" for n in ("bricks", "regions", "bvh")]
@@ -202,7 +202,7 @@ def bench_dataset(name: str, d: Path, field: str, size: int, tmp: Path,
 
 def bench_poster(size: int, tmp: Path) -> list[str]:
     """Rows of the poster table: (frame, how, command s, peak, baseline, above it)."""
-    from exabricks.image_io import read_image
+    from exabricks.film.image_io import read_image
 
     eb = benchdoc.exabricks_command()
     gerris = benchdoc.datasets()["gerris"]

@@ -71,14 +71,15 @@ def child(name: str, kernels: str | None) -> None:
     """Render the variant's 8x8 frame twice; print the two wall times."""
     import numpy as np
 
-    from exabricks import opencl, schema
-    from exabricks.camera import default_camera
+    from exabricks.device import opencl
+    from exabricks import schema
+    from exabricks.picture.camera import default_camera
     from exabricks.scene import IsoSurface, Scene, Settings, VolumeLayer
-    from exabricks.stages.brick import build_bricks
-    from exabricks.stages.bvh import build_bvh
-    from exabricks.stages.regions import build_regions
+    from exabricks.builders.bricks import build_bricks
+    from exabricks.builders.bvh import build_bvh
+    from exabricks.builders.regions import build_regions
     from exabricks.engine.renderer import Renderer
-    from exabricks.transfer_function import TransferFunction
+    from exabricks.picture.transfer_function import TransferFunction
 
     if kernels:
         opencl.kernel_dir = lambda: Path(kernels)

@@ -47,7 +47,7 @@ def _case(domains, scene, case: str) -> None:
         render_steps(domains, spp4, deadline=time.perf_counter() + 1e9)
     else:
         from exabricks import schema
-        from exabricks.camera_path import orbit
+        from exabricks.picture.camera_path import orbit
 
         for camera in orbit(*schema.world_bounds(domains.bricks), 4, degrees=12.0):
             render_steps(domains, scene.replace(camera=camera))

@@ -34,7 +34,7 @@ from benchmarks import benchdoc
 from benchmarks.benchdoc import BENCH, ensure_amrex, ensure_exajet, ensure_raw, fmt_bytes
 
 from exabricks import readers
-from exabricks.stages.ingest import validate_cells
+from exabricks.builders.cells import validate_cells
 
 ROOT = Path(__file__).resolve().parents[1]
 

@@ -28,9 +28,9 @@ CAMERA = {"position": [0.5, 0.5, 3.0], "look_at": [0.5, 0.5, 0.5], "up": [0, 1, 
 def _structures(d: Path) -> list[Path]:
     from exabricks import schema
     from exabricks.readers import read
-    from exabricks.stages.brick import build_bricks
-    from exabricks.stages.bvh import build_bvh
-    from exabricks.stages.regions import build_regions
+    from exabricks.builders.bricks import build_bricks
+    from exabricks.builders.bvh import build_bvh
+    from exabricks.builders.regions import build_regions
 
     paths = [d / f"{k}.npz" for k in ("bricks", "regions", "bvh")]
     if not all(p.exists() for p in paths):
@@ -44,8 +44,8 @@ def _structures(d: Path) -> list[Path]:
 
 def _cases(w: Path, trio: list[Path]) -> list[tuple[str, list]]:
     """(what, command line) of every case, the files it needs written into `w`."""
-    from exabricks.constants import MAX_KNOTS
-    from exabricks.jsonfile import MAX_LIST
+    from exabricks.util.constants import MAX_KNOTS
+    from exabricks.util.jsonfile import MAX_LIST
 
     render = ["render", *trio, "-o", w / "x.png", "--size", "32", "32"]
     (w / "camera.json").write_text(json.dumps(CAMERA))
@@ -74,7 +74,7 @@ def _cases(w: Path, trio: list[Path]) -> list[tuple[str, list]]:
 def _digest_rows(runs: int) -> list[str]:
     from exabricks import schema
     from exabricks.readers import read
-    from exabricks.stages.brick import build_bricks
+    from exabricks.builders.bricks import build_bricks
 
     data = benchdoc.data_dir()
     rows = []

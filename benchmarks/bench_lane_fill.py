@@ -5,7 +5,7 @@ packets of neighbouring rays that share one walk over the regions be?
 
 For each dataset (the stage files of benchmarks/bench_render.py's work directory,
 built on first use), every primary ray of a frame of each of --sizes of the default camera
-(exabricks.camera.default_camera on the data's world bounds) is walked through
+(exabricks.picture.camera.default_camera on the data's world bounds) is walked through
 the BVH to every region it crosses with positive length: a transfer function that
 leaves nothing to skip. A packet of k neighbouring rays (2×2 or 4×2 pixels) that
 walks the union of its rays' regions, each lane active in the regions its own ray
@@ -36,7 +36,7 @@ from benchmarks import benchdoc
 from benchmarks.bench_render import DEFAULT, ensure_scene
 
 from exabricks import schema
-from exabricks.camera import default_camera
+from exabricks.picture.camera import default_camera
 
 SECTION = "Coherent rays: lane fill"
 PACKETS = ((2, 2), (4, 2))

@@ -123,7 +123,7 @@ def first_touch(runs: int) -> tuple[list[float], float]:
 def parts(files, field: str) -> tuple[float, float, float]:
     """Seconds of load_structures, DeviceDataset and one frame's visibility."""
     from exabricks.engine.device_data import DeviceDataset, load_structures
-    from exabricks.transfer_function import default_transfer_function
+    from exabricks.picture.transfer_function import default_transfer_function
 
     start = time.perf_counter()
     b, r, v = load_structures(*files)

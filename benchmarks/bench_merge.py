@@ -34,11 +34,11 @@ from benchmarks import benchdoc
 from benchmarks import bench_preprocess
 
 from exabricks import schema
-from exabricks.camera import default_camera
-from exabricks.stages.bvh import build_bvh
-from exabricks.stages.regions import EXACT, Merge, build_regions
+from exabricks.picture.camera import default_camera
+from exabricks.builders.bvh import build_bvh
+from exabricks.builders.regions import EXACT, Merge, build_regions
 from exabricks.engine.renderer import Renderer
-from exabricks.transfer_function import default_transfer_function
+from exabricks.picture.transfer_function import default_transfer_function
 
 ROOT = Path(__file__).resolve().parents[1]
 

@@ -124,7 +124,7 @@ def main(argv=None) -> int:
     from exabricks.engine.renderer import Renderer
     from exabricks.mesh import build_mesh_set, corner_normals, mesh_bvh, read_mesh
     from exabricks.scene.model import MeshLayer
-    from exabricks.stages.bvh import tree_depths
+    from exabricks.builders.bvh import tree_depths
     from benchmarks.peers.common import ALPHA_SCALE, DATASETS
 
     dataset = eb.open(DATASETS["amrex"][0], cache=False)

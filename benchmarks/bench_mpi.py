@@ -102,7 +102,7 @@ def baselines(ranks: list[int], size: int, tmp: Path) -> dict[int, int]:
 
 def bench_dataset(d: Path, field: str, ranks: list[int], size: int, tmp: Path,
                   base: dict[int, int], modes=("data", "image"), name=None) -> list[str]:
-    from exabricks.image_io import read_image
+    from exabricks.film.image_io import read_image
 
     files = [d / f"{n}.npz" for n in ("bricks", "regions", "bvh")]
     structures = sum(f.stat().st_size for f in files)

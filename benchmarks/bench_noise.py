@@ -94,7 +94,7 @@ def main(argv=None) -> int:
             png = tmp / f"{name}.png"
             subprocess.run([*benchdoc.exabricks_command(), "render", str(SHARED / source), *field,
                             "--cache", str(tmp / "cache"), "-o", str(png)], check=True)
-            from exabricks.image_io import read_image
+            from exabricks.film.image_io import read_image
 
             doc = read_image(png)[1]["scene"]
             doc.pop("transparent", None)

@@ -82,7 +82,7 @@ def side_by_side(paths, out: Path, size: int) -> None:
     missing image is a grey tile, so the columns line up across datasets."""
     from PIL import Image
 
-    from exabricks.image_io import to_png_pixels
+    from exabricks.film.image_io import to_png_pixels
 
     tiles = []
     for p in paths:

@@ -65,9 +65,9 @@ from benchmarks.bench_render import ensure_scene
 from benchmarks.peers.common import DATASETS as PEER_DATASETS, transfer_function
 
 from exabricks import schema
-from exabricks.camera import default_camera
+from exabricks.picture.camera import default_camera
 from exabricks.engine.device_data import DeviceDataset, finest_cell_width_world
-from exabricks.transfer_function import TransferFunction
+from exabricks.picture.transfer_function import TransferFunction
 
 SECTION = "Pre-integrated transfer functions"
 DEFAULT = ("amrex", "athena", "gerris")

@@ -39,10 +39,10 @@ from benchmarks import benchdoc
 from benchmarks.benchdoc import fmt_bytes, fmt_seconds
 
 from exabricks import readers, schema
-from exabricks.stages.brick import build_bricks
-from exabricks.stages.bvh import build_bvh
-from exabricks.stages.ingest import validate_cells
-from exabricks.stages.regions import build_regions
+from exabricks.builders.bricks import build_bricks
+from exabricks.builders.bvh import build_bvh
+from exabricks.builders.cells import validate_cells
+from exabricks.builders.regions import build_regions
 
 ROOT = Path(__file__).resolve().parents[1]
 

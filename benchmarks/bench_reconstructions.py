@@ -58,11 +58,11 @@ from benchmarks import benchdoc
 from benchmarks import gallery
 
 from exabricks import schema
-from exabricks.camera import default_camera
+from exabricks.picture.camera import default_camera
 from exabricks.scene import FLAGS, RECONSTRUCTIONS, scene_from_options, scene_to_dict
 from exabricks.stages.compare import compare_images
 from exabricks.engine.renderer import Renderer
-from exabricks.transfer_function import default_transfer_function
+from exabricks.picture.transfer_function import default_transfer_function
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -166,7 +166,7 @@ class Data:
 
 
 def write_png(path: Path, rgba, scene, command: str) -> None:
-    from exabricks.image_io import write_image
+    from exabricks.film.image_io import write_image
 
     write_image(path, rgba, metadata={"camera": scene.camera.to_dict(),
                                       "scene": scene_to_dict(scene), "command": command})
@@ -368,7 +368,7 @@ def render_shots(datas: dict) -> list[str]:
         d = np.abs(frames["vertex"] - frames["basis"])[..., :3].max(axis=-1)
         grey = np.clip(4.0 * d, 0.0, 1.0)
         diff = np.stack([grey, grey, grey, np.ones_like(grey)], -1).astype(np.float32)
-        from exabricks.image_io import write_image
+        from exabricks.film.image_io import write_image
         write_image(IMAGES / f"reconstruction-{name}-diff.png", diff,
                     metadata={"what": "4 x |vertex - basis|, largest RGB channel"})
         print(f"    {name}: max |vertex - basis| = {float(d.max()):.3f}", flush=True)

@@ -10,8 +10,8 @@ paper's re-trace from the root per region) on the device's default path, and
 for the ordered walk on the other path (sample packets or one sample at a
 time: on a CPU the packets are the default), the script renders one warm-up
 frame and --runs timed frames of size x size (the variants alternating) with the
-default camera on the data bounds (exabricks.camera.default_camera), the default transfer function
-over the field's range (exabricks.transfer_function.default_transfer_function)
+default camera on the data bounds (exabricks.picture.camera.default_camera), the default transfer function
+over the field's range (exabricks.picture.transfer_function.default_transfer_function)
 and the render defaults (sampling rate 2, headlight shading, jitter, seed 0,
 max opacity 0.98). Reported per frame: kernel wall time (median and min-max),
 reconstructed samples, samples per second (samples / median time), and the
@@ -36,10 +36,11 @@ import numpy as np
 
 from benchmarks import benchdoc
 
-from exabricks import opencl, schema
-from exabricks.camera import default_camera
+from exabricks.device import opencl
+from exabricks import schema
+from exabricks.picture.camera import default_camera
 from exabricks.engine.renderer import TRAVERSALS, Renderer
-from exabricks.transfer_function import default_transfer_function
+from exabricks.picture.transfer_function import default_transfer_function
 
 ROOT = Path(__file__).resolve().parents[1]
 

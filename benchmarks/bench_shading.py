@@ -63,7 +63,7 @@ def measure(command: list[str], work: Path) -> dict:
         shaded, flat, scene = work / f"{name}.png", work / f"{name}-none.png", work / f"{name}.json"
         subprocess.run([*command, "render", str(SHARED / source), *field, "--no-cache",
                         "-o", str(shaded)], check=True)
-        from exabricks.image_io import read_image
+        from exabricks.film.image_io import read_image
 
         doc = read_image(shaded)[1]["scene"]
         doc.pop("transparent", None)  # older builds know no such key

@@ -42,7 +42,7 @@ def cpu_model() -> str:
 def opencl_device() -> str:
     """The OpenCL device the renderer picks by default, with its platform and version."""
     try:
-        from exabricks import opencl
+        from exabricks.device import opencl
 
         d = opencl.choose_device(None)
         return (f"{d.name.strip()} ({d.platform.name.strip()}, {d.platform.version.strip()}, "
@@ -222,7 +222,7 @@ def data_dir() -> Path:
 def up_to_date(output: Path, source: Path | None = None) -> bool:
     """Whether a cached stage output can be reused: it exists, is not older than
     `source` (the stage's input), and a regions file was built with the current
-    default merge setting (exabricks.stages.regions.Merge)."""
+    default merge setting (exabricks.builders.regions.Merge)."""
     output = Path(output)
     if not output.is_file():
         return False
@@ -233,7 +233,7 @@ def up_to_date(output: Path, source: Path | None = None) -> bool:
 
     kind, _, meta = schema.peek(output)
     if kind == "regions":
-        from exabricks.stages.regions import Merge
+        from exabricks.builders.regions import Merge
 
         return meta.get("parameters", {}).get("merge") == Merge().as_dict()
     return True
@@ -285,7 +285,7 @@ def ensure_exajet() -> Path:
     scalars = BIG_CELLS.with_name("big512.value.scalars")
     if BIG_CELLS.is_file() and scalars.is_file():
         return BIG_CELLS
-    from exabricks.stages.ingest import amr_from_uniform
+    from exabricks.builders.uniform import amr_from_uniform
 
     make_big = _make_big()
     volume = np.fromfile(ensure_raw(), dtype="<f4").reshape(512, 512, 512)

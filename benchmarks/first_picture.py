@@ -21,7 +21,7 @@ and the PNG is measured by `picture_metrics`:
 It prints a Markdown table (the one in docs/scene.md) and leaves the pictures
 in --out. With --yt DIR it also writes yt's `create_scene` default picture of
 each dataset and field to DIR/defaults-yt-<dataset>.png (512 x 512; the Gerris
-cells through exabricks.yt_grids, as benchmarks/peers/yt.py loads them), the
+cells through exabricks.readers.yt_grids, as benchmarks/peers/yt.py loads them), the
 comparison of docs/gallery.md, "The first picture".
 """
 
@@ -98,7 +98,8 @@ def yt_default(name: str, output: Path, *, data: Path = SHARED) -> float:
     source, field = DATASETS[name]
     path = data / source
     if name == "gerris":
-        from exabricks import readers, schema, yt_grids
+        from exabricks import readers, schema
+        from exabricks.readers import yt_grids
 
         cells = readers.read(str(path), fields=[field[1]])
         grids, top = yt_grids.to_amr_grids(cells, source=str(path))

@@ -432,7 +432,7 @@ def first_picture_section(all_shots: list[Shot]) -> list[str]:
            "command gave at b0682ec (transparent PNG, viridis ramp over the whole range, the whole "
            "domain framed) and yt 4.4's `create_scene(ds, field)` saved at 512 x 512 "
            "(`python -m benchmarks.first_picture --yt docs/images`; the Gerris cells through "
-           "`exabricks.yt_grids`). The measures are docs/scene.md's table "
+           "`exabricks.readers.yt_grids`). The measures are docs/scene.md's table "
            "(`python -m benchmarks.first_picture`).", "",
            "| dataset | now | before (b0682ec) | yt create_scene |", "|---|---|---|---|"]
     for s in all_shots:

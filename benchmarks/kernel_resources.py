@@ -8,7 +8,7 @@ Each variant is the render kernel (kernels/render.cl, eb_render) built with the
 defines that exabricks.engine.renderer.Renderer passes for a mode (one field, the basis
 reconstruction unless named), or the uniform-grid marcher (kernels/uniform_grid.cl).
 Every variant is built afresh (into an empty pyopencl binary cache, so that the
-driver writes its build log), with exabricks.opencl.BUILD_OPTIONS, plus -cl-nv-verbose on
+driver writes its build log), with exabricks.device.opencl.BUILD_OPTIONS, plus -cl-nv-verbose on
 NVIDIA's platform. Reported: CL_KERNEL_PRIVATE_MEM_SIZE (bytes per work-item that
 do not fit registers: on a GPU, spills and private arrays in off-chip local memory),
 CL_KERNEL_LOCAL_MEM_SIZE, CL_KERNEL_WORK_GROUP_SIZE, the preferred work-group
@@ -23,7 +23,7 @@ import sys
 import tempfile
 from pathlib import Path
 
-from exabricks import kernel_abi, opencl
+from exabricks.device import kernel_abi, opencl
 
 ROOT = Path(__file__).resolve().parents[1]
 

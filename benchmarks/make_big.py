@@ -354,7 +354,7 @@ def main(argv=None) -> int:
     command = (f"exabricks ingest --format raw --dims {n} {n} {n} --dtype float32 "
                f"--max-level {MAX_LEVEL} --threshold {THRESHOLD} {out} -o {out.with_suffix('.npz')}")
     if args.check:
-        from exabricks.stages.ingest import amr_from_uniform
+        from exabricks.builders.uniform import amr_from_uniform
 
         volume = np.fromfile(out, dtype="<f4").reshape(n, n, n)
         t = time.perf_counter()

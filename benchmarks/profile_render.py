@@ -142,10 +142,11 @@ def attribute(report: str, starts) -> tuple[Counter, float]:
 
 def child(name: str, packets: bool, size: int, frames: int, view: str, rate: float) -> None:
     """Render under the parent's perf record: a -g build, one warm-up frame, `frames` frames."""
-    from exabricks import opencl, schema
-    from exabricks.camera import default_camera
+    from exabricks.device import opencl
+    from exabricks import schema
+    from exabricks.picture.camera import default_camera
     from exabricks.engine.renderer import Renderer
-    from exabricks.transfer_function import default_transfer_function
+    from exabricks.picture.transfer_function import default_transfer_function
 
     opencl.BUILD_OPTIONS = (*opencl.BUILD_OPTIONS, "-g", "-DEB_PROFILE")
     d = ROOT / "bench-data" / "render" / name

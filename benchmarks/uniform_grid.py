@@ -18,8 +18,8 @@ import time
 
 import numpy as np
 
-from exabricks import kernel_abi, opencl
-from exabricks.errors import ExabricksError
+from exabricks.device import kernel_abi, opencl
+from exabricks.util.errors import ExabricksError
 
 # Points per probe call while resampling (float32 (N, 3) points: 24 MiB).
 PROBE_CHUNK = 1 << 21

@@ -19,7 +19,7 @@ __version__ = "0.1.0"
 # public name -> the module that defines it
 _PUBLIC = {
     "open": "api", "render": "api", "render_job": "api", "probe": "api", "Renderer": "api",
-    "Dataset": "dataset", "Image": "image", "Scene": "scene", "ExabricksError": "errors",
+    "Dataset": "dataset", "Image": "film.image", "Scene": "scene", "ExabricksError": "util.errors",
     "open_series": "series", "render_series": "series", "Series": "series",
 }
 
@@ -28,8 +28,8 @@ __all__ = ["__version__", *sorted(_PUBLIC)]
 if TYPE_CHECKING:
     from .api import Renderer, open, probe, render, render_job  # noqa: F401
     from .dataset import Dataset  # noqa: F401
-    from .errors import ExabricksError  # noqa: F401
-    from .image import Image  # noqa: F401
+    from .util.errors import ExabricksError  # noqa: F401
+    from .film.image import Image  # noqa: F401
     from .scene import Scene  # noqa: F401
     from .series import Series, open_series, render_series  # noqa: F401
 

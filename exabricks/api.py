@@ -23,8 +23,8 @@ from pathlib import Path
 import numpy as np
 
 from .dataset import Dataset
-from .errors import ExabricksError
-from .image import Image
+from .util.errors import ExabricksError
+from .film.image import Image
 from .scene import Scene
 
 # The scene file's keys that are not also render flags: they go into the scene object.
@@ -80,7 +80,7 @@ def _is_yt(source) -> bool:
 def _open_yt(ds, fields, options) -> Dataset:
     from . import structures
     from .readers.yt_bridge import cells_from_dataset
-    from .stages.ingest import validate_cells
+    from .builders.cells import validate_cells
 
     if options:
         raise ExabricksError(f"{ds}: a yt dataset takes `fields` only, not {', '.join(options)}")
@@ -177,7 +177,7 @@ class Renderer:
                                  "eb.render_job(dataset, output, ...)")
         chosen = self.scene(scene, **options)
         result = self._on_device(chosen.fields()).render_scene(chosen)
-        from .annotate import facts_from_meta
+        from .film.annotate import facts_from_meta
 
         metadata = frame_metadata(chosen, self.dataset.describe(), None, None, result.stats)
         return Image(result.rgba, result.depth, metadata, scene=chosen,

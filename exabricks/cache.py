@@ -37,7 +37,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from . import __version__
-from .errors import ExabricksError
+from .util.errors import ExabricksError
 
 log = logging.getLogger(__name__)
 
@@ -305,7 +305,7 @@ class Cache:
 
     def entries(self) -> list[tuple[str, int, dict]]:
         """(key, bytes, entry.json as a dict, {} where it is not one) of every entry."""
-        from .jsonfile import read_small
+        from .util.jsonfile import read_small
 
         out = []
         if not self.root.is_dir():

@@ -15,8 +15,9 @@ import logging
 import os
 from pathlib import Path
 
-from . import progress, schema
-from .errors import ExabricksError
+from .util import progress
+from . import schema
+from .util.errors import ExabricksError
 
 log = logging.getLogger(__name__)
 
@@ -64,7 +65,7 @@ class Dataset:
         """The structures with the values file's step, when there is one."""
         if self.values is None:
             return bricks, regions, bvh
-        from .stages.values import with_values
+        from .builders.values import with_values
 
         step = self.values
         if not isinstance(step, schema.Values):
@@ -279,6 +280,6 @@ def _normalised(options: dict) -> dict:
     """`options` as JSON values (tuples as lists, paths as strings), for the key."""
     import json
 
-    from .jsonfile import json_default
+    from .util.jsonfile import json_default
 
     return json.loads(json.dumps(options, sort_keys=True, default=json_default))

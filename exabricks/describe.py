@@ -25,7 +25,7 @@ from typing import Any
 import numpy as np
 
 from . import readers, schema
-from .errors import ExabricksError
+from .util.errors import ExabricksError
 
 ZIP_MAGIC = b"PK\x03\x04"
 
@@ -42,7 +42,7 @@ def describe(path: str | os.PathLike, options: dict | None = None, *, fields=Non
     if not p.exists():
         raise ExabricksError(f"{path}: no such file or directory")
     if not (p.is_file() or p.is_dir()):
-        from .jsonfile import kind_of
+        from .util.jsonfile import kind_of
 
         raise ExabricksError(f"{path}: {kind_of(p.stat().st_mode)}, not a regular file or a "
                              "directory (a source is a file or a plotfile directory)")
@@ -145,7 +145,7 @@ def strict_json(doc):
 
 
 def _starts_with(path: Path, magic: bytes) -> bool:
-    from .jsonfile import open_regular
+    from .util.jsonfile import open_regular
 
     try:
         with open_regular(path, "a file") as f:

@@ -29,10 +29,10 @@ from pathlib import Path
 import numba
 import numpy as np
 
-from .constants import MAX_COORDINATE, MAX_TREE_DEPTH
-from .errors import ExabricksError
+from .util.constants import MAX_COORDINATE, MAX_TREE_DEPTH
+from .util.errors import ExabricksError
 from .formats.memory import check_memory
-from .jsonfile import kind_of
+from .util.jsonfile import kind_of
 
 log = logging.getLogger(__name__)
 
@@ -261,7 +261,7 @@ def build_mesh_set(meshes) -> MeshSet:
 def mesh_bvh(vertices, faces, owner):
     """(triangles, nodes, order) of a MeshSet: the binned-SAH BVH over the faces
     (each tagged with its mesh `owner`), the triangles in its order."""
-    from .stages.bvh import build_tree, tree_bounds, tree_depths
+    from .builders.bvh import build_tree, tree_bounds, tree_depths
 
     # a triangle in an axis plane has a flat box: the tree needs volume
     pad = np.float32(1e-6) * np.float32(max(float(np.abs(vertices).max()), 1e-30))

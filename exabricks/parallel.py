@@ -34,7 +34,7 @@ from types import SimpleNamespace
 
 import numpy as np
 
-from .errors import ExabricksError
+from .util.errors import ExabricksError
 
 MODES = ("data", "image")
 _SIZE_ENV = ("PMI_SIZE", "OMPI_COMM_WORLD_SIZE", "PMIX_SIZE")
@@ -110,7 +110,7 @@ def agree(comm, step, *args, **kw):
     """step(*args, **kw) on every rank; if it raised on any rank, every rank raises
     AgreedError with the lowest failing rank's message. Without MPI (comm None)
     just step(*args, **kw)."""
-    from .errors import one_line
+    from .util.errors import one_line
 
     if comm is None:
         return step(*args, **kw)
@@ -166,23 +166,6 @@ def load_for(mode: str, bricks_path, regions_path, bvh_path):
     return bricks, regions, bvh
 
 
-def needs_image_mode(scene) -> str | None:
-    """Why a frame cannot be split by space (None if it can)."""
-    if scene.isosurfaces:
-        return "iso-surfaces"
-    if scene.meshes:  # a mesh reaches beyond the data, where no domain is
-        return "meshes"
-    if scene.instances:  # each copy is drawn from the whole dataset
-        return "instances"
-    if scene.lighting.ao_samples:
-        return "ambient occlusion"
-    if scene.settings.depth:
-        return "depth output"
-    if scene.settings.reconstruction == "vertex":
-        return "the vertex reconstruction"
-    return None
-
-
 class ParallelRenderer:
     """One frame at a time with every rank of `comm` (module docstring);
     `render_scene` returns the RenderResult on rank 0 and None elsewhere. Build
@@ -195,6 +178,7 @@ class ParallelRenderer:
                  where=("the bricks", "the regions")):
         from . import schema
         from .engine.device_data import DatasetScale
+        from .engine.partition import needs_image_mode
         from .engine.renderer import Renderer
 
         if mode not in MODES:

@@ -19,7 +19,7 @@ import os
 from pathlib import Path
 
 from .dataset import Dataset
-from .errors import ExabricksError
+from .util.errors import ExabricksError
 
 
 class Series:
@@ -48,7 +48,7 @@ class Series:
         if step == self.steps[0]:
             return first
         from .dataset import source_cells
-        from .stages.values import CellsDiffer
+        from .builders.values import CellsDiffer
         from .structures import values_of
 
         options = {k: v for k, v in self._open.items() if k != "cache" and v is not None}
@@ -60,7 +60,7 @@ class Series:
             return self._opened(step)
         about = {"path": str(step), "on_hierarchy_of": str(self.steps[0])}
         if first.paths is None:
-            from .stages.values import with_values
+            from .builders.values import with_values
 
             return Dataset(with_values(*first.structures(), values, where=str(step),
                                        bricks_where=str(self.steps[0])), source=about)
@@ -82,7 +82,7 @@ class Series:
         """(min, max) of the finite values of `field` over every step: the colour
         range that one movie of the series shares."""
         if field not in self._ranges:
-            from .field_statistics import field_range
+            from .picture.field_statistics import field_range
 
             lo, hi = float("inf"), float("-inf")
             for dataset in self:
@@ -134,9 +134,9 @@ def render_series(series, directory, *, movie=None, fps: float = 10.0, suffix: s
     `directory/scene.json`: `exabricks render STEP --scene scene.json -o FRAME`
     draws each frame again. The range and the framing are passes over every
     step before the frames: `range` and `position` with `look_at` save them."""
-    from . import progress
+    from .util import progress
     from .api import Renderer
-    from .output import write_json
+    from .util.output import write_json
     from .scene import scene_to_dict
     from .scene.build import default_field
     from .stages.movie import make_movie
@@ -172,8 +172,8 @@ def render_series(series, directory, *, movie=None, fps: float = 10.0, suffix: s
 
 def _whole_view(dataset) -> dict:
     """`position` and `look_at` of the default view of the whole domain."""
-    from .camera import box_corners
-    from .framing import framed_camera
+    from .picture.camera import box_corners
+    from .picture.framing import framed_camera
 
     camera = framed_camera(box_corners(*dataset.bounds))
     return {"position": camera.position, "look_at": camera.look_at}
@@ -181,11 +181,11 @@ def _whole_view(dataset) -> dict:
 
 def _framed_over(series, scene, options):
     """The default three-quarter view framing what the volume layers of `scene`
-    make visible at any step of `series` (exabricks.framing), with the `up` and
+    make visible at any step of `series` (exabricks.picture.framing), with the `up` and
     `fovy` of `options`."""
     import numpy as np
 
-    from .framing import framed_camera, view_axes, visible_points
+    from .picture.framing import framed_camera, view_axes, visible_points
 
     corners = np.concatenate([visible_points(dataset.bricks, scene.volumes, axes=view_axes())
                               for dataset in series])

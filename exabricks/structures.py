@@ -14,9 +14,9 @@ from collections.abc import Callable, Sequence
 from contextlib import contextmanager
 
 from . import schema
-from .constants import MAX_BRICK_WIDTH
-from .errors import ExabricksError
-from .pieces import WHOLE, Piece
+from .util.constants import MAX_BRICK_WIDTH
+from .util.errors import ExabricksError
+from .formats.pieces import WHOLE, Piece
 
 LEAF_SIZE = 4
 BINS = 16
@@ -24,10 +24,10 @@ BINS = 16
 
 def bricks_of(cells: schema.Cells, inputs: Sequence = (), *, where: str | None = None,
               max_brick_width: int = MAX_BRICK_WIDTH, piece: Piece = WHOLE) -> schema.Bricks:
-    """The bricks of `cells` (exabricks.stages.brick.build_bricks) with their meta:
+    """The bricks of `cells` (exabricks.builders.bricks.build_bricks) with their meta:
     `inputs` (paths, hashed into the provenance), parameters and the cells' digest
     (`built_from`). `where` names the input in an error."""
-    from .stages.brick import build_bricks
+    from .builders.bricks import build_bricks
 
     with _named(where):
         bricks = build_bricks(cells, max_brick_width=max_brick_width, piece=piece)
@@ -41,11 +41,11 @@ def bricks_of(cells: schema.Cells, inputs: Sequence = (), *, where: str | None =
 
 def regions_of(bricks: schema.Bricks, inputs: Sequence = (), *, where: str | None = None,
                merge=None, piece: Piece = WHOLE) -> schema.Regions:
-    """The Active Brick Regions of `bricks` (exabricks.stages.regions.build_regions,
+    """The Active Brick Regions of `bricks` (exabricks.builders.regions.build_regions,
     `merge` default: merged regions by the default cost model) with their meta; the
     brick and region counts go into meta["consistency"], which bvh, render and
     probe check."""
-    from .stages.regions import Merge, build_regions
+    from .builders.regions import Merge, build_regions
 
     with _named(where):
         regions = build_regions(bricks, Merge() if merge is None else merge, piece)
@@ -59,9 +59,9 @@ def regions_of(bricks: schema.Bricks, inputs: Sequence = (), *, where: str | Non
 
 def bvh_of(regions: schema.Regions, inputs: Sequence = (), *, where: str | None = None,
            leaf_size: int = LEAF_SIZE, bins: int = BINS, piece: Piece = WHOLE) -> schema.Bvh:
-    """The BVH over `regions` (exabricks.stages.bvh.build_bvh) with its meta, after
+    """The BVH over `regions` (exabricks.builders.bvh.build_bvh) with its meta, after
     checking the regions' own counts (`check_regions`)."""
-    from .stages.bvh import build_bvh
+    from .builders.bvh import build_bvh
 
     check_regions(regions, where or "the regions")
     with _named(where):
@@ -83,9 +83,9 @@ def bvh_of(regions: schema.Regions, inputs: Sequence = (), *, where: str | None 
 def values_of(cells: schema.Cells, bricks: schema.Bricks, inputs: Sequence = (), *,
               where: str | None = None, bricks_where: str | None = None) -> schema.Values:
     """One step of a time series on the hierarchy of `bricks`: the values of `cells`
-    in the bricks' cell order (exabricks.stages.values.step_values), recording the
+    in the bricks' cell order (exabricks.builders.values.step_values), recording the
     bricks' content sha256 and what the reader said of the step (its time)."""
-    from .stages.values import step_values
+    from .builders.values import step_values
 
     step = step_values(cells, bricks, where=where or "the source", bricks_where=bricks_where or "the bricks")
     meta = schema.make_meta(

@@ -1,6 +1,6 @@
 """Kernel builds ahead of the first picture (`exabricks devices --warm`).
 
-The renderer builds one OpenCL program per variant of a frame (exabricks.kernel_abi
+The renderer builds one OpenCL program per variant of a frame (exabricks.device.kernel_abi
 variant_defines: the number of fields, iso-surfaces, sample packets, ...) and, on
 PoCL, compiles each kernel's work-group function at its first enqueue; the first
 frame of a new variant on a machine waits for both (seconds to tens of seconds on a
@@ -46,7 +46,9 @@ def warm(device=None, frames=FRAMES, on_frame=None) -> list[dict]:
     what, "seconds": wall seconds, "programs": programs this process built for it,
     compiled or from the driver's cache}; `on_frame` is called with each as it is
     done."""
-    from . import api, opencl, progress
+    from . import api
+    from .device import opencl
+    from .util import progress
 
     with progress.waiting("reading the embedded dataset (Gerris plume)…"):
         dataset = api.open(embedded_dataset(), cache=False)

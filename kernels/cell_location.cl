@@ -9,7 +9,7 @@
 #include "reconstruction.cl"
 #include "traversal.cl"
 
-/* EB_LOCATE_MAX (exabricks.kernel_abi): bricks a sample sorts before summing;
+/* EB_LOCATE_MAX (exabricks.device.kernel_abi): bricks a sample sorts before summing;
  * any beyond are summed unsorted (still correct, only no longer in the
  * regions' order). */
 

@@ -8,7 +8,7 @@
 
 /* Every array bound (EB_STACK_SIZE, EB_MAX_SAMPLES, EB_MAX_ISO, ...) and the
  * frame's parameters (eb_params) come from the host's one declaration,
- * exabricks.kernel_abi, whose header() exabricks.opencl.program_for puts in
+ * exabricks.device.kernel_abi, whose header() exabricks.device.opencl.program_for puts in
  * front of every program; the variant defines (EB_N_FIELDS, EB_SURFACES, ...)
  * come from kernel_abi.variant_defines. The host keeps its inputs within the
  * bounds: every tree is checked on load to be at most EB_STACK_SIZE levels deep
@@ -17,10 +17,10 @@
  * than EB_MAX_SAMPLES samples on a ray is refused, so no input makes a kernel
  * loop forever. */
 #ifndef EB_ABI
-#error "build through exabricks.opencl.program_for (it prepends exabricks.kernel_abi.header())"
+#error "build through exabricks.device.opencl.program_for (it prepends exabricks.device.kernel_abi.header())"
 #endif
 #ifndef EB_N_FIELDS
-#error "build with the defines of exabricks.kernel_abi.variant_defines (EB_N_FIELDS)"
+#error "build with the defines of exabricks.device.kernel_abi.variant_defines (EB_N_FIELDS)"
 #endif
 
 #define EB_INF INFINITY

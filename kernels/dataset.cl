@@ -2,7 +2,7 @@
  *
  * The host groups the dataset's arrays by element type
  * (exabricks.engine.device_data.DeviceDataset) and says where each starts in the
- * frame's eb_params (exabricks.kernel_abi.PARAMS, the "*_at" members):
+ * frame's eb_params (exabricks.device.kernel_abi.PARAMS, the "*_at" members):
  *   geometry  float:  BVH node and region boxes, (n, 3) lower and upper corners;
  *   links     int:    BVH (first, count) links, then its leaf-order region ids;
  *   flags     uchar:  node and region visibility (per frame), region finest level;

@@ -35,7 +35,7 @@ typedef struct {
 } eb_surfaces;
 
 typedef struct {
-    __constant eb_params *P;  /* every scalar of the frame (exabricks.kernel_abi.PARAMS) */
+    __constant eb_params *P;  /* every scalar of the frame (exabricks.device.kernel_abi.PARAMS) */
     eb_bvh bvh;
     eb_regions regions;
     eb_sample_bricks bricks;

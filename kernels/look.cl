@@ -18,7 +18,7 @@
 #define EB_DIFFUSE 0.7f
 
 /* The frame's look: every transfer function and colour map as merged knots
- * (exabricks.transfer_function.TransferFunction.merged_knots) one after the
+ * (exabricks.picture.transfer_function.TransferFunction.merged_knots) one after the
  * other, each volume layer's knot index (knot_buckets, for the packet
  * lookup of packet.cl), the volume layers (field, first knot, knot count,
  * offset of the knot index), and each volume layer's lookup table

@@ -21,10 +21,10 @@
 #include "common.h"
 #include "frame.cl"
 
-/* EB_PACKET lanes: exabricks.kernel_abi.PACKET_WIDTH, eight (the vector types
+/* EB_PACKET lanes: exabricks.device.kernel_abi.PACKET_WIDTH, eight (the vector types
  * below). */
 #if EB_PACKET != 8
-#error "build with the defines of exabricks.kernel_abi.variant_defines (EB_PACKET=8)"
+#error "build with the defines of exabricks.device.kernel_abi.variant_defines (EB_PACKET=8)"
 #endif
 typedef float8 eb_vf;
 typedef int8 eb_vi;
@@ -238,7 +238,7 @@ EB_INLINE eb_basis_sums eb_packet_lane(eb_packet_lanes *lanes, int k, const int 
 }
 
 /* eb_transfer_function at W values (the same piecewise-linear function),
- * with the knot index `buckets` (exabricks.transfer_function.knot_buckets)
+ * with the knot index `buckets` (exabricks.picture.transfer_function.knot_buckets)
  * instead of a binary search: a chain of dependent gathers costs more than
  * the search saves. The end knots' colours beyond [xs[0], xs[n-1]]. */
 EB_INLINE void eb_packet_lookup(eb_vf value, __global const float *xs,

@@ -1,6 +1,6 @@
 /* Batches of samples for the sample packets of CPU devices (packet.cl): the
  * integrator places a ray's samples in a batch and takes them a packet at a
- * time. Built with -DEB_PACKET only (exabricks.kernel_abi.variant_defines: the
+ * time. Built with -DEB_PACKET only (exabricks.device.kernel_abi.variant_defines: the
  * basis reconstruction from the regions' lists); without it the batch is
  * empty and every region is sampled one sample at a time. */
 #pragma once

@@ -1,5 +1,5 @@
 /* One ray and what it has accumulated so far (the integrator's state). EB_N_FIELDS,
- * EB_MAX_SLICES and EB_LOD_LEVELS: exabricks.kernel_abi. */
+ * EB_MAX_SLICES and EB_LOD_LEVELS: exabricks.device.kernel_abi. */
 #pragma once
 #include "common.h"
 

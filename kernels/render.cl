@@ -22,7 +22,7 @@
 
 /* Sample `sample_index` of P->spp of every pixel in rows row0 .. row0 + rows - 1
  * and columns col0 .. col0 + cols - 1 (band = (row0, rows, col0, cols)) of the
- * P->width x P->height frame, with the parameters P (exabricks.kernel_abi.PARAMS)
+ * P->width x P->height frame, with the parameters P (exabricks.device.kernel_abi.PARAMS)
  * and the dataset's buffers (dataset.cl) (the host
  * renders a frame, or a tile of it, in bands of rows, so that each enqueue
  * ends well within a second and a signal can stop the run), averaged into

@@ -1,4 +1,4 @@
-/* The transfer function as the merged knots of exabricks.transfer_function.
+/* The transfer function as the merged knots of exabricks.picture.transfer_function.
  * TransferFunction.merged_knots: RGBA is linear between consecutive knots xs[i]
  * (strictly increasing) and clamps outside [xs[0], xs[n-1]], so this lookup is
  * the exact piecewise-linear function of the preset; eb_table_lookup reads its
@@ -26,7 +26,7 @@ EB_INLINE float4 eb_transfer_function(float value, __global const float *xs,
     return mix(rgba[lo], rgba[hi], f);
 }
 
-/* The same function from its lookup table (exabricks.transfer_function.lookup_table):
+/* The same function from its lookup table (exabricks.picture.transfer_function.lookup_table):
  * t[0] = (x0, K / (x_end - x0), K, 0), then RGBA at K + 1 even nodes; linear
  * between nodes, clamped outside (a NaN value takes node 0, as above). Equal to
  * the knots' function wherever the table interval holds no knot strictly inside

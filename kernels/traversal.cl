@@ -118,7 +118,7 @@ inline int eb_next_region(eb_bvh bvh, eb_regions regions, float3 org, float3 inv
     return best;
 }
 
-/* EB_QUEUE_SIZE (exabricks.kernel_abi.TUNABLES): the capacity of the ordered
+/* EB_QUEUE_SIZE (exabricks.device.kernel_abi.TUNABLES): the capacity of the ordered
  * walk's heap. The queued nodes and regions lie ahead of the ray front on
  * disjoint subtrees, a few tens for any BVH seen so far. A build option
  * -DEB_QUEUE_SIZE=n overrides it (tests force overflow with 2). */

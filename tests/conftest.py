@@ -39,8 +39,8 @@ GERRIS = PACKAGE_DATA / "gerris-plume" / "plume7-1.cells"
 # Leaf-cell counts read with yt 4.4.3 (shared/data/README.md).
 def _opencl_devices() -> list[str]:
     """Specs of every OpenCL device here (none without a driver); kernel tests run on each."""
-    from exabricks import opencl
-    from exabricks.errors import ExabricksError
+    from exabricks.device import opencl
+    from exabricks.util.errors import ExabricksError
 
     try:
         return [d.spec for d in opencl.list_devices()]
@@ -57,12 +57,12 @@ def built_scene(path: Path, field: str):
     """(bricks, regions, bvh, field, camera, transfer function) of one field of a dataset:
     built in memory, default camera on its bounds, default transfer function over its range."""
     from exabricks import schema
-    from exabricks.camera import default_camera
+    from exabricks.picture.camera import default_camera
     from exabricks.readers import read
-    from exabricks.stages.brick import build_bricks
-    from exabricks.stages.bvh import build_bvh
-    from exabricks.stages.regions import build_regions
-    from exabricks.transfer_function import default_transfer_function
+    from exabricks.builders.bricks import build_bricks
+    from exabricks.builders.bvh import build_bvh
+    from exabricks.builders.regions import build_regions
+    from exabricks.picture.transfer_function import default_transfer_function
 
     bricks = build_bricks(read(path, fields=[field]))
     regions = build_regions(bricks)
@@ -88,9 +88,9 @@ class Built:
 
 
 def build(cells) -> Built:
-    from exabricks.stages.brick import build_bricks
-    from exabricks.stages.bvh import build_bvh
-    from exabricks.stages.regions import build_regions
+    from exabricks.builders.bricks import build_bricks
+    from exabricks.builders.bvh import build_bvh
+    from exabricks.builders.regions import build_regions
 
     bricks = build_bricks(cells)
     regions = build_regions(bricks)

@@ -1,4 +1,4 @@
-"""Annotated pictures (exabricks.annotate, docs/annotate.md) of real renders of the
+"""Annotated pictures (exabricks.film.annotate, docs/annotate.md) of real renders of the
 Gerris plume: the scene of docs/examples/plume-scene.json (a volume layer, an
 iso-surface coloured by a field, one of a fixed colour, a slice).
 
@@ -22,11 +22,10 @@ import warnings
 import numpy as np
 import pytest
 
-from exabricks.annotate import (annotate, annotation_layout, facts_from_meta, font_size,
-                                projected_axes)
-from exabricks.camera import Camera
-from exabricks.errors import ExabricksError
-from exabricks.image_io import to_png_pixels
+from exabricks.film.annotate import annotate, annotation_layout, facts_from_meta, font_size, projected_axes
+from exabricks.picture.camera import Camera
+from exabricks.util.errors import ExabricksError
+from exabricks.film.image_io import to_png_pixels
 from exabricks.readers import read
 from exabricks.engine.renderer import Renderer
 from exabricks.scene import scene_from_options

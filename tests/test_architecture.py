@@ -41,9 +41,14 @@ def _imports(name: str, path: Path, modules) -> list[tuple[str, str]]:
     return [(m, n) for m, n in out if m in modules and m != name]
 
 
-def test_no_import_cycles():
-    modules = _modules()
-    graph = {m: {t for t, _ in _imports(m, p, modules)} for m, p in modules.items()}
+def _part(module: str) -> str:
+    """The folder a module lives in (exabricks.engine.renderer: "engine"), or the
+    module itself for one at the root (exabricks.api: "api"; the facade: "exabricks")."""
+    parts = module.split(".")
+    return parts[1] if len(parts) > 1 else parts[0]
+
+
+def _cycle(graph: dict[str, set[str]]) -> list[str] | None:
     state, path = {}, []
 
     def visit(m):
@@ -51,15 +56,44 @@ def test_no_import_cycles():
         path.append(m)
         for t in sorted(graph[m]):
             if state.get(t) == "open":
-                raise AssertionError("import cycle: " + " -> ".join(path[path.index(t):] + [t]))
-            if t not in state:
-                visit(t)
+                return path[path.index(t):] + [t]
+            if t not in state and (found := visit(t)):
+                return found
         path.pop()
         state[m] = "done"
+        return None
 
     for m in sorted(graph):
-        if m not in state:
-            visit(m)
+        if m not in state and (found := visit(m)):
+            return found
+    return None
+
+
+def test_no_import_cycles():
+    modules = _modules()
+    graph = {m: {t for t, _ in _imports(m, p, modules)} for m, p in modules.items()}
+    found = _cycle(graph)
+    assert not found, "import cycle: " + " -> ".join(found)
+
+
+def test_no_import_cycles_between_folders():
+    """The folders (and the root's modules) are layers (docs/contributing.md,
+    "Where each concept lives"): no two import each other, even through others
+    and inside functions."""
+    modules = _modules()
+    graph: dict[str, set[str]] = {}
+    for m, p in modules.items():
+        graph.setdefault(_part(m), set()).update(
+            _part(t) for t, _ in _imports(m, p, modules) if _part(t) != _part(m))
+    found = _cycle(graph)
+    assert not found, "folders import each other: " + " -> ".join(found)
+
+
+def test_the_root_holds_at_most_twelve_modules():
+    """The root keeps the library's face and what joins the layers; the rest lives in
+    the folder of its concept."""
+    root = sorted(p.name for p in PACKAGE.glob("*.py"))
+    assert len(root) <= 12, root
 
 
 def test_no_private_name_is_imported_from_another_module():

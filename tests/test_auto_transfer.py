@@ -12,18 +12,18 @@ import numpy as np
 import pytest
 
 from exabricks import schema
-from exabricks.auto_transfer import (
-    KNOT_LATTICE, ambient_band, automatic_transfer_function, opacity_shape, suggested_iso_value,
+from exabricks.picture.auto_transfer import (
+    KNOT_LATTICE, ambient_band, automatic_transfer_function, opacity_shape, suggested_iso_value
 )
-from exabricks.camera import Camera
+from exabricks.picture.camera import Camera
 from exabricks.engine.renderer import Renderer
-from exabricks.errors import ExabricksError
-from exabricks.field_statistics import opacity_along, opacity_columns, smallest_positive, volume_histogram
-from exabricks.framing import framed_camera, view_axes, visible_corners
-from exabricks.scaling import forward, inverse, resolve, scaled_range
+from exabricks.util.errors import ExabricksError
+from exabricks.picture.field_statistics import opacity_along, opacity_columns, smallest_positive, volume_histogram
+from exabricks.picture.framing import framed_camera, view_axes, visible_corners
+from exabricks.picture.scaling import forward, inverse, resolve, scaled_range
 from exabricks.scene import Clip, Lighting, Scene, Settings, VolumeLayer, scene_from_options
 from exabricks.scene.build import default_field
-from exabricks.transfer_function import TransferFunction, lookup_table
+from exabricks.picture.transfer_function import TransferFunction, lookup_table
 
 from conftest import ENZO, GERRIS, build, device_param
 

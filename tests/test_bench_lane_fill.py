@@ -11,9 +11,9 @@ from conftest import GERRIS
 
 from benchmarks.bench_lane_fill import _fill, _walk, lattice_rays, tree_arrays
 from exabricks.readers import read
-from exabricks.stages.brick import build_bricks
-from exabricks.stages.bvh import build_bvh
-from exabricks.stages.regions import build_regions
+from exabricks.builders.bricks import build_bricks
+from exabricks.builders.bvh import build_bvh
+from exabricks.builders.regions import build_regions
 
 pytestmark = pytest.mark.slow  # a benchmark's helpers, compiled by numba on first use
 

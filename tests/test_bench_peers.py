@@ -25,17 +25,17 @@ from benchmarks.peers import vtk as peer_vtk
 from benchmarks.peers import yt as peer_yt
 
 from exabricks import schema  # noqa: E402
-from exabricks.camera import Camera, default_camera  # noqa: E402
-from exabricks.errors import ExabricksError  # noqa: E402
-from exabricks import yt_grids  # noqa: E402
+from exabricks.picture.camera import Camera, default_camera  # noqa: E402
+from exabricks.util.errors import ExabricksError  # noqa: E402
+from exabricks.readers import yt_grids  # noqa: E402
 from benchmarks import uniform_grid
-from exabricks.stages.brick import build_bricks  # noqa: E402
-from exabricks.stages.bvh import build_bvh  # noqa: E402
+from exabricks.builders.bricks import build_bricks  # noqa: E402
+from exabricks.builders.bvh import build_bvh  # noqa: E402
 from exabricks.stages.compare import compare_images  # noqa: E402
-from exabricks.stages.regions import build_regions  # noqa: E402
+from exabricks.builders.regions import build_regions  # noqa: E402
 from exabricks.engine.renderer import Renderer  # noqa: E402
 from exabricks.engine.device_data import DeviceDataset  # noqa: E402
-from exabricks.transfer_function import TransferFunction, default_transfer_function  # noqa: E402
+from exabricks.picture.transfer_function import TransferFunction, default_transfer_function  # noqa: E402
 
 SIZE = 64
 
@@ -239,7 +239,7 @@ def test_uniform_grid_refuses_a_volume_that_is_not_3d():
 
 
 # ---------------------------------------------------------------------------
-# leaf cells as yt's nested grids (exabricks.yt_grids.to_amr_grids)
+# leaf cells as yt's nested grids (exabricks.readers.yt_grids.to_amr_grids)
 
 
 def test_to_amr_grids_by_hand():
@@ -538,8 +538,8 @@ def test_vtk_renders_a_cube_where_our_projection_does(tmp_path):
         from vtkmodules.util.numpy_support import numpy_to_vtk, vtk_to_numpy
         from vtkmodules.vtkRenderingCore import vtkCamera, vtkRenderer, vtkRenderWindow, vtkVolume
         from vtkmodules.vtkRenderingVolume import vtkFixedPointVolumeRayCastMapper
-        from exabricks.camera import default_camera
-        from exabricks.transfer_function import TransferFunction
+        from exabricks.picture.camera import default_camera
+        from exabricks.picture.transfer_function import TransferFunction
         n, size = 32, 48
         volume = np.zeros((n, n, n))
         volume[4:12, 20:28, 18:26] = 1.0  # z, y, x: low z, high y, high x
@@ -810,7 +810,7 @@ def test_ab_kernels_renders_two_versions_in_one_process(tmp_path):
     surfaces once, to the same non-empty images; each built its own programs, and
     exabricks' build options are its own again afterwards."""
     from benchmarks import ab_kernels
-    from exabricks import opencl
+    from exabricks.device import opencl
 
     root = ab_kernels.base_package("HEAD", tmp_path)
     assert (root / "exabricks" / "__init__.py").is_file() and (root / "kernels" / "render.cl").is_file()

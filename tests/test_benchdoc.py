@@ -129,8 +129,8 @@ def test_merge_rows_and_stale_regions(tmp_path):
     with another merge setting (or older than its bricks) is rebuilt."""
     from benchmarks import bench_merge
 
-    from exabricks.stages.regions import EXACT, Merge, build_regions
-    from exabricks.stages.brick import build_bricks
+    from exabricks.builders.regions import EXACT, Merge, build_regions
+    from exabricks.builders.bricks import build_bricks
 
     sets = benchdoc.datasets()
     setting = {"regions": 10, "regions_s": 0.5, "bvh_s": 0.25, "regions_per_cell": 2.0,

@@ -16,8 +16,8 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from exabricks import schema
-from exabricks.errors import ExabricksError
-from exabricks.stages.brick import build_bricks, merge_bricks
+from exabricks.util.errors import ExabricksError
+from exabricks.builders.bricks import build_bricks, merge_bricks
 
 from amr_strategies import amr_cells, make_cells, refine_octree
 from conftest import (AMREX, ATHENA, ENZO, GERRIS, LEAF_COUNTS, assert_one_error_line, peak_rss,
@@ -251,7 +251,7 @@ def test_bad_input_raises():
 def test_require_disjoint_names_the_overlapping_bricks(far):
     """Both ways of the check (one Morton-and-brick key a cell; per-cell corners
     when the lattice is too wide for one key, `far`) name the same two bricks."""
-    from exabricks.stages.brick import require_disjoint
+    from exabricks.builders.bricks import require_disjoint
 
     def bricks(lower, level, dims):
         dims = np.array(dims, np.int32)
@@ -307,7 +307,7 @@ def test_parallel_build_matches_serial(monkeypatch):
         clustered=True, base_depth=0, max_cells=60_000, offset=(0, 0, 0),
     )
     cells = make_cells(lower, level, rng)
-    brick = importlib.import_module("exabricks.stages.brick")
+    brick = importlib.import_module("exabricks.builders.bricks")
     monkeypatch.setattr(brick, "_PARALLEL_MIN_CELLS", 1)
     monkeypatch.setattr(brick.numba, "get_num_threads", lambda: 2)
     parallel = build_bricks(cells, max_brick_width=8)

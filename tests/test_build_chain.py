@@ -14,9 +14,9 @@ import pytest
 
 from exabricks import schema
 from exabricks.readers import read
-from exabricks.stages.brick import build_bricks
-from exabricks.stages.bvh import build_bvh
-from exabricks.stages.regions import build_regions
+from exabricks.builders.bricks import build_bricks
+from exabricks.builders.bvh import build_bvh
+from exabricks.builders.regions import build_regions
 
 from conftest import GERRIS, assert_one_error_line
 from test_hostile import run

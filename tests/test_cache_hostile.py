@@ -21,7 +21,7 @@ from conftest import FUZZ_EXAMPLES, GERRIS, run_cli
 from exabricks import cache as cache_mod
 from exabricks import schema
 from exabricks.dataset import open_source
-from exabricks.errors import ExabricksError
+from exabricks.util.errors import ExabricksError
 
 T, P = {"fields": ("T",)}, {"fields": ("P",)}
 

@@ -1,4 +1,4 @@
-"""Camera paths (exabricks/camera_path.py, `exabricks camera orbit|path`) and
+"""Camera paths (exabricks/picture/camera_path.py, `exabricks camera orbit|path`) and
 `render --camera-path --frame/--frames` (issue 12)."""
 
 from __future__ import annotations
@@ -8,10 +8,11 @@ import json
 import numpy as np
 import pytest
 
-from exabricks import camera_path, schema
-from exabricks.camera import Camera, default_camera
-from exabricks.errors import ExabricksError
-from exabricks.image_io import read_image
+from exabricks.picture import camera_path
+from exabricks import schema
+from exabricks.picture.camera import Camera, default_camera
+from exabricks.util.errors import ExabricksError
+from exabricks.film.image_io import read_image
 
 from conftest import GERRIS, assert_one_error_line
 
@@ -102,9 +103,9 @@ def test_frame_ranges():
 @pytest.fixture(scope="module")
 def gerris_files(tmp_path_factory):
     from exabricks.readers import read
-    from exabricks.stages.brick import build_bricks
-    from exabricks.stages.bvh import build_bvh
-    from exabricks.stages.regions import build_regions
+    from exabricks.builders.bricks import build_bricks
+    from exabricks.builders.bvh import build_bvh
+    from exabricks.builders.regions import build_regions
 
     d = tmp_path_factory.mktemp("gerris")
     bricks = build_bricks(read(GERRIS, fields=["T"]))

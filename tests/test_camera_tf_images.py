@@ -9,16 +9,12 @@ import os
 import numpy as np
 import pytest
 
-from exabricks import image_io
-from exabricks.camera import Camera, default_camera
-from exabricks.errors import ExabricksError
-from exabricks.image_io import read_depth, read_image, write_image
-from exabricks.transfer_function import (
-    TransferFunction,
-    builtin_presets,
-    default_transfer_function,
-    opacity_correct,
-    preset_path,
+from exabricks.film import image_io
+from exabricks.picture.camera import Camera, default_camera
+from exabricks.util.errors import ExabricksError
+from exabricks.film.image_io import read_depth, read_image, write_image
+from exabricks.picture.transfer_function import (
+    TransferFunction, builtin_presets, default_transfer_function, opacity_correct, preset_path
 )
 
 # ---------------------------------------------------------------------------------------

@@ -13,7 +13,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from exabricks.errors import ExabricksError
+from exabricks.util.errors import ExabricksError
 from exabricks.engine.cell_location import build_brick_tree, support_boxes
 from exabricks.engine.renderer import Renderer
 

@@ -12,11 +12,11 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from exabricks import schema
-from exabricks.constants import MAX_LEVEL
-from exabricks.errors import ExabricksError
+from exabricks.util.constants import MAX_LEVEL
+from exabricks.util.errors import ExabricksError
 from exabricks.readers import read
 from exabricks.stages.coarsen import coarsen_cells, coarsen_plotfile
-from exabricks.stages.ingest import validate_cells
+from exabricks.builders.cells import validate_cells
 
 from benchmarks import amrex_plotfile
 from amr_strategies import amr_cells
@@ -297,7 +297,7 @@ def test_cli_chain_renders(tmp_path):
     image = tmp_path / "image.exr"
     run_cli("render", p["bricks"], p["regions"], p["bvh"], "-o", image, "--size", "64", "64",
             "--field", "T", "--no-jitter", check=0)
-    from exabricks.image_io import read_image
+    from exabricks.film.image_io import read_image
 
     rgba, _ = read_image(image)
     assert rgba.shape == (64, 64, 4) and rgba[..., 3].max() > 0.05

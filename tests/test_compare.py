@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 from conftest import run_cli
 
-from exabricks.errors import ExabricksError
-from exabricks.image_io import read_image, write_image
+from exabricks.util.errors import ExabricksError
+from exabricks.film.image_io import read_image, write_image
 from exabricks.stages.compare import compare_images, diff_image, ssim
 
 

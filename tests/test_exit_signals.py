@@ -1,5 +1,5 @@
 """A signal that arrives once the output is in place (exabricks/cli/main.py,
-exabricks/interrupt.py; issue 32) ends the run with exit 0, or with the
+exabricks/util/interrupt.py; issue 32) ends the run with exit 0, or with the
 interrupted line and 128 + N: never with death by the signal, which would lie to
 a scheduler about a complete output."""
 

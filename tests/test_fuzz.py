@@ -910,7 +910,7 @@ def test_signal_ends_render_cleanly(gerris, tmp_path, signum, status):
 
 # ---------------------------------------------------------------------------
 # the small JSON inputs (scene, camera, preset, keyframes, camera path) up to the
-# caps of exabricks/jsonfile.py, and descriptors and FIFOs as inputs and outputs
+# caps of exabricks/util/jsonfile.py, and descriptors and FIFOs as inputs and outputs
 
 JSON_SCALARS = st.one_of(st.none(), st.booleans(), st.integers(-2**70, 2**70),
                          st.floats(allow_nan=False), st.text(max_size=20))
@@ -933,7 +933,7 @@ JSON_PLACES = ("list", "list value", "key", "root")
 def mutate_json(data, doc):
     """`doc` with one drawn value replaced: by random JSON, a list of up to twice the
     list cap, a deep nest, or a long string (the sizes a hostile file can reach)."""
-    from exabricks.jsonfile import MAX_DEPTH, MAX_LIST
+    from exabricks.util.jsonfile import MAX_DEPTH, MAX_LIST
 
     d = data.draw
     big = st.one_of(

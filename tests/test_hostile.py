@@ -117,7 +117,7 @@ def test_an_output_naming_an_input_is_refused(command, plume_trio, tmp_path):
 
 
 def test_compare_diff_onto_an_input_is_refused(tmp_path):
-    from exabricks.image_io import write_image
+    from exabricks.film.image_io import write_image
 
     a = tmp_path / "a.png"
     write_image(a, np.zeros((12, 12, 4), np.float32))
@@ -208,7 +208,7 @@ def test_an_absurd_sampling_rate_is_refused_at_once(plume_trio, tmp_path):
 
 
 def test_too_deep_a_bvh_is_refused():
-    from exabricks.constants import MAX_TREE_DEPTH
+    from exabricks.util.constants import MAX_TREE_DEPTH
 
     # A chain: node 2k is inner with children 2k+1 (a leaf) and 2k+2.
     depth = MAX_TREE_DEPTH + 1
@@ -287,7 +287,7 @@ def test_an_image_larger_than_memory_allows_is_refused(plume_trio, tmp_path):
 
 @pytest.mark.parametrize("flag", ["--max-rmse", "--min-psnr", "--max-abs", "--min-ssim"])
 def test_nan_thresholds_are_refused(flag, tmp_path):
-    from exabricks.image_io import write_image
+    from exabricks.film.image_io import write_image
 
     a = tmp_path / "a.png"
     write_image(a, np.zeros((12, 12, 4), np.float32))
@@ -333,7 +333,7 @@ def test_a_damaged_member_is_caught_by_the_mapped_checked_load(tmp_path, stage):
     checked=True)): a flipped byte in one is still caught by its CRC."""
     import zipfile
 
-    from exabricks.stages.brick import build_bricks
+    from exabricks.builders.bricks import build_bricks
 
     g = np.stack(np.meshgrid(*[np.arange(72)] * 3, indexing="ij"), -1).reshape(-1, 3)
     cells = schema.Cells(fields=("v",), origin_world=np.zeros(3), spacing_world=np.ones(3),

@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from exabricks.errors import ExabricksError
+from exabricks.util.errors import ExabricksError
 
 from conftest import DEVICES, GERRIS, assert_one_error_line
 
@@ -98,7 +98,7 @@ def test_lod_beyond_float32_is_refused_in_a_scene_file_and_the_library(tmp_path)
 
 
 def test_a_far_camera_is_not_called_the_same_point(tmp_path):
-    from exabricks.camera import Camera
+    from exabricks.picture.camera import Camera
     out = tmp_path / "r.png"
     proc = run("render", GERRIS, "--position", "1e300", "1e300", "1e300", "--size", "8", "8",
                "-o", out)
@@ -109,7 +109,7 @@ def test_a_far_camera_is_not_called_the_same_point(tmp_path):
 
 
 def test_a_huge_range_names_the_range_not_a_nan_in_the_colour_map(tmp_path):
-    from exabricks.transfer_function import TransferFunction
+    from exabricks.picture.transfer_function import TransferFunction
     with pytest.raises(ExabricksError, match=r"range \[-1e\+308, 1e\+308\].*float32"):
         TransferFunction.from_colormap("viridis", (-1e308, 1e308))
     scene = tmp_path / "scene.json"
@@ -126,7 +126,7 @@ def test_a_block_device_output_is_called_a_block_device():
               if os.path.exists(p) and stat.S_ISBLK(os.stat(p).st_mode)]
     if not blocks:
         pytest.skip("no block device here")
-    from exabricks.output import check_output
+    from exabricks.util.output import check_output
     with pytest.raises(ExabricksError, match="a block device") as info:
         check_output(blocks[0], ())
     assert "not a regular file, device" not in str(info.value)
@@ -281,7 +281,7 @@ def test_a_fifo_given_as_a_mesh_is_not_called_missing(plume_dataset, tmp_path):
 
 def test_a_title_longer_than_a_line_is_refused_before_drawing(plume_dataset, tmp_path):
     import exabricks as eb
-    from exabricks.constants import MAX_TITLE_CHARS
+    from exabricks.util.constants import MAX_TITLE_CHARS
     image = eb.Image(np.zeros((8, 8, 4), np.float32), scene=eb.Renderer(plume_dataset).scene(
         size=(8, 8)))
     out = tmp_path / "t.png"

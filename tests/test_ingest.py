@@ -21,10 +21,12 @@ from hypothesis import strategies as st
 
 from amr_strategies import amr_cells
 from exabricks import schema
-from exabricks.errors import ExabricksError
+from exabricks.util.errors import ExabricksError
 from exabricks.readers import FORMATS, detect_format
 from exabricks.readers.exajet import scalar_files
-from exabricks.stages.ingest import amr_from_uniform, find_overlap, ingest, validate_cells
+from exabricks.builders.uniform import amr_from_uniform
+from exabricks.builders.cells import find_overlap, validate_cells
+from exabricks.stages.ingest import ingest
 
 
 from benchmarks import amrex_plotfile

@@ -12,11 +12,11 @@ import numpy as np
 import pytest
 
 from exabricks import schema
-from exabricks.camera import Camera
+from exabricks.picture.camera import Camera
 from exabricks.engine import instances
 from exabricks.engine.renderer import Renderer
-from exabricks.errors import ExabricksError
-from exabricks.parallel import needs_image_mode
+from exabricks.util.errors import ExabricksError
+from exabricks.engine.partition import needs_image_mode
 from exabricks.scene import field_range, scene_from_options, scene_to_dict
 from exabricks.scene.model import (Clip, Instance, IsoSurface, Lighting, MeshLayer, Scene, Settings,
                                    Slice, VolumeLayer)
@@ -299,7 +299,7 @@ def test_the_flag_and_the_scene_key(tmp_path):
 def test_render_mirror_and_a_budget_of_several_domains(tmp_path):
     """`render --mirror` writes the instances into the image's scene; a budget that
     splits the data by space refuses them with one line and writes nothing."""
-    from exabricks.image import Image
+    from exabricks.film.image import Image
 
     out = tmp_path / "m.png"
     args = ["render", GERRIS, "--size", 48, 48, "--mirror", "x", 0]

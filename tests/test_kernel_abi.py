@@ -1,4 +1,4 @@
-"""exabricks.kernel_abi: the one declaration of the kernels' bounds, variant defines
+"""exabricks.device.kernel_abi: the one declaration of the kernels' bounds, variant defines
 and frame parameters, and the entry points' argument counts."""
 
 from __future__ import annotations
@@ -7,7 +7,7 @@ import pyopencl as cl
 import pytest
 from conftest import DEVICES
 
-from exabricks import kernel_abi, opencl
+from exabricks.device import kernel_abi, opencl
 
 # Every program a frame or probe can reach (the host refuses the other combinations).
 VARIANTS = [dict(), dict(packets=True), dict(surfaces=True, n_fields=3), dict(lod=True),
@@ -71,7 +71,7 @@ def test_params_struct_matches_the_device_layout(device):
 def test_kernels_refuse_to_build_without_the_header(device):
     context, _ = opencl.context_for(opencl.choose_device(device))
     source = (opencl.kernel_dir() / opencl.ENTRY_SOURCE).read_text()
-    with pytest.raises(cl.RuntimeError, match="exabricks.kernel_abi"):
+    with pytest.raises(cl.RuntimeError, match="exabricks.device.kernel_abi"):
         cl.Program(context, source).build(options=opencl.build_options(kernel_abi.variant_defines()))
 
 

@@ -1,5 +1,5 @@
 """Kernel builds: a build that takes long says so on a terminal and nowhere else
-(exabricks.progress.waiting in exabricks.opencl), and `exabricks devices --warm`
+(exabricks.util.progress.waiting in exabricks.device.opencl), and `exabricks devices --warm`
 builds every program that a default render and `make demo`'s picture need."""
 
 from __future__ import annotations
@@ -87,7 +87,7 @@ def test_a_long_build_says_so_on_a_terminal_only():
 
 
 def test_a_quick_wait_stays_silent_on_a_terminal(monkeypatch):
-    from exabricks import progress
+    from exabricks.util import progress
 
     class Terminal:
         def __init__(self):
@@ -127,7 +127,7 @@ def demo_render_flags() -> list[str]:
 def test_warm_builds_what_the_default_and_demo_renders_need(tmp_path):
     """After `devices --warm`, neither a default render of the embedded dataset nor
     make demo's render (its flags read from the Makefile) builds a program."""
-    from exabricks import opencl
+    from exabricks.device import opencl
     from exabricks.cli.main import cli
 
     runner = CliRunner()

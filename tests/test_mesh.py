@@ -16,12 +16,12 @@ import numpy as np
 import pytest
 import trimesh
 
-from exabricks import kernel_abi, opencl
+from exabricks.device import kernel_abi, opencl
 from exabricks.engine.renderer import Renderer
-from exabricks.errors import ExabricksError
+from exabricks.util.errors import ExabricksError
 from exabricks.mesh import build_mesh_set, read_mesh
 from exabricks.scene.model import Clip, Lighting, MeshLayer, Scene, Settings, VolumeLayer
-from exabricks.transfer_function import TransferFunction
+from exabricks.picture.transfer_function import TransferFunction
 
 from conftest import AMREX, GERRIS, assert_one_error_line, built_scene, device_param, run_cli
 
@@ -372,7 +372,7 @@ def test_the_scene_file_and_its_flags(tmp_path):
                                              "color": {"field": "T", "colormap": "viridis"}}]}))
     out = tmp_path / "a.png"
     run_cli("render", GERRIS, "-o", out, "--size", 32, 32, "--scene", scene, check=0)
-    from exabricks.image import Image
+    from exabricks.film.image import Image
 
     meta = Image.read(out).metadata
     assert meta["scene"]["meshes"][0]["path"] == str(path) and meta["settings"]["meshes"]["triangles"] > 0
@@ -409,7 +409,7 @@ def test_a_budget_of_several_domains_refuses_meshes(tmp_path):
     assert not out.exists()
     run_cli(*args, "-o", tmp_path / "a.png", check=0)
     run_cli(*args, "-o", tmp_path / "b.png", "--memory-budget", "300M", check=0)
-    from exabricks.image import Image
+    from exabricks.film.image import Image
 
     np.testing.assert_array_equal(Image.read(tmp_path / "a.png").rgba,
                                   Image.read(tmp_path / "b.png").rgba)

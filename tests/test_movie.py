@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from exabricks.image_io import to_png_pixels, write_image
+from exabricks.film.image_io import to_png_pixels, write_image
 from exabricks.stages.movie import natural_sorted, video_frame
 
 from conftest import assert_one_error_line, run_cli

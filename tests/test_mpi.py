@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from exabricks.image_io import read_image
+from exabricks.film.image_io import read_image
 
 from conftest import AMREX, GERRIS, assert_one_error_line
 
@@ -31,9 +31,9 @@ def mpirun(n, *args, env=None):
 def files_of(tmp_path_factory, source, field):
     from exabricks import schema
     from exabricks.readers import read
-    from exabricks.stages.brick import build_bricks
-    from exabricks.stages.bvh import build_bvh
-    from exabricks.stages.regions import build_regions
+    from exabricks.builders.bricks import build_bricks
+    from exabricks.builders.bvh import build_bvh
+    from exabricks.builders.regions import build_regions
 
     d = tmp_path_factory.mktemp(Path(source).stem)
     bricks = build_bricks(read(source, fields=[field]))

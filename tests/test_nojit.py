@@ -21,13 +21,14 @@ import numpy as np
 import pytest
 
 from exabricks import schema
-from exabricks.pieces import Piece
-from exabricks.stages.brick import build_bricks
-from exabricks.stages.piece_order import RUNS_KEY, order_cells
-from exabricks.stages.bvh import build_bvh
+from exabricks.formats.pieces import Piece
+from exabricks.builders.bricks import build_bricks
+from exabricks.builders.piece_order import RUNS_KEY, order_cells
+from exabricks.builders.bvh import build_bvh
 from exabricks.engine.cell_location import build_brick_tree
-from exabricks.stages.ingest import amr_from_uniform, cell_statistics, find_overlap, validate_cells
-from exabricks.stages.regions import build_regions
+from exabricks.builders.uniform import amr_from_uniform
+from exabricks.builders.cells import cell_statistics, find_overlap, validate_cells
+from exabricks.builders.regions import build_regions
 
 from amr_strategies import make_cells, refine_octree
 

@@ -1,4 +1,4 @@
-"""Outputs through open descriptors (exabricks/output.py; issue 32): `-o
+"""Outputs through open descriptors (exabricks/util/output.py; issue 32): `-o
 /dev/stdout`, `/dev/fd/N` and `/proc/self/fd/N` write through the descriptor,
 whatever it is open on, never replacing the file behind it and never needing a
 temporary directory."""

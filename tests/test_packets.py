@@ -18,11 +18,11 @@ import numpy as np
 import pytest
 
 from exabricks import schema
-from exabricks.camera import default_camera
+from exabricks.picture.camera import default_camera
 from exabricks.readers import read
 from exabricks.scene import Clip, IsoSurface, Lighting, Scene, Settings, Slice, VolumeLayer
 from exabricks.engine.renderer import PACKET_WIDTH, Renderer
-from exabricks.transfer_function import TransferFunction, default_transfer_function, knot_buckets
+from exabricks.picture.transfer_function import TransferFunction, default_transfer_function, knot_buckets
 
 from conftest import AMREX, ATHENA, ENZO, GERRIS, build, device_param
 
@@ -150,7 +150,7 @@ def test_packets_with_the_retrace_walk_and_none_with_cell_location(name, device)
 
 @device_param
 def test_cpu_devices_take_packets_by_default(device):
-    from exabricks import opencl
+    from exabricks.device import opencl
 
     built = loaded("gerris")[0]
     r = Renderer(built.bricks, built.regions, built.bvh, field="T", device=device)

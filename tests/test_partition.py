@@ -24,7 +24,7 @@ from exabricks.engine.renderer import Renderer, over_background
 from conftest import device_param
 from test_packets import DATASETS, loaded, renderer, scene_for
 
-# What a domain can render alone (exabricks.parallel.needs_image_mode: iso-surfaces,
+# What a domain can render alone (exabricks.engine.partition.needs_image_mode: iso-surfaces,
 # AO, depth and the vertex reconstruction take image mode).
 # clip-slice and lod build program variants of their own, the slowest of the fast
 # suite on a fresh machine: the slow suite runs them.

@@ -12,14 +12,14 @@ import numpy as np
 import pytest
 
 from exabricks import schema
-from exabricks.errors import ExabricksError
+from exabricks.util.errors import ExabricksError
 from exabricks.readers import read
-from exabricks.stages.brick import build_bricks
-from exabricks.stages.bvh import build_bvh
-from exabricks.stages.join import join_bricks, join_bvh, join_regions
-from exabricks.stages.piece_order import MAX_RUNS, RUN_CELLS, RUNS_KEY, order_cells
-from exabricks.pieces import Piece, task_range
-from exabricks.stages.regions import build_regions
+from exabricks.builders.bricks import build_bricks
+from exabricks.builders.bvh import build_bvh
+from exabricks.builders.join import join_bricks, join_bvh, join_regions
+from exabricks.builders.piece_order import MAX_RUNS, RUN_CELLS, RUNS_KEY, order_cells
+from exabricks.formats.pieces import Piece, task_range
+from exabricks.builders.regions import build_regions
 
 from conftest import AMREX, ATHENA, ENZO, GERRIS, assert_one_error_line
 
@@ -67,7 +67,7 @@ def test_joined_pieces_equal_the_whole_build(name, counts):
 
 
 def ordered(name):
-    """The dataset's cells as `exabricks ingest` writes them (exabricks.stages.piece_order),
+    """The dataset's cells as `exabricks ingest` writes them (exabricks.builders.piece_order),
     from copies: ordering permutes the cells' own arrays in place."""
     cells = dataset_cells(name)
     return order_cells(cells.replace(lower_lattice=cells.lower_lattice.copy(),
@@ -165,7 +165,7 @@ def test_joined_files_render_like_the_whole_ones(enzo_files, tmp_path, cli):
     for where, out in ((d, tmp_path / "whole.exr"), (tmp_path, tmp_path / "joined.exr")):
         cli("render", where / "bricks.npz", where / "regions.npz", where / "bvh.npz",
             "--size", "48", "32", "-o", out, check=0)
-    from exabricks.image_io import read_image
+    from exabricks.film.image_io import read_image
 
     np.testing.assert_array_equal(read_image(tmp_path / "whole.exr")[0],
                                   read_image(tmp_path / "joined.exr")[0])

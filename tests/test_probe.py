@@ -21,10 +21,10 @@ import pytest
 
 from exabricks import schema
 from exabricks.readers import read
-from exabricks.stages.brick import build_bricks
-from exabricks.stages.bvh import build_bvh
+from exabricks.builders.bricks import build_bricks
+from exabricks.builders.bvh import build_bvh
 from exabricks.stages.probe import probe
-from exabricks.stages.regions import build_regions
+from exabricks.builders.regions import build_regions
 
 import reference
 from conftest import AMREX, ATHENA, ENZO, GERRIS, assert_one_error_line, run_cli, device_param

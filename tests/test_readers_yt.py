@@ -19,9 +19,9 @@ import numpy as np
 import pytest
 
 from exabricks import schema
-from exabricks.errors import ExabricksError
+from exabricks.util.errors import ExabricksError
 from exabricks.readers import _blocks, amrex, athena, yt_bridge
-from exabricks.stages.ingest import validate_cells
+from exabricks.builders.cells import validate_cells
 
 from conftest import AMREX, ATHENA, ENZO, LEAF_COUNTS
 

@@ -9,17 +9,17 @@ import pytest
 from exabricks import schema
 from exabricks.readers import read
 from exabricks.scene import IsoSurface, Scene, Settings
-from exabricks.stages.brick import build_bricks
-from exabricks.stages.bvh import build_bvh
+from exabricks.builders.bricks import build_bricks
+from exabricks.builders.bvh import build_bvh
 from exabricks.engine.device_data import DeviceDataset
-from exabricks.stages.regions import build_regions
+from exabricks.builders.regions import build_regions
 from exabricks.engine.renderer import Renderer
 
 from conftest import AMREX, GERRIS, built_scene, device_param, run_cli
 
 DATASETS = [(GERRIS, "T"), (AMREX, "phi")]
 
-# The kernels flush denormals to zero (-cl-denorms-are-zero, exabricks/opencl.py).
+# The kernels flush denormals to zero (-cl-denorms-are-zero, exabricks/device/opencl.py).
 TINY = np.finfo(np.float32).tiny
 
 
@@ -240,8 +240,8 @@ def test_lod_keeps_the_opacity_of_a_constant_field(device):
     """Per-level opacity correction (Kähler & Hege): the step grows with the level
     used and the opacity of each step with it, so a constant field (whose coarse
     averages are the same constant) renders the same picture at any LOD."""
-    from exabricks.camera import default_camera
-    from exabricks.transfer_function import TransferFunction
+    from exabricks.picture.camera import default_camera
+    from exabricks.picture.transfer_function import TransferFunction
 
     cells, bricks, regions, bvh = two_level_linear(a=(0.0, 0.0, 0.0), b=0.5)
     camera = default_camera(np.zeros(3), np.full(3, 24.0))
@@ -257,7 +257,7 @@ def test_lod_keeps_the_opacity_of_a_constant_field(device):
 
 @device_param
 def test_lod_refuses_other_reconstructions(device):
-    from exabricks.errors import ExabricksError
+    from exabricks.util.errors import ExabricksError
 
     bricks, regions, bvh, field, camera, tf = built_scene(GERRIS, "T")
     renderer = Renderer(bricks, regions, bvh, field=field, device=device)

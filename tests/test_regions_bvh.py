@@ -16,10 +16,10 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from exabricks import schema
-from exabricks.errors import ExabricksError
-from exabricks.stages.brick import build_bricks
-from exabricks.stages.bvh import build_bvh
-from exabricks.stages.regions import EXACT, Merge, build_regions, partition, support_boxes_doubled
+from exabricks.util.errors import ExabricksError
+from exabricks.builders.bricks import build_bricks
+from exabricks.builders.bvh import build_bvh
+from exabricks.builders.regions import EXACT, Merge, build_regions, partition, support_boxes_doubled
 
 from amr_strategies import amr_cells
 from conftest import AMREX, ATHENA, ENZO, GERRIS, assert_one_error_line, run_cli
@@ -529,7 +529,7 @@ def test_the_first_split_on_threads_gives_the_same_tree():
     """A BVH over 67,712 boxes (the Gerris plume's cell supports): its first split's
     passes run on numba's threads (bvh._split_root), the rest as before; the tree
     is array for array the one of a single thread."""
-    from exabricks.stages.bvh import _build
+    from exabricks.builders.bvh import _build
 
     bricks = bricks_one_per_cell(gerris_cells())
     lo, hi = (np.ascontiguousarray(b, np.float32) for b in support_boxes_doubled(bricks))

@@ -17,11 +17,12 @@ from dataclasses import dataclass
 import numpy as np
 import pytest
 
-from exabricks import kernel_abi, opencl, schema
-from exabricks.camera import Camera, default_camera
+from exabricks.device import kernel_abi, opencl
+from exabricks import schema
+from exabricks.picture.camera import Camera, default_camera
 from exabricks.readers import read
 from exabricks.engine.renderer import Renderer
-from exabricks.transfer_function import TransferFunction
+from exabricks.picture.transfer_function import TransferFunction
 
 import reference
 from conftest import AMREX, ATHENA, GERRIS, Built, build, device_param

@@ -7,7 +7,7 @@ import json
 import numpy as np
 import pytest
 
-from exabricks.image_io import read_depth, read_image
+from exabricks.film.image_io import read_depth, read_image
 
 from conftest import GERRIS, assert_one_error_line, run_cli
 

@@ -14,7 +14,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from exabricks.errors import ExabricksError
+from exabricks.util.errors import ExabricksError
 from exabricks.engine.renderer import TRAVERSALS, Renderer
 
 from conftest import AMREX, ATHENA, GERRIS, DEVICES, built_scene

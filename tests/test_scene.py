@@ -9,18 +9,16 @@ from pathlib import Path
 import pytest
 
 from exabricks import schema
-from exabricks.auto_transfer import automatic_transfer_function
-from exabricks.camera import Camera
-from exabricks.framing import framed_camera, view_axes, visible_corners
-from exabricks.errors import ExabricksError
+from exabricks.picture.auto_transfer import automatic_transfer_function
+from exabricks.picture.camera import Camera
+from exabricks.picture.framing import framed_camera, view_axes, visible_corners
+from exabricks.util.errors import ExabricksError
 from exabricks.scene import (
     FLAGS, MAX_AO_SAMPLES, MAX_CLIP_PLANES, MAX_ISOSURFACES, MAX_SLICES, MAX_VOLUMES, Clip,
     Lighting, Settings, choose_transfer_function, field_range, read_scene_file, scene_file_references,
     scene_from_options, scene_schema, scene_to_dict,
 )
-from exabricks.transfer_function import (
-    TransferFunction, preset_path, widen_degenerate_range,
-)
+from exabricks.picture.transfer_function import TransferFunction, preset_path, widen_degenerate_range
 
 from conftest import DEVICES, GERRIS, assert_one_error_line, run_cli
 
@@ -31,7 +29,7 @@ PRESET = {"Name": "two", "RGBPoints": [0, 0, 0, 0, 1, 1, 1, 1], "Points": [0, 0,
 def bricks():
     """Bricks of the Gerris plume with all its fields: P T U V W."""
     from exabricks.readers import read
-    from exabricks.stages.brick import build_bricks
+    from exabricks.builders.bricks import build_bricks
 
     return build_bricks(read(GERRIS))
 
@@ -39,8 +37,8 @@ def bricks():
 @pytest.fixture(scope="module")
 def trio(bricks, tmp_path_factory):
     """bricks, regions and bvh files of the plume, all fields."""
-    from exabricks.stages.bvh import build_bvh
-    from exabricks.stages.regions import build_regions
+    from exabricks.builders.bvh import build_bvh
+    from exabricks.builders.regions import build_regions
 
     d = tmp_path_factory.mktemp("scene-trio")
     regions = build_regions(bricks)
@@ -309,7 +307,7 @@ def test_the_schema_is_valid_and_matches_the_limits():
     ao = s["$defs"]["lighting"]["properties"]["ambient_occlusion"]["properties"]["samples"]
     assert ao["maximum"] == MAX_AO_SAMPLES
     assert s["$defs"]["lighting"]["properties"]["shading"]["enum"] == ["headlight", "none"]
-    from exabricks.constants import MAX_KNOTS
+    from exabricks.util.constants import MAX_KNOTS
 
     preset = s["$defs"]["preset"]["properties"]
     assert preset["RGBPoints"]["maxItems"] == preset["Points"]["maxItems"] == 4 * MAX_KNOTS
@@ -495,7 +493,7 @@ def _render_scene_exists() -> bool:
 
 @pytest.mark.skipif(not DEVICES or not _render_scene_exists(), reason="needs render_scene and an OpenCL device")
 def test_cli_writes_the_scene_into_the_image_metadata(trio, tmp_path):
-    from exabricks.image_io import read_image
+    from exabricks.film.image_io import read_image
 
     scene = write(tmp_path, {"volumes": [{"field": "T"}], "size": [24, 16], "jitter": False})
     out = tmp_path / "x.exr"
@@ -514,7 +512,7 @@ def test_a_scene_object_is_held_to_the_limits_of_its_options():
     item 4), so a negative shininess or a NaN specular weight is refused."""
     import dataclasses
 
-    from exabricks.camera import Camera
+    from exabricks.picture.camera import Camera
     from exabricks.scene import Scene
     from exabricks.scene.options import SCENE_OPTIONS
 

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from exabricks import schema
-from exabricks.errors import ExabricksError
+from exabricks.util.errors import ExabricksError
 
 from conftest import assert_one_error_line
 

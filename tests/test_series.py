@@ -14,7 +14,7 @@ import pytest
 
 import exabricks as eb
 from exabricks.describe import field_range as files_range
-from exabricks.image_io import read_image
+from exabricks.film.image_io import read_image
 
 WORKFLOWS = Path(__file__).resolve().parents[1] / "workflows"
 

@@ -1,4 +1,4 @@
-"""The one reader of small inputs (exabricks/jsonfile.py; issue 32): devices,
+"""The one reader of small inputs (exabricks/util/jsonfile.py; issue 32): devices,
 FIFOs and directories are refused without blocking or reading without bound,
 and the size, nesting and list caps refuse a hostile file in one line before
 the work after parsing grows with it."""
@@ -11,10 +11,10 @@ import os
 import numpy as np
 import pytest
 
-from exabricks.constants import MAX_KNOTS
-from exabricks.errors import ExabricksError
-from exabricks.jsonfile import MAX_DEPTH, MAX_LIST, check_bounds, read_json
-from exabricks.transfer_function import TransferFunction
+from exabricks.util.constants import MAX_KNOTS
+from exabricks.util.errors import ExabricksError
+from exabricks.util.jsonfile import MAX_DEPTH, MAX_LIST, check_bounds, read_json
+from exabricks.picture.transfer_function import TransferFunction
 
 from conftest import assert_one_error_line
 from test_hostile import run
@@ -143,7 +143,7 @@ def test_keyframe_errors_name_the_file(tmp_path):
 
 
 def test_too_many_keyframes_are_refused(tmp_path):
-    from exabricks.camera_path import MAX_KEYFRAMES
+    from exabricks.picture.camera_path import MAX_KEYFRAMES
 
     keys = tmp_path / "keys.json"
     keys.write_text(json.dumps([{**CAMERA, "time": i} for i in range(MAX_KEYFRAMES + 1)]))

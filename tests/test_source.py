@@ -31,7 +31,7 @@ def staged(tmp_path, source, ingest_args=()):
 
 
 def pixels(path):
-    from exabricks.image_io import read_image
+    from exabricks.film.image_io import read_image
 
     return read_image(path)[0]
 

@@ -17,9 +17,9 @@ import time
 import numpy as np
 import pytest
 
-from exabricks.errors import ExabricksError
-from exabricks.image_io import read_image
-from exabricks.sizes import parse_size
+from exabricks.util.errors import ExabricksError
+from exabricks.film.image_io import read_image
+from exabricks.util.sizes import parse_size
 from exabricks.engine.partition import domain_plan, domain_bytes
 from exabricks.engine.renderer import Renderer
 from exabricks.engine.streaming import (HELD, SLACK, Budgeted, Resident, fixed_bytes, image_bytes,
@@ -371,7 +371,7 @@ def test_domains_out_of_view_are_never_read():
 
 
 def test_footprints_hold_every_ray_that_meets_the_box():
-    from exabricks.camera import Camera
+    from exabricks.picture.camera import Camera
 
     rng = np.random.default_rng(7)
     camera = Camera((5.0, 4.0, 3.0), (0.0, 0.0, 0.0), (0.0, 0.0, 1.0), 40.0)

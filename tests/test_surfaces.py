@@ -33,11 +33,11 @@ import numpy as np
 import pytest
 
 from exabricks import schema
-from exabricks.camera import Camera, default_camera
+from exabricks.picture.camera import Camera, default_camera
 from exabricks.readers import read
 from exabricks.scene import Clip, IsoSurface, Lighting, Scene, Settings, Slice, VolumeLayer
 from exabricks.engine.renderer import Renderer
-from exabricks.transfer_function import TransferFunction
+from exabricks.picture.transfer_function import TransferFunction
 
 import reference
 from conftest import AMREX, GERRIS, Built, build, device_param
@@ -363,7 +363,7 @@ def test_iso_gradient_central_is_the_central_gradient_at_iso_hits(device):
 
 
 def test_iso_gradient_in_a_scene_file(tmp_path):
-    from exabricks.errors import ExabricksError
+    from exabricks.util.errors import ExabricksError
     from exabricks.scene import scene_from_options
 
     built = load("gerris")

@@ -10,13 +10,13 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from exabricks import kernel_abi, opencl
+from exabricks.device import kernel_abi, opencl
 from exabricks.engine.renderer import Renderer
 from exabricks.scene.model import Lighting, Scene, Settings, VolumeLayer
-from exabricks.transfer_function import (IRREGULAR_TABLE_INTERVALS, MAX_TABLE_INTERVALS,
-                                         TABLE_TOLERANCE, TransferFunction,
-                                         default_transfer_function, lookup_table,
-                                         preset_path)
+from exabricks.picture.transfer_function import (
+    IRREGULAR_TABLE_INTERVALS, MAX_TABLE_INTERVALS, TABLE_TOLERANCE, TransferFunction, default_transfer_function,
+    lookup_table, preset_path
+)
 
 from conftest import AMREX, GERRIS, built_scene, device_param
 
@@ -176,7 +176,7 @@ def test_table_frames_equal_exact_frames_on_real_data(path, field, device, rng, 
     odd = TransferFunction(odd.rgb_points * [[(hi - lo) / 7, 1, 1, 1]] + [[lo + 2 * (hi - lo) / 7, 0, 0, 0]],
                            odd.alpha_points * [[(hi - lo) / 7, 1]] + [[lo + 2 * (hi - lo) / 7, 0]])
     table = lookup_table(*odd.merged_knots(np.float64))
-    monkeypatch.setattr("exabricks.transfer_function.MAX_KNOTS", len(table.rows))
+    monkeypatch.setattr("exabricks.picture.transfer_function.MAX_KNOTS", len(table.rows))
     nodes = as_knots(table.rows)  # more knots than a preset may hold
     base = Renderer(bricks, regions, bvh, field=field, device=device)
     saw = sawtooth()

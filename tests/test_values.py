@@ -15,8 +15,8 @@ from hypothesis import HealthCheck, given, settings, strategies as st
 from amr_strategies import amr_cells
 from conftest import FUZZ_EXAMPLES, GERRIS, assert_one_error_line, build, run_cli
 from exabricks import schema
-from exabricks.errors import ExabricksError
-from exabricks.stages.values import step_values, with_values
+from exabricks.util.errors import ExabricksError
+from exabricks.builders.values import step_values, with_values
 
 
 def another_step(cells: schema.Cells, rng, *, shuffle=True) -> schema.Cells:
@@ -103,7 +103,7 @@ VIEW = ("--field", "T", "--size", "96", "80", "--spp", "2", "--iso", "0.6", "--r
 
 
 def exr_pixels(path):
-    from exabricks.image_io import read_image
+    from exabricks.film.image_io import read_image
 
     return read_image(path)[0]
 

@@ -408,7 +408,7 @@ def test_the_first_picture_is_renders_and_an_iso_surface_shows(tmp_path, browser
     from selenium.webdriver.common.by import By
 
     import exabricks as eb
-    from exabricks.auto_transfer import suggested_iso_value
+    from exabricks.picture.auto_transfer import suggested_iso_value
 
     s = Server(tmp_path, ATHENA, "--field", "rho")
     try:

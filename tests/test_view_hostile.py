@@ -88,7 +88,7 @@ def test_a_non_ascii_cookie_gets_403_and_no_traceback(caplog):
 
 
 def test_a_fifo_or_a_device_as_scene_out_is_refused(tmp_path):
-    from exabricks.errors import ExabricksError
+    from exabricks.util.errors import ExabricksError
     from exabricks.viewer.server import Viewer
 
     fifo = tmp_path / "scene.fifo"
@@ -252,7 +252,7 @@ def test_a_builtin_preset_name_never_reads_a_file(session, tmp_path, monkeypatch
 
 
 def test_one_change_may_ask_only_so_much(session):
-    from exabricks.errors import ExabricksError
+    from exabricks.util.errors import ExabricksError
     from exabricks.viewer.session import MAX_SAMPLES
 
     with pytest.raises(ExabricksError, match="at most"):

@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from exabricks.image_io import read_image
+from exabricks.film.image_io import read_image
 
 from conftest import GERRIS, ROOT
 

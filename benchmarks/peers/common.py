@@ -93,7 +93,7 @@ def view_of(cells, alpha_scale: float):
     transfer function (the built-in default over the field's value range, its opacity
     ramp 0 -> 1 scaled by `alpha_scale`)."""
     from exabricks import schema
-    from exabricks.camera import default_camera
+    from exabricks.picture.camera import default_camera
 
     lo, hi = schema.world_bounds(cells)
     values = cells.values[0]
@@ -105,7 +105,7 @@ def view_of(cells, alpha_scale: float):
 def transfer_function(value_range, alpha_scale: float = ALPHA_SCALE):
     """The benchmark's transfer function: the built-in default over `value_range`, its
     opacity ramp 0 -> 1 scaled by `alpha_scale`."""
-    from exabricks.transfer_function import TransferFunction, default_transfer_function
+    from exabricks.picture.transfer_function import TransferFunction, default_transfer_function
 
     tf = default_transfer_function(value_range)
     alpha = tf.alpha_points.copy()

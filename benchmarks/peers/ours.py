@@ -59,9 +59,9 @@ from benchmarks.peers.common import MAX_OPACITY, RATES, SEED, interleaved, opaci
 def build_scene(path: Path, field: str):
     """Cells -> bricks -> regions -> BVH in memory: (bricks, regions, bvh, seconds read, seconds build)."""
     from exabricks import readers
-    from exabricks.stages.brick import build_bricks
-    from exabricks.stages.bvh import build_bvh
-    from exabricks.stages.regions import build_regions
+    from exabricks.builders.bricks import build_bricks
+    from exabricks.builders.bvh import build_bvh
+    from exabricks.builders.regions import build_regions
 
     t0 = time.perf_counter()
     cells = readers.read(path, fields=[field])
@@ -110,12 +110,12 @@ def worker_exabricks(spec: dict) -> dict:
     uniform-grid ceiling, their frames interleaved (module docstring)."""
     import resource
 
-    from exabricks import kernel_abi, opencl
-    from exabricks.camera import Camera
+    from exabricks.device import kernel_abi, opencl
+    from exabricks.picture.camera import Camera
     from benchmarks import uniform_grid
     from exabricks.engine.cell_location import build_brick_tree
     from exabricks.engine.renderer import Renderer
-    from exabricks.transfer_function import TransferFunction
+    from exabricks.picture.transfer_function import TransferFunction
 
     field, size, runs, unit = spec["field"], spec["size"], spec["runs"], spec["unit_distance"]
     camera = Camera.from_dict(spec["camera"])

@@ -196,7 +196,7 @@ def targets(rows) -> list[str]:
 
 def _off_axis_stretch(camera_dict: dict, size: int) -> float:
     """Largest 1/cos(angle between a pixel's ray and the view axis) - 1 of a size^2 frame."""
-    from exabricks.camera import Camera
+    from exabricks.picture.camera import Camera
 
     camera = Camera.from_dict(camera_dict)
     _, forward, _, _ = camera.frame(size, size)

@@ -264,8 +264,8 @@ def worker_vtk(spec: dict) -> dict:
     # Read when the first render window is made (VTK) and when Mesa starts (llvmpipe).
     os.environ["VTK_DEFAULT_OPENGL_WINDOW"] = VTK_WINDOW
     os.environ["LP_NUM_THREADS"] = str(threads)
-    from exabricks.camera import Camera
-    from exabricks.transfer_function import TransferFunction
+    from exabricks.picture.camera import Camera
+    from exabricks.picture.transfer_function import TransferFunction
 
     camera = Camera.from_dict(spec["camera"])
     tf = TransferFunction.from_paraview_dict(spec["transfer_function"])

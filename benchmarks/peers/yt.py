@@ -52,7 +52,7 @@ field_interpolation_tables.pxd):
 ExaJet data (gerris, big, shell256) has no yt front end (and yt.load_octree says of
 itself that "fluid fields will not work yet, or possibly ever"): our reader's
 leaf cells are turned into properly nested grids
-(`exabricks.yt_grids.to_amr_grids`) and given to
+(`exabricks.readers.yt_grids.to_amr_grids`) and given to
 yt.load_amr_grids. yt then has exactly our leaves and values (checked on the
 Gerris plume); the conversion is timed on its own and not counted as yt's
 load, but it is part of the yt process's peak memory. Where the data has a
@@ -135,8 +135,8 @@ def yt_skip_reason(cells: int, cap: int) -> str | None:
 
 
 def worker_yt(spec: dict) -> dict:
-    from exabricks.camera import Camera
-    from exabricks.transfer_function import TransferFunction
+    from exabricks.picture.camera import Camera
+    from exabricks.picture.transfer_function import TransferFunction
 
     camera = Camera.from_dict(spec["camera"])
     tf = TransferFunction.from_paraview_dict(spec["transfer_function"])
@@ -150,7 +150,7 @@ def worker_yt(spec: dict) -> dict:
     t_convert = None
     if spec["yt_mode"] == "grids":
         from exabricks import readers, schema
-        from exabricks import yt_grids
+        from exabricks.readers import yt_grids
 
         t = time.perf_counter()
         cells = readers.read(spec["path"], fields=[spec["field"]])

@@ -34,7 +34,7 @@ BACKGROUND = (0.05, 0.05, 0.08, 1.0)
 
 def main(argv=None) -> int:
     from exabricks import schema
-    from exabricks.image_io import write_image
+    from exabricks.film.image_io import write_image
     from exabricks.scene import scene_from_options
     from exabricks.engine.device_data import DatasetScale
     from exabricks.engine.partition import (composite, eye_lattice, kd_partition, domain_data,

@@ -31,7 +31,7 @@ FLAGS = dict(field="rho", colormap="viridis", range=(1.0, 2.7), opacity=(0.0, 0.
 
 def main(argv=None) -> int:
     from exabricks import schema
-    from exabricks.image_io import write_image
+    from exabricks.film.image_io import write_image
     from exabricks.scene import scene_from_options
     from exabricks.engine.partition import domain_plan, domain_bytes
     from exabricks.engine.renderer import Renderer, over_background

@@ -5,9 +5,9 @@ from __future__ import annotations
 import click
 
 from .. import schema
-from ..constants import MAX_BRICK_WIDTH
-from ..errors import ExabricksError
-from ..output import check_output
+from ..util.constants import MAX_BRICK_WIDTH
+from ..util.errors import ExabricksError
+from ..util.output import check_output
 from .options import input_path, output_option, piece_option
 
 
@@ -23,7 +23,7 @@ def brick(cells_path, output, max_brick_width, piece):
     A brick is a full box of cells of one level, at most --max-brick-width cells
     wide per axis; the bricks file holds every cell's values, brick by brick.
     """
-    from ..stages.piece_order import reads_share
+    from ..builders.piece_order import reads_share
     from ..structures import bricks_of  # numba import only when the command runs
 
     check_output(output, [cells_path])

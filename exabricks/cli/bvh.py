@@ -5,7 +5,7 @@ from __future__ import annotations
 import click
 
 from .. import schema
-from ..output import check_output
+from ..util.output import check_output
 from ..structures import BINS, LEAF_SIZE
 from .options import input_path, output_option, piece_option
 

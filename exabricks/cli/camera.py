@@ -1,13 +1,14 @@
 """`exabricks camera orbit|path … -o path.json`: camera paths for movies
-(exabricks/camera_path.py; docs/workflows.md, "Camera paths")."""
+(exabricks/picture/camera_path.py; docs/workflows.md, "Camera paths")."""
 
 from __future__ import annotations
 
 import click
 
-from .. import camera_path, schema
-from ..errors import ExabricksError
-from ..output import check_output, write_output
+from ..picture import camera_path
+from .. import schema
+from ..util.errors import ExabricksError
+from ..util.output import check_output, write_output
 from ..scene import DEFAULT_FOVY
 from .options import finite, input_path, output_option
 

@@ -6,9 +6,10 @@ from pathlib import Path
 
 import click
 
-from .. import progress, schema
-from ..errors import ExabricksError
-from ..output import check_output
+from ..util import progress
+from .. import schema
+from ..util.errors import ExabricksError
+from ..util.output import check_output
 from .options import output_option
 
 

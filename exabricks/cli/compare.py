@@ -7,8 +7,8 @@ import math
 
 import click
 
-from ..errors import ExabricksError
-from ..output import check_output
+from ..util.errors import ExabricksError
+from ..util.output import check_output
 
 # (metric, option flag, True if the metric must stay at or below the threshold)
 THRESHOLDS = (
@@ -45,7 +45,7 @@ def compare(ctx, image_a, image_b, max_rmse, min_psnr, max_abs, min_ssim, diff_p
     exceeded (each is named), 2 on trouble (missing or unreadable file, sizes
     that differ, a metric that cannot be computed).
     """
-    from ..image_io import read_image, write_image
+    from ..film.image_io import read_image, write_image
     from ..stages.compare import compare_images, diff_image
 
     limits = {"rmse": max_rmse, "psnr": min_psnr, "max_abs": max_abs, "ssim": min_ssim}
@@ -66,7 +66,7 @@ def compare(ctx, image_a, image_b, max_rmse, min_psnr, max_abs, min_ssim, diff_p
                             **{k: _json_number(v) for k, v in metrics.items()}},
             }, inputs=[image_a, image_b])
     except ExabricksError as e:
-        from ..errors import one_line
+        from ..util.errors import one_line
 
         click.echo(f"error: {one_line(str(e))}", err=True)
         ctx.exit(2)

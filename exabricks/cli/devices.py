@@ -18,7 +18,7 @@ from .options import device_option
 @device_option
 def devices(as_json, warm, device):
     """List OpenCL devices; pass a SPEC (P:D or a name substring) to --device."""
-    from ..opencl import choose_device, list_devices
+    from ..device.opencl import choose_device, list_devices
 
     infos = list_devices()
     default = choose_device(None)

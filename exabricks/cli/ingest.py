@@ -6,8 +6,9 @@ from pathlib import Path
 
 import click
 
-from .. import progress, schema
-from ..output import check_output
+from ..util import progress
+from .. import schema
+from ..util.output import check_output
 from ..stages.ingest import ingest as ingest_stage
 from .options import ingest_kwargs, ingest_options, output_option
 

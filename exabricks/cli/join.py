@@ -1,13 +1,13 @@
 """`exabricks join PIECES... -o OUT`: one bricks, regions or BVH file from the
-pieces that `brick`, `regions` or `bvh --piece K/N` built (exabricks.pieces)."""
+pieces that `brick`, `regions` or `bvh --piece K/N` built (exabricks.formats.pieces)."""
 
 from __future__ import annotations
 
 import click
 
 from .. import schema
-from ..errors import ExabricksError
-from ..output import check_output
+from ..util.errors import ExabricksError
+from ..util.output import check_output
 from .options import output_option
 
 KINDS = ("bricks", "regions", "bvh")
@@ -20,7 +20,7 @@ KINDS = ("bricks", "regions", "bvh")
 def join(piece_paths, output):
     """Put the N pieces of a build (`brick`, `regions` or `bvh` with --piece K/N)
     together, in any order given: the result equals the build of one process."""
-    from ..stages import join as stage
+    from ..builders import join as stage
 
     check_output(output, list(piece_paths))
     kind, _, _ = schema.peek(piece_paths[0])

@@ -3,7 +3,7 @@
 
 from __future__ import annotations
 
-from .. import interrupt
+from ..util import interrupt
 
 if __name__ == "__main__":  # python -m exabricks.cli.main: signals held from here to main()
     interrupt.install(hold=True)
@@ -16,7 +16,7 @@ import warnings
 import click
 
 from .. import __version__
-from ..errors import ExabricksError, one_line
+from ..util.errors import ExabricksError, one_line
 
 COMMANDS = (
     "ingest",

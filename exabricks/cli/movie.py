@@ -7,7 +7,7 @@ import os
 
 import click
 
-from ..errors import ExabricksError
+from ..util.errors import ExabricksError
 from .options import finite, numbers, output_option
 
 

@@ -6,7 +6,7 @@ import math
 
 import click
 
-from ..errors import ExabricksError
+from ..util.errors import ExabricksError
 from ..scene.modes import AXES
 from ..scene.options import SCENE_OPTIONS, float32_problem
 
@@ -44,10 +44,10 @@ def finite(ctx, param, value):
 
 
 def size(ctx, param, text):
-    """Callback: a size in bytes ("2G", "512MiB"; exabricks.sizes.parse_size)."""
+    """Callback: a size in bytes ("2G", "512MiB"; exabricks.util.sizes.parse_size)."""
     if text is None:
         return None
-    from ..sizes import parse_size
+    from ..util.sizes import parse_size
 
     try:
         return parse_size(text)
@@ -75,7 +75,7 @@ def numbers(counts=None, low=0.0, high=1.0):
 
 def _piece(ctx, param, text):
     """Callback: "K/N" as a Piece (WHOLE when not given)."""
-    from ..pieces import WHOLE, Piece
+    from ..formats.pieces import WHOLE, Piece
 
     if text is None:
         return WHOLE
@@ -169,7 +169,7 @@ def _ingest_table(field_flags=("--field", "--fields")) -> list[tuple[str, tuple,
     """(the ingest stage's keyword, flags, click settings) of every ingest option: their
     one declaration; `field_flags` name the field selection (`ingest --field`;
     `--fields` where `--field` is the rendered field)."""
-    from ..constants import AUTO_MASK_FIELD, NAN_POLICIES
+    from ..util.constants import AUTO_MASK_FIELD, NAN_POLICIES
     from ..readers import FORMATS
     from ..readers.raw import BYTE_ORDERS, DTYPES
 

@@ -5,9 +5,9 @@ from __future__ import annotations
 import click
 import numpy as np
 
-from ..errors import ExabricksError
-from ..jsonfile import open_regular
-from ..output import check_output, write_output
+from ..util.errors import ExabricksError
+from ..util.jsonfile import open_regular
+from ..util.output import check_output, write_output
 from ..scene import RECONSTRUCTIONS
 from .options import dataset_arguments, dataset_from, device_option, field_option, output_option
 

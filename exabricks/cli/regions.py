@@ -5,8 +5,8 @@ from __future__ import annotations
 import click
 
 from .. import schema
-from ..errors import ExabricksError
-from ..output import check_output
+from ..util.errors import ExabricksError
+from ..util.output import check_output
 from .options import finite, input_path, output_option, piece_option
 
 
@@ -34,7 +34,7 @@ def regions(bricks_path, output, exact, visit_cost, brick_cost, max_merged, max_
     whole are kept whole, with the union of their bricks (docs/design.md
     "Merged regions"): far fewer, larger regions on octree-like data.
     """
-    from ..stages.regions import EXACT, Merge
+    from ..builders.regions import EXACT, Merge
     from ..structures import regions_of
 
     check_output(output, [bricks_path])

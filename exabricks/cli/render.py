@@ -24,7 +24,7 @@ def render(inputs, output, device, **options):
     """Render a dataset into an .exr (float RGBA) or .png image: a SOURCE (anything
     `ingest` reads, with its options, or a cells file; its structures are built and
     cached) or the three structure files BRICKS REGIONS BVH."""
-    from ..errors import UsageError
+    from ..util.errors import UsageError
     from ..stages.render import render_job
 
     started = time.perf_counter()

@@ -8,8 +8,8 @@ import logging
 
 import click
 
-from .. import progress
-from ..output import check_output
+from ..util import progress
+from ..util.output import check_output
 from .options import dataset_arguments, dataset_from, device_option, field_option, finite, output_option
 
 log = logging.getLogger(__name__)

@@ -7,8 +7,9 @@ from pathlib import Path
 
 import click
 
-from .. import progress, schema
-from ..output import check_output
+from ..util import progress
+from .. import schema
+from ..util.output import check_output
 from .options import ingest_given, ingest_kwargs, ingest_options, output_option
 
 

@@ -29,7 +29,7 @@ def view(inputs, device, host, port, scene_out, open_browser, **options):
     until interrupted."""
     import asyncio
 
-    from ..output import check_output
+    from ..util.output import check_output
     from ..viewer.server import Viewer, serve
     from ..viewer.session import Session
 
@@ -60,7 +60,7 @@ def view(inputs, device, host, port, scene_out, open_browser, **options):
 
     import signal
 
-    from ..interrupt import Interrupted
+    from ..util.interrupt import Interrupted
 
     signum = asyncio.run(serve(viewer, announce))
     if signum != signal.SIGINT:  # Ctrl-C is how one stops it; SIGTERM and SIGHUP say so

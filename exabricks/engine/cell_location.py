@@ -3,7 +3,7 @@
 The paper measures its reconstruction from the Active Brick Regions' brick
 lists against the basis method with a cell-location kernel (Wald et al. 2017):
 every sample descends a tree from the root to find the bricks whose support
-contains it. This module builds that tree (binned SAH, exabricks.stages.bvh)
+contains it. This module builds that tree (binned SAH, exabricks.builders.bvh)
 over the brick *supports*, each brick's box grown by half its cell width on
 every side, the only place its cells' hats are non-zero. It is built in
 memory when a `Renderer(reconstruction="cell-location")` asks for it, never
@@ -17,9 +17,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from .. import schema
-from ..constants import BOUNDS_DTYPE, INDEX_DTYPE, MAX_TREE_DEPTH
-from ..errors import ExabricksError
-from ..stages.bvh import tree_depths, build_tree, tree_bounds
+from ..util.constants import BOUNDS_DTYPE, INDEX_DTYPE, MAX_TREE_DEPTH
+from ..util.errors import ExabricksError
+from ..builders.bvh import tree_depths, build_tree, tree_bounds
 
 # Bricks per leaf: with 1 a node box is the brick's support, so a sample adds only bricks
 # whose support holds it; frames were faster than with 2 and 4 bricks per leaf

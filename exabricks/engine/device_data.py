@@ -4,7 +4,7 @@
 `DeviceDataset` holds one dataset's buffers on one device (uploaded once, reused
 for every frame or probe), grouped as the EB_DATASET_ARGS of kernels/dataset.cl
 take them, and where each array starts in them (`layout`, members of
-exabricks.kernel_abi.PARAMS).
+exabricks.device.kernel_abi.PARAMS).
 """
 
 from __future__ import annotations
@@ -15,9 +15,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .. import interrupt, kernel_abi, opencl, schema
+from ..util import interrupt
+from ..device import kernel_abi, opencl
+from .. import schema
 from ..scene import RECONSTRUCTIONS
-from ..errors import ExabricksError
+from ..util.errors import ExabricksError
 from .grouped import Grouped
 
 

@@ -1,6 +1,6 @@
 """Arrays of one element size grouped into one kernel buffer (kernels/dataset.cl,
 the frame's look in render.cl): each part starts at an offset the kernel finds
-in eb_params (exabricks.kernel_abi.PARAMS, the "*_at" members)."""
+in eb_params (exabricks.device.kernel_abi.PARAMS, the "*_at" members)."""
 
 from __future__ import annotations
 

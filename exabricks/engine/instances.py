@@ -30,8 +30,8 @@ from itertools import combinations
 
 import numpy as np
 
-from ..camera import Camera, box_corners
-from ..errors import ExabricksError
+from ..picture.camera import Camera, box_corners
+from ..util.errors import ExabricksError
 from ..scene.model import Clip, Scene
 from ..scene.modes import MAX_CLIP_PLANES
 

@@ -16,7 +16,7 @@ import numba
 import numpy as np
 
 from .. import schema
-from ..kernel_abi import MAX_MIP
+from ..device.kernel_abi import MAX_MIP
 
 
 

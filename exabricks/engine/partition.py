@@ -29,7 +29,7 @@ import numba
 import numpy as np
 
 from .. import schema
-from ..errors import ExabricksError
+from ..util.errors import ExabricksError
 
 
 @dataclass(frozen=True)
@@ -260,7 +260,7 @@ def domain_options(bricks: schema.Bricks, scene) -> dict:
     eb_field_gradient_by looks that far outside the domain), and no cropping of
     the bricks under level of detail (their mip levels are made from whole
     bricks)."""
-    from ..constants import CENTRAL_STEP_CELLS, ISO_CENTRAL_STEP_CELLS
+    from ..util.constants import CENTRAL_STEP_CELLS, ISO_CENTRAL_STEP_CELLS
 
     central = scene.lighting.gradient == "central" or scene.settings.reconstruction == "nearest"
     steps = [CENTRAL_STEP_CELLS] if central else []
@@ -292,7 +292,7 @@ def domain_data(bricks: schema.Bricks, regions: schema.Regions, lower, upper, *,
     The inputs may be mapped and unvalidated (schema.load(mapped=True)): the
     indices used are checked on the way (errors name `where`, the two files),
     and the domain is validated as a file would be."""
-    from ..stages.bvh import build_bvh
+    from ..builders.bvh import build_bvh
 
     keep, used, first, new_dims, boxes = domain_plan(bricks, regions, lower, upper, halo, crop,
                                                      where, blocks)
@@ -596,3 +596,20 @@ def composite(front: np.ndarray, back: np.ndarray) -> np.ndarray:
     into `front`): C = C_front + (1 - A_front) C_back."""
     front += (1.0 - front[..., 3:4]) * back
     return front
+
+
+def needs_image_mode(scene) -> str | None:
+    """Why a frame cannot be split by space (None if it can)."""
+    if scene.isosurfaces:
+        return "iso-surfaces"
+    if scene.meshes:  # a mesh reaches beyond the data, where no domain is
+        return "meshes"
+    if scene.instances:  # each copy is drawn from the whole dataset
+        return "instances"
+    if scene.lighting.ao_samples:
+        return "ambient occlusion"
+    if scene.settings.depth:
+        return "depth output"
+    if scene.settings.reconstruction == "vertex":
+        return "the vertex reconstruction"
+    return None

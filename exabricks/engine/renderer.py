@@ -55,13 +55,15 @@ from dataclasses import dataclass, field as dataclass_field
 
 import numpy as np
 
-from .. import interrupt, kernel_abi, opencl, schema
-from ..constants import MAX_SAMPLES_PER_RAY
-from ..kernel_abi import LOD_LEVELS, PACKET_WIDTH
-from ..errors import ExabricksError
+from ..util import interrupt
+from ..device import kernel_abi, opencl
+from .. import schema
+from ..util.constants import MAX_SAMPLES_PER_RAY
+from ..device.kernel_abi import LOD_LEVELS, PACKET_WIDTH
+from ..util.errors import ExabricksError
 from ..mesh import mesh_set
 from ..scene import Lighting, Scene, Settings, VolumeLayer
-from ..transfer_function import TABLE_TOLERANCE, knot_buckets
+from ..picture.transfer_function import TABLE_TOLERANCE, knot_buckets
 from . import instances
 from .device_data import DatasetScale, DeviceDataset, gradient_scales
 from .grouped import Grouped

@@ -34,12 +34,13 @@ from collections import deque
 
 import numpy as np
 
-from .. import opencl, schema
+from ..device import opencl
+from .. import schema
 from ..formats.memory import mapping
-from ..errors import ExabricksError
+from ..util.errors import ExabricksError
 from .device_data import DatasetScale
 from .partition import (GRAIN, budget_partition, eye_lattice, mib, domain_data, domain_options,
-                        region_blocks)
+                        needs_image_mode, region_blocks)
 from .renderer import Renderer, RenderResult, over_background, table_bytes
 
 # A domain's bytes (partition.domain_bytes) times this must fit the budget left
@@ -165,8 +166,6 @@ class Budgeted:
                                           blocks=self.blocks, **options)
         self.n_domains = self.partition.n_domains
         if self.n_domains > 1:
-            from ..parallel import needs_image_mode
-
             reason = needs_image_mode(scene)
             if reason:
                 raise ExabricksError(

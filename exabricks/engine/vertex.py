@@ -24,7 +24,7 @@ import numba
 import numpy as np
 
 from .. import schema
-from ..errors import ExabricksError
+from ..util.errors import ExabricksError
 
 
 def vertex_layout(bricks: schema.Bricks) -> tuple[np.ndarray, int]:

@@ -7,8 +7,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..constants import LATTICE_DTYPE, MAX_LEVEL, MAX_TREE_DEPTH
-from ..errors import ExabricksError
+from ..util.constants import LATTICE_DTYPE, MAX_LEVEL, MAX_TREE_DEPTH
+from ..util.errors import ExabricksError
 from .kinds import Bricks, Bvh, Cells, Kind, Regions
 from .memory import reduce_chunks, rows
 

@@ -1,5 +1,5 @@
 """Saving and loading the file kinds: `save` (validated, written through
-exabricks.output), `load` (headers checked before any array is read, mapped or
+exabricks.util.output), `load` (headers checked before any array is read, mapped or
 read, validated) and `peek` (the header alone).
 """
 
@@ -11,9 +11,9 @@ import os
 import numpy as np
 
 from .. import __version__
-from ..errors import ExabricksError
-from ..jsonfile import json_default
-from ..output import write_output
+from ..util.errors import ExabricksError
+from ..util.jsonfile import json_default
+from ..util.output import write_output
 from .checks import check_declared, check_implied_sizes, validate
 from .kinds import KINDS, Kind
 from .memory import check_memory
@@ -22,7 +22,7 @@ from .provenance import content_sha256
 
 
 def save(path: str | os.PathLike, obj: Kind, *, inputs=()) -> None:
-    """Validate `obj` and write it to `path` through exabricks.output (atomic
+    """Validate `obj` and write it to `path` through exabricks.util.output (atomic
     for files, direct for devices; refused if `path` names one of `inputs`)."""
     validate(obj, str(path))
     meta = dict(obj.meta)

@@ -11,17 +11,11 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from ..constants import (
-    BOUNDS_DTYPE,
-    INDEX_DTYPE,
-    LATTICE_DTYPE,
-    LEVEL_DTYPE,
-    OFFSET_DTYPE,
-    VALUE_DTYPE,
-    WORLD_DTYPE,
+from ..util.constants import (
+    BOUNDS_DTYPE, INDEX_DTYPE, LATTICE_DTYPE, LEVEL_DTYPE, OFFSET_DTYPE, VALUE_DTYPE, WORLD_DTYPE
 )
-from ..errors import ExabricksError
-from ..pieces import RUNS_KEY
+from ..util.errors import ExabricksError
+from .pieces import RUNS_KEY
 from .memory import rows
 
 

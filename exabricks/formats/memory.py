@@ -12,7 +12,7 @@ import os
 
 import numpy as np
 
-from ..errors import ExabricksError
+from ..util.errors import ExabricksError
 
 
 # Elements per step of `rows` and `reduce_chunks` (1 MiB of float32): a step's

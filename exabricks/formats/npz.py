@@ -12,7 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import ExabricksError
+from ..util.errors import ExabricksError
 from .kinds import KINDS
 from .memory import mapping, rows
 from .provenance import hash_in_background
@@ -48,7 +48,7 @@ class NpzArchive:
         self._headers = {}  # name -> (shape, dtype, bytes of the .npy header)
 
     def __enter__(self):
-        from ..jsonfile import open_regular
+        from ..util.jsonfile import open_regular
 
         self.file = open_regular(self.path, "an exabricks file")
         try:

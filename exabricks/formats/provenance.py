@@ -17,7 +17,7 @@ from typing import Any
 import numpy as np
 
 from .. import __version__
-from ..errors import ExabricksError
+from ..util.errors import ExabricksError
 from .kinds import Kind
 
 
@@ -29,7 +29,7 @@ def sha256_file(path: str | os.PathLike) -> str | None:
     pending = _DIGESTS.get(os.fspath(path))
     if pending is not None:
         return pending.result()
-    from ..jsonfile import open_regular
+    from ..util.jsonfile import open_regular
 
     try:
         with open_regular(path, "an input") as f:
@@ -44,7 +44,7 @@ def prefetch_sha256(paths) -> None:
     their digests ready instead of reading the inputs once more (hashlib and
     file reads release the GIL; a daemon thread never holds up an interrupted
     command's exit)."""
-    from ..jsonfile import open_regular
+    from ..util.jsonfile import open_regular
 
     for p in paths:
         try:

@@ -14,8 +14,8 @@ import re
 import stat
 from pathlib import Path
 
-from ..errors import ExabricksError
-from ..jsonfile import kind_of, not_regular
+from ..util.errors import ExabricksError
+from ..util.jsonfile import kind_of, not_regular
 from ..schema import Cells
 
 FORMATS = ("exajet", "amrex", "athena", "raw", "yt")

@@ -13,7 +13,7 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-from ..constants import LATTICE_DTYPE
+from ..util.constants import LATTICE_DTYPE
 
 
 def box_volumes(lo: np.ndarray, hi: np.ndarray) -> np.ndarray:

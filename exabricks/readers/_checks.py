@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..errors import ExabricksError
+from ..util.errors import ExabricksError
 
 TINY = float(np.finfo(np.float64).tiny)
 

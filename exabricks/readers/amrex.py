@@ -30,9 +30,9 @@ from pathlib import Path
 import numpy as np
 
 from .. import schema
-from ..constants import LATTICE_DTYPE, LEVEL_DTYPE, MAX_LEVEL, VALUE_DTYPE, WORLD_DTYPE
-from ..errors import ExabricksError
-from ..jsonfile import not_regular
+from ..util.constants import LATTICE_DTYPE, LEVEL_DTYPE, MAX_LEVEL, VALUE_DTYPE, WORLD_DTYPE
+from ..util.errors import ExabricksError
+from ..util.jsonfile import not_regular
 from . import _blocks, _checks
 
 _INT = r"-?\d+"

@@ -21,8 +21,8 @@ from pathlib import Path
 import numpy as np
 
 from .. import schema
-from ..constants import LATTICE_DTYPE, LEVEL_DTYPE, MAX_LEVEL, VALUE_DTYPE, WORLD_DTYPE
-from ..errors import ExabricksError
+from ..util.constants import LATTICE_DTYPE, LEVEL_DTYPE, MAX_LEVEL, VALUE_DTYPE, WORLD_DTYPE
+from ..util.errors import ExabricksError
 from . import _checks
 
 _ROOT_ATTRS = ("RootGridSize", "MeshBlockSize", "RootGridX1", "RootGridX2", "RootGridX3",

@@ -15,8 +15,8 @@ from pathlib import Path
 import numba
 import numpy as np
 
-from ..constants import LATTICE_DTYPE, LEVEL_DTYPE, MAX_LEVEL, VALUE_DTYPE, WORLD_DTYPE
-from ..errors import ExabricksError
+from ..util.constants import LATTICE_DTYPE, LEVEL_DTYPE, MAX_LEVEL, VALUE_DTYPE, WORLD_DTYPE
+from ..util.errors import ExabricksError
 from ..schema import Cells
 
 CELL_BYTES = 16  # four int32

@@ -2,7 +2,7 @@
 
 The voxels become level-0 cells; aligned 2x2x2 groups whose voxel values lie
 within an absolute `threshold` of each other are merged level by level up to
-`max_level` (`exabricks.stages.ingest.amr_from_uniform`).  This is how large
+`max_level` (`exabricks.builders.uniform.amr_from_uniform`).  This is how large
 multi-level inputs for scale tests are made.  Origin 0, spacing 1 (one voxel).
 """
 
@@ -13,8 +13,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ..constants import VALUE_DTYPE, WORLD_DTYPE
-from ..errors import ExabricksError
+from ..util.constants import VALUE_DTYPE, WORLD_DTYPE
+from ..util.errors import ExabricksError
 from ..schema import Cells
 
 DTYPES = ("uint8", "int8", "uint16", "int16", "uint32", "int32", "float32", "float64")
@@ -68,7 +68,7 @@ def read(
     volume = np.fromfile(path, dtype=dt).reshape(dims[2], dims[1], dims[0])
     if not volume.dtype.isnative or volume.dtype not in (np.float32, np.float64):
         volume = volume.astype(np.float64 if dtype == "float64" else VALUE_DTYPE)
-    from ..stages.ingest import amr_from_uniform  # numba, when a raw volume is read
+    from ..builders.uniform import amr_from_uniform  # numba, when a raw volume is read
 
     lower, level, values = amr_from_uniform(volume, max_level=max_level, threshold=threshold)
     return Cells(

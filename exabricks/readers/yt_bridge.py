@@ -13,7 +13,7 @@ grid (with ghost zones where it needs neighbours), in yt's default units for tha
 field (cm/s, 1/s, …).  `cells_from_dataset` takes an already loaded dataset;
 `read` loads a path first.  meta["source"]["units"] records each field's units.
 
-The other way, leaf cells as yt's nested grids, is exabricks.yt_grids.
+The other way, leaf cells as yt's nested grids, is exabricks.readers.yt_grids.
 """
 
 from __future__ import annotations
@@ -25,8 +25,8 @@ from pathlib import Path
 import numpy as np
 
 from .. import schema
-from ..constants import LATTICE_DTYPE, LEVEL_DTYPE, MAX_LEVEL, VALUE_DTYPE, WORLD_DTYPE
-from ..errors import ExabricksError
+from ..util.constants import LATTICE_DTYPE, LEVEL_DTYPE, MAX_LEVEL, VALUE_DTYPE, WORLD_DTYPE
+from ..util.errors import ExabricksError
 from . import _checks
 
 # yt's derived and generic fluid types; the rest of ds.fluid_types are on-disk types.

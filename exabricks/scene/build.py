@@ -14,10 +14,10 @@ from pathlib import Path
 
 import numpy as np
 
-from ..camera import Camera
-from ..errors import ExabricksError
-from ..field_statistics import field_range
-from ..transfer_function import TransferFunction
+from ..picture.camera import Camera
+from ..util.errors import ExabricksError
+from ..picture.field_statistics import field_range
+from ..picture.transfer_function import TransferFunction
 from .file import SceneFile, shown
 from .model import (DEFAULT_COLORMAP, DEFAULT_FOVY, Clip, Instance, IsoSurface, Lighting, MeshLayer, Scene,
                     Settings, Slice, VolumeLayer)
@@ -49,7 +49,7 @@ def default_field(fields) -> str:
 
 
 def _data_range(bricks, field: str) -> tuple[float, float]:
-    from ..transfer_function import widen_degenerate_range
+    from ..picture.transfer_function import widen_degenerate_range
 
     return widen_degenerate_range(field_range(bricks, field))
 
@@ -61,18 +61,18 @@ def choose_transfer_function(bricks, field, preset=None, colormap=None, value_ra
 
     - `colormap` with `opacity`: that matplotlib colormap over `value_range`
       (default: the field's finite range) with the `opacity` knots spread evenly
-      over it, both on the axis of `scale` (exabricks.scaling; default auto);
+      over it, both on the axis of `scale` (exabricks.picture.scaling; default auto);
     - `preset` naming a built-in preset (and no such file): its shape stretched
       over `value_range` or the field's range on that axis;
     - `preset` naming a preset file: used as stored, or rescaled to `value_range`;
     - neither, or `colormap` alone: the automatic transfer function
-      (exabricks.auto_transfer) in that colormap (default viridis).
+      (exabricks.picture.auto_transfer) in that colormap (default viridis).
 
     `builtin`: whether `preset` is a built-in name (None: where no such file exists).
     """
-    from ..auto_transfer import automatic_transfer_function, field_axis
-    from ..scaling import scaled_range
-    from ..transfer_function import builtin_presets, preset_path
+    from ..picture.auto_transfer import automatic_transfer_function, field_axis
+    from ..picture.scaling import scaled_range
+    from ..picture.transfer_function import builtin_presets, preset_path
 
     if preset and colormap:
         raise ExabricksError("give --transfer-function or --colormap, not both")
@@ -155,7 +155,7 @@ def _file_colour(file: SceneFile, spec: dict, *path) -> _Colour:
 
 
 def _camera(bricks, file: SceneFile, camera_path, f, instances=(), volumes=(), aspect=1.0) -> Camera:
-    from ..framing import framed_camera, view_axes, visible_points
+    from ..picture.framing import framed_camera, view_axes, visible_points
 
     inline = file.get("camera")
     if camera_path is not None:
@@ -166,7 +166,7 @@ def _camera(bricks, file: SceneFile, camera_path, f, instances=(), volumes=(), a
         camera = _within(file.at("camera"), Camera.from_json, file.camera_file())
     elif f["position"] is not None and f["look_at"] is not None:
         # The flags place the camera whole: nothing to frame (a pass over the data saved).
-        from ..camera import DEFAULT_UP
+        from ..picture.camera import DEFAULT_UP
 
         camera = Camera(tuple(f["position"]), tuple(f["look_at"]), DEFAULT_UP, DEFAULT_FOVY)
     else:

@@ -6,8 +6,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from ..errors import ExabricksError
-from ..jsonfile import not_regular
+from ..util.errors import ExabricksError
+from ..util.jsonfile import not_regular
 
 MAX_SCHEMA_ERRORS = 500
 
@@ -143,7 +143,7 @@ def read_scene_file(path) -> dict:
     """The parsed scene file `path`, validated against the scene schema; one
     ExabricksError `PATH: KEY.PATH: what was expected (found X)` for the first
     mistake in file order (docs/scene.md)."""
-    from ..jsonfile import read_json
+    from ..util.jsonfile import read_json
 
     return validate_scene(read_json(path, "scene file", object_pairs_hook=_no_duplicate_keys), path)
 
@@ -221,7 +221,7 @@ class SceneFile:
 
     def preset_file(self, value, *path) -> Path | None:
         """The preset file a transfer-function string names (None: a built-in name)."""
-        from ..transfer_function import builtin_presets
+        from ..picture.transfer_function import builtin_presets
 
         file = self.folder / value
         problem = not_regular(file)
@@ -261,7 +261,7 @@ def _plain(doc):
     as a file holding it would read."""
     import json
 
-    from ..jsonfile import json_default
+    from ..util.jsonfile import json_default
 
     try:
         text = json.dumps(doc, default=json_default)

@@ -12,10 +12,10 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from ..camera import Camera
-from ..constants import MAX_COORDINATE
-from ..errors import ExabricksError
-from ..transfer_function import TransferFunction
+from ..picture.camera import Camera
+from ..util.constants import MAX_COORDINATE
+from ..util.errors import ExabricksError
+from ..picture.transfer_function import TransferFunction
 from .modes import (AXES, MAX_CLIP_PLANES, MAX_INSTANCES, MAX_ISOSURFACES, MAX_MESHES, MAX_SLICES,
                     MAX_VOLUMES)
 from .options import SCENE_OPTIONS

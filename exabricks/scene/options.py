@@ -13,10 +13,10 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from ..constants import FLOAT32_MAX, MAX_TITLE_CHARS
-from ..errors import ExabricksError
-from ..jsonfile import not_regular
-from ..scaling import SCALES
+from ..util.constants import FLOAT32_MAX, MAX_TITLE_CHARS
+from ..util.errors import ExabricksError
+from ..util.jsonfile import not_regular
+from ..picture.scaling import SCALES
 from .modes import AXES, GRADIENTS, MAX_AO_SAMPLES, RECONSTRUCTIONS, SHADING_MODES, TF_LOOKUPS
 
 
@@ -58,7 +58,7 @@ class Option:
     scene_key: tuple | None = None
     description: str | None = None  # the schema's words for a valid value (default: made)
     # A target the kernels read: the eb_params member of this name
-    # (exabricks.kernel_abi.PARAMS; a choice as its index in `choices`, a flag as 0/1),
+    # (exabricks.device.kernel_abi.PARAMS; a choice as its index in `choices`, a flag as 0/1),
     # filled from the scene for every frame; kernel code reads it as fr->P->NAME.
     kernel: bool = False
 
@@ -170,7 +170,7 @@ class Option:
                 raise bad
             return values
         if kind == "size":
-            from ..sizes import parse_size
+            from ..util.sizes import parse_size
 
             return parse_size(value)
         if kind == "file":

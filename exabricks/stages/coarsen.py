@@ -26,8 +26,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ..constants import LATTICE_DTYPE, LEVEL_DTYPE, MAX_LEVEL, VALUE_DTYPE
-from ..errors import ExabricksError
+from ..util.constants import LATTICE_DTYPE, LEVEL_DTYPE, MAX_LEVEL, VALUE_DTYPE
+from ..util.errors import ExabricksError
 from ..schema import Cells
 
 
@@ -126,7 +126,8 @@ def coarsen_plotfile(path: str | Path, *, levels: int, fields=(), mask: str | No
     Raises ExabricksError as `ingest` and `coarsen_cells` do.
     """
     from ..readers import amrex
-    from .ingest import cell_statistics, ingest
+    from ..builders.cells import cell_statistics
+    from .ingest import ingest
 
     levels = int(levels)
     if levels < 0:

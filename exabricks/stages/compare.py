@@ -19,7 +19,7 @@ import math
 
 import numpy as np
 
-from ..errors import ExabricksError
+from ..util.errors import ExabricksError
 
 SSIM_WINDOW = 11
 SSIM_SIGMA = 1.5

@@ -1,6 +1,6 @@
 """Frames into a movie: frame order, video pixels, and the .mp4 / .gif encoders.
 
-A frame is an image as exabricks.image_io holds it: ``rgba`` (H, W, 4) float32,
+A frame is an image as exabricks.film.image_io holds it: ``rgba`` (H, W, 4) float32,
 premultiplied, row 0 at the top. A movie has no alpha, so each frame is
 composited over an opaque background colour and then rounded to 8 bits exactly as
 the PNG writer rounds (`image_io.to_png_pixels`): a movie of PNG frames shows the
@@ -25,8 +25,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import ExabricksError
-from ..image_io import to_png_pixels
+from ..util.errors import ExabricksError
+from ..film.image_io import to_png_pixels
 
 FORMATS = (".mp4", ".gif")
 CODECS = {"h264": "libx264", "h265": "libx265"}
@@ -176,9 +176,9 @@ def make_movie(paths, output, *, fps: float, crf: int | None = None, codec: str 
     """`exabricks movie`: the images `paths` (.png or .exr, all of one size, in this
     order) into the movie `output` (.mp4 or .gif by its suffix), transparent pixels
     over `background`, atomically, with a progress bar on a terminal."""
-    from .. import progress
-    from ..image_io import read_image
-    from ..output import check_output, write_output
+    from ..util import progress
+    from ..film.image_io import read_image
+    from ..util.output import check_output, write_output
 
     kind = movie_format(output)
     check_output(output, paths)

@@ -13,7 +13,7 @@ import os
 import numpy as np
 
 from .. import schema
-from ..errors import ExabricksError
+from ..util.errors import ExabricksError
 from ..engine.device_data import DeviceDataset
 
 

@@ -20,9 +20,10 @@ import logging
 import time
 from pathlib import Path
 
-from .. import __version__, parallel, progress, schema
-from ..errors import ExabricksError, UsageError
-from ..output import check_output
+from .. import __version__, parallel, schema
+from ..util import progress
+from ..util.errors import ExabricksError, UsageError
+from ..util.output import check_output
 
 log = logging.getLogger(__name__)
 
@@ -44,7 +45,7 @@ def render_job(dataset, output, *, flags: dict | None = None,
     `tile` ((W, H) pixels) and `mpi_mode` choose the strategy (module
     docstring); `started` (perf_counter) is when the time limit's clock started.
     `annotate` draws a .png's colour bars, time, scale bar and axes beside the
-    frame (exabricks.annotate), with `title`.
+    frame (exabricks.film.annotate), with `title`.
     UsageError for options that contradict each other, ExabricksError for bad
     data."""
     from ..scene import check_flags
@@ -96,9 +97,9 @@ def _render_tiled(domains, scene, started, image, describe, inputs, budget, prog
     """One frame tile by tile (exabricks.engine.streaming.render_tiled) into a
     FrameFile beside `image`, rewriting the output every `progressive` seconds
     (after the band that passes them) and stopping after `time_limit`."""
-    from ..annotate import png_backdrop
+    from ..film.annotate import png_backdrop
     from ..engine.streaming import render_tiled
-    from ..image_io import FrameFile
+    from ..film.image_io import FrameFile
 
     s = scene.settings
     now = time.perf_counter()
@@ -181,7 +182,7 @@ def _prepare(dataset, output, scene_path, camera_path, path_file,
     if comm is None:
         bricks, regions, bvh = dataset.structures()
     else:
-        from ..parallel import needs_image_mode
+        from ..engine.partition import needs_image_mode
 
         bricks, regions, bvh = dataset.load(mpi_mode)
     scene = scene_from_options(bricks, scene_path=scene_path, camera_path=camera_path, flags=flags)
@@ -209,7 +210,7 @@ def _prepare(dataset, output, scene_path, camera_path, path_file,
 
 
 def _check_annotate(output, annotate, title, tile) -> None:
-    from ..annotate import checked_title
+    from ..film.annotate import checked_title
 
     if title is not None and not annotate:
         raise UsageError("--title goes with --annotate")
@@ -225,8 +226,8 @@ def _check_annotate(output, annotate, title, tile) -> None:
 
 def _annotated(scene, dataset, title):
     """The frame's pixels -> the annotated picture's (eb.Image.annotated)."""
-    from ..annotate import facts_from_meta
-    from ..image import Image
+    from ..film.annotate import facts_from_meta
+    from ..film.image import Image
 
     facts = facts_from_meta(dataset.meta)
     return lambda rgba: Image(rgba, scene=scene, facts=facts).annotated(title=title).rgba
@@ -260,8 +261,8 @@ def _write(image, result, describe, inputs, finish=None, scene=None) -> None:
     """Write one frame with its metadata, describe(stats), its pixels through
     `finish` when given (rank 0: the others have no result); a .png over the
     backdrop of `scene` (annotate.png_backdrop)."""
-    from ..annotate import png_backdrop
-    from ..image_io import write_image
+    from ..film.annotate import png_backdrop
+    from ..film.image_io import write_image
 
     if result is None:
         return
@@ -301,7 +302,7 @@ def _frame_jobs(output, path_file, frame, frames):
     output) without a camera path."""
     if path_file is None:
         return [(None, None, output)]
-    from ..camera_path import parse_frame_range, read_frames
+    from ..picture.camera_path import parse_frame_range, read_frames
 
     cameras = read_frames(path_file)
     chosen = parse_frame_range(frame if frame is not None else frames, len(cameras),

@@ -16,7 +16,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .. import schema
-from ..errors import ExabricksError
+from ..util.errors import ExabricksError
 from ..formats.memory import check_memory
 
 MAX_POINTS = 1 << 27  # grid points by default: 512 MiB of float32 samples
@@ -119,10 +119,10 @@ def iso_mesh(bricks: schema.Bricks, regions: schema.Regions, bvh: schema.Bvh, fi
 
 def write_mesh(path, mesh: Mesh, *, inputs=()) -> None:
     """`mesh` as a .ply (binary), .obj or .stl file by the path's suffix (trimesh),
-    written atomically (exabricks.output)."""
+    written atomically (exabricks.util.output)."""
     import trimesh
 
-    from ..output import write_output
+    from ..util.output import write_output
 
     suffix = str(path).lower().rsplit(".", 1)[-1] if "." in str(path) else ""
     if suffix not in ("ply", "obj", "stl"):

@@ -45,7 +45,7 @@ import threading
 from importlib import resources
 from pathlib import Path
 
-from ..errors import ExabricksError, one_line
+from ..util.errors import ExabricksError, one_line
 from .session import Cancelled
 
 log = logging.getLogger(__name__)
@@ -188,7 +188,7 @@ class Viewer:
     def save(self, doc: dict) -> str | None:
         """Write `doc` to --scene-out (atomically); its path, or None without one.
         Called off the event loop (_in_thread): a write never holds the server up."""
-        from ..output import write_json
+        from ..util.output import write_json
 
         if self.scene_out is None:
             return None
@@ -369,7 +369,7 @@ def _cookie(request) -> str | None:
 def _regular_output(path: Path) -> None:
     """Refuse --scene-out naming something other than a regular file (or nothing yet):
     a FIFO, a device or a descriptor would hold a save up, so the viewer never
-    writes into one (exabricks.output writes into them for other commands)."""
+    writes into one (exabricks.util.output writes into them for other commands)."""
     try:
         mode = os.stat(path).st_mode
     except FileNotFoundError:
@@ -429,7 +429,7 @@ async def serve(viewer: Viewer, on_url) -> int | None:
     stops cleanly before returning."""
     import signal
 
-    from .. import interrupt
+    from ..util import interrupt
 
     loop = asyncio.get_running_loop()
     stop = asyncio.Event()

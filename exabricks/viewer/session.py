@@ -16,7 +16,7 @@ preset's name), and only the server writes, to `--scene-out`.
 
 The first document draws what `render` draws with the same options: without a
 transfer function it holds the automatic one's spec (`{"colormap": NAME}` with no
-opacity, exabricks.auto_transfer), which the page shows as the knots it would
+opacity, exabricks.picture.auto_transfer), which the page shows as the knots it would
 become (`Session.layer`) until the user edits them. The automatic function of a
 layer is computed once per (field, colour map, range, scale), not per frame.
 """
@@ -31,7 +31,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from ..errors import ExabricksError
+from ..util.errors import ExabricksError
 
 # The matplotlib colour maps the page offers (any other name in a loaded scene works too).
 COLORMAPS = ("viridis", "inferno", "magma", "plasma", "cividis", "turbo", "coolwarm", "RdBu_r",
@@ -113,7 +113,7 @@ class Session:
         of that name first (relative to the working directory, for a scene object),
         and no string from a page is ever opened as a path."""
         from ..scene import choose_transfer_function
-        from ..transfer_function import builtin_presets
+        from ..picture.transfer_function import builtin_presets
 
         volumes = doc.get("volumes")
         if not isinstance(volumes, list):
@@ -177,7 +177,7 @@ class Session:
         automatic function's opacity), and SHOWN_KNOTS opacity knots evenly over that range
         on that scale (what `{"colormap", "opacity"}` over the range reads back as):
         for a layer without knots of its own, what the editor shows and starts from."""
-        from ..scaling import inverse, scaled_range
+        from ..picture.scaling import inverse, scaled_range
 
         if not scene.volumes:
             return None
@@ -196,10 +196,10 @@ class Session:
 
     def info(self) -> dict:
         """What the page needs at the start: the document, the fields with their ranges,
-        histograms and suggested iso-values (exabricks.auto_transfer.suggested_iso_value:
+        histograms and suggested iso-values (exabricks.picture.auto_transfer.suggested_iso_value:
         "Add iso-surface" starts there), the colour maps, the data's bounds and the
         device."""
-        from ..auto_transfer import suggested_iso_value
+        from ..picture.auto_transfer import suggested_iso_value
 
         bricks = self.renderer.dataset.bricks
         fields = {}
@@ -237,14 +237,14 @@ class Session:
 
     def draw(self, stage: str, scene, cancelled=None) -> Frame:
         """One stage's frame as PNG bytes: the pixels `render -o frame.png` writes of
-        the same scene (composited over its opaque backdrop, exabricks.image_io), or
+        the same scene (composited over its opaque backdrop, exabricks.film.image_io), or
         `Image.shown()` of a --transparent scene's. `cancelled()`, looked at between
         the tiles of a frame larger than TILE_SAMPLES (under a memory budget, also
         between its domains and samples), raises Cancelled when true."""
         from PIL import Image as PILImage
 
-        from ..annotate import png_backdrop
-        from ..image_io import to_png_pixels
+        from ..film.annotate import png_backdrop
+        from ..film.image_io import to_png_pixels
 
         started = time.perf_counter()
         s = scene.settings
@@ -269,7 +269,7 @@ class Session:
         """The frame drawn tile by tile (each the very pixels the whole frame has
         there, Renderer.render_scene's `window`), Cancelled between two tiles once
         `cancelled()` is true."""
-        from ..image import Image
+        from ..film.image import Image
         from ..schema import memory_limit
 
         s = scene.settings
@@ -306,7 +306,7 @@ class Session:
         domain drawn once a sample all the same), Cancelled before any tile, domain
         or sample once `cancelled()` is true."""
         from ..engine.streaming import Budgeted, render_steps
-        from ..image import Image
+        from ..film.image import Image
 
         stop = tile_width = None
         if cancelled is not None:
@@ -416,7 +416,7 @@ def _finite(doc):
 def _no_files(doc: dict, meshes=frozenset()) -> None:
     """Refuse what would make the server read a file: a camera file, a preset file, a
     mesh file other than `meshes` (those the viewer was started with)."""
-    from ..transfer_function import builtin_presets
+    from ..picture.transfer_function import builtin_presets
 
     entries = doc.get("meshes")
     for i, m in enumerate(entries if isinstance(entries, list) else []):

@@ -35,7 +35,7 @@ import math
 import numpy as np
 
 from .camera import DEFAULT_VIEW_DIRECTION, Camera, default_camera
-from .errors import ExabricksError
+from ..util.errors import ExabricksError
 
 KIND = "exabricks camera path"
 VERSION = 1
@@ -226,7 +226,7 @@ def read_keyframes(path) -> tuple[list[Camera], np.ndarray, bool]:
     """Keyframes of a KEYFRAMES.json: a list of cameras (each optionally with
     "time"), or an object {"keyframes": [...], "loop": bool} (a camera-path file
     too). Times default to 0, 1, 2, ..."""
-    from .jsonfile import read_json
+    from ..util.jsonfile import read_json
 
     doc = read_json(path, "keyframe file", max_bytes=MAX_PATH_BYTES, max_list=MAX_FRAMES,
                     max_values=MAX_PATH_VALUES)
@@ -279,7 +279,7 @@ class Frames:
 
 def read_frames(path) -> Frames:
     """The frames of a camera-path file (Frames)."""
-    from .jsonfile import read_json
+    from ..util.jsonfile import read_json
 
     doc = read_json(path, "camera path", max_bytes=MAX_PATH_BYTES, max_list=MAX_FRAMES,
                     max_values=MAX_PATH_VALUES)

@@ -10,7 +10,7 @@
   members too, filled from the scene by `option_params`.
 * `variant_defines`: the build defines of a kernel program.
 
-exabricks.opencl.program_for puts `header()` in front of every program it
+exabricks.device.opencl.program_for puts `header()` in front of every program it
 builds; kernels/common.h refuses to build without it (#error).
 """
 
@@ -18,9 +18,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from .constants import CENTRAL_STEP_CELLS, ISO_CENTRAL_STEP_CELLS, MAX_SAMPLES_PER_RAY, MAX_TREE_DEPTH
-from .scene.modes import MAX_INSTANCES, MAX_ISOSURFACES, MAX_MESH_HITS, MAX_SLICES
-from .scene.options import SCENE_OPTIONS
+from ..util.constants import CENTRAL_STEP_CELLS, ISO_CENTRAL_STEP_CELLS, MAX_SAMPLES_PER_RAY, MAX_TREE_DEPTH
+from ..scene.modes import MAX_INSTANCES, MAX_ISOSURFACES, MAX_MESH_HITS, MAX_SLICES
+from ..scene.options import SCENE_OPTIONS
 
 # Samples a ray reconstructs at once on CPU devices (kernels/packet.cl): sixteen
 # ran no faster on PoCL and waste more lanes at region ends (docs/design.md).
@@ -135,7 +135,7 @@ def header() -> str:
     """The C text that every program starts with: EB_ABI, LIMITS, TUNABLES (unless
     defined by a build option), the values of the kernel-read choices
     (EB_ISO_GRADIENT_CENTRAL) and the eb_params struct."""
-    lines = ["/* exabricks.kernel_abi.header() */", "#define EB_ABI 1"]
+    lines = ["/* exabricks.device.kernel_abi.header() */", "#define EB_ABI 1"]
     lines += [f"#define {name} {value}" for name, value in LIMITS.items()]
     for name, value in TUNABLES.items():
         lines += [f"#ifndef {name}", f"#define {name} {value}", "#endif"]

@@ -32,7 +32,7 @@ import threading
 SIGNALS = tuple(s for s in (signal.SIGTERM, getattr(signal, "SIGHUP", None), signal.SIGINT) if s)
 
 _received: list[int] = []
-# What a signal must undo before the run ends (exabricks.output registers the
+# What a signal must undo before the run ends (exabricks.util.output registers the
 # removal of its temporary files).
 _cleanups: list = []
 

@@ -18,7 +18,7 @@ class Image:
               (samples, ms, device), scene, transfer function.
     scene:    the eb.Scene it was drawn with (None for an image read from a file).
     facts:    what the source says of itself (simulation time, units;
-              exabricks.annotate.facts_from_meta), for `annotated`.
+              exabricks.film.annotate.facts_from_meta), for `annotated`.
     """
 
     def __init__(self, rgba: np.ndarray, depth: np.ndarray | None = None, metadata: dict | None = None,
@@ -48,7 +48,7 @@ class Image:
         as `render --annotate [--title]` does."""
         from pathlib import Path
 
-        from .errors import ExabricksError
+        from ..util.errors import ExabricksError
         from .image_io import write_image
 
         if title is not None and not annotate:
@@ -67,7 +67,7 @@ class Image:
         names and units, the simulation time, a scale bar and an axes triad beside
         the frame (docs/annotate.md): an opaque Image, without depth."""
         from .annotate import annotate
-        from .errors import ExabricksError
+        from ..util.errors import ExabricksError
         from .image_io import from_png_pixels
 
         if self.scene is None:

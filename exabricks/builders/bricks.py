@@ -13,7 +13,7 @@ box together (`merge_bricks`: the midpoint planes cut octree-like layouts into
 many more bricks than their cells need).
 
 The partition itself (its cell and node rows, splitting, the breadth-first top
-and the depth-first subtrees) is exabricks.stages.cell_tree.
+and the depth-first subtrees) is exabricks.builders.cell_tree.
 """
 
 from __future__ import annotations
@@ -22,19 +22,18 @@ import numba
 import numpy as np
 
 from .. import schema
-from ..constants import LATTICE_DTYPE, LEVEL_DTYPE, MAX_BRICK_WIDTH, OFFSET_DTYPE, VALUE_DTYPE
-from ..errors import ExabricksError
-from .ingest import neighbour_overlap_keys, spread3, find_overlap
-from ..pieces import WHOLE, Piece, share_meta, task_range
-from .cell_tree import (END, ID, LEVEL, START, build_subtree, build_subtrees, build_top, pack, run_nodes,
-                        take_columns)
+from ..util.constants import LATTICE_DTYPE, LEVEL_DTYPE, MAX_BRICK_WIDTH, OFFSET_DTYPE, VALUE_DTYPE
+from ..util.errors import ExabricksError
+from .cells import neighbour_overlap_keys, spread3, find_overlap
+from ..formats.pieces import WHOLE, Piece, share_meta, task_range
+from .cell_tree import END, ID, LEVEL, START, build_subtree, build_subtrees, build_top, pack, run_nodes, take_columns
 from .piece_order import share_runs
 
 # Below this many cells the build runs on one thread: the partition is already fast.
 _PARALLEL_MIN_CELLS = 200_000
 # Subtrees per thread for the depth-first parallel phase (more: better balance).
 _TASKS_PER_THREAD = 16
-# Subtrees per piece when a build is cut into pieces (exabricks.pieces).
+# Subtrees per piece when a build is cut into pieces (exabricks.formats.pieces).
 _TASKS_PER_PIECE = 16
 
 
@@ -279,7 +278,7 @@ def build_bricks(cells: schema.Cells, *, max_brick_width: int = MAX_BRICK_WIDTH,
 
     cells: schema.Cells with N >= 1 non-overlapping cells.
     max_brick_width: most cells per axis of a brick (the paper uses 32).
-    piece: build only this share (exabricks.pieces): the bricks of one
+    piece: build only this share (exabricks.formats.pieces): the bricks of one
         run of the partitioned cells, offsets from 0, values of those cells only;
         meta["piece"]["cells"] is the run, [a, b) of N.
     Returns schema.Bricks in k-d leaf order (whole builds: joined by `merge_bricks`,
@@ -299,7 +298,7 @@ def build_bricks(cells: schema.Cells, *, max_brick_width: int = MAX_BRICK_WIDTH,
     width = np.int64(max_brick_width)
     runs = share_runs(cells, piece, max_brick_width)
     if runs is not None:
-        # Cells in piece order (exabricks.stages.piece_order): read and check the
+        # Cells in piece order (exabricks.builders.piece_order): read and check the
         # share's cells only, and build the subtrees of its runs.
         a, b = int(runs[0]), int(runs[-1])
         cells = cells.replace(lower_lattice=cells.lower_lattice[a:b], level=cells.level[a:b],
@@ -354,7 +353,7 @@ def build_bricks(cells: schema.Cells, *, max_brick_width: int = MAX_BRICK_WIDTH,
                              f"{int(lv[j])} and cell {base + i} at {low[i].tolist()} level {int(lv[i])}")
     offset = starts.astype(OFFSET_DTYPE)
     values = np.ascontiguousarray(cells.values, dtype=VALUE_DTYPE)
-    if piece.whole:  # shares are joined by `exabricks join` (exabricks.stages.join)
+    if piece.whole:  # shares are joined by `exabricks join` (exabricks.builders.join)
         lower, level, dims, offset, values = merge_bricks(lower, level, dims, offset, values,
                                                           max_brick_width, source)
     else:

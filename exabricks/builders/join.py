@@ -1,5 +1,5 @@
 """`exabricks join PIECES... -o OUT`: the shares that `brick`, `regions` or `bvh
---piece K/N` built (exabricks.pieces) put back together in piece order;
+--piece K/N` built (exabricks.formats.pieces) put back together in piece order;
 the result equals the one-process build, array for array (docs/design.md,
 "Builders by pieces")."""
 
@@ -8,10 +8,10 @@ from __future__ import annotations
 import numpy as np
 
 from .. import schema
-from ..errors import ExabricksError
-from .brick import merge_bricks, statistics
+from ..util.errors import ExabricksError
+from .bricks import merge_bricks, statistics
 from .bvh import bvh_statistics
-from ..pieces import PIECE_KEY, Piece
+from ..formats.pieces import PIECE_KEY, Piece
 from .regions import region_statistics
 
 # A BVH's arrays with a row per node.

@@ -21,8 +21,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .constants import FLOAT32_MAX
-from .errors import ExabricksError
+from ..util.constants import FLOAT32_MAX
+from ..util.errors import ExabricksError
 
 CAMERA_KEYS = ("position", "look_at", "up", "fovy")
 
@@ -137,7 +137,7 @@ class Camera:
     @classmethod
     def from_json(cls, path) -> Camera:
         """Read a camera JSON file; ExabricksError naming the file if unreadable or invalid."""
-        from .jsonfile import read_json
+        from ..util.jsonfile import read_json
 
         return cls.from_dict(read_json(path, "camera file"), source=str(path))
 

@@ -77,7 +77,7 @@ def waiting(message: str, *, after: float | None = None, since: float | None = N
     terminal or under -q nothing is written. The block must wait without the GIL
     (in a driver call, sleeping, reading files) for the line to tick. `stream`: where
     the line goes (default stderr; a kernel build's own stderr is held aside,
-    exabricks.opencl). Yields a Wait."""
+    exabricks.device.opencl). Yields a Wait."""
     wait = Wait(time.perf_counter() if since is None else since)
     after = announce_after() if after is None else after
     stream = sys.stderr if stream is None else stream

@@ -24,7 +24,7 @@ anonymous in-memory file (memfd; a file in the system's temporary directory
 where there is none), so no temporary directory is needed.
 
 Temporary files are registered while they exist: `remove_temporaries` (called
-by exabricks.interrupt's handlers of SIGTERM, SIGHUP and SIGINT) deletes them,
+by exabricks.util.interrupt's handlers of SIGTERM, SIGHUP and SIGINT) deletes them,
 and a signal that arrived during a write aborts it before the rename
 (`interrupt.pending`).
 """

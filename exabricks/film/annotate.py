@@ -29,11 +29,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .constants import MAX_TITLE_CHARS
-from .errors import ExabricksError
+from ..util.constants import MAX_TITLE_CHARS
+from ..util.errors import ExabricksError
 from .image_io import to_png_pixels
-from .scene import Scene
-from .transfer_function import TransferFunction
+from ..scene import Scene
+from ..picture.transfer_function import TransferFunction
 
 # Font size in pixels: this fraction of the frame's shorter side (14 px at 512,
 # 111 px at 4096), and never below MIN_FONT_PX, so that a small frame stays legible.
@@ -161,7 +161,7 @@ class ColourBar:
     kind: "volume" (with the opacity curve over the bar: opacity 0 at the left
     edge, `opacity_top` at the right), "isosurface" (the colour field of an iso-surface) or
     "slice". `value_range` and the bar's axis are on the colour map's scaled axis
-    (exabricks.scaling: the data value, or its log or symlog): row r of `box`
+    (exabricks.picture.scaling: the data value, or its log or symlog): row r of `box`
     (from its top) shows the scaled value ``hi - (r + 0.5) / box.height * (hi - lo)``.
     """
 
@@ -189,7 +189,7 @@ class ColourBar:
 
     def values(self) -> np.ndarray:
         """The data value of each row of the bar (float64 (height,), top row first)."""
-        from .scaling import inverse
+        from ..picture.scaling import inverse
 
         lo, hi = self.value_range
         scaled = hi - (np.arange(self.box.height) + 0.5) / self.box.height * (hi - lo)
@@ -324,7 +324,7 @@ def _slice_caption(s) -> str:
 def _legends(scene: Scene, units: dict) -> tuple[list, list]:
     """(colour bars, swatches) of `scene` without their boxes, in scene order:
     (kind, caption, label, colormap, range) and (label, colour)."""
-    from .scaling import axis_label, forward
+    from ..picture.scaling import axis_label, forward
 
     bars, swatches = [], []
     for v in scene.volumes:
@@ -624,7 +624,7 @@ def _draw_bar(fig, bar: ColourBar, height: int, fx, fy, text, f, fg, line_width)
         spine.set_linewidth(line_width)
     ax.set_xlim(0.0, 1.0)
     if bar.opacity:
-        from .scaling import forward
+        from ..picture.scaling import forward
 
         alpha = bar.colormap.alpha_points.copy()
         alpha[:, 0] = forward(alpha[:, 0], bar.colormap.scale, bar.colormap.threshold)

@@ -1,6 +1,6 @@
 """Statistics of a field over the bricks, in bounded memory: its finite range,
-and the volume-weighted sums that the defaults read (exabricks.auto_transfer,
-exabricks.framing): a histogram of its scaled values, and where its opacity
+and the volume-weighted sums that the defaults read (exabricks.picture.auto_transfer,
+exabricks.picture.framing): a histogram of its scaled values, and where its opacity
 lies, along axes and over columns of a view.
 
 The sums walk the bricks a run of whole bricks (about CHUNK values) at a time
@@ -17,16 +17,16 @@ import math
 import numba
 import numpy as np
 
-from .errors import ExabricksError
+from ..util.errors import ExabricksError
 
-# Scales by code in the jitted loops (exabricks.scaling.SCALES less "auto").
+# Scales by code in the jitted loops (exabricks.picture.scaling.SCALES less "auto").
 SCALE_CODES = {"linear": 0, "log": 1, "symlog": 2}
 
 
 def _runs(bricks, field: str):
     """(values of the field (V,), first brick, end brick) of runs of whole bricks
     of about CHUNK values; a mapped run's pages are handed back after it."""
-    from .formats.memory import CHUNK, discard, mapping
+    from ..formats.memory import CHUNK, discard, mapping
 
     values = bricks.values[bricks.field_index(field)]
     counts = np.prod(bricks.dims.astype(np.int64), axis=1)
@@ -51,7 +51,7 @@ def _bricks(bricks):
 def volume_histogram(bricks, field: str, scale: str, threshold: float, axis_range,
                      bins: int) -> np.ndarray:
     """(bins,) float64: the lattice volume of the cells of `field` whose scaled
-    value (exabricks.scaling) falls in each of `bins` even bins over
+    value (exabricks.picture.scaling) falls in each of `bins` even bins over
     `axis_range` (beyond it: the end bins; log of a value <= 0: the first bin;
     non-finite values: none)."""
     out = np.zeros(bins)
@@ -201,7 +201,7 @@ def _columns(values, lower, level, dims, offset, start, stop, xs, alpha, steps, 
 def field_range(bricks, field: str | None) -> tuple[float, float]:
     """(min, max) of the finite values of `field` (None: the first field);
     ExabricksError if it has none."""
-    from .schema import reduce_chunks
+    from ..schema import reduce_chunks
 
     def extent(chunk):
         finite = chunk[np.isfinite(chunk)]
@@ -216,7 +216,7 @@ def field_range(bricks, field: str | None) -> tuple[float, float]:
 
 def smallest_positive(bricks, field: str) -> float | None:
     """The smallest positive finite value of `field`, or None where it has none."""
-    from .schema import reduce_chunks
+    from ..schema import reduce_chunks
 
     def least(chunk):
         positive = chunk[np.isfinite(chunk) & (chunk > 0)]

@@ -18,9 +18,9 @@ import numba
 import numpy as np
 
 from .. import schema
-from ..constants import INDEX_DTYPE
-from ..errors import ExabricksError
-from ..pieces import WHOLE, Piece, share_meta, task_range
+from ..util.constants import INDEX_DTYPE
+from ..util.errors import ExabricksError
+from ..formats.pieces import WHOLE, Piece, share_meta, task_range
 
 
 def build_bvh(regions: schema.Regions, *, leaf_size: int = 4, bins: int = 16,
@@ -33,7 +33,7 @@ def build_bvh(regions: schema.Regions, *, leaf_size: int = 4, bins: int = 16,
     bounds; value_range (M, F, 2) float32 is the min of the regions' minima and
     the max of their maxima per field (NaN where no region has a number);
     finest_level (M,) int8 is the finest level over the node's regions.
-    piece: build only this share (exabricks.pieces): a BVH over every
+    piece: build only this share (exabricks.formats.pieces): a BVH over every
     region whose subtrees of other pieces are single leaves; meta["piece"] says
     which subtrees are its own.
     """
@@ -152,7 +152,7 @@ def _build(lo, hi, leaf_size, bins, threads, piece=WHOLE):
     threads.  Children are consecutive pairs after their parent, so a parent
     always has a smaller index than its children.
 
-    piece (exabricks.pieces): build only a run of the subtrees; the others
+    piece (exabricks.formats.pieces): build only a run of the subtrees; the others
     stay leaves listing all their boxes (in the top's order), so the share is
     still a tree over every box.  Then also returns where the share lies:
     {"top": top node count, "subtrees": [[node, start, end], ...] (all of them),

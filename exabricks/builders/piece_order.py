@@ -2,7 +2,7 @@
 order from which `brick --piece K/N` reads only its share (docs/design.md,
 "Builders by pieces": "Pieces of `brick` read only their cells").
 
-`ingest` ends with `order_cells`: the partition of exabricks.stages.cell_tree
+`ingest` ends with `order_cells`: the partition of exabricks.builders.cell_tree
 is split breadth first until there is about one node per RUN_CELLS cells (at
 most MAX_RUNS), and the cells are stored in the order that leaves them in.
 Every node of that top is then one run of consecutive cells, and meta[RUNS_KEY]
@@ -26,9 +26,9 @@ import numba
 import numpy as np
 
 from .. import schema
-from ..constants import MAX_BRICK_WIDTH
-from ..errors import ExabricksError
-from ..pieces import RUNS_KEY, Piece, task_range
+from ..util.constants import MAX_BRICK_WIDTH
+from ..util.errors import ExabricksError
+from ..formats.pieces import RUNS_KEY, Piece, task_range
 from .cell_tree import ID, LEVEL, PACK_STEP, START, build_top, pack, take_columns
 
 # A run per this many cells, at most MAX_RUNS (pieces are balanced over runs).
@@ -42,7 +42,7 @@ def order_cells(cells: schema.Cells, *, run_cells: int = RUN_CELLS) -> schema.Ce
     """`cells` in the order of the top of their partition, with meta[RUNS_KEY]:
     about one run per `run_cells` cells, at most MAX_RUNS.
 
-    The cells must be checked (exabricks.stages.ingest.validate_cells: no
+    The cells must be checked (exabricks.builders.cells.validate_cells: no
     overlap).  Their lower_lattice and level arrays are permuted in place when
     they are this process's own (writable, not mapped): their pages are handed
     back as the partition's rows are made, and the rows' as they are copied

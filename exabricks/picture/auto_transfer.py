@@ -2,7 +2,7 @@
 (docs/scene.md, "Defaults that show the data").
 
 It is made from the field's *volume-weighted* histogram on its scaled axis
-(exabricks.scaling; log for a positive field spanning more than two decades):
+(exabricks.picture.scaling; log for a positive field spanning more than two decades):
 
 1. The ambient value is the histogram's mode: the value that fills the most
    space (the quiet medium around a blast, the cold gas of a cosmology box, the
@@ -122,7 +122,7 @@ def visible_span(histogram: np.ndarray, shape: np.ndarray, axis_range) -> tuple[
 
 def field_axis(bricks, field: str, scale: str | None = None):
     """(scale, symlog threshold, finite range widened where constant, smallest
-    positive value or None) of `field` for `scale` (None: auto; exabricks.scaling)."""
+    positive value or None) of `field` for `scale` (None: auto; exabricks.picture.scaling)."""
     data_range = widen_degenerate_range(field_range(bricks, field))
     floor = smallest_positive(bricks, field) if data_range[0] <= 0 < data_range[1] else None
     return resolve(scale, data_range, floor), default_threshold(data_range), data_range, floor
@@ -198,7 +198,7 @@ def column_depths(bricks, field: str, unit: TransferFunction, bins: int = COLUMN
     summed along the default view's rays (framing.view_axes) through `bins` x
     `bins` square columns across the data, in lattice units of length."""
     from .camera import box_corners
-    from .formats.kinds import world_bounds
+    from ..formats.kinds import world_bounds
     from .framing import view_axes
 
     axes = view_axes()[:2]

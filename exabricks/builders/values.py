@@ -20,8 +20,8 @@ import numba
 import numpy as np
 
 from .. import schema
-from ..constants import VALUE_DTYPE
-from ..errors import ExabricksError
+from ..util.constants import VALUE_DTYPE
+from ..util.errors import ExabricksError
 
 
 class CellsDiffer(ExabricksError):
@@ -34,7 +34,7 @@ REGION_CHUNK = 1 << 16  # regions per step of the range pass (mapped values hand
 
 def step_values(cells: schema.Cells, bricks: schema.Bricks, *, where: str = "the source",
                 bricks_where: str = "the bricks") -> schema.Values:
-    """The values of `cells` in the cell order of `bricks` (exabricks.stages.brick:
+    """The values of `cells` in the cell order of `bricks` (exabricks.builders.bricks:
     brick after brick, x fastest); ExabricksError unless the cells are exactly the
     bricks' cells, with the same fields and world frame."""
     if tuple(cells.fields) != tuple(bricks.fields):
@@ -92,7 +92,7 @@ def with_values(bricks: schema.Bricks, regions: schema.Regions, bvh: schema.Bvh,
     the same cells with `step`'s values and the value ranges they imply."""
     check_values_for(step, bricks, where=where, bricks_where=bricks_where)
     from .bvh import refit
-    from .regions import leaf_ranges
+    from .region_merge import leaf_ranges
 
     ranges = np.empty_like(regions.value_range)
     lo2 = np.rint(np.asarray(regions.lower_lattice, np.float64) * 2).astype(np.int64)

@@ -6,8 +6,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from . import schema
-from .errors import ExabricksError
+from .. import schema
+from ..util.errors import ExabricksError
 
 
 def to_amr_grids(cells: schema.Cells, *, source: str = "cells",
@@ -18,7 +18,7 @@ def to_amr_grids(cells: schema.Cells, *, source: str = "cells",
     their parent level's cells and each grid inside one parent grid. Level l's
     "covering" cells are its leaves plus the parents of level l-1's covering
     cells (value: the mean of their children; yt only shows leaves); the
-    coarsest level is cut into bricks (exabricks.stages.brick) of its cells,
+    coarsest level is cut into bricks (exabricks.builders.bricks) of its cells,
     every finer level into bricks of the refined parent cells, grouped by the
     parent's grid. The data must be octree-complete (every refined cell has all
     8 children, as in Gerris and benchmarks/make_big.py's merge); ExabricksError
@@ -110,14 +110,14 @@ def _cell_keys(lower) -> np.ndarray:
 
 
 def _bricks_by_group(units, level: int, group):
-    """Bricks (exabricks.stages.brick) of same-level cells `units` (N, 3) int64 that never
+    """Bricks (exabricks.builders.bricks) of same-level cells `units` (N, 3) int64 that never
     mix two values of `group` (N,): yields (lower (B, 3) int64, dims (B, 3) int64) batches.
 
     Groups are moved apart along x by a multiple of the cell width before one
     build_bricks call (a brick must be filled, so it cannot bridge the gap), and
     moved back; one call per group where the shifted lattice would leave int32.
     """
-    from .stages.brick import build_bricks
+    from ..builders.bricks import build_bricks
 
     def bricks_of(lower):
         b = build_bricks(schema.Cells(

@@ -1,5 +1,5 @@
 """The k-d partition of leaf cells that `brick` builds (paper §3.1.2) and that
-`ingest` orders its cells by (exabricks.stages.piece_order).
+`ingest` orders its cells by (exabricks.builders.piece_order).
 
 A node is split across the longest axis of its bounding box at the middle,
 rounded to a multiple of the node's coarsest cell width so that no cell is

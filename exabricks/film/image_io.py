@@ -17,7 +17,7 @@ and images"); row 0 is the top of the image.
   with ``.png`` is refused.
 
 Both formats also carry the standard ``software`` attribute / ``Software``
-chunk. Writes go through exabricks.output (atomic for files, direct for devices).
+chunk. Writes go through exabricks.util.output (atomic for files, direct for devices).
 """
 
 from __future__ import annotations
@@ -30,10 +30,10 @@ from pathlib import Path
 
 import numpy as np
 
-from . import __version__
-from .errors import ExabricksError
-from .jsonfile import json_default
-from .output import write_output
+from .. import __version__
+from ..util.errors import ExabricksError
+from ..util.jsonfile import json_default
+from ..util.output import write_output
 
 METADATA_PREFIX = "exabricks:"
 FORMATS = (".exr", ".png")
@@ -121,7 +121,7 @@ def write_image(path, rgba, *, metadata: dict | None = None, depth=None, inputs=
     `metadata`: JSON-serialisable values by short ASCII key (camera, transfer
     function, dataset, settings). `depth`: optional (H, W) float32 world-unit
     distances, .exr only (channel Z). `inputs`: paths the output must not
-    replace (exabricks.output). `backdrop`: the opaque RGB a .png is composited
+    replace (exabricks.util.output). `backdrop`: the opaque RGB a .png is composited
     over (None: the .png keeps the alpha); an .exr is never composited.
     """
     path = Path(path)
@@ -173,7 +173,7 @@ def _write_bands(path: Path, width: int, height: int, bands, has_depth: bool, me
 
 class FrameFile:
     """A frame put together band by band in a scratch file beside its output
-    (exabricks.output.scratch), so that a frame far larger than memory (a
+    (exabricks.util.output.scratch), so that a frame far larger than memory (a
     poster drawn tile by tile) is never whole in memory; `write` then writes it
     as .exr or .png with its metadata, bands of rows not yet put being
     `background`. Use as a context manager: the scratch file goes on leaving."""
@@ -190,7 +190,7 @@ class FrameFile:
         self._scratch = None
 
     def __enter__(self):
-        from .output import scratch
+        from ..util.output import scratch
 
         self._scratch = scratch(self.path)
         name = self._scratch.__enter__()

@@ -41,7 +41,7 @@ def visible_corners(bricks, field: str, transfer_function, *, axes=None, trim: f
     nothing is."""
     from .camera import box_corners
     from .field_statistics import opacity_along
-    from .formats.kinds import world_bounds
+    from ..formats.kinds import world_bounds
 
     axes = np.eye(3) if axes is None else np.asarray(axes, np.float64)
     # The data's extent along each axis, from the corners of its world box.
@@ -66,7 +66,7 @@ def visible_points(bricks, volumes, *, axes=None) -> np.ndarray:
     volume layers `volumes` make visible of `bricks` (`visible_corners`), else
     the corners of the dataset's world box."""
     from .camera import box_corners
-    from .formats.kinds import world_bounds
+    from ..formats.kinds import world_bounds
 
     boxes = [visible_corners(bricks, v.field, v.transfer_function, axes=axes) for v in volumes]
     return np.concatenate([b for b in boxes if b is not None]

@@ -15,7 +15,7 @@ kernel cache) make later processes skip compilation.
 
 A build that compiles (the first use of a set of options on a machine: seconds to
 tens of seconds on a small CPU) says so on a terminal, with the seconds ticking
-(exabricks.progress.waiting), and in the log with -v; so does a kernel's first
+(exabricks.util.progress.waiting), and in the log with -v; so does a kernel's first
 enqueue, where PoCL compiles its work-group function. A build served from a cache
 stays silent. `exabricks devices --warm` (exabricks.warm) builds the programs of
 the first pictures ahead.
@@ -34,8 +34,9 @@ from pathlib import Path
 
 import numpy as np
 
-from . import kernel_abi, progress
-from .errors import ExabricksError
+from . import kernel_abi
+from ..util import progress
+from ..util.errors import ExabricksError
 
 log = logging.getLogger(__name__)
 
@@ -48,7 +49,7 @@ ENTRY_SOURCE = "render.cl"
 # fmin/fmax of both planes, so the sign of an infinite 1/dir does not matter)
 # and make frames faster on PoCL (docs/benchmarks.md, "render (PoCL)").
 # The limits every kernel loop and stack obeys, and the frame's parameters, come
-# from exabricks.kernel_abi, whose header() starts every program.
+# from exabricks.device.kernel_abi, whose header() starts every program.
 BUILD_OPTIONS = ("-cl-mad-enable", "-cl-no-signed-zeros", "-cl-denorms-are-zero")
 
 _NO_PLATFORM = (
@@ -67,7 +68,7 @@ def _cl():
 
 def kernel_dir() -> Path:
     """The directory of the kernel sources: ``<checkout>/kernels``, else the wheel's copy."""
-    checkout = Path(__file__).resolve().parents[1] / "kernels"
+    checkout = Path(__file__).resolve().parents[2] / "kernels"
     if (checkout / ENTRY_SOURCE).is_file():
         return checkout
     packaged = Path(str(resources.files("exabricks") / "kernels"))
@@ -269,12 +270,12 @@ def _compiler_stderr():
     to descriptor 2 itself, and whose own handlers of SIGINT and SIGTERM remove the
     temporary file it is writing before Python's handler sees the signal: the
     interrupted build fails, and its compiler output would precede the run's one
-    `error: interrupted` line (exabricks.interrupt). A build that fails without a
+    `error: interrupted` line (exabricks.util.interrupt). A build that fails without a
     signal shows its output as before (and its log is in the error)."""
     import sys
     import tempfile
 
-    from . import interrupt
+    from ..util import interrupt
 
     def flush():
         try:

@@ -19,7 +19,7 @@ import math
 
 import numpy as np
 
-from .errors import ExabricksError
+from ..util.errors import ExabricksError
 
 SCALES = ("auto", "linear", "log", "symlog")
 # auto: log where max / min of a positive field exceeds 10 ** AUTO_LOG_DECADES.

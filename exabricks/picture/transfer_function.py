@@ -30,8 +30,8 @@ from pathlib import Path
 
 import numpy as np
 
-from .constants import FLOAT32_MAX, MAX_KNOTS
-from .errors import ExabricksError
+from ..util.constants import FLOAT32_MAX, MAX_KNOTS
+from ..util.errors import ExabricksError
 from .scaling import SCALES
 
 # Knots of a matplotlib colormap shortcut: matplotlib's own lookup tables have 256
@@ -123,7 +123,7 @@ class TransferFunction:
     rgb_points: np.ndarray
     alpha_points: np.ndarray
     name: str = "custom"
-    # How the knots were laid out and the colour bar reads them (exabricks.scaling):
+    # How the knots were laid out and the colour bar reads them (exabricks.picture.scaling):
     # "linear", "log" or "symlog" with the linear threshold `threshold`.
     scale: str = "linear"
     threshold: float = 1.0
@@ -186,7 +186,7 @@ class TransferFunction:
     @classmethod
     def from_paraview(cls, path) -> TransferFunction:
         """Read a ParaView colour-map preset JSON file; ExabricksError naming the file if bad."""
-        from .jsonfile import read_json
+        from ..util.jsonfile import read_json
 
         preset = read_json(path, "transfer function", parse_constant=_reject_constant)
         return cls.from_paraview_dict(preset, source=str(path))
@@ -247,7 +247,7 @@ class TransferFunction:
 
     def on_scale(self, scale: str, threshold: float = 1.0) -> TransferFunction:
         """This function read as one over the *scaled* axis of `scale`
-        (exabricks.scaling), as a function of the data value: its knots mapped
+        (exabricks.picture.scaling), as a function of the data value: its knots mapped
         back to data values, with knots added first so that no interval spans more
         than 1/COLORMAP_KNOTS of the scaled range (between knots the result is
         linear in the data value, which then differs from linear on the scaled

@@ -7,7 +7,7 @@ its output does not depend on the thread count.  The same cut makes pieces: a
 piece is a run of consecutive subtrees, balanced by their size (`task_range`).
 Piece K of N computes the top (every piece computes the same one) and only its
 own subtrees, and writes a file of the builder's kind holding its share, with
-meta["piece"] saying which share it is.  exabricks.stages.join puts the
+meta["piece"] saying which share it is.  exabricks.builders.join puts the
 shares back together in piece order; the result equals the one-process build,
 array for array.
 
@@ -23,11 +23,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .errors import ExabricksError
+from ..util.errors import ExabricksError
 
 # A share's meta["piece"]: index, count, and per kind where its share lies.
 PIECE_KEY = "piece"
-# A cells file's meta entry: the runs a brick piece reads (exabricks.stages.piece_order).
+# A cells file's meta entry: the runs a brick piece reads (exabricks.builders.piece_order).
 RUNS_KEY = "piece_runs"
 
 
