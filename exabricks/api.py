@@ -177,7 +177,7 @@ class Renderer:
                                  "eb.render_job(dataset, output, ...)")
         chosen = self.scene(scene, **options)
         result = self._on_device(chosen.fields()).render_scene(chosen)
-        from .film.annotate import facts_from_meta
+        from .film.layout import facts_from_meta
 
         metadata = frame_metadata(chosen, self.dataset.describe(), None, None, result.stats)
         return Image(result.rgba, result.depth, metadata, scene=chosen,

@@ -5,7 +5,7 @@ A mesh file (OBJ, PLY or STL, world units) is read by trimesh and checked:
 finite vertices, vertex indices in range, at least one triangle with area.
 Triangles without area are dropped (marching cubes makes some where a value
 equals the iso-value; they cannot be hit). The meshes of a frame are merged into one `MeshSet`: their triangles,
-each tagged with its mesh, under one binned-SAH BVH (stages.bvh.build_tree,
+each tagged with its mesh, under one binned-SAH BVH (builders.bvh.build_tree,
 the builder of the regions' BVH, over the triangles' boxes), which the kernels
 walk for every ray (kernels/mesh.cl). A MeshSet is built once per process for
 the same files (`mesh_set`), and kept in the cache of built structures

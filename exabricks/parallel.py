@@ -194,7 +194,8 @@ class ParallelRenderer:
         if self.mode == "image":
             self.renderer = Renderer(bricks, regions, bvh, fields=fields, device=device)
             return
-        from .engine.partition import kd_partition, domain_data, domain_options
+        from .engine.partition import kd_partition
+        from .engine.domains import domain_data, domain_options
 
         self.partition = kd_partition(bricks, regions, self.size)
         for whole in (bricks, regions):  # the partition read them all: only the domain now
@@ -209,7 +210,8 @@ class ParallelRenderer:
                                  scale=DatasetScale.of(bricks, fields))
 
     def render_scene(self, scene):
-        from .engine.renderer import RenderResult, over_background
+        from .engine.renderer import RenderResult
+        from .film.film import develop
 
         start = time.perf_counter()
         if self.mode == "image":
@@ -223,13 +225,12 @@ class ParallelRenderer:
         stats.update(ms=1e3 * seconds, samples_per_second=stats["samples"] / seconds if seconds
                      else 0.0, mpi={"ranks": self.size, "mode": self.mode,
                                     **({"image_mode_for": self.reason} if self.reason else {})})
-        return RenderResult(over_background(rgba, scene.background), depth, stats)
+        return RenderResult(develop(rgba, scene), depth, stats)
 
     def _image(self, scene):
         cfg = scene.settings
         spans = _interleaved_spans(cfg.height, self.size, self.rank)
-        result = agree(self.comm, self.renderer.render_scene,
-                       scene.replace(background=(0.0, 0.0, 0.0, 0.0)), rows=spans)
+        result = agree(self.comm, self.renderer.integrate, scene, rows=spans)
         rows = np.concatenate([np.arange(a, a + n) for a, n in spans]) if spans \
             else np.zeros(0, np.int64)
         parts = [result.rgba[rows]] + ([result.depth[rows]] if result.depth is not None else [])
@@ -254,10 +255,9 @@ class ParallelRenderer:
         slabs = _row_slabs(height, self.size)
         mine = slabs[self.rank]
         own = np.zeros((mine[1] - mine[0], width, 4), np.float32)
-        plain = scene.replace(background=(0.0, 0.0, 0.0, 0.0))
         samples, stats = 0, {}
         for sample in range(spp):
-            result = agree(self.comm, self.renderer.render_scene, plain,
+            result = agree(self.comm, self.renderer.integrate, scene,
                            sample=sample if spp > 1 else None)
             samples += result.stats["samples"]
             stats = dict(result.stats)

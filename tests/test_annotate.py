@@ -22,7 +22,9 @@ import warnings
 import numpy as np
 import pytest
 
-from exabricks.film.annotate import annotate, annotation_layout, facts_from_meta, font_size, projected_axes
+from exabricks.film.annotate import annotate
+from exabricks.film.layout import facts_from_meta
+from exabricks.film.layout import annotation_layout, font_size, projected_axes
 from exabricks.picture.camera import Camera
 from exabricks.util.errors import ExabricksError
 from exabricks.film.image_io import to_png_pixels

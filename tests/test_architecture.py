@@ -112,3 +112,21 @@ def test_command_modules_are_thin():
             if p.name not in ("main.py", "options.py", "__init__.py")
             and (n := len(p.read_text().splitlines())) > 120}
     assert not long, long
+
+
+def test_no_module_over_600_lines_and_no_function_over_100():
+    """One concept a file, and functions that read in one screenful or two: a module
+    that grows past 600 lines has a second concept to move out (as the regions'
+    k-d partition and merge, the AMReX headers or a domain's share of the data
+    were), a function past 100 lines a step to name."""
+    long_modules, long_functions = {}, {}
+    for path in PACKAGE.rglob("*.py"):
+        text = path.read_text()
+        name = path.relative_to(PACKAGE.parent).as_posix()
+        if (n := len(text.splitlines())) > 600:
+            long_modules[name] = n
+        for node in ast.walk(ast.parse(text)):
+            if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)) \
+                    and (n := node.end_lineno - node.lineno + 1) > 100:
+                long_functions[f"{name}:{node.name}"] = n
+    assert not long_modules and not long_functions, (long_modules, long_functions)

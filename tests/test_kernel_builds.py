@@ -26,7 +26,7 @@ pytestmark = pytest.mark.skipif(not DEVICES, reason="no OpenCL device")
 BUILD = """
 import logging, sys, time
 import pyopencl as cl
-from exabricks import kernel_abi, opencl
+from exabricks.device import kernel_abi, opencl
 if sys.argv[1:] == ["-v"]:
     logging.basicConfig(level=logging.INFO, format="%(message)s", stream=sys.stderr)
 build = cl.Program.build

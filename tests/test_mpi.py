@@ -88,6 +88,17 @@ def test_data_parallel_equals_one_process(request, dataset, n, cli, tmp_path):
     assert meta["settings"]["mpi"] == {"ranks": n, "mode": "data"}
 
 
+@pytest.mark.parametrize("mode", ["data", "image"])
+def test_exposure_under_mpi_is_the_one_process_frame(gerris, cli, tmp_path, mode):
+    """The film develops the composite of every rank once (tests/test_film.py holds
+    the one-process frame to the definition)."""
+    film = ["--exposure", 1.5, "--background", "0.1,0.2,0.3", "--shading", "none"]
+    cli("render", *gerris, "-o", tmp_path / "one.exr", *FLAGS, *film, check=0)
+    proc = mpirun(2, "render", *gerris, "-o", tmp_path / "many.exr", *FLAGS, *film, "--mpi-mode", mode)
+    assert proc.returncode == 0, proc.stderr
+    same_image(tmp_path / "many.exr", tmp_path / "one.exr", exact=mode == "image")
+
+
 def test_image_parallel_and_fallback(amrex, cli, tmp_path):
     iso = ["--iso", 0.5, "--depth", "--ao-samples", 2]
     cli("render", *amrex, "-o", tmp_path / "one.exr", *FLAGS, *iso, check=0)

@@ -17,9 +17,10 @@ import numpy as np
 import pytest
 
 from exabricks.engine.device_data import DatasetScale
-from exabricks.engine.partition import (_meeting, composite, eye_lattice, kd_partition,
-                                         domain_data, domain_options, region_blocks)
-from exabricks.engine.renderer import Renderer, over_background
+from exabricks.engine.domains import _meeting, domain_data, domain_options, region_blocks
+from exabricks.engine.partition import composite, eye_lattice, kd_partition
+from exabricks.engine.renderer import Renderer
+from exabricks.film.film import over_background
 
 from conftest import device_param
 from test_packets import DATASETS, loaded, renderer, scene_for

@@ -20,7 +20,7 @@ import pytest
 from exabricks.util.errors import ExabricksError
 from exabricks.film.image_io import read_image
 from exabricks.util.sizes import parse_size
-from exabricks.engine.partition import domain_plan, domain_bytes
+from exabricks.engine.domains import domain_plan, domain_bytes
 from exabricks.engine.renderer import Renderer
 from exabricks.engine.streaming import (HELD, SLACK, Budgeted, Resident, fixed_bytes, image_bytes,
                                         render_steps, render_tiled)

@@ -27,7 +27,8 @@ import numpy as np
 from PIL import Image
 
 import exabricks as eb
-from exabricks.film.annotate import annotate, facts_from_meta
+from exabricks.film.annotate import annotate
+from exabricks.film.layout import facts_from_meta
 from exabricks.stages.ingest import ingest
 
 ROOT = Path(__file__).resolve().parents[2]

@@ -26,7 +26,8 @@ import numpy as np
 from PIL import Image
 
 import exabricks as eb
-from exabricks.film.annotate import annotate, annotation_layout
+from exabricks.film.annotate import annotate
+from exabricks.film.layout import annotation_layout
 
 ROOT = Path(__file__).resolve().parents[2]
 OUT = ROOT / "docs" / "images" / "annotated"

@@ -37,9 +37,10 @@ def main(argv=None) -> int:
     from exabricks.film.image_io import write_image
     from exabricks.scene import scene_from_options
     from exabricks.engine.device_data import DatasetScale
-    from exabricks.engine.partition import (composite, eye_lattice, kd_partition, domain_data,
-                                            domain_options)
-    from exabricks.engine.renderer import Renderer, over_background
+    from exabricks.engine.partition import composite, eye_lattice, kd_partition
+    from exabricks.engine.domains import domain_data, domain_options
+    from exabricks.engine.renderer import Renderer
+    from exabricks.film.film import over_background
 
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--ranks", type=int, default=4)

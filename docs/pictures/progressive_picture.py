@@ -33,8 +33,9 @@ def main(argv=None) -> int:
     from exabricks import schema
     from exabricks.film.image_io import write_image
     from exabricks.scene import scene_from_options
-    from exabricks.engine.partition import domain_plan, domain_bytes
-    from exabricks.engine.renderer import Renderer, over_background
+    from exabricks.engine.domains import domain_plan, domain_bytes
+    from exabricks.engine.renderer import Renderer
+    from exabricks.film.film import over_background
     from exabricks.engine.streaming import PER_BRICK, SLACK, Budgeted, image_bytes, render_steps
 
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])

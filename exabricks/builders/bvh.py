@@ -166,6 +166,47 @@ def _build(lo, hi, leaf_size, bins, threads, piece=WHOLE):
     lo = lo.copy()
     hi = hi.copy()
     order = np.arange(n, dtype=np.int64)
+    first, count, subtrees = _split_top(cen, lo, hi, order, leaf_size, bins, threads)
+    t0, t1 = task_range([e - s for _, s, e in subtrees], piece)
+    for node, s, e in subtrees[:t0] + subtrees[t1:]:
+        first[node], count[node] = s, e - s
+    share = {} if piece.whole else {"top": len(first), "subtrees": [list(t) for t in subtrees],
+                                    "own": [t0, t1]}
+    subtrees = subtrees[t0:t1]
+
+    def run(task):
+        return _build_subtree(cen, lo, hi, order, task[1], task[2], leaf_size, bins)
+
+    if threads > 1 and len(subtrees) > 1:
+        from concurrent.futures import ThreadPoolExecutor
+
+        with ThreadPoolExecutor(max_workers=threads) as pool:
+            by_size = sorted(range(len(subtrees)), key=lambda t: subtrees[t][1] - subtrees[t][2])
+            futures = {t: pool.submit(run, subtrees[t]) for t in by_size}
+            parts = [futures[t].result() for t in range(len(subtrees))]
+    else:
+        parts = [run(t) for t in subtrees]
+    first = np.array(first, np.int64)
+    count = np.array(count, np.int64)
+    blocks_first, blocks_count = [first], [count]
+    base = first.shape[0]
+    for (node, _, _), (f, c, m) in zip(subtrees, parts):
+        # local node 0 is `node`; local node j >= 1 goes to base + j - 1
+        first[node], count[node] = (base + f[0] - 1, 0) if c[0] == 0 else (f[0], c[0])
+        f, c = f[1:m], c[1:m]
+        blocks_first.append(np.where(c == 0, base + f - 1, f))
+        blocks_count.append(c)
+        base += m - 1
+    if share:
+        share["blocks"] = [int(m) - 1 for _, _, m in parts]
+    return np.concatenate(blocks_first), np.concatenate(blocks_count), order, share
+
+
+def _split_top(cen, lo, hi, order, leaf_size, bins, threads):
+    """The top levels of `_build`'s tree, split breadth first (on threads) until
+    there are 64 subtrees (one for fewer than 50,000 boxes): (first, count, the
+    subtrees as [node, start, end])."""
+    n = lo.shape[0]
     first = [0]
     count = [0]
     want = 1 if n < 50_000 else 64
@@ -209,40 +250,7 @@ def _build(lo, hi, leaf_size, bins, threads, piece=WHOLE):
     finally:
         if pool is not None:
             pool.shutdown()
-    subtrees += queue
-    t0, t1 = task_range([e - s for _, s, e in subtrees], piece)
-    for node, s, e in subtrees[:t0] + subtrees[t1:]:
-        first[node], count[node] = s, e - s
-    share = {} if piece.whole else {"top": len(first), "subtrees": [list(t) for t in subtrees],
-                                    "own": [t0, t1]}
-    subtrees = subtrees[t0:t1]
-
-    def run(task):
-        return _build_subtree(cen, lo, hi, order, task[1], task[2], leaf_size, bins)
-
-    if threads > 1 and len(subtrees) > 1:
-        from concurrent.futures import ThreadPoolExecutor
-
-        with ThreadPoolExecutor(max_workers=threads) as pool:
-            by_size = sorted(range(len(subtrees)), key=lambda t: subtrees[t][1] - subtrees[t][2])
-            futures = {t: pool.submit(run, subtrees[t]) for t in by_size}
-            parts = [futures[t].result() for t in range(len(subtrees))]
-    else:
-        parts = [run(t) for t in subtrees]
-    first = np.array(first, np.int64)
-    count = np.array(count, np.int64)
-    blocks_first, blocks_count = [first], [count]
-    base = first.shape[0]
-    for (node, _, _), (f, c, m) in zip(subtrees, parts):
-        # local node 0 is `node`; local node j >= 1 goes to base + j - 1
-        first[node], count[node] = (base + f[0] - 1, 0) if c[0] == 0 else (f[0], c[0])
-        f, c = f[1:m], c[1:m]
-        blocks_first.append(np.where(c == 0, base + f - 1, f))
-        blocks_count.append(c)
-        base += m - 1
-    if share:
-        share["blocks"] = [int(m) - 1 for _, _, m in parts]
-    return np.concatenate(blocks_first), np.concatenate(blocks_count), order, share
+    return first, count, subtrees + queue
 
 
 @numba.njit(cache=True, nogil=True)

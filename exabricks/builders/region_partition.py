@@ -65,6 +65,27 @@ def split_plane(sup_lo, sup_hi, ids, lo, hi):
                          scratch[0], scratch[1], scratch[2])
 
 
+@numba.njit(cache=True, inline="always")
+def _split_fragments(sup_lo, sup_hi, buf, a, b, axis, plane):
+    """Split the fragment list buf[a:b] at `plane` on `axis`: the right ids
+    compacted in place at [a, a + nr), the left ids collected above b, then moved
+    down to follow the right ones. Returns (buf, possibly grown, nr, nl)."""
+    buf = _grow(buf, b + (b - a))
+    nr = 0
+    nl = 0
+    for k in range(a, b):
+        i = buf[k]
+        if sup_lo[i, axis] < plane:
+            buf[b + nl] = i
+            nl += 1
+        if sup_hi[i, axis] > plane:
+            buf[a + nr] = i
+            nr += 1
+    for k in range(nl):
+        buf[a + nr + k] = buf[b + k]
+    return buf, nr, nl
+
+
 @numba.njit(cache=True, nogil=True)
 def partition_subtree(sup_lo, sup_hi, root_lo, root_hi, root_ids, level, small, visit_cost,
                brick_cost, max_merged):
@@ -97,8 +118,7 @@ def partition_subtree(sup_lo, sup_hi, root_lo, root_hi, root_ids, level, small, 
     st_ab = np.empty((64, 2), np.int64)
     st_lo[0] = root_lo
     st_hi[0] = root_hi
-    st_ab[0, 0] = 0
-    st_ab[0, 1] = n
+    st_ab[0, 0], st_ab[0, 1] = 0, n
     depth = 1
 
     # int32 suffices: build_regions checks that doubled coordinates stay within 2**24
@@ -106,8 +126,7 @@ def partition_subtree(sup_lo, sup_hi, root_lo, root_hi, root_ids, level, small, 
     out_hi = np.empty((max(16, n), 3), np.int32)
     out_start = np.zeros(max(16, n) + 1, np.int64)
     out_ids = np.empty(max(16, 4 * n), np.int32)
-    n_out = 0
-    n_ids = 0
+    n_out = n_ids = 0
 
     lo = np.empty(3, np.int64)
     hi = np.empty(3, np.int64)
@@ -145,21 +164,7 @@ def partition_subtree(sup_lo, sup_hi, root_lo, root_hi, root_ids, level, small, 
             out_start[n_out] = n_ids
             continue
 
-        # Split at `plane`: right ids compacted in place at [a, a + nr), left ids
-        # collected above b, then moved down to follow the right ones.
-        buf = _grow(buf, b + (b - a))
-        nr = 0
-        nl = 0
-        for k in range(a, b):
-            i = buf[k]
-            if sup_lo[i, axis] < plane:
-                buf[b + nl] = i
-                nl += 1
-            if sup_hi[i, axis] > plane:
-                buf[a + nr] = i
-                nr += 1
-        for k in range(nl):
-            buf[a + nr + k] = buf[b + k]
+        buf, nr, nl = _split_fragments(sup_lo, sup_hi, buf, a, b, axis, plane)
 
         # Children with no fragment lie outside every support: dropped.
         st_lo = _grow(st_lo, depth + 2)

@@ -69,7 +69,7 @@ class ObjectCamera:
 
 def object_scene(scene: Scene, r: np.ndarray, t: np.ndarray, box) -> Scene:
     """`scene`'s frame of the instance at (r, t), in its object space, without
-    instances or background: the camera, the slices and the clip planes taken
+    instances: the camera, the slices and the clip planes taken
     back, and the clip box too (as six planes where the map turns it off the
     axes); everything cut at the object-space `box` ((2, 3) or None)."""
     back = r.T
@@ -99,7 +99,7 @@ def object_scene(scene: Scene, r: np.ndarray, t: np.ndarray, box) -> Scene:
                    for s in scene.slices)
     clip = Clip(None if cut is None else (tuple(cut[0]), tuple(cut[1])), tuple(planes))
     return scene.replace(camera=ObjectCamera(scene.camera, r, t), slices=slices, clip=clip,
-                         instances=(), background=(0.0, 0.0, 0.0, 0.0))
+                         instances=())
 
 
 def object_box(lower, upper, mesh_bounds=None) -> np.ndarray:
@@ -186,9 +186,8 @@ def render_mixture(inner, scene: Scene, box, *, traversal, rows, window, sample,
     (kernels/mixture.cl), each copy cut at its box: what copies that overlap
     need (their extinctions add where they do)."""
     mixed = inner._mixture(box, copy_rows(scene, box))
-    result = mixed.render_scene(scene.replace(instances=(), background=(0.0, 0.0, 0.0, 0.0)),
-                                traversal=traversal, rows=rows, window=window, sample=sample,
-                                deadline=deadline)
+    result = mixed.integrate(scene.replace(instances=()), traversal=traversal, rows=rows,
+                             window=window, sample=sample, deadline=deadline)
     stats = dict(result.stats, instances=len(scene.instances) + 1, instance_order="mixture")
     return result.rgba, result.depth, stats
 
@@ -222,10 +221,10 @@ def copy_rows(scene: Scene, box) -> np.ndarray:
 
 
 def render(inner, scene: Scene, box, *, traversal, rows, window, sample, deadline):
-    """The frame of `scene` with its instances: (premultiplied rgba without the
-    background, depth or None, stats). `inner` renders one frame of the
+    """The frame of `scene` with its instances: (premultiplied radiance before
+    the film, depth or None, stats). `inner` renders one frame of the
     untouched dataset continuing an image in front (a Renderer over EVERYWHERE);
-    `box` is object_box's; the other arguments are Renderer.render_scene's, whose
+    `box` is object_box's; the other arguments are Renderer.integrate's, whose
     deadline applies to the first instance's first sample alone (those after it
     draw the rows it drew)."""
     maps = transforms(scene)
@@ -242,8 +241,8 @@ def render(inner, scene: Scene, box, *, traversal, rows, window, sample, deadlin
     for k in samples:
         over = None
         for i in order:
-            result = inner.render_scene(scenes[i], traversal=traversal, rows=spans, window=window,
-                                        sample=k, front=over, deadline=deadline)
+            result = inner.integrate(scenes[i], traversal=traversal, rows=spans, window=window,
+                                     sample=k, front=over, deadline=deadline)
             over, stats = result.rgba, result.stats
             count += stats["samples"]
             if result.depth is not None:

@@ -61,12 +61,12 @@ from .. import schema
 from ..util.constants import MAX_SAMPLES_PER_RAY
 from ..device.kernel_abi import LOD_LEVELS, PACKET_WIDTH
 from ..util.errors import ExabricksError
+from ..film.film import develop
 from ..mesh import mesh_set
 from ..scene import Lighting, Scene, Settings, VolumeLayer
-from ..picture.transfer_function import TABLE_TOLERANCE, knot_buckets
 from . import instances
-from .device_data import DatasetScale, DeviceDataset, gradient_scales
-from .grouped import Grouped
+from .device_data import DatasetScale, DeviceDataset
+from .look import frame_arrays
 
 # Region walks (kernels/traversal.cl): "ordered" keeps a private min-heap of
 # BVH nodes and regions per ray (one traversal per ray); "retrace" is the
@@ -97,6 +97,46 @@ class RenderResult:
     rgba: np.ndarray
     depth: np.ndarray | None
     stats: dict = dataclass_field(default_factory=dict)
+
+
+@dataclass
+class _Frame:
+    """What one `Renderer.integrate` call draws: the frame's size and samples, the
+    window (col0, tile_row0, cols, n_rows) and spans of rows, the host images,
+    the stats, whether anything is in view, and the visible nodes and regions."""
+
+    width: int
+    height: int
+    spp: int
+    col0: int
+    tile_row0: int
+    cols: int
+    n_rows: int
+    spans: list
+    rgba: np.ndarray
+    depth: np.ndarray | None
+    stats: dict
+    nothing: bool
+    node_vis: np.ndarray
+    region_vis: np.ndarray
+
+
+@dataclass
+class _Launch:
+    """The kernel of a frame with its eb_params, fixed arguments and band buffers."""
+
+    kernel: object
+    params: object
+    fixed: list
+    band_rows: int
+    rgba_buf: object
+    front_buf: object
+    depth_buf: object
+    samples_buf: object
+    samples: np.ndarray
+    lod: bool
+    level_buf: object
+    level_samples: np.ndarray
 
 
 def _check_settings(settings: Settings, traversal: str) -> None:
@@ -211,10 +251,20 @@ class Renderer:
                               depth=bool(depth), reconstruction=reconstruction))
         return self.render_scene(scene, traversal=traversal)
 
-    def render_scene(self, scene: Scene, *, traversal: str = "ordered", rows=None,
-                     window=None, sample: int | None = None, front: np.ndarray | None = None,
-                     deadline: float | None = None) -> RenderResult:
-        """Render `scene` (exabricks.scene.Scene; its fields must be uploaded).
+    def render_scene(self, scene: Scene, **options) -> RenderResult:
+        """The frame of `scene` as it is seen: `integrate`'s radiance developed by
+        the film (exabricks.film.film: exposure, background).  A whole frame's
+        renderer only: domains, samples and tiles that others composite call
+        `integrate`, and the film follows their compositing."""
+        result = self.integrate(scene, **options)
+        develop(result.rgba, scene)
+        return result
+
+    def integrate(self, scene: Scene, *, traversal: str = "ordered", rows=None,
+                  window=None, sample: int | None = None, front: np.ndarray | None = None,
+                  deadline: float | None = None) -> RenderResult:
+        """The premultiplied radiance of `scene` (exabricks.scene.Scene; its fields
+        must be uploaded), before the film: no exposure, no background.
 
         `traversal` picks the region walk (TRAVERSALS); both give the same
         image up to float rounding, only the speed differs. `rows`: the spans
@@ -231,15 +281,38 @@ class Renderer:
         passes it; stats["rows"] then says how many rows from the top were
         drawn (the rest are `front`, else empty)."""
         scene.check()
-        cfg = scene.settings
-        _check_settings(cfg, traversal)
+        _check_settings(scene.settings, traversal)
         if scene.instances:
             if self.domain is not None:
                 raise ExabricksError("instances need the whole dataset: a domain's frame holds none")
-            rgba, d, stats = instances.render(
+            return RenderResult(*instances.render(
                 self._everywhere(), scene, self._object_box(scene), traversal=traversal, rows=rows,
-                window=window, sample=sample, deadline=deadline)
-            return RenderResult(over_background(rgba, scene.background), d, stats)
+                window=window, sample=sample, deadline=deadline))
+        frame = self._frame(scene, traversal, rows, window, front, deadline)
+        if frame.nothing:
+            frame.stats["rows"] = frame.n_rows
+            frame.stats.update(samples=0, ms=0.0, samples_per_second=0.0)
+            return RenderResult(frame.rgba, frame.depth, frame.stats)
+        self._check_samples_per_ray(scene.settings.sampling_rate)
+        launch = self._launch(scene, frame, traversal, front is not None)
+        drawn, total, seconds = self._draw(frame, launch, sample, front, deadline)
+        spp = frame.spp
+        if sample is not None and spp > 1:
+            frame.rgba[:drawn] *= np.float32(spp)  # the kernel averages: this sample alone
+        stats = frame.stats
+        if launch.lod:
+            opencl.read_back(self.dataset.queue, launch.level_buf, launch.level_samples)
+            stats["samples_per_level"] = {str(lv): int(c) for lv, c in enumerate(launch.level_samples) if c}
+        stats["lod"] = float(scene.settings.lod)
+        stats.update(rows=drawn, samples=total, ms=1e3 * seconds,
+                     ms_per_sample=1e3 * seconds / (spp if sample is None else 1),
+                     samples_per_second=total / seconds if seconds > 0 else 0.0)
+        return RenderResult(frame.rgba, frame.depth, stats)
+
+    def _frame(self, scene: Scene, traversal: str, rows, window, front, deadline) -> _Frame:
+        """What `integrate` draws of `scene`: the window, the spans, the host images
+        (cleared, or `front` where no row may be drawn) and the frame's stats."""
+        cfg = scene.settings
         width, height, spp = int(cfg.width), int(cfg.height), int(cfg.spp)
         col0, tile_row0, cols, n_rows = _window(window, width, height)
         if window is not None and rows is not None:
@@ -251,17 +324,15 @@ class Renderer:
             raise ExabricksError(f"field(s) {', '.join(missing)} are not on the device "
                                  f"(uploaded: {', '.join(self.dataset.fields)})")
         s = self.dataset
-        unit = s.finest_width_world if cfg.unit_distance is None else float(cfg.unit_distance)
-        origin, forward, du, dv = scene.camera.frame(width, height)
         node_vis, region_vis = s.visibility(
             [(v.field, v.transfer_function) for v in scene.volumes],
             [(i.field, i.value) for i in scene.isosurfaces])
-        shading = scene.lighting.shading
         stats = {
             "fields": list(scene.fields()), "width": width, "height": height, "spp": spp,
             "sampling_rate": float(cfg.sampling_rate), "seed": int(cfg.seed),
             "jitter": bool(cfg.jitter), "max_opacity": float(cfg.max_opacity),
-            "unit_distance": unit, "shading": shading, "gradient": scene.lighting.gradient,
+            "unit_distance": s.finest_width_world if cfg.unit_distance is None else float(cfg.unit_distance),
+            "shading": scene.lighting.shading, "gradient": scene.lighting.gradient,
             "volumes": len(scene.volumes), "isosurfaces": len(scene.isosurfaces),
             "slices": len(scene.slices), "clip": scene.clip.active,
             "ao_samples": scene.lighting.ao_samples,
@@ -274,103 +345,101 @@ class Renderer:
         if scene.volumes:
             stats["field"] = scene.volumes[0].field
         rgba = _host_image(cols, n_rows, 4, "the image")
-        d = _host_image(cols, n_rows, 1, "the depth image")[..., 0] if cfg.depth else None
+        depth = _host_image(cols, n_rows, 1, "the depth image")[..., 0] if cfg.depth else None
         spans = [(0, n_rows)] if rows is None else [(int(a), int(n)) for a, n in rows]
         nothing = s.empty or not (node_vis[0] or scene.slices or scene.meshes)
         if rows is not None or nothing or deadline is not None:  # rows not rendered
             rgba[:] = 0.0 if front is None else front
-            if d is not None:
-                d[:] = np.inf
-        if nothing:
-            stats["rows"] = n_rows
-            stats.update(samples=0, ms=0.0, samples_per_second=0.0)
-            return RenderResult(over_background(rgba, scene.background), d, stats)
-        self._check_samples_per_ray(cfg.sampling_rate)
+            if depth is not None:
+                depth[:] = np.inf
+        return _Frame(width, height, spp, col0, tile_row0, cols, n_rows, spans, rgba, depth,
+                      stats, nothing, node_vis, region_vis)
 
-        q = s.queue
-        up = opencl.to_device
-        band_rows = _band_rows(s.device, cols, n_rows)
-        band_pixels = cols * band_rows
+    def _launch(self, scene: Scene, frame: _Frame, traversal: str, has_front: bool) -> _Launch:
+        """The kernel of `scene`'s frame, its eb_params and the buffers of one band."""
+        s, cfg, lighting = self.dataset, scene.settings, scene.lighting
+        q, up = s.queue, opencl.to_device
+        band_rows = _band_rows(s.device, frame.cols, frame.n_rows)
+        band_pixels = frame.cols * band_rows
         rgba_buf = opencl.empty_buffer(q, band_pixels * 16)
-        front_buf = opencl.empty_buffer(q, band_pixels * 16 if front is not None else 16)
+        front_buf = opencl.empty_buffer(q, band_pixels * 16 if has_front else 16)
         depth_buf = opencl.empty_buffer(q, band_pixels * 4)
         samples_buf = opencl.empty_buffer(q, band_pixels * 4)
-        samples = np.empty(band_pixels, np.uint32)
         lod = cfg.lod > 0
         kernel = self._kernel(bool(scene.isosurfaces or scene.slices or scene.meshes),
                               cfg.reconstruction, lod)
         level_samples = np.zeros(LOD_LEVELS, np.uint32)
         level_buf = opencl.to_device(q, level_samples, writable=True)
         # Pixels of a cell of width w at distance t: w / (t * 2 tan(fovy / 2) / H).
-        pixel_angle = 2.0 * math.tan(math.radians(scene.camera.fovy) / 2.0) / height
+        pixel_angle = 2.0 * math.tan(math.radians(scene.camera.fovy) / 2.0) / frame.height
         lod_scale = cfg.lod * pixel_angle / s.min_spacing_world if lod else 0.0
-        lighting = scene.lighting
         ao_distance = lighting.ao_distance or AO_DISTANCE_CELLS * s.finest_width_world
-        args, layout = s.dataset_args(up(q, s.flags_for(node_vis, region_vis)), cfg.reconstruction,
-                                      lod, self.lookup == "cell-location")
-        look, look_params, stats["transfer_function_tables"] = frame_arrays(scene, s, self.copies)
+        args, layout = s.dataset_args(up(q, s.flags_for(frame.node_vis, frame.region_vis)),
+                                      cfg.reconstruction, lod, self.lookup == "cell-location")
+        look, look_params, frame.stats["transfer_function_tables"] = frame_arrays(scene, s, self.copies)
         mesh_args, mesh_params = self._meshes(scene)
         if scene.meshes:
-            stats["meshes"] = self._mesh_set.stats()
+            frame.stats["meshes"] = self._mesh_set.stats()
+        origin, forward, du, dv = scene.camera.frame(frame.width, frame.height)
         params = up(q, s.params(
-            **layout, **look_params, **mesh_params, **kernel_abi.option_params(scene), width=width,
-            height=height, spp=spp,
+            **layout, **look_params, **mesh_params, **kernel_abi.option_params(scene),
+            width=frame.width, height=frame.height, spp=frame.spp,
             seed=int(cfg.seed) & 0xFFFFFFFF, jitter=bool(cfg.jitter),
             cam_origin=(*origin, 0), cam_forward=(*forward, 0), cam_du=(*du, 0), cam_dv=(*dv, 0),
-            step_base=s.min_spacing_world / cfg.sampling_rate, inv_unit_distance=1.0 / unit,
-            max_opacity=cfg.max_opacity, shading=shading != "none", ordered=traversal == "ordered",
+            step_base=s.min_spacing_world / cfg.sampling_rate,
+            inv_unit_distance=1.0 / frame.stats["unit_distance"],
+            max_opacity=cfg.max_opacity, shading=lighting.shading != "none",
+            ordered=traversal == "ordered",
             # nearest is piecewise constant: its normals come from central differences
             central=lighting.gradient == "central" or cfg.reconstruction == "nearest",
             ao_samples=lighting.ao_samples, ao_distance=ao_distance, lod_scale=lod_scale,
             **(dict(domain_lower=self.domain[0], domain_upper=self.domain[1],
-                    use_front=front is not None) if self.domain else {})))
+                    use_front=has_front) if self.domain else {})))
         fixed = [*args, *(up(q, a) for a in look), *mesh_args,
                  *((front_buf,) if self.domain else ()), rgba_buf, depth_buf, samples_buf, level_buf]
+        return _Launch(kernel, params, fixed, band_rows, rgba_buf, front_buf, depth_buf, samples_buf,
+                       np.empty(band_pixels, np.uint32), lod, level_buf, level_samples)
+
+    def _draw(self, frame: _Frame, launch: _Launch, sample, front, deadline) -> tuple[int, int, float]:
+        """Draw `frame`'s spans in bands (BAND_SECONDS each) into its host images:
+        (rows drawn from the top, samples taken, seconds)."""
+        q = self.dataset.queue
         q.finish()
         start = time.perf_counter()
         total = 0
         rows = FIRST_BAND
-        drawn = n_rows
-        for span0, span_rows in spans:
+        drawn = n_rows = frame.n_rows
+        cols = frame.cols
+        for span0, span_rows in frame.spans:
             row0, end = span0, min(span0 + span_rows, n_rows)
             while row0 < end:
                 if deadline is not None and time.perf_counter() > deadline:
                     drawn = row0
                     break
-                rows = min(rows, band_rows, end - row0)
+                rows = min(rows, launch.band_rows, end - row0)
                 band_start = time.perf_counter()
                 global_size = (-(-cols // TILE) * TILE, -(-rows // TILE) * TILE)
                 n = cols * rows
                 if front is not None:
-                    opencl.write_to(q, front_buf, front[row0:row0 + rows].reshape(n, 4))
+                    opencl.write_to(q, launch.front_buf, front[row0:row0 + rows].reshape(n, 4))
                 if sample:  # the kernel adds samples after the first: start from 0
-                    for buf, size in ((rgba_buf, 16), (samples_buf, 4)):
+                    for buf, size in ((launch.rgba_buf, 16), (launch.samples_buf, 4)):
                         opencl.fill_zero(q, buf, n * size)
-                for index in (range(spp) if sample is None else (sample,)):
-                    kernel(q, global_size, (TILE, TILE), params,
-                           opencl.int4(tile_row0 + row0, rows, col0, cols),
-                           np.int32(index), *fixed)
-                opencl.read_back(q, rgba_buf, rgba[row0:row0 + rows].reshape(n, 4))
-                opencl.read_back(q, samples_buf, samples[:n])
-                if d is not None:
-                    opencl.read_back(q, depth_buf, d[row0:row0 + rows].reshape(n))
-                total += int(samples[:n].sum(dtype=np.int64))
+                for index in (range(frame.spp) if sample is None else (sample,)):
+                    launch.kernel(q, global_size, (TILE, TILE), launch.params,
+                                  opencl.int4(frame.tile_row0 + row0, rows, frame.col0, cols),
+                                  np.int32(index), *launch.fixed)
+                opencl.read_back(q, launch.rgba_buf, frame.rgba[row0:row0 + rows].reshape(n, 4))
+                opencl.read_back(q, launch.samples_buf, launch.samples[:n])
+                if frame.depth is not None:
+                    opencl.read_back(q, launch.depth_buf, frame.depth[row0:row0 + rows].reshape(n))
+                total += int(launch.samples[:n].sum(dtype=np.int64))
                 row0 += rows
                 rows = _next_band(rows, time.perf_counter() - band_start)
                 interrupt.raise_pending()
             if drawn < n_rows:
                 break
-        if sample is not None and spp > 1:
-            rgba[:drawn] *= np.float32(spp)  # the kernel averages: this sample alone
-        seconds = time.perf_counter() - start
-        if lod:
-            opencl.read_back(q, level_buf, level_samples)
-            stats["samples_per_level"] = {str(l): int(c) for l, c in enumerate(level_samples) if c}
-        stats["lod"] = float(cfg.lod)
-        stats.update(rows=drawn, samples=total, ms=1e3 * seconds,
-                     ms_per_sample=1e3 * seconds / (spp if sample is None else 1),
-                     samples_per_second=total / seconds if seconds > 0 else 0.0)
-        return RenderResult(over_background(rgba, scene.background), d, stats)
+        return drawn, total, time.perf_counter() - start
 
     def _meshes(self, scene: Scene) -> tuple[tuple, dict]:
         """The mesh buffer of `scene` (kernels/render.cl `meshes`) and its eb_params:
@@ -510,116 +579,5 @@ def render_scene(bricks: schema.Bricks, regions: schema.Regions, bvh: schema.Bvh
 
 # Default ambient-occlusion distance, in finest cell widths of the dataset.
 AO_DISTANCE_CELLS = 10.0
-# Iso-hit refinement tolerance, in finest cell widths (docs/design.md).
-ISO_TOLERANCE_CELLS = 1e-3
 
 
-def frame_arrays(scene: Scene, device_dataset: DeviceDataset,
-                 copies=None) -> tuple[tuple, dict, list]:
-    """The look of `scene` as the render kernel takes it: its float and int arrays
-    (look_f, look_i of kernels/render.cl), their eb_params members, and how each
-    volume layer is looked up (the stats' "transfer_function_tables"). Every
-    transfer function and colour map as merged knots one after the other (and
-    each volume layer's knot index, transfer_function.knot_buckets, and lookup
-    table, transfer_function.lookup_table, unless --tf-lookup exact or the table
-    is further than TABLE_TOLERANCE from the knots), the volume layers,
-    iso-surfaces and slices by field index on the device, clipping, and the
-    `copies` of overlapping instances (Renderer._mixture; None: none)."""
-    index = {name: i for i, name in enumerate(device_dataset.fields)}
-    xs, rgba = [], []
-
-    def knots(tf) -> tuple[int, int]:
-        x, c = tf.merged_knots()
-        first = sum(len(k) for k in xs)
-        xs.append(np.asarray(x, np.float32))
-        rgba.append(np.asarray(c, np.float32))
-        return first, len(x)
-
-    buckets = []  # each volume layer's knot index (knot_buckets), its offset in layer.w
-    floats, ints = Grouped(np.float32), Grouped(np.int32)
-    tables, table_at = [], []  # each volume layer's lookup table (stats) and its float4 offset
-
-    def layer(volume) -> tuple[int, int, int, int]:
-        first, n = knots(volume.transfer_function)
-        offset = sum(len(b) for b in buckets)
-        buckets.append(knot_buckets(xs[-1]))
-        table = _table(volume, scene.settings)
-        exact = table is None
-        table_at.append(-1 if exact else floats.add(table.rows, 4) // 4)
-        tables.append({"lookup": "exact"} if exact else
-                      {"lookup": "table", "intervals": len(table.rows) - 2,
-                       "error_rgb": table.error_rgb, "error_alpha": table.error_alpha})
-        return index[volume.field], first, n, offset
-
-    layers = [layer(v) for v in scene.volumes]
-    iso, iso_value, iso_color = [], [], []
-    for surface in scene.isosurfaces:
-        first, n = knots(surface.colormap) if surface.colormap is not None else (0, 0)
-        color_field = index[surface.color_field] if surface.color_field else -1
-        iso.append((index[surface.field], color_field, first, n))
-        iso_value.append((surface.value, surface.opacity, 0.0, 0.0))
-        iso_color.append((*surface.color, 0.0))
-    mesh_color, mesh_info = [], []
-    for mesh in scene.meshes:
-        first, n = knots(mesh.colormap) if mesh.colormap is not None else (0, 0)
-        mesh_color.append((*mesh.color, mesh.opacity))
-        mesh_info.append((index[mesh.color_field] if mesh.color_field else -1, first, n, 0))
-    slices, slice_point, slice_normal = [], [], []
-    for plane in scene.slices:
-        slices.append((index[plane.field], *knots(plane.colormap), 0))
-        normal = np.asarray(plane.normal, np.float64)
-        slice_point.append((*plane.point, plane.opacity))
-        slice_normal.append((*(normal / np.linalg.norm(normal)), 0.0))
-    clip = scene.clip
-    box = clip.box or ((0.0, 0.0, 0.0), (0.0, 0.0, 0.0))
-    planes = [(*p, 0.0) for point, normal in clip.planes
-              for p in (point, np.asarray(normal, np.float64) / np.linalg.norm(normal))]
-    cat = lambda parts, shape: np.concatenate(parts) if parts else np.zeros(shape, np.float32)
-    rows = lambda r, dtype: np.asarray(r, dtype).reshape(-1, 4)
-    params = {
-        "tf_xs_at": floats.add(cat(xs, (1,))), "tf_rgba_at": floats.add(cat(rgba, (1, 4)), 4),
-        "gradient_scale_at": floats.add(gradient_scales(device_dataset.spacing_world, device_dataset.fields,
-                                                        device_dataset.magnitudes, scene.volumes), 4),
-        "iso_value_at": floats.add(rows(iso_value, np.float32), 4),
-        "iso_color_at": floats.add(rows(iso_color, np.float32), 4),
-        "slice_point_at": floats.add(rows(slice_point, np.float32), 4),
-        "slice_normal_at": floats.add(rows(slice_normal, np.float32), 4),
-        "clip_planes_at": floats.add(rows(planes, np.float32), 4),
-        "layers_at": ints.add(rows(layers or [(0, 0, 0, 0)], np.int32), 4),
-        "iso_at": ints.add(rows(iso, np.int32), 4), "slices_at": ints.add(rows(slices, np.int32), 4),
-        "mesh_colors_at": floats.add(rows(mesh_color, np.float32), 4),
-        "mesh_info_at": ints.add(rows(mesh_info, np.int32), 4), "n_meshes": len(mesh_color),
-        "buckets_at": ints.add(np.concatenate(buckets) if buckets else np.zeros(0, np.int32)),
-        "tables_at": ints.add(np.asarray(table_at or [-1], np.int32)),
-        "n_layers": len(layers), "n_iso": len(iso), "n_slices": len(slices),
-        "iso_tolerance": ISO_TOLERANCE_CELLS * device_dataset.finest_width_world,
-        "clip_box": clip.box is not None, "clip_lower": (*box[0], 0.0),
-        "clip_upper": (*box[1], 0.0), "n_clip_planes": len(clip.planes),
-        "copies_at": floats.add(rows(np.zeros((0, 4)) if copies is None else copies, np.float32), 4),
-        "n_copies": 0 if copies is None else len(copies),
-        "copy_rows": 0 if copies is None else copies.shape[1],
-    }
-    return (floats.array(), ints.array()), params, tables
-
-
-def _table(volume, settings):
-    """The lookup table of a volume layer, or None where it is looked up exactly
-    (--tf-lookup exact, or its table further than TABLE_TOLERANCE from the knots)."""
-    if settings.tf_lookup != "table":
-        return None
-    table = volume.transfer_function.table
-    return None if max(table.error_rgb, table.error_alpha) > TABLE_TOLERANCE else table
-
-
-def table_bytes(scene: Scene) -> int:
-    """Bytes of the lookup tables that `frame_arrays` puts in the look of `scene`."""
-    return sum(t.rows.nbytes for t in (_table(v, scene.settings) for v in scene.volumes) if t)
-
-
-def over_background(rgba: np.ndarray, background) -> np.ndarray:
-    """`rgba` (premultiplied) composited over the RGBA `background`, in place."""
-    r, g, b, a = (float(c) for c in background)
-    if a > 0.0:
-        behind = 1.0 - rgba[..., 3:4]
-        rgba += behind * np.array([r * a, g * a, b * a, a], np.float32)
-    return rgba

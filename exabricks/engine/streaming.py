@@ -39,9 +39,11 @@ from .. import schema
 from ..formats.memory import mapping
 from ..util.errors import ExabricksError
 from .device_data import DatasetScale
-from .partition import (GRAIN, budget_partition, eye_lattice, mib, domain_data, domain_options,
-                        needs_image_mode, region_blocks)
-from .renderer import Renderer, RenderResult, over_background, table_bytes
+from .domains import GRAIN, domain_data, domain_options, region_blocks
+from .partition import budget_partition, eye_lattice, mib, needs_image_mode
+from ..film.film import develop
+from .renderer import Renderer, RenderResult
+from .look import table_bytes
 
 # A domain's bytes (partition.domain_bytes) times this must fit the budget left
 # after the images: while a domain is made, its copies from the files, its
@@ -58,7 +60,7 @@ PER_BRICK = 5
 # twice, within it (docs/benchmarks.md, "Domains kept across samples, bands and
 # frames").
 HELD = 2
-# Copies of a frame's transfer-function lookup tables (renderer.table_bytes) while
+# Copies of a frame's transfer-function lookup tables (look.table_bytes) while
 # a domain draws: the transfer function's own, the look's host array and its
 # device buffer. A log-scaled function's irregular knots take tables of up to
 # 1 MiB a layer.
@@ -296,7 +298,7 @@ def render_steps(domains, scene, *, band=None, tile_width=None, deadline: float 
                  on_image=None, stop=None) -> RenderResult:
     """One frame of `scene` from `domains` (Resident or Budgeted) step by step
     (module docstring). `on_image(rgba, progress)` is called after every step
-    but the last with the premultiplied image so far (over the background) and
+    but the last with the image so far (developed by the film) and
     what it covers; `deadline` (time.perf_counter() seconds) ends the frame
     early. stats["progress"]: samples and domains done, complete or not.
 
@@ -317,7 +319,6 @@ def render_steps(domains, scene, *, band=None, tile_width=None, deadline: float 
     whole = tiles == [(0, 0, width, height)]
     if not whole and (deadline is not None or on_image is not None):
         raise ExabricksError("a band of tiles is drawn whole: no deadline or image so far")
-    plain = scene.replace(background=(0.0, 0.0, 0.0, 0.0))
     total = np.zeros((rows, width, 4), np.float32)
     order = domains.order(scene)
     several = domains.n_domains > 1
@@ -330,7 +331,7 @@ def render_steps(domains, scene, *, band=None, tile_width=None, deadline: float 
         domains.expect([i for i in order if meets[i]] * -(-spp // group))
     if several and group > 1:
         for first in range(0, spp, group):
-            over, stats, n = _group(domains, scene, plain, order, meets, whole, rows, width,
+            over, stats, n = _group(domains, scene, order, meets, whole, rows, width,
                                     range(first, min(spp, first + group)), total, stop)
             samples += n
         done_samples, done_domains, drawn = spp, len(order), rows
@@ -348,8 +349,8 @@ def render_steps(domains, scene, *, band=None, tile_width=None, deadline: float 
                 front = None
                 if several and over is not None:
                     front = over if whole else np.ascontiguousarray(over[:, c:c + w])
-                result = domains.domain(index, scene).render_scene(
-                    plain, window=None if whole else tile, sample=sample if spp > 1 else None,
+                result = domains.domain(index, scene).integrate(
+                    scene, window=None if whole else tile, sample=sample if spp > 1 else None,
                     front=front, deadline=deadline)
                 stats = dict(result.stats)
                 if whole:
@@ -384,8 +385,16 @@ def render_steps(domains, scene, *, band=None, tile_width=None, deadline: float 
     if not stats and band is not None:  # nothing here: render_tiled fills the settings in
         return RenderResult(rgba, depth, {"samples": 0})
     if not stats:
-        stats = _settings(domains, order, plain)
-    if several:
+        stats = _settings(domains, order, scene)
+    _frame_stats(stats, domains, samples, seconds, done_samples, progress)
+    return RenderResult(rgba, depth, stats)
+
+
+def _frame_stats(stats: dict, domains, samples: int, seconds: float, done_samples: int,
+                 progress: dict) -> None:
+    """A streamed frame's stats, from its last domain's (`stats`, in place): the
+    frame's samples, times, pieces, progress and reads, no domain's regions."""
+    if domains.n_domains > 1:
         for key in ("regions", "visible_regions"):  # the last domain's only
             stats.pop(key, None)
     stats.pop("rows", None)
@@ -397,10 +406,9 @@ def render_steps(domains, scene, *, band=None, tile_width=None, deadline: float 
         stats["domain_reads"] = domains.reads
         if domains.prefetch:
             stats["domains_prefetched"] = domains.prefetched
-    return RenderResult(rgba, depth, stats)
 
 
-def _group(domains, scene, plain, order, meets, whole, rows, width, group, total, stop=None):
+def _group(domains, scene, order, meets, whole, rows, width, group, total, stop=None):
     """The samples `group` of a frame drawn domain after domain, each domain made
     once for all of them (its rays of each sample continuing that sample's image
     in front), their images added into `total`: (the last sample's image, the
@@ -416,8 +424,8 @@ def _group(domains, scene, plain, order, meets, whole, rows, width, group, total
                     stop()
                 over = overs[sample]
                 front = None if over is None else (over if whole else np.ascontiguousarray(over[:, c:c + w]))
-                result = domains.domain(index, scene).render_scene(
-                    plain, window=None if whole else tile, sample=sample, front=front)
+                result = domains.domain(index, scene).integrate(
+                    scene, window=None if whole else tile, sample=sample, front=front)
                 stats = dict(result.stats)
                 samples += stats["samples"]
                 if whole:
@@ -506,13 +514,13 @@ def _tiled_progress(scene, domains, done: int) -> dict:
 def _settings(domains, order, scene) -> dict:
     """The stats of a frame of `scene` that draws nothing (none of its domains is
     in view): those of the first domain drawing no row (its deadline passed)."""
-    return dict(domains.domain(order[0], scene).render_scene(scene, window=(0, 0, 1, 1),
-                                                           deadline=0.0).stats)
+    return dict(domains.domain(order[0], scene).integrate(scene, window=(0, 0, 1, 1),
+                                                        deadline=0.0).stats)
 
 
 def _so_far(total, over, samples_done, domains_done, n_domains, spp, scene, rows=None):
-    """(image over the background, progress): the average of the samples done, or
-    while none is, the first sample's composite of the domains done."""
+    """(image developed by the film, progress): the average of the samples done,
+    or while none is, the first sample's composite of the domains done."""
     if samples_done:
         rgba = total / np.float32(samples_done)
     elif over is not None:
@@ -524,4 +532,4 @@ def _so_far(total, over, samples_done, domains_done, n_domains, spp, scene, rows
                 "pieces": [n_domains if complete else domains_done, n_domains]}
     if not complete and rows is not None and 0 < rows < total.shape[0] and not samples_done:
         progress["rows"] = rows
-    return over_background(rgba, scene.background), progress
+    return develop(rgba, scene), progress

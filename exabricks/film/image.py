@@ -18,7 +18,7 @@ class Image:
               (samples, ms, device), scene, transfer function.
     scene:    the eb.Scene it was drawn with (None for an image read from a file).
     facts:    what the source says of itself (simulation time, units;
-              exabricks.film.annotate.facts_from_meta), for `annotated`.
+              exabricks.film.layout.facts_from_meta), for `annotated`.
     """
 
     def __init__(self, rgba: np.ndarray, depth: np.ndarray | None = None, metadata: dict | None = None,
@@ -85,7 +85,8 @@ class Image:
     def shown(self) -> np.ndarray:
         """(H, W, 3) uint8: the frame over its scene's background made opaque (black
         behind a transparent one, as yt shows a frame), as a notebook displays it."""
-        from .annotate import backdrop_color, frame_pixels
+        from .layout import backdrop_color
+        from .annotate import frame_pixels
 
         background = self.scene.background if self.scene is not None else (0.0, 0.0, 0.0, 0.0)
         return frame_pixels(self.rgba, backdrop_color(background))

@@ -65,7 +65,7 @@ def load(path: str | os.PathLike, kind: str | None = None, *, mapped: bool = Fal
     too, handing its pages back as it goes, so that a builder holds only what it
     uses.  Mapped and unchecked, only dtypes and shapes are checked: for a caller
     that uses a part of the data and validates that part itself
-    (exabricks.engine.partition.domain_data, whose output goes through `validate`
+    (exabricks.engine.domains.domain_data, whose output goes through `validate`
     like any file).
 
     `digest`: hash the file on a background thread, from the descriptor its

@@ -92,7 +92,9 @@ def _text(values: np.ndarray) -> list[str]:
     return [v.decode("ascii") if isinstance(v, bytes) else str(v) for v in values]
 
 
-def _read(f, path: Path, fields: Sequence[str] | None) -> schema.Cells:
+def _root_grid(f, path: Path):
+    """The root grid's cells and mesh block's (int64 (3,) each) and its world box,
+    checked: 3D, Cartesian, uniform and finite."""
     for name in _ROOT_ATTRS:
         _attr(f, path, name)
     coords = _text(_attr(f, path, "Coordinates")) if "Coordinates" in f.attrs else ["cartesian"]
@@ -122,7 +124,11 @@ def _read(f, path: Path, fields: Sequence[str] | None) -> schema.Cells:
         )
     if not np.all(upper_world > lower_world):
         raise ExabricksError(f"{path}: RootGridX max must exceed min")
+    return root, block, lower_world, upper_world
 
+
+def _read(f, path: Path, fields: Sequence[str] | None) -> schema.Cells:
+    root, block, lower_world, upper_world = _root_grid(f, path)
     names = _text(_attr(f, path, "VariableNames"))
     datasets = _text(_attr(f, path, "DatasetNames"))
     counts = _attr(f, path, "NumVariables").astype(np.int64)

@@ -163,6 +163,7 @@ class Settings:
     lod: float = 0.0
     tf_lookup: str = "table"
     transparent: bool = False
+    exposure: float = 0.0
 
 
 @dataclass(frozen=True)

@@ -346,6 +346,10 @@ SCENE_OPTIONS = (
            "cell widths).", _AO, **_POSITIVE),
     Option("background", "Background colour in [0, 1] (RGB is opaque; default transparent in "
            ".exr, black behind a .png).", kind="numbers", counts=(3, 4), metavar="R,G,B[,A]"),
+    _setting("exposure", "Scale the frame's colour by 2**STOPS before the background (the film, "
+             "docs/design.md; default 0). Exact under every way of drawing a frame: tiles, "
+             "--memory-budget, MPI, instances.", low=-24.0, high=24.0, metavar="STOPS",
+             description="a number of stops in [-24, 24] (0: as integrated)"),
     _setting("transparent", "A .png keeps the frame's alpha (un-premultiplied colour) instead of "
              "being composited over the background made opaque (default; black behind a "
              "transparent background).", kind="flag"),

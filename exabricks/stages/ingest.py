@@ -110,22 +110,7 @@ def ingest(
         # own messages; no RuntimeWarning may reach stderr ahead of an error line.
         cells = reads.read(path, fmt, options)
         step()
-        for mag_name, comps in derived:
-            cells = add_magnitude(cells, mag_name, comps, source=source)
-        for e in expressions:
-            cells = add_derived(cells, e, source=source)
-        if reads.helpers:
-            cells = readers.select_fields(cells, [f for f in cells.fields if f not in reads.helpers],
-                                          source=source)
-        if reads.mask is None and auto_mask and AUTO_MASK_FIELD in cells.fields:
-            reads.mask, reads.mask_auto = AUTO_MASK_FIELD, True
-        n_masked = 0
-        if reads.mask is not None:
-            n_before = cells.n_cells
-            cells = apply_mask(cells, reads.mask, source=source)
-            n_masked = n_before - cells.n_cells
-        if fields:
-            cells = readers.select_fields(cells, fields, source=source)
+        cells, n_masked = _fields_made(cells, reads, derived, expressions, fields, auto_mask)
         n_read = cells.n_cells
         cells = validate_cells(cells, source=source, nan_policy=nan_policy)
         step()
@@ -142,6 +127,32 @@ def ingest(
         source={k: v for k, v in cells.meta.items() if k not in ("inputs", RUNS_KEY)},
         **({RUNS_KEY: cells.meta[RUNS_KEY]} if piece_order else {}),
     ))
+
+
+def _fields_made(cells: Cells, reads: _Reads, derived, expressions, fields: list,
+                 auto_mask: bool) -> tuple[Cells, int]:
+    """`cells` as read, with the magnitudes and derived fields made, the mask
+    applied and `fields` selected: (cells, how many the mask dropped)."""
+    from .. import readers
+
+    source = reads.source
+    for mag_name, comps in derived:
+        cells = add_magnitude(cells, mag_name, comps, source=source)
+    for e in expressions:
+        cells = add_derived(cells, e, source=source)
+    if reads.helpers:
+        cells = readers.select_fields(cells, [f for f in cells.fields if f not in reads.helpers],
+                                      source=source)
+    if reads.mask is None and auto_mask and AUTO_MASK_FIELD in cells.fields:
+        reads.mask, reads.mask_auto = AUTO_MASK_FIELD, True
+    n_masked = 0
+    if reads.mask is not None:
+        n_before = cells.n_cells
+        cells = apply_mask(cells, reads.mask, source=source)
+        n_masked = n_before - cells.n_cells
+    if fields:
+        cells = readers.select_fields(cells, fields, source=source)
+    return cells, n_masked
 
 
 def _parameters(fmt, fields, nan_policy, reads, auto_mask, options, derived, expressions) -> dict:

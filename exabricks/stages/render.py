@@ -210,7 +210,7 @@ def _prepare(dataset, output, scene_path, camera_path, path_file,
 
 
 def _check_annotate(output, annotate, title, tile) -> None:
-    from ..film.annotate import checked_title
+    from ..film.layout import checked_title
 
     if title is not None and not annotate:
         raise UsageError("--title goes with --annotate")
@@ -226,7 +226,7 @@ def _check_annotate(output, annotate, title, tile) -> None:
 
 def _annotated(scene, dataset, title):
     """The frame's pixels -> the annotated picture's (eb.Image.annotated)."""
-    from ..film.annotate import facts_from_meta
+    from ..film.layout import facts_from_meta
     from ..film.image import Image
 
     facts = facts_from_meta(dataset.meta)
