@@ -108,10 +108,20 @@ def test_exposure_from_the_command_line_and_the_scene_file(cli, tmp_path):
     np.testing.assert_array_equal(read_image(tmp_path / "file.exr")[0], lit)
 
 
-def test_exposure_out_of_range_is_one_error_line(cli, tmp_path):
+def test_exposure_out_of_range_is_refused(cli, tmp_path):
+    """On the command line as click refuses any option out of its range (exit 2);
+    in a scene file with one error line naming the file (exit 1); in Python with
+    an ExabricksError."""
     from conftest import GERRIS, assert_one_error_line
 
-    assert_one_error_line(cli("render", GERRIS, "-o", tmp_path / "x.png", "--exposure", 100),
-                          "--exposure")
-    assert not (tmp_path / "x.png").exists()
+    import exabricks as eb
 
+    proc = cli("render", GERRIS, "-o", tmp_path / "x.png", "--exposure", 100)
+    assert proc.returncode == 2 and "--exposure" in proc.stderr and "Traceback" not in proc.stderr
+    (tmp_path / "scene.json").write_text('{"exposure": 100}')
+    assert_one_error_line(cli("render", GERRIS, "-o", tmp_path / "x.png", "--scene",
+                              tmp_path / "scene.json"), "scene.json", "exposure")
+    assert not (tmp_path / "x.png").exists()
+    scene = scene_for("gerris", "emission")
+    with pytest.raises(eb.ExabricksError, match="exposure"):
+        scene.replace(settings=dataclasses.replace(scene.settings, exposure=float("nan"))).check()

@@ -352,7 +352,7 @@ def tick_marks(lo: float, hi: float, n: int) -> tuple[np.ndarray, list[str]]:
     if len(ticks) < 2:
         ticks = np.array([lo, hi])
     step = float(np.min(np.diff(ticks)))
-    ticks = np.where(np.abs(ticks) < 1e-9 * step, 0.0, tick_marks)
+    ticks = np.where(np.abs(ticks) < 1e-9 * step, 0.0, ticks)
     magnitude = float(np.max(np.abs(ticks)))
     exponent = 0 if 1e-3 <= magnitude < 1e5 or magnitude == 0 else math.floor(math.log10(magnitude))
     scaled_step = step / 10.0 ** exponent
