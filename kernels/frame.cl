@@ -35,28 +35,16 @@ typedef struct {
 } eb_surfaces;
 
 typedef struct {
-    __constant eb_params *P;  /* every scalar of the frame (exabricks.device.kernel_abi.PARAMS) */
+    __constant eb_params *P;  /* every scalar of the frame (exabricks.device.kernel_abi.PARAMS),
+                                 read where it is used: no copies here */
     eb_bvh bvh;
     eb_regions regions;
     eb_sample_bricks bricks;
     eb_look look;
     eb_surfaces surf;
     eb_clip clip;
-    float step_base;          /* min(spacing) / sampling_rate: dt of a level-0 region */
-    float inv_unit_distance;  /* 1 / unit_distance (world units)                       */
-    float max_opacity;        /* early ray termination threshold                       */
-    int shade;                /* headlight shading of volumes and surfaces              */
-    int central;              /* central-difference gradients instead of analytic ones */
-    int ao_samples;           /* ambient-occlusion rays per surface hit (0: none)      */
-    float ao_distance;        /* their length, world units                             */
-    float4 origin_world, inv_spacing;
-    float lod_scale;          /* --lod: pixels * pixel angle / min(spacing), 0 when off */
-#ifdef EB_DOMAIN
-    float4 domain_lower, domain_upper;  /* this domain's half-open box, lattice space */
-#endif
 #ifdef EB_MIXTURE
     __global const float4 *copies;      /* overlapping instances (mixture.cl) */
-    int n_copies, copy_rows;
 #endif
 } eb_frame;
 
@@ -67,7 +55,7 @@ typedef struct {
  * composited in visibility order, hold every sample of the whole frame once. */
 EB_INLINE int eb_in_domain(eb_frame *fr, float3 p)
 {
-    return all(p >= fr->domain_lower.xyz) && all(p < fr->domain_upper.xyz);
+    return all(p >= fr->P->domain_lower.xyz) && all(p < fr->P->domain_upper.xyz);
 }
 #endif
 
@@ -101,7 +89,7 @@ EB_INLINE eb_basis_sums eb_sample_region_at(eb_frame *fr, int r, float3 p, int l
  * the derivative sums where shading uses analytic gradients. */
 EB_INLINE eb_basis_sums eb_sample_shaded(eb_frame *fr, int r, float3 p, int level, const int shade)
 {
-    return shade && !fr->central ? eb_sample_region_at(fr, r, p, level, 1)
+    return shade && !fr->P->central ? eb_sample_region_at(fr, r, p, level, 1)
                                  : eb_sample_region_at(fr, r, p, level, 0);
 }
 
@@ -112,7 +100,7 @@ EB_INLINE int eb_sample_level(eb_frame *fr, int r, float t)
 {
     int level = fr->regions.finest_level[r];
 #ifdef EB_LOD
-    float reach = t * fr->lod_scale;
+    float reach = t * fr->P->lod_scale;
     if (reach >= 2.0f)
         level = max(level, min((int)floor(log2(reach)), 30));
 #endif
@@ -179,7 +167,7 @@ EB_INLINE float3 eb_field_gradient_by(eb_frame *fr, eb_basis_sums *s, float3 p, 
 /* The gradient of field f as the frame's `gradient` setting says. */
 EB_INLINE float3 eb_field_gradient(eb_frame *fr, eb_basis_sums *s, float3 p, int level, int f)
 {
-    return eb_field_gradient_by(fr, s, p, level, f, fr->central ? EB_CENTRAL_STEP : 0.0f);
+    return eb_field_gradient_by(fr, s, p, level, f, fr->P->central ? EB_CENTRAL_STEP : 0.0f);
 }
 
 #include "ray.cl"

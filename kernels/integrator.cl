@@ -50,7 +50,7 @@ EB_INLINE int eb_integrate_region(eb_frame *fr, eb_ray *ray, int r, float t_in, 
     /* Sampling rate and opacity correction follow the level actually used
      * (Kähler & Hege's per-level correction: dt scales with the cell width). */
     int level = eb_sample_level(fr, r, t_in);
-    float dt = ldexp(fr->step_base, level);
+    float dt = ldexp(fr->P->step_base, level);
     if (eb_surfaces_enter_region(fr, ray, r, t_in, t_out, st))
         return 1;
     uint samples_before = st->samples;
@@ -81,7 +81,7 @@ EB_INLINE float4 eb_integrate(eb_frame *fr, eb_ray *ray, const int shade, const 
     st.next_slice = 0;
     eb_level_samples_clear(&st);
     float2 keep = eb_clip_interval(fr->clip, ray->org_world, ray->dir_world, 0.0f);
-    int done = !(keep.y > keep.x) || front.w >= fr->max_opacity;
+    int done = !(keep.y > keep.x) || front.w >= fr->P->max_opacity;
     if (!done)  /* an opaque mesh ends the volume exactly where it is hit */
         keep.y = fmin(keep.y, eb_slices_start(fr, ray, keep.x, keep.y, &st));
     eb_walk w;

@@ -64,7 +64,7 @@ EB_INLINE float4 eb_medium_step(eb_frame *fr, eb_basis_sums *s, float3 p, int le
         float4 c = eb_layer_lookup(look, layer, look.table0, value[layer.x]);
         if (!(c.w > 0.0f))
             return (float4)(0.0f);
-        float a = eb_opacity_correct(c.w, len, fr->inv_unit_distance);
+        float a = eb_opacity_correct(c.w, len, fr->P->inv_unit_distance);
         float3 rgb = c.xyz;
         if (shade)
             rgb *= eb_headlight(eb_field_gradient(fr, s, p, level, layer.x), dir_world);
@@ -81,5 +81,5 @@ EB_INLINE float4 eb_medium_step(eb_frame *fr, eb_basis_sums *s, float3 p, int le
             ci *= eb_headlight(eb_field_gradient(fr, s, p, level, layer.x), dir_world);
         eb_extinctions_add(&mix, c.w, ci);
     }
-    return eb_extinctions_step(&mix, len * fr->inv_unit_distance);
+    return eb_extinctions_step(&mix, len * fr->P->inv_unit_distance);
 }

@@ -192,8 +192,8 @@ EB_INLINE int eb_copies_advance(eb_frame *fr, eb_copy *c, int n, eb_ray_state *s
     return 0;
 }
 
-/* Premultiplied RGBA of one ray through the mixture of fr->n_copies copies
- * (fr->copy_rows rows of fr->copies each, exabricks.engine.instances.copy_rows:
+/* Premultiplied RGBA of one ray through the mixture of fr->P->n_copies copies
+ * (fr->P->copy_rows rows of fr->copies each, exabricks.engine.instances.copy_rows:
  * object = M x + m for world x, its clipping and its slices); *samples counts
  * reconstructions, *depth as eb_integrate's. */
 EB_INLINE float4 eb_integrate_mixture(eb_frame *fr, eb_ray *ray, const int shade, uint *samples,
@@ -207,18 +207,18 @@ EB_INLINE float4 eb_integrate_mixture(eb_frame *fr, eb_ray *ray, const int shade
     st.samples = 0u;
     eb_level_samples_clear(&st);
     eb_copy c[EB_MAX_COPIES];
-    int n = min(fr->n_copies, EB_MAX_COPIES);
+    int n = min(fr->P->n_copies, EB_MAX_COPIES);
     float opaque = EB_INF;  /* the first opaque mesh hit of any copy */
     float t = EB_INF;
     for (int k = 0; k < n; ++k) {
-        __global const float4 *m = fr->copies + k * fr->copy_rows;
+        __global const float4 *m = fr->copies + k * fr->P->copy_rows;
         float3 o = (float3)(dot(m[0].xyz, ray->org_world), dot(m[1].xyz, ray->org_world),
                             dot(m[2].xyz, ray->org_world)) + (float3)(m[0].w, m[1].w, m[2].w);
         float3 d = (float3)(dot(m[0].xyz, ray->dir_world), dot(m[1].xyz, ray->dir_world),
                             dot(m[2].xyz, ray->dir_world));
         c[k].dir_obj = d;
-        c[k].org = eb_world_to_lattice(o, fr->origin_world.xyz, fr->inv_spacing.xyz);
-        c[k].dir = d * fr->inv_spacing.xyz;
+        c[k].org = eb_world_to_lattice(o, fr->P->origin_world.xyz, fr->P->inv_spacing.xyz);
+        c[k].dir = d * fr->P->inv_spacing.xyz;
         c[k].inv_dir = 1.0f / c[k].dir;
         float4 head = m[3];
         eb_clip clip = {(int)head.x, m[4], m[5], m + 6, (int)head.y};
@@ -282,7 +282,7 @@ EB_INLINE float4 eb_integrate_mixture(eb_frame *fr, eb_ray *ray, const int shade
                 b = fmin(b, c[k].t_in);
             }
         }
-        eb_intervals it = eb_intervals_start(a, b, ldexp(fr->step_base, level), ray->rho);
+        eb_intervals it = eb_intervals_start(a, b, ldexp(fr->P->step_base, level), ray->rho);
         uint samples_before = st.samples;
         float tm, len;
         while (!done && eb_intervals_next(&it, &tm, &len)) {
@@ -325,7 +325,7 @@ EB_INLINE float4 eb_integrate_mixture(eb_frame *fr, eb_ray *ray, const int shade
             }
             float4 step = eb_extinctions_step(&mix, 1.0f);
             if (step.w > 0.0f)
-                done = eb_composite(&st, step.w, step.xyz, tm, fr->max_opacity);
+                done = eb_composite(&st, step.w, step.xyz, tm, fr->P->max_opacity);
         }
         eb_level_samples_add(&st, level, st.samples - samples_before);
         t = b;

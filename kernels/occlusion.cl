@@ -75,14 +75,14 @@ EB_INLINE float eb_visibility(eb_frame *fr, float3 org_world, float3 dir_world,
             continue;
         float t = dot(fr->surf.slice_point[k].xyz - org_world, n) / along;
         if (t > t_min && t < t_max) {
-            float3 p = eb_world_to_lattice(org_world + t * dir_world, fr->origin_world.xyz,
-                                           fr->inv_spacing.xyz);
+            float3 p = eb_world_to_lattice(org_world + t * dir_world, fr->P->origin_world.xyz,
+                                           fr->P->inv_spacing.xyz);
             if (eb_evaluate(fr, p, 0).weight > 0.0f)
                 vis *= 1.0f - fr->surf.slice_point[k].w;
         }
     }
-    float3 org = eb_world_to_lattice(org_world, fr->origin_world.xyz, fr->inv_spacing.xyz);
-    float3 dir = dir_world * fr->inv_spacing.xyz;
+    float3 org = eb_world_to_lattice(org_world, fr->P->origin_world.xyz, fr->P->inv_spacing.xyz);
+    float3 dir = dir_world * fr->P->inv_spacing.xyz;
     float3 inv_dir = 1.0f / dir;
     eb_walk w;
     eb_walk_start(&w, fr->bvh, org, inv_dir, t_min, t_max, 1);
@@ -103,7 +103,7 @@ EB_INLINE float eb_visibility(eb_frame *fr, float3 org_world, float3 dir_world,
                 eb_fields(s0, prev);
         }
         last_exit = t_out;
-        float dt = ldexp(fr->step_base, (int)fr->regions.finest_level[r]);
+        float dt = ldexp(fr->P->step_base, (int)fr->regions.finest_level[r]);
         eb_intervals it = eb_intervals_start(t_in, t_out, dt, rho);
         float tm, len;
         while (vis > EB_AO_CUTOFF && eb_intervals_next(&it, &tm, &len)) {
@@ -139,15 +139,15 @@ EB_INLINE float eb_ambient_occlusion(eb_frame *fr, float3 p_world, float3 n, uin
     float3 t = (float3)(1.0f + sign * n.x * n.x * a, sign * bxy, -sign * n.x);
     float3 b = (float3)(bxy, sign + n.y * n.y * a, -n.y);
     /* Start a little off the surface so that it does not occlude itself. */
-    float eps = 1e-3f * fr->ao_distance;
+    float eps = 1e-3f * fr->P->ao_distance;
     float sum = 0.0f;
-    for (int k = 0; k < fr->ao_samples; ++k) {
-        uint index = sample * (uint)fr->ao_samples + (uint)k;
+    for (int k = 0; k < fr->P->ao_samples; ++k) {
+        uint index = sample * (uint)fr->P->ao_samples + (uint)k;
         float2 u = eb_r2(pixel, index, seed, 3u);  /* stratified over the pixel's rays */
         float u1 = u.x, u2 = u.y;
         float r = sqrt(u1), phi = 6.28318531f * u2;
         float3 d = r * cos(phi) * t + r * sin(phi) * b + sqrt(fmax(0.0f, 1.0f - u1)) * n;
-        sum += eb_visibility(fr, p_world, normalize(d), eps, fr->ao_distance, rho);
+        sum += eb_visibility(fr, p_world, normalize(d), eps, fr->P->ao_distance, rho);
     }
-    return sum / (float)fr->ao_samples;
+    return sum / (float)fr->P->ao_samples;
 }

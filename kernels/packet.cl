@@ -334,7 +334,7 @@ EB_INLINE void eb_packet_medium(eb_frame *fr, eb_packet_sums *s, eb_vf len, floa
                          fr->look.buckets + layer.w, r, g, b, &alpha);
     eb_vi visible = (w > 0.0f) & (alpha > 0.0f);
     eb_vf y = eb_packet_log2_positive(1.0f - select((eb_vf)(0.5f), alpha, visible))
-              * (len * fr->inv_unit_distance);
+              * (len * fr->P->inv_unit_distance);
     eb_vf corrected = 1.0f - eb_packet_exp2_nonpositive(fmax(y, -126.0f));
     *a = select(select(corrected, (eb_vf)(1.0f), alpha >= 1.0f), (eb_vf)(0.0f), !visible);
     if (shade) {

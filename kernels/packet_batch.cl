@@ -54,8 +54,8 @@ __attribute__((noinline)) int eb_batch_take(eb_frame *fr, eb_ray *ray, eb_sample
     q->m = q->n_lists = 0;
     if (m == 0)
         return 0;
-    const int grad = shade && !fr->central;
-    const int medium = fr->look.n_layers == 1 && !fr->central;
+    const int grad = shade && !fr->P->central;
+    const int medium = fr->look.n_layers == 1 && !fr->P->central;
     if (m < EB_PACKET_MIN_LANES) {
         for (int k = 0; k < m; ++k) {
             float3 p = ray->org + q->tm[k] * ray->dir;
@@ -85,13 +85,13 @@ __attribute__((noinline)) int eb_batch_take(eb_frame *fr, eb_ray *ray, eb_sample
         else
             eb_packet_medium(fr, &ps, eb_vload(0, q->len), ray->dir_world, 0, &a, &cr_, &cg_, &cb_);
 #ifndef EB_SURFACES
-        return eb_packet_composite(st, a, cr_, cg_, cb_, q->tm, m, fr->max_opacity);
+        return eb_packet_composite(st, a, cr_, cg_, cb_, q->tm, m, fr->P->max_opacity);
 #else
         /* no iso-surface, and no slice or mesh hit before the last lane: the
          * packet composites as in a volume frame */
         if (fr->surf.n_iso == 0 && (st->next_slice >= st->n_slices
                                     || st->slice_t[st->next_slice] > q->tm[m - 1]))
-            return eb_packet_composite(st, a, cr_, cg_, cb_, q->tm, m, fr->max_opacity);
+            return eb_packet_composite(st, a, cr_, cg_, cb_, q->tm, m, fr->P->max_opacity);
 #endif
         eb_vstore(a, 0, ca);
         eb_vstore(cr_, 0, cr);
@@ -124,7 +124,7 @@ __attribute__((noinline)) int eb_batch_take(eb_frame *fr, eb_ray *ray, eb_sample
             return 1;
 #endif
         if (ca[k] > 0.0f && eb_composite(st, ca[k], (float3)(cr[k], cg[k], cb[k]), tm,
-                                         fr->max_opacity))
+                                         fr->P->max_opacity))
             return 1;
     }
     return 0;

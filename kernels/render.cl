@@ -63,11 +63,6 @@ __kernel void eb_render(__constant eb_params *P, int4 band, int sample_index,
          P->iso_tolerance},
         {P->clip_box, P->clip_lower, P->clip_upper, look_f4 + P->clip_planes_at / 4,
          P->n_clip_planes},
-        P->step_base, P->inv_unit_distance, P->max_opacity, P->shading, P->central,
-        P->ao_samples, P->ao_distance, P->origin_world, P->inv_spacing, P->lod_scale,
-#ifdef EB_DOMAIN
-        P->domain_lower, P->domain_upper,
-#endif
     };
 
     for (int f = 0; f < EB_N_FIELDS; ++f)
@@ -83,8 +78,6 @@ __kernel void eb_render(__constant eb_params *P, int4 band, int sample_index,
     fr.look.table0 = fr.look.table_at[0];
 #ifdef EB_MIXTURE
     fr.copies = look_f4 + P->copies_at / 4;
-    fr.n_copies = P->n_copies;
-    fr.copy_rows = P->copy_rows;
 #endif
 
     float jx = 0.5f, jy = 0.5f;

@@ -42,5 +42,5 @@ EB_INLINE int eb_sample_step(eb_frame *fr, eb_ray *ray, eb_basis_sums *s, float3
     float4 c = eb_medium_step(fr, s, p, level, value, len, ray->dir_world, shade);
     if (!(c.w > 0.0f))
         return 0;
-    return eb_composite(st, c.w, c.xyz, tm, fr->max_opacity);
+    return eb_composite(st, c.w, c.xyz, tm, fr->P->max_opacity);
 }

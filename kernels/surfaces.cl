@@ -159,18 +159,18 @@ EB_INLINE int eb_shade_hit(eb_frame *fr, eb_ray *ray, eb_ray_state *st, float t,
         n = -n;
         ns = -ns;
     }
-    if (fr->shade) {
+    if (fr->P->shading) {
         float c = fmax(-dot(ns, ray->dir_world), 0.0f);
         rgb = rgb * (EB_AMBIENT + EB_DIFFUSE * c);
         if (fr->P->specular > 0.0f)
             rgb += fr->P->specular * pow(c, fr->P->shininess);
     }
-    if (fr->ao_samples > 0)
+    if (fr->P->ao_samples > 0)
         rgb *= eb_ambient_occlusion(fr, ray->org_world + t * ray->dir_world, n, ray->pixel,
                                     ray->sample, ray->seed, ray->rho);
     if (a >= 1.0f && st->t_opaque == EB_INF)
         st->t_opaque = t;
-    return eb_composite(st, a, rgb, t, fr->max_opacity);
+    return eb_composite(st, a, rgb, t, fr->P->max_opacity);
 }
 
 /* Colour, opacity, normal and shading normal of mesh triangle i hit at lattice
@@ -216,7 +216,7 @@ EB_COLD int eb_surface_hit(eb_frame *fr, eb_ray *ray, eb_ray_state *st, float t,
     if (j >= 0) {
         int4 iso = fr->surf.iso[j];
         n = eb_field_gradient_by(fr, &s, p, level, iso.x,
-                                 fr->central || fr->P->iso_gradient == EB_ISO_GRADIENT_CENTRAL
+                                 fr->P->central || fr->P->iso_gradient == EB_ISO_GRADIENT_CENTRAL
                                      ? EB_ISO_CENTRAL_STEP : 0.0f);
         rgb = iso.y >= 0 ? eb_lookup(fr->look, iso.z, iso.w, value[iso.y]).xyz
                          : fr->surf.iso_color[j].xyz;

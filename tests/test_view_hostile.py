@@ -295,14 +295,14 @@ def test_a_budgeted_frame_is_dropped_by_a_newer_change(budgeted, monkeypatch):
     from exabricks.viewer.session import Cancelled
 
     drawn, newer = [], threading.Event()
-    render_scene = Renderer.render_scene
+    integrate = Renderer.integrate  # every tile of every domain is integrated
 
     def drawing(self, *args, **kwargs):  # a newer change comes while the first tile draws
         drawn.append(kwargs.get("window"))
         newer.set()
-        return render_scene(self, *args, **kwargs)
+        return integrate(self, *args, **kwargs)
 
-    monkeypatch.setattr(Renderer, "render_scene", drawing)
+    monkeypatch.setattr(Renderer, "integrate", drawing)
     monkeypatch.setattr(module, "TILE_SAMPLES", 60 * 16)  # 16 columns a tile
     for spp in (1, 4):
         scene = budgeted.check({**budgeted.doc, "size": [100, 60], "spp": spp})
