@@ -79,7 +79,7 @@ WORKERS ?= 2
 test: setup
 	$(PY) -m pytest -q -n $(WORKERS) --dist loadfile -m "not slow and not slurm and not gauge"
 
-# Headless Chromium and its driver for the viewer's browser tests (tests/test_view.py).
+# Headless Chromium and its driver for the viewer's browser tests (tests/viewer/test_view.py).
 browser-deps:
 	@if ! command -v chromium >/dev/null 2>&1 || ! command -v chromedriver >/dev/null 2>&1; then \
 	  $(SUDO) apt-get update -qq && \

@@ -1,6 +1,6 @@
 """Write AMReX (BoxLib) plotfiles: `Header`, `Level_N/Cell_H`, `Level_N/Cell_D_00000`.
 
-Used by the reader tests (tests/test_readers_yt.py: small plotfiles of random data in
+Used by the reader tests (tests/readers/test_readers_yt.py: small plotfiles of random data in
 every real format and VisMF version) and by benchmarks/make_big.py (a >= 20 M-leaf
 plotfile of the benchmark field).  The layout is what AMReX's WriteMultiLevelPlotfile
 and VisMF::Write produce (compare tests/data/amrex-advection3d/plt00020): one

@@ -97,7 +97,7 @@ def make_layouts(d: Path) -> dict[str, tuple[list[Path], str]]:
     test size, built into `d`: octree-like (a smooth volume merged to coarse cells
     where it is smooth: 3.0 M cells in 22 K bricks), block-structured (such a
     volume as an AMReX plotfile: 1.4 M cells in 51 bricks) and thin shells (1.1 M
-    cells in 60 K bricks of 19 cells). tests/test_streaming.py draws budgets over
+    cells in 60 K bricks of 19 cells). tests/engine/test_streaming.py draws budgets over
     them."""
     from benchmarks import make_big
     from exabricks import schema
@@ -251,7 +251,7 @@ def main(argv=None) -> int:
         section = (
             f"Command: `.venv/bin/python -m benchmarks.bench_budget --layouts --size {args.size} "
             f"--write-docs`\n\n- machine: {benchdoc.machine(opencl=True)}\n"
-            f"- one {args.size}² frame of each layout of `make_layouts` (tests/test_streaming.py "
+            f"- one {args.size}² frame of each layout of `make_layouts` (tests/engine/test_streaming.py "
             "draws budgets over the same ones), default camera and transfer function, "
             "`--max-opacity 1`; whole commands, each run once before it is measured; baseline: "
             "the same budgeted command on a 64-cell dataset\n\n"

@@ -80,9 +80,9 @@ setup_there() {
 run1() {
     step devices 30 python3 -c "from exabricks.cli.main import main; main()" devices
     step tests 170 python3 -m pytest -q -x -n "$(nproc)" -m "not slow and not slurm" -k "not enzo" \
-        -p no:cacheprovider tests/test_render.py tests/test_packets.py tests/test_surfaces.py \
-        tests/test_probe.py tests/test_reconstructions.py tests/test_render_traversal.py \
-        tests/test_cell_location.py tests/test_tf_table.py
+        -p no:cacheprovider tests/engine/test_render.py tests/engine/test_packets.py tests/engine/test_surfaces.py \
+        tests/engine/test_probe.py tests/engine/test_reconstructions.py tests/engine/test_render_traversal.py \
+        tests/engine/test_cell_location.py tests/picture/test_tf_table.py
     step render 120 python3 -m benchmarks.bench_render --only gerris,amrex,athena --runs "$RUNS" \
         --size "$SIZE"
     step resources 60 python3 -m benchmarks.kernel_resources

@@ -8,7 +8,7 @@ It runs ../shared/tools/gpu-proxy (its README; `GPU_PROXY` names another copy),
 which captures the program text and build options of benchmarks.kernel_resources'
 own `build()` for every variant, compiles them with NVIDIA's libNVVM as the
 driver's OpenCL compiler does and assembles them with `ptxas -arch=sm_90a -v`
-(registers within 2 of the driver's on an H200). tests/test_gpu_gauge.py fails
+(registers within 2 of the driver's on an H200). tests/device/test_gpu_gauge.py fails
 when a kernel entry goes over its budget (BUDGETS), so that a change like
 ae2d53f's (128 to 168 registers unseen for days) is caught the day it lands.
 """
@@ -121,7 +121,7 @@ def table(figures: dict, header: str) -> str:
         rows.append(f"| {variant} | {function} | {regs} | {stack} | {spills} | "
                     + (f"{budget[0]} / {budget[1]} / {budget[2]}" if budget else "-") + " |")
     return (f"`make kernel-resources` ({header}).\n\n" + "\n".join(rows)
-            + "\n\nThe budgets (registers / stack B / spills B) are what tests/test_gpu_gauge.py "
+            + "\n\nThe budgets (registers / stack B / spills B) are what tests/device/test_gpu_gauge.py "
             "holds every entry to (benchmarks/gpu_gauge.py, BUDGETS).\n" + NOTES)
 
 

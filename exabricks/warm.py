@@ -26,7 +26,7 @@ FRAMES = (
     # `exabricks render SOURCE -o x.png` and the README's quick start (one field, a volume)
     ("a volume (the default render)", {}),
     # the picture of `make demo` (the Makefile's $(OUT)/plume.png): a volume with an
-    # iso-surface of the same field (tests/test_kernel_builds.py checks that, after `warm`,
+    # iso-surface of the same field (tests/device/test_kernel_builds.py checks that, after `warm`,
     # that command builds nothing)
     ("a volume with an iso-surface (make demo)", {"field": "T", "iso": [0.45]}),
 )

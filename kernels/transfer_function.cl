@@ -81,7 +81,7 @@ EB_INLINE float eb_exp2_nonpositive(float y)
  * alpha in (0, 1]. The log2/exp2 pair is inlined as polynomials: PoCL calls
  * its library exp2 and log2 out of line, which made this line a quarter of a
  * frame (docs/benchmarks.md, "render (PoCL)"); the result stays within 1e-6
- * of the float64 formula (tests/test_render.py). */
+ * of the float64 formula (tests/engine/test_render.py). */
 EB_INLINE float eb_opacity_correct(float alpha, float len, float inv_unit_distance)
 {
     if (alpha >= 1.0f)

@@ -35,7 +35,7 @@ root, kernels/cell_location.cl).
 
 The uniform-grid ceiling was checked when an earlier run showed it at 10-30 M
 samples/s and slower per sample at rate 10 than at rate 2: its samples are
-counted like ours (tests/test_bench_peers.py: on one region both take exactly
+counted like ours (tests/bench/test_bench_peers.py: on one region both take exactly
 the same samples), and interleaved with ours it runs at about the same rate per
 sample at both rates (rate 10 slightly faster: neighbouring samples share
 voxels). The earlier figures came from timing each tool in its own process at

@@ -19,7 +19,7 @@ filter run again outside it for the spacing) and the render mode its smart mappe
 chose. Images are compared with ours at rate 2 (the same sample spacing).
 
 How VTK is matched (vtk_camera_parameters, vtk_volume_property, vtk_image_to_ours;
-tests/test_bench_peers.py checks each): the vtkCamera gets our position, look_at as focal
+tests/bench/test_bench_peers.py checks each): the vtkCamera gets our position, look_at as focal
 point, our up' as view up and fovy as (vertical) view angle, with a clipping range around
 the data; VTK's perspective projection puts pixel centres where ours are, so the ray of
 every pixel is ours; VTK's frame starts at the bottom row and is flipped. The colour and

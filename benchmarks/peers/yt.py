@@ -26,7 +26,7 @@ field_interpolation_tables.pxd):
   (L below) so that yt's brick-ordering viewpoint (lens.front_center = focus +
   w2/2 normal) lies beyond the data. The image `sc.render()` returns is that
   ray grid rotated by 180 degrees, i.e. ours transposed: ours[row, col] =
-  yt_image[col, row]. tests/test_bench_peers.py checks the rays exactly and the
+  yt_image[col, row]. tests/bench/test_bench_peers.py checks the rays exactly and the
   orientation with an off-centre cube.
 * Transfer function: a ColorTransferFunction with grey_opacity=True, bounds
   [lo - d, hi + d] (d = 1e-3 (hi - lo); yt makes values on or outside its

@@ -230,7 +230,7 @@ def ingest_options(*field_flags: str, leave_out: tuple[str, ...] = ()):
 
 
 def ingest_defaults() -> dict:
-    """What the ingest options give when none is used (tests/test_source.py checks
+    """What the ingest options give when none is used (tests/library/test_source.py checks
     them against the stage's own defaults)."""
     out = {}
     for keyword, _, settings in _ingest_table():

@@ -1,0 +1,87 @@
+"""exabricks.device.kernel_abi: the one declaration of the kernels' bounds, variant defines
+and frame parameters, and the entry points' argument counts."""
+
+from __future__ import annotations
+
+import pyopencl as cl
+import pytest
+from helpers import DEVICES
+
+from exabricks.device import kernel_abi, opencl
+
+# Every program a frame or probe can reach (the host refuses the other combinations).
+VARIANTS = [dict(), dict(packets=True), dict(surfaces=True, n_fields=3), dict(lod=True),
+            dict(cell_location=True, domain=True, surfaces=True), dict(reconstruction="vertex"),
+            dict(reconstruction="nearest", domain=True, surfaces=True, lod=False),
+            dict(packets=True, domain=True, surfaces=True, lod=True)]
+
+
+def argument_counts(device, variants) -> dict:
+    context, _ = opencl.context_for(device)
+    counts = {}
+    for variant in variants:
+        program = opencl.program_for(context, kernel_abi.variant_defines(**variant))
+        for name in ("eb_render", "eb_probe"):
+            kernel = opencl.kernel(program, name)
+            counts[name, tuple(variant.items())] = kernel.get_info(cl.kernel_info.NUM_ARGS)
+    return counts
+
+
+@pytest.mark.parametrize("device", DEVICES)
+def test_no_entry_point_takes_more_than_24_arguments(device):
+    """Only a domain's frame (EB_DOMAIN: its `front` buffer) changes the entry
+    points' arguments; these are the programs a CPU or GPU frame builds anyway."""
+    dev = opencl.choose_device(device)
+    packets = opencl.is_cpu(dev)
+    counts = argument_counts(dev, [dict(packets=packets), dict(packets=packets, domain=True)])
+    assert counts["eb_render", (("packets", packets),)] == 23
+    assert counts["eb_render", (("packets", packets), ("domain", True))] == 24
+    assert max(counts.values()) <= 24
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("device", DEVICES)
+def test_no_program_variant_takes_more_than_24_arguments(device):
+    counts = argument_counts(opencl.choose_device(device), VARIANTS)
+    assert max(counts.values()) <= 24, counts
+
+
+@pytest.mark.parametrize("device", DEVICES)
+def test_params_struct_matches_the_device_layout(device):
+    """The numpy dtype the host fills is the C struct the kernels read: every
+    member's offset and the size, as this device's compiler lays eb_params out."""
+    import numpy as np
+
+    context, queue = opencl.context_for(opencl.choose_device(device))
+    names = [name for name, _ in kernel_abi.PARAMS]
+    body = "".join(f"    out[{i}] = (__global char *)&p->{n} - (__global char *)p;\n"
+                   for i, n in enumerate(names))
+    source = (kernel_abi.header() + "__kernel void layout(__global eb_params *p, "
+              "__global long *out) {\n" + body + f"    out[{len(names)}] = sizeof(eb_params);\n}}\n")
+    kernel = cl.Program(context, source).build().layout
+    out = np.empty(len(names) + 1, np.int64)
+    buf = opencl.empty_buffer(queue, out.nbytes)
+    kernel(queue, (1,), None, opencl.to_device(queue, kernel_abi.params()), buf)
+    opencl.read_back(queue, buf, out)
+    dtype = kernel_abi.PARAMS_DTYPE
+    assert out.tolist() == [dtype.fields[n][1] for n in names] + [dtype.itemsize]
+
+
+@pytest.mark.parametrize("device", DEVICES[:1])
+def test_kernels_refuse_to_build_without_the_header(device):
+    context, _ = opencl.context_for(opencl.choose_device(device))
+    source = (opencl.kernel_dir() / opencl.ENTRY_SOURCE).read_text()
+    with pytest.raises(cl.RuntimeError, match="exabricks.device.kernel_abi"):
+        cl.Program(context, source).build(options=opencl.build_options(kernel_abi.variant_defines()))
+
+
+def test_header_declares_every_bound_once():
+    text = kernel_abi.header()
+    for name, value in {**kernel_abi.LIMITS, **kernel_abi.TUNABLES}.items():
+        assert text.count(f"#define {name} {value}\n") == 1
+    assert "typedef struct {" in text and text.count(";") == len(kernel_abi.PARAMS) + 1
+    # the kernels define none of them themselves
+    for path in opencl.kernel_dir().glob("*.[ch]*"):
+        source = path.read_text()
+        for name in (*kernel_abi.LIMITS, *kernel_abi.TUNABLES, "EB_N_FIELDS"):
+            assert f"#define {name} " not in source, (path.name, name)

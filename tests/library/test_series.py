@@ -1,0 +1,87 @@
+"""Time series from Python (exabricks.series, issue 53 item 3): the steps of a
+run in natural order, those on the first step's hierarchy as its values and the
+others built through the cache, one colour range over the series, and frames
+that `exabricks render STEP --scene scene.json` draws again pixel for pixel."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import exabricks as eb
+from exabricks.describe import field_range as files_range
+from exabricks.film.image_io import read_image
+
+WORKFLOWS = Path(__file__).resolve().parents[2] / "workflows"
+
+
+def _series(d: Path, *flags) -> Path:
+    subprocess.run([sys.executable, WORKFLOWS / "make_series.py", d, "--steps", "3", "--size", "16",
+                    *flags], check=True, capture_output=True)
+    return d
+
+
+@pytest.fixture(scope="module")
+def runs(tmp_path_factory):
+    d = tmp_path_factory.mktemp("series")
+    return _series(d / "fixed", "--fixed-hierarchy"), _series(d / "moving"), d / "cache"
+
+
+def test_steps_on_one_hierarchy_take_its_structures(runs):
+    fixed, moving, cache = runs
+    series = eb.open_series(str(fixed / "plt*"), cache=cache)
+    assert [p.name for p in series.steps] == ["plt00000", "plt00010", "plt00020"]
+    first, *rest = list(series)
+    assert first.values is None and all(d.values is not None and d.paths == first.paths for d in rest)
+    for step, dataset in zip(series.steps[1:], rest):  # equal to the step built on its own
+        own = eb.open(step, cache=cache)
+        np.testing.assert_array_equal(dataset.bricks.values, own.bricks.values)
+        np.testing.assert_array_equal(dataset.structures()[1].value_range, own.structures()[1].value_range)
+    assert series.field_range("phi") == pytest.approx(files_range(series.steps, "phi"), rel=1e-6)
+    moved = eb.open_series([moving / "plt00000", moving / "plt00010"], cache=cache)
+    assert [d.values for d in moved] == [None, None]  # other cells: its own structures
+    assert moved[1].paths != moved[0].paths
+
+
+def test_series_errors(runs, tmp_path):
+    with pytest.raises(eb.ExabricksError, match="no steps match"):
+        eb.open_series(str(tmp_path / "plt*"))
+    with pytest.raises(eb.ExabricksError, match="at least one step"):
+        eb.open_series([])
+    (tmp_path / "file").write_text("")
+    with pytest.raises(eb.ExabricksError, match="not a directory"):
+        eb.render_series([runs[0] / "plt00000"], tmp_path / "file", size=(8, 8))
+
+
+@pytest.mark.slow
+def test_render_series_frames_are_the_command_lines(runs, tmp_path):
+    fixed, _, cache = runs
+    out = tmp_path / "frames"
+    frames = eb.render_series(eb.open_series(str(fixed / "plt*"), cache=cache), out,
+                              movie=tmp_path / "phi.gif", size=(48, 32), scale="linear")
+    assert [f.name for f in frames] == ["plt00000.png", "plt00010.png", "plt00020.png"]
+    lo, hi = files_range(sorted(fixed.glob("plt*")), "phi")
+    for frame, step in zip(frames, sorted(fixed.glob("plt*"))):
+        again = tmp_path / f"cli_{step.name}.png"
+        subprocess.run([sys.executable, "-m", "exabricks.cli.main", "render", step, "--scene",
+                        out / "scene.json", "-o", again, "--cache", cache], check=True)
+        a, meta = read_image(frame)
+        b, _ = read_image(again)
+        np.testing.assert_array_equal(a, b)
+        tf = meta["transfer_function"]
+        xs = tf["RGBPoints"][::4]
+        assert xs[0] == pytest.approx(lo, rel=1e-6) and xs[-1] == pytest.approx(hi, rel=1e-6)
+    assert a.shape == (32, 48, 4) and (tmp_path / "phi.gif").stat().st_size > 0
+    first = read_image(frames[0])[1]["camera"]
+    assert all(read_image(f)[1]["camera"] == first for f in frames)
+    command = tmp_path / "command"  # the series command draws the same frames
+    subprocess.run([sys.executable, "-m", "exabricks.cli.main", "series", fixed / "plt*", "-o", command,
+                    "--movie", command / "phi.mp4", "--size", "48", "32", "--scale", "linear",
+                    "--cache", cache], check=True)
+    for frame in frames:
+        np.testing.assert_array_equal(read_image(command / frame.name)[0], read_image(frame)[0])
+    assert (command / "phi.mp4").stat().st_size > 0

@@ -1,0 +1,367 @@
+"""`exabricks view` against hostile inputs (issue 49, the viewer's part): a frame
+in progress is cancelled by a newer change within a second, under a memory
+budget too, and one change may ask only so much; a FIFO or a device as
+--scene-out is refused and a save never holds the server's loop; a built-in
+preset name never makes the server read a file; a non-ASCII cookie gets 403, not
+500; listening on every interface, the server answers this machine's own
+addresses (and no other name) and warns that the token alone guards it."""
+
+from __future__ import annotations
+
+import asyncio
+import ipaddress
+import json
+import logging
+import os
+import socket
+import threading
+import time
+
+import numpy as np
+import pytest
+
+from helpers import GERRIS
+
+aiohttp = pytest.importorskip("aiohttp")
+
+
+class StubSession:
+    """What the server needs of a Session, without a device: frames are never drawn."""
+
+    doc = {"volumes": []}
+
+    def info(self):
+        return {"type": "init", "scene": self.doc}
+
+    def check(self, doc):
+        return doc
+
+    def layer(self, scene):
+        return None
+
+    def stages(self, scene, moving=False):
+        return []
+
+
+def serving(viewer, body):
+    """Run `await body(base_url)` with `viewer` listening; the server stops after."""
+    async def run():
+        url = await viewer.start()
+        try:
+            return await body(url.split("/?token=")[0])
+        finally:
+            await asyncio.wait_for(viewer.stop(), 5)
+    return asyncio.run(run())
+
+
+async def raw_get(base: str, headers: bytes) -> bytes:
+    """The status line of a GET / with `headers` (raw bytes: a client library would
+    refuse to send what a hostile one does)."""
+    host, port = base.removeprefix("http://").rsplit(":", 1)
+    reader, writer = await asyncio.open_connection(host, int(port))
+    writer.write(b"GET / HTTP/1.1\r\nHost: " + f"{host}:{port}".encode() + b"\r\n" + headers +
+                 b"Connection: close\r\n\r\n")
+    await writer.drain()
+    line = await asyncio.wait_for(reader.readline(), 10)
+    writer.close()
+    return line
+
+
+def test_a_non_ascii_cookie_gets_403_and_no_traceback(caplog):
+    from exabricks.viewer.server import COOKIE, Viewer
+
+    viewer = Viewer(StubSession())
+
+    async def body(base):
+        return [await raw_get(base, cookie) for cookie in (
+            "Cookie: exabricks_view_token=é\r\n".encode(),
+            b"Cookie: exabricks_view_token=\xff\xc3\x28\r\n",
+            b"Cookie: \xff\xfe=\xc3\x28\r\n",
+            f"Cookie: a=\u00e9; {COOKIE}={viewer.token}\r\n".encode(),
+            f"Cookie: {COOKIE}={viewer.token}\r\n".encode())]
+
+    with caplog.at_level(logging.DEBUG, logger="aiohttp"):
+        lines = serving(viewer, body)
+    assert [line.split()[1] for line in lines[:3]] == [b"403", b"403", b"403"], lines
+    assert lines[3].split()[1] in (b"200", b"403") and lines[4].split()[1] == b"200", lines
+    assert not [r for r in caplog.records if r.levelno >= logging.ERROR], caplog.text
+
+
+def test_a_fifo_or_a_device_as_scene_out_is_refused(tmp_path):
+    from exabricks.util.errors import ExabricksError
+    from exabricks.viewer.server import Viewer
+
+    fifo = tmp_path / "scene.fifo"
+    os.mkfifo(fifo)
+    for path, kind in ((fifo, "FIFO"), ("/dev/null", "device"), (tmp_path, "directory")):
+        with pytest.raises(ExabricksError, match=f"--scene-out .*is a {kind}"):
+            Viewer(StubSession(), scene_out=path)
+
+
+async def ws_save(base: str, token: str) -> dict:
+    async with aiohttp.ClientSession() as s:
+        async with s.ws_connect(f"{base}/ws?token={token}", headers={"Origin": base}) as ws:
+            await ws.receive()  # init
+            await ws.send_str(json.dumps({"type": "save"}))
+            return json.loads((await asyncio.wait_for(ws.receive(), 10)).data)
+
+
+def test_a_save_never_holds_the_servers_loop(tmp_path, monkeypatch):
+    """A FIFO put at --scene-out after the start is refused when a page saves; and a
+    write that blocks (a FIFO swapped in after that check) holds neither the other
+    requests nor the stop."""
+    from exabricks.viewer import server
+
+    out = tmp_path / "scene.json"
+    viewer = server.Viewer(StubSession(), scene_out=out)
+    os.mkfifo(out)
+
+    async def refused(base):
+        return await asyncio.wait_for(ws_save(base, viewer.token), 10)
+
+    reply = serving(viewer, refused)
+    assert reply["type"] == "error" and "is a FIFO" in reply["message"], reply
+
+    monkeypatch.setattr(server, "_regular_output", lambda path: None)  # the race: the FIFO comes later
+    viewer = server.Viewer(StubSession(), scene_out=out)
+
+    async def blocked(base):
+        save = asyncio.ensure_future(ws_save(base, viewer.token))
+        await asyncio.sleep(0.5)
+        assert not save.done()  # the write waits for a reader of the FIFO ...
+        started = time.monotonic()
+        async with aiohttp.ClientSession() as s:  # ... and the server still answers
+            async with s.get(f"{base}/?token={viewer.token}") as r:
+                assert r.status == 200
+        assert time.monotonic() - started < 2
+        save.cancel()
+
+    started = time.monotonic()
+    try:
+        serving(viewer, blocked)
+        assert time.monotonic() - started < 5  # stopped at once, the write still blocked
+    finally:  # let the blocked writer go
+        fd = os.open(out, os.O_RDONLY | os.O_NONBLOCK)
+        time.sleep(0.2)
+        os.close(fd)
+
+
+def own_address() -> str:
+    """An address of this machine that is not loopback (the one its route out
+    leaves from; connecting a UDP socket sends nothing), else the test is skipped."""
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as probe:
+        try:
+            probe.connect(("10.255.255.255", 1))
+            address = probe.getsockname()[0]
+        except OSError:
+            address = None
+    if address is None or ipaddress.ip_address(address).is_loopback:
+        pytest.skip("this machine has no address but loopback")
+    return address
+
+
+def test_every_interface_answers_this_machines_addresses_and_warns():
+    """`--host 0.0.0.0`: a page opened at this machine's own address is served and
+    its websocket's Origin accepted; any other name still gets 403 (DNS rebinding),
+    and so does a request without the token; the server warns, once started, that it
+    is reachable from the network, with a URL that works. On loopback, no warning."""
+    from exabricks.viewer.server import Viewer
+
+    address = own_address()
+    viewer = Viewer(StubSession(), host="0.0.0.0")
+
+    async def body(base):
+        port = base.rsplit(":", 1)[1]
+        mine = f"http://{address}:{port}"
+        async with aiohttp.ClientSession() as s:
+            async def get(url, **headers):
+                async with s.get(url, headers=headers) as r:
+                    return r.status
+
+            statuses = [await get(f"{mine}/?token={viewer.token}"),
+                        await get(f"{mine}/viewer.js?token={viewer.token}"),
+                        await get(f"{base}/?token={viewer.token}"),
+                        await get(f"{mine}/?token={viewer.token}", Host=f"evil.example:{port}"),
+                        await get(f"{mine}/?token={viewer.token}", Host=f"{address}.nip.io:{port}"),
+                        await get(f"{mine}/")]
+            if viewer.warning:  # the URL it names for another machine works
+                statuses.append(await get(viewer.warning.split()[-1]))
+            async with s.ws_connect(f"{mine}/ws?token={viewer.token}", headers={"Origin": mine}) as ws:
+                init = json.loads((await asyncio.wait_for(ws.receive(), 10)).data)
+            with pytest.raises(aiohttp.WSServerHandshakeError) as refused:
+                await s.ws_connect(f"{mine}/ws?token={viewer.token}", headers={"Origin": "http://evil.example"})
+        return statuses, init, refused.value.status
+
+    statuses, init, refused = serving(viewer, body)
+    assert statuses == [200, 200, 200, 403, 403, 403, 200], statuses
+    assert init["type"] == "init" and refused == 403
+    assert "reachable from the network" in viewer.warning and "only by its token" in viewer.warning
+    assert f"token={viewer.token}" in viewer.warning and "0.0.0.0" not in viewer.warning.split()[-1]
+
+    loopback = Viewer(StubSession())
+    serving(loopback, lambda base: asyncio.sleep(0))
+    assert loopback.warning is None
+
+
+# -- a real Session (the device) ---------------------------------------------------
+
+BUDGET = 4 << 20  # the Gerris plume in 4 domains at 100x60
+
+
+@pytest.fixture(scope="module")
+def cache(tmp_path_factory):
+    return tmp_path_factory.mktemp("cache")
+
+
+@pytest.fixture(scope="module")
+def session(cache):
+    import exabricks as eb
+    from exabricks.viewer.session import Session
+
+    return Session(eb.open(GERRIS, cache=cache), options={"field": "T", "size": (64, 48)})
+
+
+@pytest.fixture(scope="module")
+def budgeted(cache):
+    """A viewer's session under `--memory-budget` (frames streamed domain by domain)."""
+    import exabricks as eb
+    from exabricks.viewer.session import Session
+
+    return Session(eb.open(GERRIS, cache=cache), options={"field": "T", "size": (64, 48)}, budget=BUDGET)
+
+
+def test_a_builtin_preset_name_never_reads_a_file(session, tmp_path, monkeypatch):
+    """A page's scene naming `default` or `inferno-shells` draws the built-in preset,
+    whatever file of that name the server's working directory holds."""
+    from exabricks.scene import choose_transfer_function
+
+    monkeypatch.chdir(tmp_path)
+    bricks = session.renderer.dataset.bricks
+    for name in ("default", "inferno-shells"):
+        (tmp_path / name).write_text(json.dumps([{"ColorSpace": "RGB", "Name": "planted",
+                                                  "RGBPoints": [0, 1, 0, 0, 1, 1, 0, 0],
+                                                  "Points": [0, 1, 0.5, 0, 1, 1, 0.5, 0]}]))
+        scene = session.check({"volumes": [{"field": "T", "transfer_function": name}]})
+        want = choose_transfer_function(bricks, "T", name, builtin=True)
+        np.testing.assert_array_equal(scene.volumes[0].transfer_function.rgb_points, want.rgb_points)
+        scene = session.check({"volumes": [{"field": "T", "transfer_function": name, "range": [0, 0.5]}]})
+        want = choose_transfer_function(bricks, "T", name, value_range=[0, 0.5], builtin=True)
+        np.testing.assert_array_equal(scene.volumes[0].transfer_function.rgb_points, want.rgb_points)
+        (tmp_path / name).write_text("not a preset")  # a file that would not even parse
+        session.check({"volumes": [{"field": "T", "transfer_function": name}]})
+
+
+def test_one_change_may_ask_only_so_much(session):
+    from exabricks.util.errors import ExabricksError
+    from exabricks.viewer.session import MAX_SAMPLES
+
+    with pytest.raises(ExabricksError, match="at most"):
+        session.check({**session.doc, "size": [32768, 32768], "spp": 4096})
+    session.check({**session.doc, "size": [32768, MAX_SAMPLES // 32768], "spp": 1})
+
+
+def test_a_tiled_frame_is_the_whole_frame(session, monkeypatch):
+    """A frame drawn tile by tile (so that a newer change can drop it) is the
+    frame drawn whole, pixel for pixel."""
+    from exabricks.viewer import session as module
+
+    scene = session.check({**session.doc, "size": [100, 60], "spp": 3})
+    whole = session.draw("converged", scene)
+    for budget in (100 * 3 * 7, 3 * 64):  # bands of rows; square tiles
+        monkeypatch.setattr(module, "TILE_SAMPLES", budget)
+        tiled = session.draw("converged", scene, cancelled=lambda: False)
+        assert tiled.png == whole.png
+
+
+def test_a_budgeted_frame_in_tiles_is_the_whole_frame(budgeted, monkeypatch):
+    """Under a memory budget, the frame drawn in tiles of columns (so that a newer
+    change can drop it) is the frame `render --memory-budget` draws, pixel for pixel."""
+    from exabricks.viewer import session as module
+
+    scene = budgeted.check({**budgeted.doc, "size": [100, 60], "spp": 3})
+    whole = budgeted.draw("converged", scene)
+    assert budgeted._domains[1].n_domains > 1
+    monkeypatch.setattr(module, "TILE_SAMPLES", 60 * 16)  # 16 columns a tile
+    tiled = budgeted.draw("converged", scene, cancelled=lambda: False)
+    assert tiled.png == whole.png
+
+
+def test_a_budgeted_frame_is_dropped_by_a_newer_change(budgeted, monkeypatch):
+    """Under a memory budget, a newer change drops the frame at the next tile,
+    domain or sample: nothing more is drawn of it (sample by sample at 1 spp;
+    samples drawn together with each domain read at 4)."""
+    from exabricks.engine.renderer import Renderer
+    from exabricks.viewer import session as module
+    from exabricks.viewer.session import Cancelled
+
+    drawn, newer = [], threading.Event()
+    integrate = Renderer.integrate  # every tile of every domain is integrated
+
+    def drawing(self, *args, **kwargs):  # a newer change comes while the first tile draws
+        drawn.append(kwargs.get("window"))
+        newer.set()
+        return integrate(self, *args, **kwargs)
+
+    monkeypatch.setattr(Renderer, "integrate", drawing)
+    monkeypatch.setattr(module, "TILE_SAMPLES", 60 * 16)  # 16 columns a tile
+    for spp in (1, 4):
+        scene = budgeted.check({**budgeted.doc, "size": [100, 60], "spp": spp})
+        drawn.clear()
+        newer.clear()
+        with pytest.raises(Cancelled):
+            budgeted.draw("converged", scene, cancelled=newer.is_set)
+        assert len(drawn) == 1 and budgeted._domains[1].n_domains > 1, (spp, len(drawn))
+
+
+def cancelled_after(session, size, spp) -> float:
+    """Seconds from a newer change to the drop of a frame of `size` at `spp`
+    drawn for a second."""
+    from exabricks.viewer.session import Cancelled
+
+    scene = session.check({**session.doc, "size": list(size), "spp": spp})
+    newer = threading.Event()
+    outcome = []
+
+    def draw():
+        try:
+            session.draw("converged", scene, cancelled=newer.is_set)
+            outcome.append("drawn")
+        except Cancelled:
+            outcome.append(time.perf_counter())
+
+    thread = threading.Thread(target=draw)
+    thread.start()
+    time.sleep(1.0)
+    asked = time.perf_counter()
+    newer.set()
+    thread.join(30)
+    assert not thread.is_alive() and outcome and outcome[0] != "drawn", outcome
+    return outcome[0] - asked
+
+
+@pytest.mark.slow
+def test_the_largest_budgeted_frame_is_cancelled_within_a_second(cache):
+    """Under a memory budget too: the largest frames one change may ask (under a
+    budget that holds their images) are dropped within a second of the newer change."""
+    import exabricks as eb
+    from exabricks.viewer.session import MAX_SAMPLES, Session
+
+    dataset = eb.open(GERRIS, cache=cache)
+    for budget, size, spp in ((3 << 30, (32768, MAX_SAMPLES // 32768), 1), (8 << 20, (1024, 32), 1024)):
+        session = Session(dataset, options={"field": "T", "size": (64, 48)}, budget=budget)
+        took = cancelled_after(session, size, spp)
+        print(f"--memory-budget {session.budget >> 20}M, {size[0]}x{size[1]} at {spp} spp: "
+              f"cancelled {took * 1e3:.0f} ms after the newer change")
+        assert took < 1.0, took
+
+
+@pytest.mark.slow
+def test_the_largest_frame_is_cancelled_within_a_second(session):
+    """A frame of the largest size one change may ask, at the most samples, is
+    dropped within a second of the newer change."""
+    from exabricks.viewer.session import MAX_SAMPLES
+
+    for size, spp in (((32768, MAX_SAMPLES // 32768), 1), ((1024, 32), 1024)):
+        took = cancelled_after(session, size, spp)
+        print(f"{size[0]}x{size[1]} at {spp} spp: cancelled {took * 1e3:.0f} ms after the newer change")
+        assert took < 1.0, took
