@@ -51,7 +51,7 @@ $(OUT)/bvh.npz: $(OUT)/regions.npz
 # The hot core as an iso-surface (T = 0.45, with ambient occlusion and a little
 # specular) inside the translucent volume of T, on a dark background. 64 occlusion
 # rays per hit and 4 samples per pixel: the occlusion's grain falls below the
-# volume's own jitter noise (docs/benchmarks.md, "Iso-surface normals").
+# volume's own jitter noise (docs/benchmarks-render.md, "Iso-surface normals").
 # `devices --warm` first builds the kernels of this picture and of a default render
 # (exabricks/warm.py), so that neither waits for a compile afterwards.
 $(OUT)/plume.png: $(OUT)/bvh.npz

@@ -63,7 +63,7 @@ plus PoCL's work-group function for the 8x8 work-groups at the first enqueue. A
 user pays it once per variant and machine; the caches keep it. The before column
 builds the kernels of e9aeb32 (`git worktree add /tmp/before-e9aeb32 e9aeb32`), with
 the same host code: there the rare surface paths were still inlined into every copy
-of the ray loop (docs/design.md, "Kernel builds and the host–kernel contract").
+of the ray loop (docs/design-kernels.md, "Kernel builds and the host–kernel contract").
 """
 
 

@@ -19,7 +19,7 @@ crosses, fills
 
 1 is perfect coherence; 1/k means no two rays of a packet share a region. The
 figures bound what packets can gain on a walk that costs per region (BVH queries
-and region set-up) and per sample; docs/benchmarks.md, "Coherent rays: lane
+and region set-up) and per sample; docs/benchmarks-render.md, "Coherent rays: lane
 fill" has them. --write-docs replaces that section.
 """
 

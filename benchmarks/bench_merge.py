@@ -13,8 +13,8 @@ scalars, and the median kernel time of --runs frames (after a warm-up) at 512x51
 default camera and transfer function, no shading.
 
 The exact regions of the thin shells are not built here: of the 2.33 M bricks the k-d
-partition made before `brick` joined them (docs/design.md "Bricks"), 83.4 M regions, 5.45 GB,
-193 s at 13.7 GiB for `exabricks regions --exact` alone (measured once, docs/benchmarks.md
+partition made before `brick` joined them (docs/design-structures.md "Bricks"), 83.4 M regions, 5.45 GB,
+193 s at 13.7 GiB for `exabricks regions --exact` alone (measured once, docs/benchmarks-decisions.md
 "Measurements behind design choices"); the row gives those figures.
 --write-docs replaces the "## merged regions against exact ones" section of
 docs/benchmarks.md.

@@ -1,4 +1,4 @@
-"""Meshes with the volume (issue 37; docs/design.md, "Meshes"): what the mesh BVH
+"""Meshes with the volume (issue 37; docs/design-rendering.md, "Meshes"): what the mesh BVH
 build costs and what a mesh adds to a frame.
 
     .venv/bin/python -m benchmarks.bench_mesh [--triangles 1e6,1e7] [--size 1024] [--runs 3] [--write-docs]

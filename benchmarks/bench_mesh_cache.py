@@ -1,5 +1,5 @@
 """The meshes' BVH read, built and stored, against taken from the cache of built
-structures (docs/benchmarks.md, "Meshes with the volume"):
+structures (docs/benchmarks-render.md, "Meshes with the volume"):
 
     .venv/bin/python -m benchmarks.bench_mesh_cache bench-data/meshes/sheet2237.ply
 

@@ -1,5 +1,5 @@
 """Noise: how far the default frame (one sample per pixel) is from a converged
-one, and how it converges with --spp (docs/design.md, "Sample offsets";
+one, and how it converges with --spp (docs/design-rendering.md, "Sample offsets";
 issue 48, item 3).
 
     .venv/bin/python -m benchmarks.bench_noise [--before CHECKOUT] [--reference-spp 256] [--write-docs]

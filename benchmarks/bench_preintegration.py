@@ -48,7 +48,7 @@ Errors are of premultiplied RGBA in [0, 1] against the reference, over every pix
 and channel: RMSE, the largest, and the share of pixels where some channel is off by
 more than half an 8-bit step. --picture writes one frame of the peaks function, the
 reference | the midpoint rule | the kernel-sized table with its fallback, at the lowest
-rate. docs/benchmarks.md, "Pre-integrated transfer functions", has the figures;
+rate. docs/benchmarks-render.md, "Pre-integrated transfer functions", has the figures;
 --write-docs replaces that section.
 """
 
@@ -85,7 +85,7 @@ METHODS = ("midpoint", "pre-integrated 1D",
            f"the same, ends within {FLAT_INTERVALS} intervals: midpoint", "pre-integrated 2D")
 
 
-READING = """What it says (docs/design.md, "Transfer-function tables", has the decision):
+READING = """What it says (docs/design-rendering.md, "Transfer-function tables", has the decision):
 
 - **On the benchmarks' transfer function the midpoint rule wins.** With the opacity
   ramp of bench_peers (and of every speed target of issue 36), today's midpoint

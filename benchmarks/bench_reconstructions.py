@@ -515,7 +515,7 @@ LOD_NOTES = """\
 `finest cell` is how many pixels a finest cell covers at the distance of the data's centre
 (nearer regions: more); at the {size}x{size} of the first table it is {finest}. `--lod P` samples
 a region at the coarsest level whose cells project to at most P pixels at the region's entry,
-never finer than its data (docs/design.md, "Level of detail"), so a level is first coarsened
+never finer than its data (docs/design-rendering.md, "Level of detail"), so a level is first coarsened
 when P reaches twice its cells' projected size: the finest level at P ~ 2x the column's figure,
 a coarser level only at 2x *its* (2^L times larger) projection. The first P that cuts the
 samples by 1 % or more -- {firstp} -- so on the smaller images LOD acts from small P

@@ -62,7 +62,7 @@ GPU_NOTES = """
 On a GPU the default path runs one ray per work-item and one sample at a time; the
 packet rows run the CPU's path on the GPU, for comparison. What each variant asks of
 the GPU (registers, the stack frame that holds the region walk's heap) is printed
-by benchmarks/kernel_resources.py, and docs/benchmarks.md "On a GPU" says what it
+by benchmarks/kernel_resources.py, and docs/benchmarks-gpu.md "On a GPU" says what it
 means for these figures.
 """
 

@@ -1,5 +1,5 @@
 """Volume shading: the high-frequency energy the headlight adds to the default
-picture of each real dataset over `--shading none` (docs/design.md, "Volume
+picture of each real dataset over `--shading none` (docs/design-rendering.md, "Volume
 shading"; issue 48).
 
     .venv/bin/python -m benchmarks.bench_shading [--before "CMD ..."] [--write-docs]

@@ -78,18 +78,40 @@ def fmt_seconds(values) -> str:
     return fmt_spread(values, "", digits)
 
 
+def section_file(title: str, docs: Path = DOCS) -> Path:
+    """The file of docs/benchmarks.md's set (it and its files by concept,
+    docs/benchmarks-*.md) that holds the section ``## {title}``: `docs` when none
+    does yet (a new section goes there, listed in its contents)."""
+    if docs == DOCS:
+        for path in sorted(DOCS.parent.glob("benchmarks*.md")):
+            if re.search(rf"^## {re.escape(title)}$", path.read_text(), re.M):
+                return path
+    return docs
+
+
 def replace_section(title: str, body: str, docs: Path = DOCS) -> None:
-    """Replace (or append) the section headed ``## {title}`` of `docs` with `body`."""
+    """Replace the section headed ``## {title}`` in the file of `docs`' set that
+    holds it (`section_file`), or append it to `docs` and to its contents."""
+    docs = section_file(title, docs)
     text = docs.read_text() if docs.exists() else INTRO
     section = f"## {title}\n\n{body.strip()}\n"
     pattern = re.compile(rf"^## {re.escape(title)}\n.*?(?=^## |\Z)", re.S | re.M)
     if pattern.search(text):
         text = pattern.sub(lambda _: section + "\n", text, count=1).rstrip("\n") + "\n"
     else:
+        listed = list(re.finditer(r"^- \[[^\]]+\]\(#[^)]+\)$", text, re.M))
+        if listed:  # the contents list its sections
+            at = listed[-1].end()
+            text = text[:at] + f"\n- [{title}](#{anchor(title)})" + text[at:]
         text = text.rstrip("\n") + "\n\n" + section
     tmp = docs.with_suffix(".md.tmp")
     tmp.write_text(text)
     tmp.replace(docs)
+
+
+def anchor(title: str) -> str:
+    """The anchor GitHub gives a heading."""
+    return re.sub(r"[^\w\- ]", "", title.lower()).replace(" ", "-")
 
 
 # ---------------------------------------------------------------------------
@@ -97,7 +119,8 @@ def replace_section(title: str, body: str, docs: Path = DOCS) -> None:
 
 
 def publish(title: str, body: str, write_docs: bool) -> None:
-    """Print a section's body; with --write-docs also put it into docs/benchmarks.md."""
+    """Print a section's body; with --write-docs also put it into docs/benchmarks.md
+    (or the file by concept that holds it)."""
     print(body)
     if write_docs:
         replace_section(title, body)

@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# The GPU checks of issue 36, item 3 (docs/benchmarks.md, "On a GPU"), prepared here
+# The GPU checks of issue 36, item 3 (docs/benchmarks-gpu.md, "On a GPU"), prepared here
 # and run in two calls of the device tool on a lent NVIDIA machine, whose Python
 # (3.12, in the image) has numpy, numba, h5py, click and pillow but not pyopencl,
 # and which reaches nothing outside itself.

@@ -79,13 +79,13 @@ one's. With sample packets the same polynomials run on eight samples at once (4-
 gathers, one per corner, lane and brick), followed by the transfer function's gathers
 (8-19 %) and the walk (12-16 %), which packets do not touch. On octree-like data
 (Gerris, the thin shells) one region visit holds 5-6 samples, so in a volume frame a
-packet spans up to three visits (docs/design.md "Sample packets"). "sampling (no line)"
+packet spans up to three visits (docs/design-kernels.md "Sample packets"). "sampling (no line)"
 is code of the sampling functions that LLVM left without a source line; "ray set-up"
 the samples in the kernel's entry function, which carry no source line (PoCL drops the
 work-group function's debug info): the camera ray, the clip interval, the walk's start,
 the per-region glue of the integrator and the pixel's write. It is largest where a
 pixel takes few samples (Athena++ and Gerris, 17-19 %); PoCL's per-work-item context
-arrays are not its cost (docs/design.md, "Work-group size and PoCL's context arrays").
+arrays are not its cost (docs/design-kernels.md, "Work-group size and PoCL's context arrays").
 """
 FUNCTION = re.compile(r"^(?:EB_INLINE|inline|__kernel|__attribute__\(\(noinline\)\))\b[^(]*?\b(\w+)\(")
 

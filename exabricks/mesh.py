@@ -1,5 +1,5 @@
 """Triangle meshes drawn with the volume (`--mesh FILE`, the scene key `meshes`;
-docs/design.md, "Meshes").
+docs/design-rendering.md, "Meshes").
 
 A mesh file (OBJ, PLY or STL, world units) is read by trimesh and checked:
 finite vertices, vertex indices in range, at least one triangle with area.
@@ -281,7 +281,7 @@ def mesh_bvh(vertices, faces, owner):
 
 def corner_normals(vertices, faces, vertex_owner=None, crease_degrees: float = CREASE_DEGREES):
     """float32 (F, 3, 3): the smooth-shading normal at each corner of each face
-    (docs/design.md, "Meshes"): the unit sum, weighted by their angle at the
+    (docs/design-rendering.md, "Meshes"): the unit sum, weighted by their angle at the
     corner's point, of the unit normals of the faces that meet at that point
     and turn from this face by at most `crease_degrees` (a sharper edge stays
     sharp: a cube is flat). Vertices at the same float32 position count as one

@@ -1,5 +1,5 @@
 """MPI rendering: `mpiexec -n N exabricks render …` (or `srun --mpi=pmi2`) draws
-one frame with N processes (docs/design.md, "Data-parallel rendering and MPI").
+one frame with N processes (docs/design-scale.md, "Data-parallel rendering and MPI").
 
 * ``data`` mode (the default for N > 1): the space is cut into N domains by a
   k-d partition (exabricks.engine.partition), each rank keeps the structures of

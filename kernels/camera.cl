@@ -1,4 +1,4 @@
-/* The pinhole camera (docs/design.md, "Camera"): pixel (col, row), row 0 at the
+/* The pinhole camera (docs/design-rendering.md, "Camera"): pixel (col, row), row 0 at the
  * top, looks along forward + u du + v dv with u = 2 (col + jx) / W - 1 and
  * v = 1 - 2 (row + jy) / H; (jx, jy) = (0.5, 0.5) is the pixel centre. The host
  * passes the frame of exabricks.picture.camera.Camera.frame unchanged. */

@@ -1,4 +1,4 @@
-/* Clipping (docs/design.md, "Surfaces, slices and clipping"): what is
+/* Clipping (docs/design-rendering.md, "Surfaces, slices and clipping"): what is
  * kept is the inside of an optional box and, for each plane (P, N), the
  * half-space (p - P) . N >= 0, all in world units. Their intersection is
  * convex, so a ray keeps one interval [t0, t1] of it: the integrator walks only

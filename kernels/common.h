@@ -3,7 +3,7 @@
  * Coordinates: geometry (bricks, regions, BVH nodes) is in lattice units
  * (finest-cell units); rays are transformed into lattice space but keep their
  * parameter t in world distance, so step lengths and opacity correction are
- * in world units (docs/design.md, "Integration and images"). */
+ * in world units (docs/design-rendering.md, "Integration and images"). */
 #pragma once
 
 /* Every array bound (EB_STACK_SIZE, EB_MAX_SAMPLES, EB_MAX_ISO, ...) and the
@@ -33,7 +33,7 @@
 /* Rare, heavy paths kept out of line (an iso crossing's refinement, a surface
  * hit): inlined into every copy of the ray loop they made the kernel so large
  * that LLVM's compile time went superlinear (minutes per program variant with
- * surfaces on 2 cores; docs/design.md "Kernel builds and the host–kernel contract"). */
+ * surfaces on 2 cores; docs/design-kernels.md "Kernel builds and the host–kernel contract"). */
 #define EB_COLD __attribute__((noinline))
 
 /* The few functions that are kept out of line in a profiling build

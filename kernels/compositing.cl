@@ -1,5 +1,5 @@
 /* Front-to-back emission-absorption compositing of one step into a ray's state
- * (docs/design.md, "Integration and images"). */
+ * (docs/design-rendering.md, "Integration and images"). */
 #pragma once
 #include "common.h"
 #include "ray.cl"

@@ -1,5 +1,5 @@
 /* The integrator: front-to-back emission-absorption along one ray through the
- * Active Brick Regions (paper §4; docs/design.md "Integration and images"),
+ * Active Brick Regions (paper §4; docs/design-rendering.md "Integration and images"),
  * with iso-surfaces and slices composited where the ray meets them
  * (surfaces.cl), inside the ray's clip interval (clipping.cl).
  *

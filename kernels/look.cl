@@ -1,6 +1,6 @@
 /* The frame's look: every transfer function and colour map as merged knots,
  * the volume layers, the per-field gradient scale, and headlight shading
- * (docs/design.md, "Integration and images"). The medium they make is
+ * (docs/design-rendering.md, "Integration and images"). The medium they make is
  * medium.cl. */
 #pragma once
 #include "common.h"
@@ -13,7 +13,7 @@
  * transfer-function range within one finest cell (gradient_scale,
  * exabricks.engine.device_data): flat and noisy parts of the medium, whose
  * normals are rounding or cell-scale noise, stay unlit instead of showing
- * speckle and rings (docs/design.md, "Volume shading"). */
+ * speckle and rings (docs/design-rendering.md, "Volume shading"). */
 #define EB_AMBIENT 0.3f
 #define EB_DIFFUSE 0.7f
 
@@ -22,7 +22,7 @@
  * other, each volume layer's knot index (knot_buckets, for the packet
  * lookup of packet.cl), the volume layers (field, first knot, knot count,
  * offset of the knot index), and each volume layer's lookup table
- * (transfer_function.lookup_table; docs/design.md, "Transfer-function
+ * (transfer_function.lookup_table; docs/design-rendering.md, "Transfer-function
  * tables"): its offset in `tables`, -1 where the layer is looked up exactly. */
 typedef struct {
     __global const float *xs;

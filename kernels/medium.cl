@@ -1,5 +1,5 @@
 /* The participating medium: any number of volume layers, each a field with its
- * own transfer function, mixed per step (docs/design.md, "Transfer
+ * own transfer function, mixed per step (docs/design-rendering.md, "Transfer
  * functions and volume layers"). Layer i has slab opacity alpha_i per unit_distance, extinction
  * sigma_i = -ln(1 - alpha_i) / unit_distance; a step of length dt has opacity
  * 1 - exp(-sum_i sigma_i dt) and colour sum_i sigma_i rgb_i / sum_i sigma_i.

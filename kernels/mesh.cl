@@ -1,4 +1,4 @@
-/* Triangle meshes (exabricks.mesh.MeshSet; docs/design.md, "Meshes"): the
+/* Triangle meshes (exabricks.mesh.MeshSet; docs/design-rendering.md, "Meshes"): the
  * triangles of a frame's meshes under one BVH in world units, walked once per
  * ray for the nearest EB_MAX_MESH_HITS hits inside the ray's interval (the
  * surfaces of surfaces.cl composite them in distance order with the volume),

@@ -1,4 +1,4 @@
-/* Sample packets for CPU devices (docs/design.md, "Sample packets on CPU devices"): built
+/* Sample packets for CPU devices (docs/design-kernels.md, "Sample packets on CPU devices"): built
  * with -DEB_PACKET=8, a ray reconstructs its next eight samples at once with
  * OpenCL vector types, one lane per sample, from up to EB_PACKET_REGIONS
  * consecutive region visits (integrator.cl, eb_sample_batch). The lanes
@@ -39,11 +39,11 @@ typedef int8 eb_vi;
 
 /* A region's samples go by packets while at least this many are left; a last
  * single one takes the one-sample path, which is cheaper for it
- * (docs/design.md, "Sample packets on CPU devices"). */
+ * (docs/design-kernels.md, "Sample packets on CPU devices"). */
 #define EB_PACKET_MIN_LANES 2
 
 /* The most consecutive region visits one packet spans (packet_batch.cl): more
- * lists make a longer merge for few more full lanes (docs/design.md, "Sample
+ * lists make a longer merge for few more full lanes (docs/design-kernels.md, "Sample
  * packets on CPU devices"). */
 #define EB_PACKET_REGIONS 3
 
@@ -274,7 +274,7 @@ EB_INLINE void eb_packet_lookup(eb_vf value, __global const float *xs,
 
 /* eb_table_lookup (transfer_function.cl) at W values: each lane's two nodes are
  * one row of eight floats, loaded whole and transposed, which PoCL runs faster
- * than eight gathers of one channel each (docs/design.md, "Transfer-function
+ * than eight gathers of one channel each (docs/design-rendering.md, "Transfer-function
  * tables"). */
 EB_INLINE void eb_packet_table(eb_vf value, __global const float4 *t,
                                eb_vf *r, eb_vf *g, eb_vf *b, eb_vf *a)

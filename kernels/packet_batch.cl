@@ -16,7 +16,7 @@
  * EB_PACKET_REGIONS consecutive region visits: a visit holds few samples on
  * octree-like data, so a packet per visit would leave lanes empty, and the
  * union of a few regions' lists reaches fewer bricks per sample than each
- * list apart (docs/design.md, "Sample packets on CPU devices"). With
+ * list apart (docs/design-kernels.md, "Sample packets on CPU devices"). With
  * iso-surfaces or --lod a packet ends with its region, whose entry code must
  * come after its samples. */
 typedef struct {

@@ -26,7 +26,7 @@ inline uint eb_hash(uint x)
     return x;
 }
 
-/* Low-discrepancy numbers (issue 48; docs/design.md, "Sample offsets"): a
+/* Low-discrepancy numbers (issue 48; docs/design-rendering.md, "Sample offsets"): a
  * sequence over the sample index, shifted per pixel by a seeded hash
  * (Cranley-Patterson rotation), in 32-bit fixed point so that it stays exact
  * for any index. Samples of one pixel are then spread evenly instead of at

@@ -1,4 +1,4 @@
-/* Iso-surfaces and slices along a ray (docs/design.md, "Surfaces, slices and clipping").
+/* Iso-surfaces and slices along a ray (docs/design-rendering.md, "Surfaces, slices and clipping").
  *
  * Iso-surfaces live on the basis field. A crossing of iso-value v on field f
  * is detected between consecutive samples of the adaptive sampling (values on

@@ -30,7 +30,7 @@ EB_INLINE float4 eb_transfer_function(float value, __global const float *xs,
  * t[0] = (x0, K / (x_end - x0), K, 0), then RGBA at K + 1 even nodes; linear
  * between nodes, clamped outside (a NaN value takes node 0, as above). Equal to
  * the knots' function wherever the table interval holds no knot strictly inside
- * (docs/design.md, "Transfer-function tables"). */
+ * (docs/design-rendering.md, "Transfer-function tables"). */
 EB_INLINE float4 eb_table_lookup(__global const float4 *t, float value)
 {
     float4 h = t[0];
@@ -80,7 +80,7 @@ EB_INLINE float eb_exp2_nonpositive(float y)
  * `unit_distance` (paper §4.3): 1 - (1 - alpha)^(len / unit_distance), for
  * alpha in (0, 1]. The log2/exp2 pair is inlined as polynomials: PoCL calls
  * its library exp2 and log2 out of line, which made this line a quarter of a
- * frame (docs/benchmarks.md, "render (PoCL)"); the result stays within 1e-6
+ * frame (docs/benchmarks-render.md, "render (PoCL)"); the result stays within 1e-6
  * of the float64 formula (tests/engine/test_render.py). */
 EB_INLINE float eb_opacity_correct(float alpha, float len, float inv_unit_distance)
 {

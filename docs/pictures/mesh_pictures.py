@@ -1,4 +1,4 @@
-"""The pictures of docs/design.md "Meshes" and docs/gallery.md "Meshes": meshes
+"""The pictures of docs/design-rendering.md "Meshes" and docs/gallery.md "Meshes": meshes
 drawn with the volume by `exabricks render --mesh`, each mesh made by
 `exabricks surface` from the data itself (the shared datasets hold no
 embedded-boundary body).

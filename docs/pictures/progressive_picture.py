@@ -1,4 +1,4 @@
-"""Pictures of a frame under a memory budget (docs/design.md, "Rendering under a
+"""Pictures of a frame under a memory budget (docs/design-scale.md, "Rendering under a
 memory budget"): the image so far after a quarter, half and all of the domains of
 the first sample, and the final average of every sample, as `render
 --progressive` rewrites it.

@@ -239,7 +239,7 @@ def merge_bricks(lower: np.ndarray, level: np.ndarray, dims: np.ndarray, offset:
     The k-d partition (§3.1.2) only cuts at the middle of a node, so on octree-like
     layouts a block of same-level cells split by a plane that the other levels
     needed ends up in many small bricks; joining them again halves the bricks a
-    sample sums there (docs/design.md "Larger bricks").  A deterministic function
+    sample sums there (docs/design-structures.md "Larger bricks").  A deterministic function
     of the bricks in order, so the joined shares of a build by pieces give what
     one build gives.  payload: (C, V) values; the value of a brick's slot s is
     payload[:, s], or payload[:, source[s]] when `source` (int32 (V,)) is given.

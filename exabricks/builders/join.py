@@ -1,6 +1,6 @@
 """`exabricks join PIECES... -o OUT`: the shares that `brick`, `regions` or `bvh
 --piece K/N` built (exabricks.formats.pieces) put back together in piece order;
-the result equals the one-process build, array for array (docs/design.md,
+the result equals the one-process build, array for array (docs/design-structures.md,
 "Builders by pieces")."""
 
 from __future__ import annotations

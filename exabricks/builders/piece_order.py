@@ -1,5 +1,5 @@
 """Cells in the order of the top of their k-d partition, and the runs of that
-order from which `brick --piece K/N` reads only its share (docs/design.md,
+order from which `brick --piece K/N` reads only its share (docs/design-structures.md,
 "Builders by pieces": "Pieces of `brick` read only their cells").
 
 `ingest` ends with `order_cells`: the partition of exabricks.builders.cell_tree

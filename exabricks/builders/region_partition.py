@@ -1,7 +1,7 @@
 """The top-down k-d partition of the Active Brick Regions (paper §3.2.3; its driver
 is exabricks.builders.regions): a split plane chosen among the support faces of a
 box's bricks, the cost model that keeps a box whole instead
-(`merged_region_cost`, docs/design.md "Active Brick Regions"), and the numba
+(`merged_region_cost`, docs/design-structures.md "Active Brick Regions"), and the numba
 kernel that splits one top subtree. Geometry in doubled lattice units."""
 
 from __future__ import annotations

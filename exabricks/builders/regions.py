@@ -39,7 +39,7 @@ _MAX_DOUBLED = 1 << 24
 
 @dataclass(frozen=True)
 class Merge:
-    """When the partition keeps a box of the k-d split whole (docs/design.md, "Active
+    """When the partition keeps a box of the k-d split whole (docs/design-structures.md, "Active
     Brick Regions and merged regions").
 
     visit_cost: the cost of entering a region, in units of a sample's cost apart

@@ -31,7 +31,7 @@ def regions(bricks_path, output, exact, visit_cost, brick_cost, max_merged, max_
     """Partition the brick supports into Active Brick Regions.
 
     By default pieces of the partition whose rays would cost more split than
-    whole are kept whole, with the union of their bricks (docs/design.md
+    whole are kept whole, with the union of their bricks (docs/design-structures.md
     "Merged regions"): far fewer, larger regions on octree-like data.
     """
     from ..builders.regions import EXACT, Merge
@@ -55,7 +55,7 @@ def regions(bricks_path, output, exact, visit_cost, brick_cost, max_merged, max_
     except ExabricksError as e:
         raise click.UsageError(str(e)) from None
     # A piece checks every brick but reads the values of its own regions only
-    # (docs/design.md, "Builders by pieces"): no CRC of the whole values member.
+    # (docs/design-structures.md, "Builders by pieces"): no CRC of the whole values member.
     bricks = schema.load(bricks_path, "bricks", mapped=True, checked=piece.whole, digest=True)
     if not piece.whole:
         schema.validate(bricks, str(bricks_path))

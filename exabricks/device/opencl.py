@@ -1,6 +1,6 @@
 """OpenCL devices, contexts and the compiled kernel program.
 
-Device choice (docs/design.md, "Devices") is explicit and never interactive: a
+Device choice (docs/design-kernels.md, "Devices") is explicit and never interactive: a
 ``SPEC`` of ``"P:D"`` (platform and device indices as `exabricks devices` lists
 them) or a case-insensitive substring of the device or platform name, from
 ``--device`` or ``EXABRICKS_DEVICE``; the default is the first GPU, else the
@@ -47,7 +47,7 @@ ENTRY_SOURCE = "render.cl"
 # IEEE infinities (ray slabs) and NaN (probe outside the data). Flushing
 # denormals and ignoring the sign of zero keep both (the slab test takes
 # fmin/fmax of both planes, so the sign of an infinite 1/dir does not matter)
-# and make frames faster on PoCL (docs/benchmarks.md, "render (PoCL)").
+# and make frames faster on PoCL (docs/benchmarks-render.md, "render (PoCL)").
 # The limits every kernel loop and stack obeys, and the frame's parameters, come
 # from exabricks.device.kernel_abi, whose header() starts every program.
 BUILD_OPTIONS = ("-cl-mad-enable", "-cl-no-signed-zeros", "-cl-denorms-are-zero")

@@ -23,7 +23,7 @@ from ..builders.bvh import tree_depths, build_tree, tree_bounds
 
 # Bricks per leaf: with 1 a node box is the brick's support, so a sample adds only bricks
 # whose support holds it; frames were faster than with 2 and 4 bricks per leaf
-# (measured: docs/benchmarks.md, "Measurements behind design choices").
+# (measured: docs/benchmarks-decisions.md, "Measurements behind design choices").
 LEAF_SIZE = 1
 
 

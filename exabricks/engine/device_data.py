@@ -144,7 +144,7 @@ class DatasetScale:
 
 # Finest cells over which a change of a layer's whole transfer-function range is a
 # gradient of strength 1: where a volume sample is shaded fully (kernels/look.cl,
-# eb_headlight; docs/design.md, "Volume shading").
+# eb_headlight; docs/design-rendering.md, "Volume shading").
 SHADING_CELLS = 1.0
 # The smallest range a gradient is measured against, as a share of the field's
 # largest |value|: keeps the kernel's dot(g, g) far from float overflow.

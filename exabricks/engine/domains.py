@@ -1,4 +1,4 @@
-"""The share of a dataset one domain needs (docs/design.md, "Data-parallel
+"""The share of a dataset one domain needs (docs/design-scale.md, "Data-parallel
 rendering and MPI"; the domains are exabricks.engine.partition's boxes).
 
 `domain_data` is what a domain's renderer loads: the regions whose boxes overlap
@@ -114,7 +114,7 @@ def domain_data(bricks: schema.Bricks, regions: schema.Regions, lower, upper, *,
 # whole page-cache folio around a read fault, and xfs, and ext4 since Linux 6.16,
 # cache files in folios of up to 2 MiB, so that a brick far from the previous one
 # costs up to this much until its step's pages are handed back (measured:
-# docs/benchmarks.md, "The memory budget on every layout").
+# docs/benchmarks-scale.md, "The memory budget on every layout").
 GRAIN = 1 << 21
 
 

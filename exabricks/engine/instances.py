@@ -1,5 +1,5 @@
 """Instances: the data and the meshes drawn again, mirrored or moved
-(docs/design.md, "Instances"; the paper mirrors the ExaJet so).
+(docs/design-rendering.md, "Instances"; the paper mirrors the ExaJet so).
 
 Instance i draws a data point x at R_i x + t_i (R_i orthogonal: a mirror, a
 rotation, or both), the identity being instance 0. Such a map keeps distances,

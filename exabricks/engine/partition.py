@@ -1,4 +1,4 @@
-"""A k-d partition of space into convex domains (docs/design.md, "Data-parallel
+"""A k-d partition of space into convex domains (docs/design-scale.md, "Data-parallel
 rendering and MPI").
 
 `kd_partition` cuts the lattice space of a dataset into `n` boxes by planes at

@@ -28,7 +28,7 @@ absorption. Conventions the design leaves open, chosen here:
   per ray and a private min-heap (re-tracing if the heap fills up);
   ``"retrace"`` re-traces from the root for every region as the paper does
   (§4). Same regions, same image; ordered is faster on PoCL
-  (docs/benchmarks.md, "render (PoCL)").
+  (docs/benchmarks-render.md, "render (PoCL)").
 * ``Renderer(..., lookup="cell-location")`` (Python API only) is the
   comparison of paper §6.4.2 (Table 3): the regions still decide where to
   sample, but each sample finds its bricks by descending a tree over the brick
@@ -173,7 +173,7 @@ class Renderer:
         """`domain`: (lower, upper) lattice bounds of the half-open box of a domain of
         a k-d partition (exabricks.engine.partition) that these structures are
         the share of, `scale` the whole dataset's; frames then hold exactly the
-        samples inside the box (docs/design.md, "Data-parallel rendering and MPI")."""
+        samples inside the box (docs/design-scale.md, "Data-parallel rendering and MPI")."""
         _check_lookup(lookup)
         self.dataset = DeviceDataset(bricks, regions, bvh, field=field, fields=fields, device=device,
                                  scale=scale)

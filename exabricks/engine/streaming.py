@@ -1,5 +1,5 @@
 """Frames of data larger than memory, and frames that improve as they go
-(docs/design.md, "Rendering under a memory budget"; Wu, Doyle & Ma's streaming
+(docs/design-scale.md, "Rendering under a memory budget"; Wu, Doyle & Ma's streaming
 and progressive rendering, seed paper 004).
 
 A frame is drawn as steps: for each of its spp samples, each domain of the
@@ -48,7 +48,7 @@ from .look import table_bytes
 # A domain's bytes (partition.domain_bytes) times this must fit the budget left
 # after the images: while a domain is made, its copies from the files, its
 # validation, the BVH builder and the upload take about as much again
-# (measured: docs/benchmarks.md, "Measurements behind design choices").
+# (measured: docs/benchmarks-decisions.md, "Measurements behind design choices").
 SLACK = 2.5
 # Bytes per brick of the whole dataset that making a domain holds whatever its
 # size (partition.domain_data: a mask of the bricks listed and their renumbering).
@@ -57,7 +57,7 @@ PER_BRICK = 5
 # bytes (partition.domain_bytes): what the estimate misses (about 4 % and 83 KiB
 # a domain on the thin shells) and the heap the makes leave behind. Counted
 # once, a 16 MiB budget's tiled frame of the thin shells peaked at the budget;
-# twice, within it (docs/benchmarks.md, "Domains kept across samples, bands and
+# twice, within it (docs/benchmarks-scale.md, "Domains kept across samples, bands and
 # frames").
 HELD = 2
 # Copies of a frame's transfer-function lookup tables (look.table_bytes) while

@@ -11,7 +11,7 @@ class Image:
     """A rendered frame.
 
     rgba:     (H, W, 4) float32, premultiplied colour and opacity, row 0 at the top
-              (docs/design.md, "Integration and images").
+              (docs/design-rendering.md, "Integration and images").
     depth:    (H, W) float32 world distance to the first opaque hit (+inf: none), or
               None when the frame was drawn without `depth=True`.
     metadata: what the image file carries: software, camera, dataset, settings

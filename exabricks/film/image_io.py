@@ -1,7 +1,7 @@
 """Reading and writing rendered images (.exr float, .png 8-bit) with their metadata.
 
 In memory an image is ``rgba`` (H, W, 4) float32, *premultiplied* colour and
-alpha exactly as the integrator accumulates them (docs/design.md, "Integration
+alpha exactly as the integrator accumulates them (docs/design-rendering.md, "Integration
 and images"); row 0 is the top of the image.
 
 - ``.exr``: float32 channels R, G, B, A (premultiplied, no colour transform,

@@ -17,7 +17,7 @@ from ..util.errors import ExabricksError
 
 # Elements per step of `rows` and `reduce_chunks` (1 MiB of float32): a step's
 # pages and its temporaries (a few times the step) stay small beside a memory
-# budget of a few MiB (docs/design.md, "Rendering under a memory budget").
+# budget of a few MiB (docs/design-scale.md, "Rendering under a memory budget").
 CHUNK = 1 << 18
 
 

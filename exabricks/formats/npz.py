@@ -36,7 +36,7 @@ class NpzArchive:
     DIRECT_BYTES = 1 << 20
     # With `mapped`, stored members this large are mapped: a per-brick or
     # per-region array of a large dataset is then paged in where it is used and
-    # handed back, however many such arrays the files hold (docs/design.md,
+    # handed back, however many such arrays the files hold (docs/design-scale.md,
     # "Rendering under a memory budget").
     MAP_BYTES = 1 << 16
 

@@ -1,5 +1,5 @@
 """Builders by pieces: `brick`, `regions` and `bvh` for one piece each, then
-`join` (docs/design.md, "Builders by pieces").
+`join` (docs/design-structures.md, "Builders by pieces").
 
 Every builder splits the top of its tree breadth first into subtrees, builds
 them independently and puts their results together in subtree order, so that

@@ -1,6 +1,6 @@
 """The pinhole camera: where rays start and which direction each pixel looks.
 
-Convention (docs/design.md, "Camera"): a camera is ``position``, ``look_at``,
+Convention (docs/design-rendering.md, "Camera"): a camera is ``position``, ``look_at``,
 ``up`` (world units) and ``fovy`` (the full vertical field of view in degrees).
 Pixel ``(col, row)``, row 0 at the top, of a ``W x H`` image is hit by the ray
 from ``position`` along

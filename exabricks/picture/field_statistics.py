@@ -6,7 +6,7 @@ lies, along axes and over columns of a view.
 The sums walk the bricks a run of whole bricks (about CHUNK values) at a time
 in small jitted loops that allocate nothing per cell, handing back the pages
 of mapped values after each run, so that they hold to a render's memory budget
-(docs/design.md, "Rendering under a memory budget") on any dataset size.
+(docs/design-scale.md, "Rendering under a memory budget") on any dataset size.
 A cell of level l weighs its lattice volume 8**l.
 """
 

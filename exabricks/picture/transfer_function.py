@@ -2,7 +2,7 @@
 
 A `TransferFunction` holds RGB knots ``[x, r, g, b]`` and opacity knots
 ``[x, alpha]``; each is piecewise linear in the data value ``x`` and clamps to
-its first/last knot outside its range (docs/design.md, "Transfer functions and volume layers").
+its first/last knot outside its range (docs/design-rendering.md, "Transfer functions and volume layers").
 `evaluate` is the float64 reference; `merged_knots` is the exact representation
 the OpenCL kernel interpolates; `any_alpha` says where opacity is above zero over
 value intervals, so the renderer can skip transparent BVH nodes and regions (the
@@ -382,7 +382,7 @@ TABLE_TOLERANCE = 1.0 / 1024.0
 @dataclass(frozen=True)
 class LookupTable:
     """A transfer function sampled for the table lookup of the kernels
-    (docs/design.md, "Transfer-function tables").
+    (docs/design-rendering.md, "Transfer-function tables").
 
     rows: float32 (K + 2, 4): a header ``(x0, K / (x_end - x0), K, 0)``, then RGBA at
     the K + 1 evenly spaced nodes ``x0 + i (x_end - x0) / K``; between nodes the

@@ -75,7 +75,7 @@ class MeshLayer:
 
 @dataclass(frozen=True)
 class Instance:
-    """A copy of the data and the meshes drawn besides them (docs/design.md,
+    """A copy of the data and the meshes drawn besides them (docs/design-rendering.md,
     "Instances"): mirrored across the plane `mirror` = (axis, position), then
     rotated by `rotate` = (x, y, z, degrees) about that axis through the origin
     (right-handed), then moved by `translate`. World units."""

@@ -4,10 +4,10 @@ both read."""
 
 SHADING_MODES = ("headlight", "none")
 GRADIENTS = ("analytic", "central")
-# How a point's value comes from the cells (docs/design.md, "Reconstructions: basis, nearest,
+# How a point's value comes from the cells (docs/design-rendering.md, "Reconstructions: basis, nearest,
 # vertex").
 RECONSTRUCTIONS = ("basis", "nearest", "vertex")
-# How a volume layer's transfer function is read per sample (docs/design.md,
+# How a volume layer's transfer function is read per sample (docs/design-rendering.md,
 # "Transfer-function tables"): from a lookup table, or from its knots.
 TF_LOOKUPS = ("table", "exact")
 

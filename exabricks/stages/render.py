@@ -1,6 +1,6 @@
 """A render job: the frames of one `exabricks render` (or `eb.render`) from a
 dataset (exabricks.dataset.Dataset: three structure files, or a source) to image
-files, by the strategy the options choose (docs/design.md, "Render jobs and
+files, by the strategy the options choose (docs/design-scale.md, "Render jobs and
 render options"):
 
 - resident: the dataset uploaded once, each frame drawn whole (`Renderer`);

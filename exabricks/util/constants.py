@@ -35,7 +35,7 @@ MAX_COORDINATE = 1e30
 # Central differences step this many cells of the finest level at the point along
 # each axis (kernels/frame.cl): half a cell for volume samples (--gradient central,
 # the nearest reconstruction's face normals), a whole cell for iso-surface normals,
-# which averages the reconstruction's cell-scale terraces away (docs/design.md,
+# which averages the reconstruction's cell-scale terraces away (docs/design-rendering.md,
 # "Integration and images").
 CENTRAL_STEP_CELLS = 0.5
 ISO_CENTRAL_STEP_CELLS = 1.0

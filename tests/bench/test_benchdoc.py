@@ -50,6 +50,22 @@ def test_missing_section_is_appended_and_a_prefix_title_does_not_match(tmp_path)
     assert doc.read_text() == text + "\n## preprocessing per dataset\n\ntable\n"
 
 
+def test_a_section_is_replaced_in_the_file_by_concept_that_holds_it(tmp_path, monkeypatch):
+    """docs/benchmarks.md and its files by concept (docs/benchmarks-*.md) are one set:
+    a section is replaced where it stands, a new one goes to benchmarks.md and its
+    contents."""
+    index, gpu = tmp_path / "benchmarks.md", tmp_path / "benchmarks-gpu.md"
+    monkeypatch.setattr(benchdoc, "DOCS", index)
+    index.write_text(HEAD + "Contents:\n\n- [ingest](#ingest)\n\n" + FIRST)
+    gpu.write_text("# GPU\n\n" + MIDDLE)
+    benchdoc.replace_section("render (PoCL)", "on the GPU page", index)
+    assert gpu.read_text() == "# GPU\n\n## render (PoCL)\n\non the GPU page\n"
+    assert index.read_text() == HEAD + "Contents:\n\n- [ingest](#ingest)\n\n" + FIRST
+    benchdoc.replace_section("New: figures (x)", "new", index)
+    assert index.read_text() == (HEAD + "Contents:\n\n- [ingest](#ingest)\n- [New: figures (x)](#new-figures-x)"
+                                 "\n\n" + FIRST + "## New: figures (x)\n\nnew\n")
+
+
 def test_new_document_starts_with_the_intro(tmp_path):
     doc = tmp_path / "benchmarks.md"
     benchdoc.replace_section("ingest", "figures", doc)

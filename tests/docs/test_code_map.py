@@ -7,6 +7,8 @@ from __future__ import annotations
 import re
 from pathlib import Path
 
+import pytest
+
 ROOT = Path(__file__).resolve().parents[2]
 MAP = ROOT / "docs" / "contributing.md"
 TICKED = re.compile(r"`([^`]+)`")
@@ -58,12 +60,22 @@ def test_the_kernel_table_names_every_kernel_file_and_nothing_else():
     assert named == files, (f"missing {sorted(files - named)}, stale {sorted(named - files)}")
 
 
-def test_the_contents_of_design_md_are_its_sections():
-    text = (ROOT / "docs" / "design.md").read_text()
-    listed = re.findall(r"^- \[([^\]]+)\]\(#[^)]+\)$", text, re.M)
-    headings = [h for h in re.findall(r"^## (.+)$", text, re.M)]
-    assert listed == headings, (f"not listed: {[h for h in headings if h not in listed]}, "
-                                f"not a section: {[c for c in listed if c not in headings]}")
+@pytest.mark.parametrize("name", ["design", "benchmarks"])
+def test_the_contents_of_the_split_documents_are_their_sections(name):
+    """docs/design.md and docs/benchmarks.md and their files by concept
+    (docs/NAME-*.md) each list their own sections, and NAME.md links every
+    section of the others."""
+    index = (ROOT / "docs" / f"{name}.md").read_text()
+    for path in sorted((ROOT / "docs").glob(f"{name}*.md")):
+        text = path.read_text()
+        listed = re.findall(r"^- \[([^\]]+)\]\(#[^)]+\)$", text, re.M)
+        headings = re.findall(r"^## (.+)$", text, re.M)
+        assert headings and listed == headings, (
+            f"{path.name}: not listed: {[h for h in headings if h not in listed]}, "
+            f"not a section: {[c for c in listed if c not in headings]}")
+        if path.name != f"{name}.md":
+            linked = re.findall(rf"\[([^\]]+)\]\({re.escape(path.name)}#[^)]+\)", index)
+            assert linked == headings, (path.name, linked, headings)
 
 
 def test_the_flag_table_of_scene_md_is_the_declared_options():

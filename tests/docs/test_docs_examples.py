@@ -45,8 +45,8 @@ SETUP_DOC = "docs/python.md"  # its ```sh block that sets REPO prepares every fo
 EXEMPT_DOCS = {
     "docs/gallery.md": "written by benchmarks/gallery.py (make gallery): each shot renders bench-data/gallery "
                        "from the checkout's root",
-    "docs/benchmarks.md": "written by the benchmark scripts (make bench): their commands run from the "
-                          "checkout's root over bench-data/",
+    **{doc: "written by the benchmark scripts (make bench): their commands run from the checkout's root "
+            "over bench-data/" for doc in DOCS if doc.startswith("docs/benchmarks")},
 }
 
 # (document pattern, regular expression searched in a command or a Python block,

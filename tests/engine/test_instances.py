@@ -1,4 +1,4 @@
-"""Instances (`--mirror AXIS POSITION`, scene key `instances`; docs/design.md,
+"""Instances (`--mirror AXIS POSITION`, scene key `instances`; docs/design-rendering.md,
 "Instances"): a mirrored or moved copy of the data and the meshes is exactly
 the frame of the untouched data seen by the camera taken back by its map (for a
 mirror, a camera whose image is the columns reversed), composited in

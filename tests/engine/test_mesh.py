@@ -1,4 +1,4 @@
-"""Triangle meshes (`--mesh`, scene key `meshes`; docs/design.md, "Meshes"):
+"""Triangle meshes (`--mesh`, scene key `meshes`; docs/design-rendering.md, "Meshes"):
 hostile mesh files end in one error line; the kernel's watertight ray-triangle
 distances against float64; rays through a closed mesh's edges and vertices
 never slip through; an analytic sphere's depth against its icosphere mesh; an

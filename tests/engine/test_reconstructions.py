@@ -1,4 +1,4 @@
-"""The nearest and vertex reconstructions (docs/design.md "Reconstructions: basis, nearest, vertex"),
+"""The nearest and vertex reconstructions (docs/design-rendering.md "Reconstructions: basis, nearest, vertex"),
 checked against independent float64 answers from the leaf cells."""
 
 from __future__ import annotations

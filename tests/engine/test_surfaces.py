@@ -434,7 +434,7 @@ def test_central_iso_normals_of_a_sphere_on_three_levels(device):
     level-0 box's faces) central differences give p95 <= 0.01 where the analytic
     gradient's terraces at cell faces do not; across the level boundary, where the
     basis itself blends the levels, central differences still halve the error
-    (docs/benchmarks.md, "Iso-surface normals")."""
+    (docs/benchmarks-render.md, "Iso-surface normals")."""
     central, where = sphere_shading_error(device, "central")
     analytic, _ = sphere_shading_error(device, "analytic")
     inside, boundary = where < 13.0, (where >= 13.0)

@@ -1,4 +1,4 @@
-"""The defaults' machinery (issue 48; docs/scene.md "Defaults", docs/design.md
+"""The defaults' machinery (issue 48; docs/scene.md "Defaults", docs/design-rendering.md
 "Volume shading"): scales, transfer functions on a scaled axis, the automatic
 transfer function, the statistics it reads (jitted loops against NumPy in
 float64), framing, the default field, the suggested iso-value, and the

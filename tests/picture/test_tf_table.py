@@ -1,4 +1,4 @@
-"""Transfer-function tables (docs/design.md, "Transfer-function tables"): the table
+"""Transfer-function tables (docs/design-rendering.md, "Transfer-function tables"): the table
 is the knots' piecewise-linear function exactly where the knots lie on a lattice
 (every built-in preset and colormap, over any range), within its measured bound
 elsewhere; the kernels read it as this module's float32 mirror does; a frame

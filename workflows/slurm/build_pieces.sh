@@ -11,7 +11,7 @@
 #   5, 6. the same for bvh -> OUTDIR/bvh.npz
 #
 # The three files equal those of `brick`, `regions` and `bvh` run in one
-# process, array for array (docs/design.md, "Builders by pieces"). Environment:
+# process, array for array (docs/design-structures.md, "Builders by pieces"). Environment:
 # BRICK_OPTIONS, REGIONS_OPTIONS, BVH_OPTIONS (more options of each stage, e.g.
 # "--max-brick-width 16"), EXABRICKS (the exabricks command, default `exabricks`
 # on PATH), SBATCH_OPTIONS (e.g. "--partition=long --mem=64G"), WAIT=1 to return
