@@ -36,7 +36,7 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
-from . import __version__
+from .util.version import __version__
 from .util.errors import ExabricksError
 
 log = logging.getLogger(__name__)

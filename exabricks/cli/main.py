@@ -15,7 +15,7 @@ import warnings
 
 import click
 
-from .. import __version__
+from ..util.version import __version__
 from ..util.errors import ExabricksError, one_line
 
 COMMANDS = (

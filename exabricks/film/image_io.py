@@ -30,7 +30,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .. import __version__
+from ..util.version import __version__
 from ..util.errors import ExabricksError
 from ..util.jsonfile import json_default
 from ..util.output import write_output

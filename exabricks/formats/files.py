@@ -10,7 +10,7 @@ import os
 
 import numpy as np
 
-from .. import __version__
+from ..util.version import __version__
 from ..util.errors import ExabricksError
 from ..util.jsonfile import json_default
 from ..util.output import write_output

@@ -16,7 +16,7 @@ from typing import Any
 
 import numpy as np
 
-from .. import __version__
+from ..util.version import __version__
 from ..util.errors import ExabricksError
 from .kinds import Kind
 

@@ -20,7 +20,8 @@ import logging
 import time
 from pathlib import Path
 
-from .. import __version__, parallel, schema
+from .. import parallel, schema
+from ..util.version import __version__
 from ..util import progress
 from ..util.errors import ExabricksError, UsageError
 from ..util.output import check_output
