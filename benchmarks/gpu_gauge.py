@@ -61,9 +61,13 @@ come from, measured with the gauge on the GPU default variant (registers / stack
 | eb_params passed by value instead of in a `__constant` buffer | 168 / 2176 |
 | eb_frame's ten scalars read from `P` where used (committed since: issue 50) | 168 / 1648 |
 | every scalar of `P` but counts and offsets as a literal constant | 166 / 2048 |
+| `P` as `__constant volatile eb_params *`: every member reloaded where used (114 `ld.const`, not 40) | 168 / 1648 |
+| `-cl-nv-maxrregcount=144` (at 3e55170) | 144 / 1712, 288 B spills |
+| `-cl-nv-maxrregcount=128` (at 3e55170) | 128 / 1776, 828 B spills |
 
-So the grouped buffers' offsets account for at most 10 of them, and the frame's
-scalars for none (held on the stack as part of eb_frame: 80 B; the preprocessed
+So the grouped buffers' offsets account for at most 10 of them, values of `P` held
+from a hoisted load for none (reloading every member where it is used changes
+nothing), and the frame's scalars for none (held on the stack as part of eb_frame: 80 B; the preprocessed
 programs of ae2d53f and its parent have the same private arrays); passed by value,
 the struct is copied to the stack because eb_frame keeps its address. What holds
 the other 30 is still to be found in the `.ptx` (`ptx_proxy.sh --keep DIR`) of
