@@ -17,16 +17,21 @@ from .options import device_option
               "picture on the device (--device; once per machine: the driver caches them).")
 @device_option
 def devices(as_json, warm, device):
-    """List OpenCL devices; pass a SPEC (P:D or a name substring) to --device."""
+    """List OpenCL devices; pass a SPEC (P:D or a name substring) to --device.
+    The first line says where the drivers come from, and why."""
     from ..device.opencl import choose_device, list_devices
+    from ..device.runtime import prepare
 
     infos = list_devices()
+    runtime = prepare()
     default = choose_device(None)
-    rows = [{**d.to_dict(), "default": d.name == default.name.strip()} for d in infos]
+    rows = [{**d.to_dict(), "default": d.name == default.name.strip(), "runtime": runtime.source,
+             "runtime_detail": runtime.detail} for d in infos]
     if as_json and not warm:
         click.echo(json.dumps(rows, indent=2))
         return
     if not as_json:
+        click.echo(f"OpenCL runtime: {runtime.why} ({runtime.detail})")
         for r in rows:
             mark = "*" if r["default"] else " "
             click.echo(f"{mark} {r['spec']}  {r['type']:<4} {r['name']}  [{r['platform']}, {r['version']}, "

@@ -27,6 +27,7 @@ import logging
 import os
 import threading
 import time
+import warnings
 from contextlib import contextmanager
 from dataclasses import dataclass
 from importlib import resources
@@ -34,7 +35,7 @@ from pathlib import Path
 
 import numpy as np
 
-from . import kernel_abi
+from . import kernel_abi, runtime
 from ..util import progress
 from ..util.errors import ExabricksError
 
@@ -53,8 +54,8 @@ ENTRY_SOURCE = "render.cl"
 BUILD_OPTIONS = ("-cl-mad-enable", "-cl-no-signed-zeros", "-cl-denorms-are-zero")
 
 _NO_PLATFORM = (
-    "no OpenCL platform found; install an OpenCL driver "
-    "(on a CPU-only machine: the Debian/Ubuntu package pocl-opencl-icd)"
+    "no OpenCL platform found; install an OpenCL driver (on a CPU-only machine: the "
+    "Debian/Ubuntu package pocl-opencl-icd, or without root: pip install 'exabricks[cpu]')"
 )
 
 
@@ -94,6 +95,7 @@ class DeviceInfo:
 
 
 def _platforms():
+    runtime.prepare()  # before the loader's first query: it reads its folders once
     cl = _cl()
     try:
         platforms = cl.get_platforms()
@@ -211,14 +213,32 @@ def program_for(context, defines=(), source_name: str = ENTRY_SOURCE):
         what = "the renderer" if source_name == ENTRY_SOURCE else f"kernels/{source_name}"
         start = time.perf_counter()
         try:
-            with _compiler_stderr() as terminal, _compiling(what, device, terminal):
+            with _compiler_stderr() as terminal, _compiling(what, device, terminal), \
+                    warnings.catch_warnings():
+                # Intel's CPU runtime logs every build ("Compilation started", ...), which
+                # pyopencl turns into a CompilerWarning on stderr: a failure's log is in
+                # the error below, and --debug shows the rest.
+                warnings.simplefilter("ignore", cl.CompilerWarning)
                 _PROGRAMS[key] = cl.Program(context, source).build(options=options)
+                _log_build_log(_PROGRAMS[key], context)
         except cl.RuntimeError as e:
             raise ExabricksError(f"{directory / source_name}: OpenCL build failed: {e}") from None
         seconds = time.perf_counter() - start
         BUILDS.append((source_name, defines, seconds))
         _log_compile(f"compiling {what} for {device} (defines: {' '.join(defines) or 'none'})", seconds)
     return _PROGRAMS[key]
+
+
+def _log_build_log(program, context) -> None:
+    """A build's log (its warnings and notes), at debug level."""
+    cl = _cl()
+    for device in context.devices:
+        try:
+            text = program.get_build_info(device, cl.program_build_info.LOG).strip()
+        except cl.Error:
+            continue
+        if text:
+            log.debug("build log on %s:\n%s", _device_name(device), text)
 
 
 # Every program build of this process: (source name, defines, seconds), in order

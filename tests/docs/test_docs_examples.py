@@ -61,6 +61,9 @@ EXEMPT = [
     ("*", r"^(sbatch|srun|mpiexec) |workflows/slurm/", "command",
      "SLURM or MPI (tests/workflows/test_workflows.py with make test-slurm, tests/engine/test_mpi.py)"),
     ("README.md", r"build_piece\.sbatch", "block", "joins what the sbatch array builds"),
+    ("README.md", r"\[cpu\]", "block",
+     "a new environment with Intel's CPU runtime (0.9 GB from PyPI): tests/device/test_runtime.py installs "
+     "it into a fresh venv with no system driver visible and renders the demo"),
     ("README.md", r"--size 16384 16384", "command",
      "a 16384² poster: a 4 GiB scratch file and CPU minutes (tests/engine/test_streaming.py draws posters in tiles)"),
     ("docs/view.md", r"^exabricks view ", "command", "serves the viewer until interrupted (tests/viewer/test_view.py)"),

@@ -1,0 +1,113 @@
+"""Which OpenCL runtime (exabricks.device.runtime, issue 53 item 2): the system's
+drivers, else Intel's CPU runtime that `pip install 'exabricks[cpu]'` brings into
+the environment, without root; and, in a fresh venv that sees no system driver, the
+demo rendered through it as through PoCL."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from exabricks.device import runtime
+from exabricks.film.image_io import read_image
+from helpers import GERRIS, ROOT, run_cli
+
+
+@pytest.fixture
+def fresh(monkeypatch, tmp_path):
+    """runtime's choice made afresh, with no OCL_ICD_* variable and an empty system
+    folder of ICD files unless a test fills it."""
+    saved = dict(os.environ)  # prepare() sets variables for the processes it starts
+    monkeypatch.setattr(runtime, "_CHOSEN", None)
+    for name in ("OCL_ICD_VENDORS", "OCL_ICD_FILENAMES", runtime.INTEL_VECTORIZER):
+        os.environ.pop(name, None)
+    vendors = tmp_path / "vendors"
+    vendors.mkdir()
+    os.environ["EXABRICKS_SYSTEM_OPENCL_VENDORS"] = str(vendors)
+    yield vendors
+    os.environ.clear()
+    os.environ.update(saved)
+
+
+def test_a_system_driver_wins(fresh, monkeypatch, tmp_path):
+    (fresh / "pocl.icd").write_text("libpocl.so.2\n")
+    prefix = tmp_path / "env"
+    (prefix / "lib").mkdir(parents=True)
+    (prefix / runtime.PYPI_CPU_RUNTIME).write_bytes(b"")
+    monkeypatch.setattr(sys, "prefix", str(prefix))
+    chosen = runtime.prepare()
+    assert chosen.source == "system" and "pocl.icd" in chosen.detail
+    assert "OCL_ICD_VENDORS" not in os.environ
+    assert os.environ[runtime.INTEL_VECTORIZER] == "1"
+
+
+def test_without_a_driver_the_environment_s_cpu_runtime_is_used(fresh, monkeypatch, tmp_path):
+    prefix = tmp_path / "env"
+    (prefix / "lib").mkdir(parents=True)
+    (prefix / runtime.PYPI_CPU_RUNTIME).write_bytes(b"")
+    monkeypatch.setattr(sys, "prefix", str(prefix))
+    chosen = runtime.prepare()
+    assert chosen.source == "pypi-cpu"
+    assert os.environ["OCL_ICD_VENDORS"] == str(prefix / runtime.PYPI_CPU_RUNTIME)
+    assert runtime.prepare() is chosen  # once per process
+
+
+def test_what_the_user_set_is_kept(fresh, monkeypatch):
+    monkeypatch.setenv("OCL_ICD_VENDORS", "/opt/vendors")
+    monkeypatch.setenv(runtime.INTEL_VECTORIZER, "16")
+    chosen = runtime.prepare()
+    assert chosen.source == "environment" and chosen.detail == "OCL_ICD_VENDORS=/opt/vendors"
+    assert os.environ[runtime.INTEL_VECTORIZER] == "16"
+
+
+def test_nothing_found_says_how_to_get_a_runtime(fresh, monkeypatch, tmp_path):
+    monkeypatch.setattr(sys, "prefix", str(tmp_path))
+    monkeypatch.setattr(sys, "base_prefix", str(tmp_path))
+    chosen = runtime.prepare()
+    assert chosen.source == "none" and "pip install 'exabricks[cpu]'" in chosen.why
+
+
+def test_devices_says_which_runtime_and_why(cli):
+    proc = cli("devices", check=0)
+    assert proc.stdout.startswith("OpenCL runtime: ")
+    rows = __import__("json").loads(cli("devices", "--json", check=0).stdout)
+    assert rows and all(r["runtime"] in ("system", "environment", "pypi-cpu") for r in rows)
+
+
+@pytest.mark.slow
+def test_a_fresh_venv_without_root_renders_the_demo(tmp_path):
+    """`pip install 'exabricks[cpu]'` into a new venv (no system site packages), with
+    no system driver visible: `devices` names Intel's runtime from PyPI, and the
+    demo's frame equals PoCL's (where the suite runs) within float rounding."""
+    wheels = tmp_path / "wheels"
+    subprocess.run([sys.executable, "-m", "pip", "wheel", "--no-deps", "-q", str(ROOT), "-w", str(wheels)],
+                   check=True, timeout=600)
+    wheel = next(wheels.glob("exabricks-*.whl"))
+    venv = tmp_path / "venv"
+    subprocess.run([sys.executable, "-m", "venv", str(venv)], check=True, timeout=300)
+    subprocess.run([str(venv / "bin" / "pip"), "install", "-q", f"{wheel}[cpu]"], check=True, timeout=1200)
+    empty = tmp_path / "no-vendors"
+    empty.mkdir()
+    env = {k: v for k, v in os.environ.items() if not k.startswith(("OCL_ICD", "PYTHONPATH", "EXABRICKS_DEVICE"))}
+    env.update(EXABRICKS_SYSTEM_OPENCL_VENDORS=str(empty), EXABRICKS_CACHE=str(tmp_path / "cache"))
+    exe = venv / "bin" / "exabricks"
+    devices = subprocess.run([str(exe), "devices"], capture_output=True, text=True, env=env, timeout=300,
+                             cwd=tmp_path)
+    assert devices.returncode == 0, devices.stderr
+    assert "Intel's CPU runtime from PyPI" in devices.stdout.splitlines()[0], devices.stdout
+    assert "Intel(R) OpenCL" in devices.stdout
+    flags = ["--field", "T", "--size", 96, 72]
+    out = tmp_path / "intel.exr"
+    proc = subprocess.run([str(exe), "render", str(GERRIS), "-o", str(out), *map(str, flags)],
+                          capture_output=True, text=True, env=env, timeout=900, cwd=tmp_path)
+    assert proc.returncode == 0 and proc.stderr == "", proc.stderr
+    run_cli("render", GERRIS, "-o", tmp_path / "pocl.exr", *flags, check=0)
+    intel, meta = read_image(out)
+    pocl, _ = read_image(tmp_path / "pocl.exr")
+    assert "pthread" not in meta["settings"]["device"]  # PoCL's CPU device is "pthread-..."
+    assert float(pocl[..., 3].max()) > 0.1
+    np.testing.assert_allclose(intel, pocl, atol=1e-4)
