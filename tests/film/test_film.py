@@ -53,7 +53,8 @@ def test_exposure_is_exact_for_a_resident_frame_and_its_tiles(name, mode):
     close(rgba, reference)
 
 
-@pytest.mark.parametrize("name,mode,n", [("gerris", "emission", 8), ("amrex", "central", 8)])
+@pytest.mark.parametrize("name,mode,n", [pytest.param("gerris", "emission", 8, marks=pytest.mark.slow),
+                                         ("amrex", "central", 8)])
 def test_exposure_is_exact_under_a_memory_budget(name, mode, n):
     """Each domain continues the radiance in front of it: the exposure comes once,
     after the last (a kernel-side exposure scaled each domain's front again)."""
