@@ -94,3 +94,22 @@ def test_the_flag_table_of_scene_md_is_the_declared_options():
     negated = {f"no-{o.flag.removeprefix('--')}" for o in (*SCENE_OPTIONS, *JOB_OPTIONS) if o.kind == "flag"}
     named -= negated
     assert named == declared, f"not in the table: {sorted(declared - named)}, not declared: {sorted(named - declared)}"
+
+
+def test_the_layers_of_the_code_map_are_the_imports():
+    """docs/contributing.md says that a folder (or a root module) uses those above it
+    in its table and is used by those below: no import, inside functions too, runs
+    from a row to a row below it."""
+    from helpers.imports import folder_graph
+
+    row = {}
+    for k, line in enumerate(_section("## Where each concept lives")[2:]):
+        where = line.rstrip("|").rsplit("|", 1)[-1]
+        for name in re.findall(r"`exabricks/([a-z_]+)(?:/|\.py)`", where):
+            row.setdefault(name, k)
+    graph = folder_graph()
+    unplaced = sorted(p for p in graph if p not in row and p != "exabricks")
+    assert not unplaced, f"not in the table: {unplaced}"
+    upward = sorted(f"{a} -> {b}" for a, targets in graph.items() for b in targets
+                    if "exabricks" not in (a, b) and row[a] < row[b])
+    assert not upward, f"imports from a row to a row below it: {upward}"

@@ -6,46 +6,8 @@ private name imported from another module."""
 from __future__ import annotations
 
 import ast
-from pathlib import Path
 
-PACKAGE = Path(__file__).resolve().parents[2] / "exabricks"
-
-
-def _modules() -> dict[str, Path]:
-    found = {}
-    for path in PACKAGE.rglob("*.py"):
-        parts = path.relative_to(PACKAGE.parent).with_suffix("").parts
-        found[".".join(parts[:-1] if parts[-1] == "__init__" else parts)] = path
-    return found
-
-
-def _imports(name: str, path: Path, modules) -> list[tuple[str, str]]:
-    """(module imported, name imported from it or '') of every import in `path`."""
-    package = name if path.name == "__init__.py" else name.rpartition(".")[0]
-    out = []
-    tree = ast.parse(path.read_text())
-    for block in [n for n in ast.walk(tree) if isinstance(n, ast.If)
-                  and ast.unparse(n.test) in ("TYPE_CHECKING", "typing.TYPE_CHECKING")]:
-        block.body = []  # names for type checkers only: never imported when the code runs
-    for node in ast.walk(tree):
-        if isinstance(node, ast.ImportFrom):
-            base = node.module or ""
-            if node.level:
-                parent = package.split(".")[:len(package.split(".")) - node.level + 1]
-                base = ".".join(parent + ([base] if base else []))
-            for alias in node.names:
-                full = f"{base}.{alias.name}"
-                out.append((full, "") if full in modules else (base, alias.name))
-        elif isinstance(node, ast.Import):
-            out += [(alias.name, "") for alias in node.names]
-    return [(m, n) for m, n in out if m in modules and m != name]
-
-
-def _part(module: str) -> str:
-    """The folder a module lives in (exabricks.engine.renderer: "engine"), or the
-    module itself for one at the root (exabricks.api: "api"; the facade: "exabricks")."""
-    parts = module.split(".")
-    return parts[1] if len(parts) > 1 else parts[0]
+from helpers.imports import PACKAGE, folder_graph, imports, modules
 
 
 def _cycle(graph: dict[str, set[str]]) -> list[str] | None:
@@ -70,8 +32,8 @@ def _cycle(graph: dict[str, set[str]]) -> list[str] | None:
 
 
 def test_no_import_cycles():
-    modules = _modules()
-    graph = {m: {t for t, _ in _imports(m, p, modules)} for m, p in modules.items()}
+    found = modules()
+    graph = {m: {t for t, _ in imports(m, p, found)} for m, p in found.items()}
     found = _cycle(graph)
     assert not found, "import cycle: " + " -> ".join(found)
 
@@ -80,12 +42,7 @@ def test_no_import_cycles_between_folders():
     """The folders (and the root's modules) are layers (docs/contributing.md,
     "Where each concept lives"): no two import each other, even through others
     and inside functions."""
-    modules = _modules()
-    graph: dict[str, set[str]] = {}
-    for m, p in modules.items():
-        graph.setdefault(_part(m), set()).update(
-            _part(t) for t, _ in _imports(m, p, modules) if _part(t) != _part(m))
-    found = _cycle(graph)
+    found = _cycle(folder_graph())
     assert not found, "folders import each other: " + " -> ".join(found)
 
 
@@ -97,8 +54,8 @@ def test_the_root_holds_at_most_twelve_modules():
 
 
 def test_no_private_name_is_imported_from_another_module():
-    modules = _modules()
-    used = [(m, t, n) for m, p in modules.items() for t, n in _imports(m, p, modules)
+    found = modules()
+    used = [(m, t, n) for m, p in found.items() for t, n in imports(m, p, found)
             if n.startswith("_") and not n.startswith("__")]
     assert not used, used
 
