@@ -68,11 +68,11 @@ def main(argv=None) -> int:
     args = parser.parse_args(argv)
     sets = benchdoc.datasets()
     keys = benchdoc.chosen(args.only, ["amrex", "athena", "gerris", "enzo"])
-    labels = list(runtimes(args.intel_prefix))
+    compared = runtimes(args.intel_prefix)
+    labels = list(compared)
     rows = []
     for key in keys:
-        found = {label: measure(sets[key], changes, args.runs)
-                 for label, changes in runtimes(args.intel_prefix).items()}
+        found = {label: measure(sets[key], changes, args.runs) for label, changes in compared.items()}
         rows.append((sets[key].name, found))
         print(key, {label: benchdoc.median_spread(r["ms"])[0] for label, r in found.items()}, flush=True)
     body = [__doc__.split("\n\n", 2)[2].strip(), "",

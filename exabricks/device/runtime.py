@@ -49,9 +49,13 @@ class Runtime:
     why: str
 
 
-def system_icds() -> list[str]:
-    """The ICD files the system lists (none where the folder is missing)."""
-    folder = Path(os.environ.get("EXABRICKS_SYSTEM_OPENCL_VENDORS") or SYSTEM_VENDORS)
+def system_folder() -> Path:
+    """The folder of the system's ICD files."""
+    return Path(os.environ.get("EXABRICKS_SYSTEM_OPENCL_VENDORS") or SYSTEM_VENDORS)
+
+
+def system_icds(folder: Path) -> list[str]:
+    """The ICD files `folder` lists (none where it is missing)."""
     try:
         return sorted(p.name for p in folder.iterdir() if p.suffix == ".icd")
     except OSError:
@@ -85,8 +89,8 @@ def _choose() -> Runtime:
         if os.environ.get(name):
             return Runtime("environment", f"{name}={os.environ[name]}",
                            f"{name} is set: the loader reads what it names")
-    icds = system_icds()
-    folder = os.environ.get("EXABRICKS_SYSTEM_OPENCL_VENDORS") or SYSTEM_VENDORS
+    folder = system_folder()
+    icds = system_icds(folder)
     if icds:
         return Runtime("system", f"{folder}: {', '.join(icds)}",
                        "the system's OpenCL drivers (a driver of the system always wins)")
