@@ -18,6 +18,14 @@ from helpers import GERRIS, built_scene, run_cli  # noqa: E402
 
 
 @pytest.fixture
+def browser():
+    """A headless Chromium through Selenium (helpers.browser)."""
+    from helpers.browser import chromium
+
+    yield from chromium()
+
+
+@pytest.fixture
 def cli():
     return run_cli
 

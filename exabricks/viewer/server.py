@@ -37,16 +37,13 @@ import hmac
 import ipaddress
 import json
 import logging
-import os
 import secrets
 import socket
-import stat
-import threading
 from importlib import resources
 from pathlib import Path
 
-from ..util.errors import ExabricksError, one_line
-from .session import Cancelled
+from ..util.errors import ExabricksError
+from .page import Page, regular_output, save_scene
 
 log = logging.getLogger(__name__)
 
@@ -69,7 +66,7 @@ class Viewer:
         self.port = port
         self.scene_out = None if scene_out is None else Path(scene_out)
         if self.scene_out is not None:
-            _regular_output(self.scene_out)
+            regular_output(self.scene_out)
         self.token = token or secrets.token_urlsafe(24)
         self.lock = asyncio.Lock()  # one frame on the device at a time
         self.runner = None
@@ -117,7 +114,7 @@ class Viewer:
             raise web.HTTPForbidden(text="cross-origin websocket refused")
         ws = web.WebSocketResponse(max_msg_size=MAX_MESSAGE, heartbeat=30)
         await ws.prepare(request)
-        page = _Page(self, ws)
+        page = Page(self, ws)
         self.sockets.add(ws)
         try:
             await ws.send_str(json.dumps(self.session.info()))
@@ -186,122 +183,9 @@ class Viewer:
             await self.runner.cleanup()
 
     def save(self, doc: dict) -> str | None:
-        """Write `doc` to --scene-out (atomically); its path, or None without one.
-        Called off the event loop (_in_thread): a write never holds the server up."""
-        from ..util.output import write_json
-
-        if self.scene_out is None:
-            return None
-        _regular_output(self.scene_out)
-        write_json(self.scene_out, doc)
-        return str(self.scene_out)
-
-
-class _Page:
-    """One page's websocket: the version it wants drawn and the drawing of it."""
-
-    def __init__(self, viewer: Viewer, ws):
-        self.viewer, self.ws = viewer, ws
-        self.version = 0
-        self.doc = self.good = viewer.session.doc  # wanted; last that passed its checks
-        self.moving = False
-        self.tag = 0  # the page's number of the wanted scene
-        self.task = None
-        self.saves = set()  # saves under way (each a task)
-
-    def want(self, doc: dict, moving: bool, tag=0) -> None:
-        self.version += 1
-        self.doc, self.moving = doc, moving
-        self.tag = tag if isinstance(tag, int) and not isinstance(tag, bool) else 0
-        if self.task is None or self.task.done():
-            self.task = asyncio.ensure_future(self._draw())
-
-    async def _draw(self) -> None:
-        session = self.viewer.session
-        loop = asyncio.get_running_loop()
-        while True:
-            version, doc, moving, tag = self.version, self.doc, self.moving, self.tag
-            try:
-                scene = await loop.run_in_executor(None, session.check, doc)
-                self.good = doc
-                layer = session.layer(scene)
-                size = [scene.settings.width, scene.settings.height]
-                def cancelled(version=version):  # a newer change, or the page went away
-                    return version != self.version or self.ws.closed
-
-                for stage, staged in session.stages(scene, moving):
-                    if version != self.version:
-                        break
-                    async with self.viewer.lock:
-                        try:
-                            frame = await _finished(loop.run_in_executor(None, session.draw, stage, staged,
-                                                                         cancelled))
-                        except Cancelled:
-                            break
-                    if version != self.version or self.ws.closed:
-                        break
-                    await self.ws.send_str(json.dumps({
-                        "type": "frame", "stage": frame.stage, "width": frame.width,
-                        "height": frame.height, "spp": frame.spp, "ms": round(frame.ms, 1),
-                        "samples_per_second": frame.samples_per_second, "device": frame.device,
-                        "version": tag, "size": size, "layer": layer}))
-                    await self.ws.send_bytes(frame.png)
-                else:
-                    if version == self.version:
-                        self.viewer.session.doc = doc  # the last complete view: what save writes
-            except ExabricksError as e:
-                if version == self.version:
-                    self.doc = self.good  # what "save" writes stays a scene that draws
-                await self.error(str(e))
-            except (ConnectionError, RuntimeError) as e:  # the page went away mid-send
-                log.debug("view: %s", e)
-                return
-            if version == self.version or self.ws.closed:
-                return
-
-    async def receive(self, text: str) -> None:
-        try:
-            message = json.loads(text)
-        except (ValueError, RecursionError):
-            await self.error("not a JSON message")
-            return
-        if not isinstance(message, dict) or not isinstance(message.get("type"), str):
-            await self.error('a message is an object with a "type"')
-            return
-        kind = message["type"]
-        if kind == "scene":
-            doc = message.get("scene")
-            if not isinstance(doc, dict):
-                await self.error('"scene" needs a scene object')
-                return
-            self.want(doc, bool(message.get("moving", False)), message.get("version", 0))
-        elif kind == "save":  # a task of its own: the page's messages go on meanwhile
-            self.saves.add(asyncio.ensure_future(self._save(self.good)))
-        else:
-            await self.error(f"unknown message type {one_line(kind)[:40]!r}")
-
-    async def _save(self, doc: dict) -> None:
-        try:
-            path = await _in_thread(self.viewer.save, doc)
-            if not self.ws.closed:
-                await self.ws.send_str(json.dumps({"type": "saved", "scene": doc, "path": path}))
-        except ExabricksError as e:
-            await self.error(str(e))
-        except (ConnectionError, RuntimeError) as e:  # the page went away
-            log.debug("view: %s", e)
-        finally:
-            self.saves.discard(asyncio.current_task())
-
-    async def error(self, message: str) -> None:
-        if not self.ws.closed:
-            await self.ws.send_str(json.dumps({"type": "error", "message": one_line(message)}))
-
-    def close(self) -> None:
-        self.version += 1
-        if self.task is not None:
-            self.task.cancel()
-        for save in list(self.saves):
-            save.cancel()
+        """Write `doc` to --scene-out; its path, or None without one (page.save_scene).
+        Called off the event loop (page._in_thread): a write never holds the server up."""
+        return save_scene(self.scene_out, doc)
 
 
 def _url_host(name: str) -> str:
@@ -364,62 +248,6 @@ def _cookie(request) -> str | None:
     except (ValueError, KeyError, UnicodeError) as e:
         log.debug("view: unreadable cookie: %s", e)
         return None
-
-
-def _regular_output(path: Path) -> None:
-    """Refuse --scene-out naming something other than a regular file (or nothing yet):
-    a FIFO, a device or a descriptor would hold a save up, so the viewer never
-    writes into one (exabricks.util.output writes into them for other commands)."""
-    try:
-        mode = os.stat(path).st_mode
-    except FileNotFoundError:
-        return
-    except OSError as e:
-        raise ExabricksError(f"--scene-out {path}: cannot look at it ({e.strerror or e})") from None
-    if stat.S_ISREG(mode):
-        return
-    kind = ("a directory" if stat.S_ISDIR(mode) else "a FIFO" if stat.S_ISFIFO(mode)
-            else "a device" if stat.S_ISCHR(mode) or stat.S_ISBLK(mode)
-            else "a socket" if stat.S_ISSOCK(mode) else "not a regular file")
-    raise ExabricksError(f"--scene-out {path}: is {kind}; the viewer saves scenes to a regular file only")
-
-
-def _in_thread(function, *args):
-    """`function(*args)` in a daemon thread of its own, awaited: a write that blocks
-    (a FIFO swapped in after the check) holds neither the loop nor the stop."""
-    loop = asyncio.get_running_loop()
-    future = loop.create_future()
-
-    def done(result, error):
-        if not future.done():
-            if error is None:
-                future.set_result(result)
-            else:
-                future.set_exception(error)
-
-    def run():
-        try:
-            result, error = function(*args), None
-        except BaseException as e:  # handed to the awaiting coroutine
-            result, error = None, e
-        try:
-            loop.call_soon_threadsafe(done, result, error)
-        except RuntimeError:  # the loop has closed meanwhile
-            pass
-
-    threading.Thread(target=run, name="exabricks-view-save", daemon=True).start()
-    return future
-
-
-async def _finished(future):
-    """The result of a frame drawn in a thread. When the page goes away meanwhile,
-    the drawing is waited for before the cancel goes on, so that the lock on the
-    device is not released while a thread still draws."""
-    try:
-        return await asyncio.shield(future)
-    except asyncio.CancelledError:
-        await asyncio.wait([future])
-        raise
 
 
 async def serve(viewer: Viewer, on_url) -> int | None:

@@ -12,7 +12,6 @@ the suggested iso-value. EXABRICKS_VIEW_SCREENSHOTS=DIR keeps the screenshots
 from __future__ import annotations
 
 import asyncio
-import base64
 import io
 import json
 import os
@@ -21,12 +20,12 @@ import shutil
 import subprocess
 import sys
 import time
-from pathlib import Path
 
 import numpy as np
 import pytest
 
 from helpers import ATHENA, GERRIS, run_cli
+from helpers.browser import assert_same_pixels, converged, screenshot, shown_png, wait_for
 
 pytestmark = pytest.mark.slow
 aiohttp = pytest.importorskip("aiohttp")
@@ -221,63 +220,8 @@ def assert_renders(scene_file_or_doc, tmp_path, png: bytes, *options):
     assert_same_pixels(png, tmp_path / "check.png")
 
 
-def assert_same_pixels(png: bytes, path):
-    """The viewer's frame `png` is the picture in the .png at `path`, pixel for pixel."""
-    from PIL import Image as PILImage
-
-    viewer = np.asarray(PILImage.open(io.BytesIO(png)).convert("RGB"))
-    np.testing.assert_array_equal(viewer, np.asarray(PILImage.open(path).convert("RGB")))
-
 
 # -- the page in a real browser --------------------------------------------------
-
-
-@pytest.fixture
-def browser():
-    webdriver = pytest.importorskip("selenium.webdriver")
-    chromium = shutil.which("chromium") or shutil.which("chromium-browser")
-    driver_path = shutil.which("chromedriver")
-    if not chromium or not driver_path:
-        pytest.skip("Debian's chromium and chromium-driver are not installed")
-    options = webdriver.ChromeOptions()
-    options.binary_location = chromium
-    for arg in ("--headless=new", "--no-sandbox", "--disable-dev-shm-usage", "--window-size=1280,800",
-                "--disable-gpu"):
-        options.add_argument(arg)
-    options.set_capability("goog:loggingPrefs", {"browser": "ALL"})
-    driver = webdriver.Chrome(options=options, service=webdriver.ChromeService(executable_path=driver_path))
-    yield driver
-    driver.quit()
-
-
-def wait_for(driver, script, timeout=60):
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        value = driver.execute_script(script)
-        if value:
-            return value
-        time.sleep(0.05)
-    raise AssertionError(f"timed out waiting for: {script}")
-
-
-def converged(driver, after_version=-1, timeout=60):
-    return wait_for(driver, f"const f = window.exabricks.frame; return f && f.stage === 'converged' && "
-                            f"f.version > {after_version} && window.exabricks.version === f.version ? f : null",
-                    timeout)
-
-
-def shown_png(driver) -> bytes:
-    data = driver.execute_async_script(
-        "const done = arguments[0], r = new FileReader(); r.onload = () => done(r.result); "
-        "r.readAsDataURL(window.exabricks.blob);")
-    return base64.b64decode(data.split(",", 1)[1])
-
-
-def screenshot(driver, name):
-    keep = os.environ.get("EXABRICKS_VIEW_SCREENSHOTS")
-    if keep:
-        Path(keep).mkdir(parents=True, exist_ok=True)
-        driver.save_screenshot(str(Path(keep) / name))
 
 
 def test_the_page_in_a_browser(server, browser, tmp_path):

@@ -110,7 +110,7 @@ def test_a_save_never_holds_the_servers_loop(tmp_path, monkeypatch):
     """A FIFO put at --scene-out after the start is refused when a page saves; and a
     write that blocks (a FIFO swapped in after that check) holds neither the other
     requests nor the stop."""
-    from exabricks.viewer import server
+    from exabricks.viewer import page, server
 
     out = tmp_path / "scene.json"
     viewer = server.Viewer(StubSession(), scene_out=out)
@@ -122,7 +122,8 @@ def test_a_save_never_holds_the_servers_loop(tmp_path, monkeypatch):
     reply = serving(viewer, refused)
     assert reply["type"] == "error" and "is a FIFO" in reply["message"], reply
 
-    monkeypatch.setattr(server, "_regular_output", lambda path: None)  # the race: the FIFO comes later
+    for module in (page, server):  # the race: the FIFO comes later
+        monkeypatch.setattr(module, "regular_output", lambda path: None)
     viewer = server.Viewer(StubSession(), scene_out=out)
 
     async def blocked(base):
