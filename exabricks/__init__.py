@@ -21,6 +21,7 @@ _PUBLIC = {
     "open": "api", "render": "api", "render_job": "api", "probe": "api", "Renderer": "api",
     "Dataset": "dataset", "Image": "film.image", "Scene": "scene", "ExabricksError": "util.errors",
     "open_series": "series", "render_series": "series", "Series": "series",
+    "view": "viewer.notebook",
 }
 
 __all__ = ["__version__", *sorted(_PUBLIC)]
@@ -32,6 +33,7 @@ if TYPE_CHECKING:
     from .film.image import Image  # noqa: F401
     from .scene import Scene  # noqa: F401
     from .series import Series, open_series, render_series  # noqa: F401
+    from .viewer.notebook import view  # noqa: F401
 
 
 def __getattr__(name: str):

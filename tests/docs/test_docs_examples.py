@@ -4,21 +4,20 @@ folder outside the checkout (issue 48, item 7).
 The examples are read from the documents, never listed here, so that an example
 added broken fails: the ```python blocks; the ```sh, ```console and ```bash blocks
 and the indented or unlabelled blocks that start with a command (`exabricks`,
-`make`, `mpiexec`, ...), a command a line (`\\` continues it); the complete
-```json objects, saved as the file that opens the paragraph above them
-(docs/scene.md's `plume.json`); and the notebooks, scripts and scene files of
-docs/examples/. A document's examples run in order in one fresh folder, prepared as
-docs/python.md, "Running the examples", says (its setup block, with REPO this
-checkout): shell commands through bash, Python blocks in one namespace in this
-process, and then every output they name (`-o`, `.save(...)`, `render_job(_, ...)`)
-must exist. The scene-file fragments of the documents (```json blocks that are not
-a whole object) are checked against the scene schema.
+`make`, `mpiexec`, ...), a command a line (`\\` continues it); the complete ```json
+objects, saved as the file that opens the paragraph above them (docs/scene.md's
+`plume.json`); and the scripts and scene files of docs/examples/ (its notebooks:
+tests/docs/test_notebooks.py, every one of them). A document's examples run in order
+in one fresh folder, prepared as docs/python.md, "Running the examples", says (its
+setup block, with REPO this checkout): shell commands through bash, Python blocks in
+one namespace in this process, and then every output they name (`-o`, `.save(...)`,
+`render_job(_, ...)`) must exist. The scene-file fragments of the documents (```json
+blocks that are not a whole object) are checked against the scene schema.
 
-What does not run is named here with the reason: usage lines (a block from the
-first command with a placeholder on: INPUT, SOURCE, `[--option]`, `…`), EXEMPT_DOCS
-and EXEMPT (an exemption that matches nothing fails). The SLOW examples run in the
-slow variant of their document's test only.
-"""
+What does not run is named here with the reason: usage lines (a block from the first
+command with a placeholder on: INPUT, SOURCE, `[--option]`, `…`), EXEMPT_DOCS and
+EXEMPT (an exemption that matches nothing fails). The SLOW examples run in the slow
+variant of their document's test only."""
 
 from __future__ import annotations
 
@@ -384,20 +383,6 @@ def test_the_scene_files_of_the_examples_render(scene, prepared, tmp_path):
     folder = _folder(prepared, tmp_path)
     _bash(f"exabricks render {data} --scene {scene} -o scene.png", folder, f"docs/examples/{scene}")
     assert (folder / "scene.png").stat().st_size > 1000
-
-
-@pytest.mark.slow
-@pytest.mark.parametrize("notebook", sorted(p.name for p in EXAMPLES.glob("*.ipynb")))
-def test_the_notebooks_of_the_examples_run_from_any_folder(notebook, tmp_path):
-    """Through a Jupyter kernel, from an empty folder (tests/docs/test_notebook.py checks the
-    walk-through's pictures too)."""
-    nbformat = pytest.importorskip("nbformat")
-    nbclient = pytest.importorskip("nbclient")
-    nb = nbformat.read(EXAMPLES / notebook, as_version=4)
-    nbclient.NotebookClient(nb, timeout=600, kernel_name="python3",
-                            resources={"metadata": {"path": str(tmp_path)}}).execute()
-    errors = [o for c in nb.cells for o in c.get("outputs", []) if o.get("output_type") == "error"]
-    assert not errors, errors
 
 
 @pytest.mark.slow
