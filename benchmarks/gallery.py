@@ -457,7 +457,20 @@ def first_picture_section(all_shots: list[Shot]) -> list[str]:
         out.append(f"| {name} | ![before](images/shading-{key}-before.png) | "
                    f"![now](images/shading-{key}-after.png) | ![none](images/shading-{key}-none.png) |")
     out += ["", "```sh", *SHADING_COMMANDS, "```", ""]
-    return out
+    return out + SHADOWS_SECTION
+
+
+# The shadow integrator's sheet (docs/pictures/shadows_picture.py makes its picture).
+SHADOWS_SECTION = [
+    '<a id="shadows"></a>', "", "### Lit from one side, with shadows", "",
+    "Each dataset's default picture under today's headlight (left), under `--integrator shadow` "
+    "(middle), and with an opaque iso-surface added (right: T = 0.45, phi = 1.5, rho = 1.5, Density = 3), "
+    "whose shadow falls on itself and on the volume: the default key light, 35° above the view and 60° to its left, "
+    "its transmittance through the volume lighting every sample, plus an ambient 0.2 "
+    "(docs/design-rendering.md, \"Lights and shadows\"). 320 x 320, 4 samples per pixel; rows: "
+    "Gerris plume, AMReX advection, Athena++ blast, Enzo moving7.", "",
+    "![Headlight and shadow, four datasets](images/shadows.png)", "",
+    "```sh", ".venv/bin/python docs/pictures/shadows_picture.py", "```", ""]
 
 
 # The shading comparison's commands (run at b0682ec for "before", as they are for the others).

@@ -36,6 +36,8 @@ VARIANTS = (
     ("level of detail", "render.cl", "eb_render", {"lod": True}),
     ("cell location", "render.cl", "eb_render", {"cell_location": True}),
     ("vertex reconstruction", "render.cl", "eb_render", {"reconstruction": "vertex"}),
+    ("shadow integrator", "render.cl", "eb_render", {"shadow": True}),
+    ("shadow integrator, surfaces", "render.cl", "eb_render", {"shadow": True, "surfaces": True}),
     ("uniform-grid marcher", "uniform_grid.cl", "eb_uniform_render", {}),
 )
 ENTRY = re.compile(r"(?:entry function|Function properties for) '?(\w+)'?")

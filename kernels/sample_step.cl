@@ -1,13 +1,15 @@
 /* One sample of a ray: where the next one lies (in a domain's frame, only those
  * inside the domain), and what it does: the surfaces crossed since the
  * previous sample (surfaces.cl; nothing in a volume-only build), then the
- * medium (medium.cl), composited front to back (compositing.cl). */
+ * medium (medium.cl), lit by the shadow integrator's light (light.cl, -DEB_SHADOW),
+ * composited front to back (compositing.cl). */
 #pragma once
 #include "common.h"
 #include "sampler.cl"
 #include "frame.cl"
 #include "medium.cl"
 #include "surfaces.cl"
+#include "light.cl"
 
 /* The next sub-interval of `it` (eb_intervals_next) whose sample this frame
  * takes: every one, or in a domain's frame those at points inside the domain. */
@@ -42,5 +44,8 @@ EB_INLINE int eb_sample_step(eb_frame *fr, eb_ray *ray, eb_basis_sums *s, float3
     float4 c = eb_medium_step(fr, s, p, level, value, len, ray->dir_world, shade);
     if (!(c.w > 0.0f))
         return 0;
+#ifdef EB_SHADOW
+    c.xyz *= eb_light(fr, ray->org_world + tm * ray->dir_world, ray->rho);
+#endif
     return eb_composite(st, c.w, c.xyz, tm, fr->P->max_opacity);
 }

@@ -19,15 +19,17 @@
  * A surface hit is shaded with the normal from the gradient (iso) or the plane
  * (slice), flipped toward the viewer: headlight diffuse (EB_AMBIENT +
  * EB_DIFFUSE |n . v|) plus an optional Blinn-Phong term specular |n . v|^shininess
- * (the half vector of a headlight is the view direction), times the ambient
- * occlusion; it composites as C += T a rgb, T *= 1 - a. The volume in front of
- * it (up to the previous sample) is integrated first. */
+ * (the half vector of a headlight is the view direction), or under the shadow
+ * integrator the directional light's (light.cl), times the ambient occlusion;
+ * it composites as C += T a rgb, T *= 1 - a. The volume in front of it (up to
+ * the previous sample) is integrated first. */
 #pragma once
 #include "common.h"
 #include "frame.cl"
 
 #ifdef EB_SURFACES
 #include "occlusion.cl"
+#include "light.cl"
 
 /* Bisection steps at most: from any sample step down to the tolerance. */
 #define EB_REFINE_STEPS 40
@@ -159,12 +161,32 @@ EB_INLINE int eb_shade_hit(eb_frame *fr, eb_ray *ray, eb_ray_state *st, float t,
         n = -n;
         ns = -ns;
     }
+#ifdef EB_SHADOW
+    {  /* the directional light (light.cl) */
+        float3 l = fr->P->light_dir.xyz;
+        float c = dot(ns, l);
+        float3 lit = (float3)(fr->P->light_rgb.w), shine = (float3)(0.0f);
+        if (c > 0.0f) {
+            /* from off the surface, along its normal to the light's side: a shadow ray
+             * that grazes the surface meets neither its cell-scale bumps nor itself */
+            float bias = fr->P->light_dir.w;
+            float3 x = ray->org_world + t * ray->dir_world + (dot(n, l) >= 0.0f ? bias : -bias) * n;
+            float vis = eb_light_transmittance(fr, x, ray->rho);
+            lit += vis * c * fr->P->light_rgb.xyz;
+            if (fr->P->specular > 0.0f)  /* Blinn-Phong about the half vector of l and v */
+                shine = vis * fr->P->specular * fr->P->light_rgb.xyz
+                        * pow(fmax(dot(ns, normalize(l - ray->dir_world)), 0.0f), fr->P->shininess);
+        }
+        rgb = rgb * lit + shine;
+    }
+#else
     if (fr->P->shading) {
         float c = fmax(-dot(ns, ray->dir_world), 0.0f);
         rgb = rgb * (EB_AMBIENT + EB_DIFFUSE * c);
         if (fr->P->specular > 0.0f)
             rgb += fr->P->specular * pow(c, fr->P->shininess);
     }
+#endif
     if (fr->P->ao_samples > 0)
         rgb *= eb_ambient_occlusion(fr, ray->org_world + t * ray->dir_world, n, ray->pixel,
                                     ray->sample, ray->seed, ray->rho);

@@ -186,7 +186,8 @@ def support_box_world(cells: schema.Cells) -> tuple[np.ndarray, np.ndarray]:
 
 def integrate(cells: schema.Cells, camera, transfer_function, width: int, height: int,
               field: str | None = None, *, steps_per_finest_cell: int = 16,
-              unit_distance: float | None = None, max_opacity: float = 1.0) -> np.ndarray:
+              unit_distance: float | None = None, max_opacity: float = 1.0,
+              light=None, shadow_steps_per_finest_cell: int = 4) -> np.ndarray:
     """Reference image: premultiplied RGBA float64 (height, width, 4), row 0 at the top.
 
     Emission-absorption without shading or jitter (module docstring). Each ray's
@@ -195,6 +196,12 @@ def integrate(cells: schema.Cells, camera, transfer_function, width: int, height
     midpoint. `unit_distance` (world units) defaults to the finest cell width,
     ``2**min(level) * min(spacing)``; a ray stops after the sample that brings
     its opacity to `max_opacity` (1.0: never).
+
+    `light` (direction toward it (3,), ambient, rgb (3,): colour x intensity), the
+    shadow integrator (docs/design-rendering.md, "Lights and shadows"): each sample's
+    colour times ambient + T rgb, T the transmittance from the sample toward the
+    light to the support box's edge, in equal steps of at most finest width /
+    `shadow_steps_per_finest_cell`, each sampled at its midpoint (`transmittance`).
     """
     index = cell_index(cells)
     values = field_values(cells, field)
@@ -226,16 +233,18 @@ def integrate(cells: schema.Cells, camera, transfer_function, width: int, height
         budget += n_steps[r]
         if budget >= 4 * BATCH:
             _integrate_chunk(np.array(chunk_rays), image, o, d, t_near, step, n_steps, index,
-                             values, transfer_function, unit, max_opacity, cells)
+                             values, transfer_function, unit, max_opacity, cells, light,
+                             finest_world / shadow_steps_per_finest_cell)
             chunk_rays, budget = [], 0
     if chunk_rays:
         _integrate_chunk(np.array(chunk_rays), image, o, d, t_near, step, n_steps, index,
-                         values, transfer_function, unit, max_opacity, cells)
+                         values, transfer_function, unit, max_opacity, cells, light,
+                         finest_world / shadow_steps_per_finest_cell)
     return image.reshape(height, width, 4)
 
 
 def _integrate_chunk(rays, image, o, d, t_near, step, n_steps, index, values, tf, unit,
-                     max_opacity, cells):
+                     max_opacity, cells, light=None, shadow_dt=None):
     """Composite the rays `rays` into `image` (rows of (n_rays, 4)); see `integrate`."""
     m = int(n_steps[rays].max())
     k = np.arange(m)
@@ -253,12 +262,41 @@ def _integrate_chunk(rays, image, o, d, t_near, step, n_steps, index, values, tf
     used = (1.0 - before) < max_opacity
     contribution = np.where(used, before * a, 0.0)
     rgb = np.where(np.isfinite(rgba[..., :3]), rgba[..., :3], 0.0)
+    if light is not None:
+        direction, ambient, light_rgb = light
+        lit = (contribution > 0.0) & valid
+        t_light = np.zeros(valid.shape)
+        t_light[lit] = transmittance(cells, index, values, tf, unit, points_world[lit], direction,
+                                     shadow_dt)
+        rgb = rgb * (ambient + t_light[..., None] * np.asarray(light_rgb, np.float64))
     image[rays, :3] = np.einsum("rk,rkc->rc", contribution, rgb)
     image[rays, 3] = 1.0 - np.prod(np.where(used, 1.0 - a, 1.0), axis=1)
 
 
 # ---------------------------------------------------------------------------------------
 # Surfaces, clipping and several fields (DESIGN.md "Surfaces, clipping and several fields")
+
+
+def transmittance(cells, index, values, tf, unit, points_world, direction, dt_max) -> np.ndarray:
+    """The transmittance (N,) from each world point toward `direction` to the edge of
+    the support box: equal steps of at most `dt_max`, each sampled at its midpoint,
+    opacity corrected to its length as `integrate` does."""
+    lo, hi = support_box_world(cells)
+    d = np.asarray(direction, np.float64)
+    d = d / np.linalg.norm(d)
+    _, t_far = ray_box_interval(points_world, np.broadcast_to(d, points_world.shape), lo, hi)
+    length = np.clip(t_far, 0.0, None)
+    n = np.ceil(length / dt_max).astype(np.int64)
+    step = np.where(n > 0, length / np.maximum(n, 1), 0.0)
+    optical = np.zeros(len(points_world))  # -sum log(1 - a)
+    for k in range(int(n.max(initial=0))):
+        active = np.flatnonzero(k < n)
+        p = points_world[active] + ((k + 0.5) * step[active])[:, None] * d
+        value = index.reconstruct(to_lattice(cells, p), values)
+        alpha = np.where(np.isfinite(value), tf.evaluate(value)[..., 3], 0.0)
+        with np.errstate(divide="ignore"):
+            optical[active] -= np.log1p(-np.minimum(alpha, 1.0)) * step[active] / unit
+    return np.exp(-optical)
 
 
 def ray_box_interval(origins, directions, lower, upper) -> tuple[np.ndarray, np.ndarray]:

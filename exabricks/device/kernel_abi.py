@@ -57,6 +57,9 @@ PARAMS = (
     # clipping box (world) and a domain's half-open box (lattice)
     ("clip_lower", "float4"), ("clip_upper", "float4"),
     ("domain_lower", "float4"), ("domain_upper", "float4"),
+    # the shadow integrator's light (kernels/light.cl): direction toward it (unit,
+    # world), colour x intensity and, in w, the ambient term
+    ("light_dir", "float4"), ("light_rgb", "float4"),
     # distance between fields in the brick, vertex and mip values
     ("field_stride", "long"), ("vertex_stride", "long"), ("mip_stride", "long"),
     # the image and its samples
@@ -151,7 +154,8 @@ def header() -> str:
 
 def variant_defines(*, n_fields: int = 1, reconstruction: str = "basis", surfaces: bool = False,
                     lod: bool = False, packets: bool = False, domain: bool = False,
-                    cell_location: bool = False, mixture: bool = False) -> tuple[str, ...]:
+                    cell_location: bool = False, mixture: bool = False,
+                    shadow: bool = False) -> tuple[str, ...]:
     """The build defines of the render program for these choices (each a program
     of its own; the host checks which combinations exist before building)."""
     return ((f"EB_N_FIELDS={max(1, int(n_fields))}",)
@@ -160,4 +164,5 @@ def variant_defines(*, n_fields: int = 1, reconstruction: str = "basis", surface
             + (("EB_CELL_LOCATION",) if cell_location else ())
             + (("EB_SURFACES",) if surfaces else ()) + (("EB_LOD",) if lod else ())
             + ((f"EB_PACKET={PACKET_WIDTH}",) if packets else ())
-            + (("EB_DOMAIN",) if domain else ()) + (("EB_MIXTURE",) if mixture else ()))
+            + (("EB_DOMAIN",) if domain else ()) + (("EB_MIXTURE",) if mixture else ())
+            + (("EB_SHADOW",) if shadow else ()))

@@ -63,6 +63,7 @@ from ..device.kernel_abi import LOD_LEVELS, PACKET_WIDTH
 from ..util.errors import ExabricksError
 from ..film.film import develop
 from ..mesh import mesh_set
+from ..picture.light import light_params
 from ..scene import Lighting, Scene, Settings, VolumeLayer
 from . import instances
 from .device_data import DatasetScale, DeviceDataset
@@ -193,8 +194,12 @@ class Renderer:
         if lookup == "cell-location":
             self.dataset.location_args()  # built now: its time is not a frame's
 
-    def _kernel(self, surfaces: bool, reconstruction: str, lod: bool, extra=()):
+    def _kernel(self, surfaces: bool, reconstruction: str, lod: bool, extra=(), shadow: bool = False):
         """eb_render built for this renderer and frame, with `extra` defines (tests)."""
+        if shadow and (self.domain is not None or self.copies is not None):
+            raise ExabricksError("--integrator shadow: a shadow ray needs the whole dataset in one "
+                                 "piece; it does not work yet with --mirror (instances), "
+                                 "--memory-budget or MPI data mode (MPI image mode works)")
         if self.lookup == "cell-location" and (reconstruction != "basis" or lod):
             raise ExabricksError("the cell-location lookup exists for the basis reconstruction "
                                  "without level of detail only")
@@ -203,8 +208,8 @@ class Renderer:
                                  f"not with {reconstruction}")
         program = self.dataset.program_for(
             extra, reconstruction=reconstruction, surfaces=surfaces, lod=lod,
-            packets=self._packet_width(reconstruction) > 1, domain=self.domain is not None,
-            cell_location=self.lookup == "cell-location", mixture=self.copies is not None)
+            packets=not shadow and self._packet_width(reconstruction) > 1, domain=self.domain is not None,
+            cell_location=self.lookup == "cell-location", mixture=self.copies is not None, shadow=shadow)
         return opencl.kernel(program, "eb_render")
 
     def _packet_width(self, reconstruction: str) -> int:
@@ -366,8 +371,9 @@ class Renderer:
         depth_buf = opencl.empty_buffer(q, band_pixels * 4)
         samples_buf = opencl.empty_buffer(q, band_pixels * 4)
         lod = cfg.lod > 0
+        shadow = lighting.integrator == "shadow"
         kernel = self._kernel(bool(scene.isosurfaces or scene.slices or scene.meshes),
-                              cfg.reconstruction, lod)
+                              cfg.reconstruction, lod, shadow=shadow)
         level_samples = np.zeros(LOD_LEVELS, np.uint32)
         level_buf = opencl.to_device(q, level_samples, writable=True)
         # Pixels of a cell of width w at distance t: w / (t * 2 tan(fovy / 2) / H).
@@ -388,7 +394,8 @@ class Renderer:
             cam_origin=(*origin, 0), cam_forward=(*forward, 0), cam_du=(*du, 0), cam_dv=(*dv, 0),
             step_base=s.min_spacing_world / cfg.sampling_rate,
             inv_unit_distance=1.0 / frame.stats["unit_distance"],
-            max_opacity=cfg.max_opacity, shading=lighting.shading != "none",
+            max_opacity=cfg.max_opacity, shading=not shadow and lighting.shading != "none",
+            **light_params(scene, s.finest_width_world),
             ordered=traversal == "ordered",
             # nearest is piecewise constant: its normals come from central differences
             central=lighting.gradient == "central" or cfg.reconstruction == "nearest",

@@ -377,12 +377,18 @@ def _declared(part: str, file: SceneFile, f) -> dict:
         if owner == part:
             value = _pick(f, option.name, file, option.key, None)
             if value is not None:
-                out[attribute] = _CONVERT[option.kind](value)
+                vector = option.nargs > 1 or option.kind == "numbers"
+                out[attribute] = (tuple(float(v) for v in value) if vector
+                                  else _CONVERT[option.kind](value))
     return out
 
 
 def _lighting(file: SceneFile, f) -> Lighting:
-    return Lighting(**_declared("lighting", file, f))
+    lighting = Lighting(**_declared("lighting", file, f))
+    if lighting.light is not None and not any(lighting.light):
+        where = "--light" if f["light"] is not None else file.at("lighting", "light", "direction")
+        raise ExabricksError(f"{where}: the direction toward the light is zero")
+    return lighting
 
 
 def _background(file: SceneFile, f) -> tuple[float, float, float, float]:

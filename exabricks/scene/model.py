@@ -135,7 +135,9 @@ class Lighting:
     occlusion of surface hits: `ao_samples` rays (0: off) of length
     `ao_distance` world units (None: 10 finest cell widths); iso_gradient: the
     normals of iso-surfaces, "central" (the default: differences of the
-    reconstructed field at the hit) or "analytic"."""
+    reconstructed field at the hit) or "analytic"; integrator: "headlight" (the
+    above) or "shadow" (a directional light, its transmittance through the scene,
+    and an ambient term)."""
 
     shading: str = "headlight"
     gradient: str = "analytic"
@@ -144,6 +146,14 @@ class Lighting:
     ao_samples: int = 0
     ao_distance: float | None = None
     iso_gradient: str = "central"
+    # the shadow integrator's light (docs/design-rendering.md, "Lights and shadows"):
+    # the direction toward a directional light, world (None: the camera's key light,
+    # above and to the left behind it), its colour and intensity, and the ambient term
+    integrator: str = "headlight"
+    light: tuple[float, float, float] | None = None
+    light_color: tuple[float, float, float] = (1.0, 1.0, 1.0)
+    light_intensity: float = 0.8
+    ambient: float = 0.2
 
 
 @dataclass(frozen=True)

@@ -3,6 +3,10 @@ model (exabricks.scene.model) and the option table (exabricks.scene.options)
 both read."""
 
 SHADING_MODES = ("headlight", "none")
+# How light reaches a sample (docs/design-rendering.md, "Lights and shadows"): the
+# camera's headlight (shaded by --shading), or a directional light with the
+# volume's shadows and an ambient term.
+INTEGRATORS = ("headlight", "shadow")
 GRADIENTS = ("analytic", "central")
 # How a point's value comes from the cells (docs/design-rendering.md, "Reconstructions: basis, nearest,
 # vertex").

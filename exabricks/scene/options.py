@@ -17,7 +17,7 @@ from ..util.constants import FLOAT32_MAX, MAX_TITLE_CHARS
 from ..util.errors import ExabricksError
 from ..util.jsonfile import not_regular
 from ..picture.scaling import SCALES
-from .modes import AXES, GRADIENTS, MAX_AO_SAMPLES, RECONSTRUCTIONS, SHADING_MODES, TF_LOOKUPS
+from .modes import AXES, GRADIENTS, INTEGRATORS, MAX_AO_SAMPLES, RECONSTRUCTIONS, SHADING_MODES, TF_LOOKUPS
 
 
 @dataclass(frozen=True)
@@ -204,6 +204,14 @@ class Option:
                     "enum": list(self.choices)}
         if self.kind == "flag":
             return {"description": self.description or "true or false", "type": "boolean"}
+        if self.kind == "numbers" and self.counts and len(self.counts) == 1:  # a colour
+            return {"description": self.description or f"a list of {self.counts[0]} numbers in [0, 1]",
+                    "type": "array", "minItems": self.counts[0], "maxItems": self.counts[0],
+                    "items": {"type": "number", "minimum": 0, "maximum": 1}}
+        if self.nargs > 1:  # a vector of float32 numbers
+            return {"description": self.description or f"a list of {self.nargs} numbers",
+                    "type": "array", "minItems": self.nargs, "maxItems": self.nargs,
+                    "items": {"type": "number", "minimum": -FLOAT32_MAX, "maximum": FLOAT32_MAX}}
         node = {"type": {"float": "number", "int": "integer"}[self.kind]}
         low, high = self.low, self.high
         if self.kind == "float" and self.finite:
@@ -254,6 +262,7 @@ def _vector(name, help, nargs=3, metavar="X Y Z", **kw) -> Option:
 
 _POSITIVE = {"low": 0.0, "low_open": True}
 _AO = ("ambient_occlusion",)  # where the ambient-occlusion settings sit in "lighting"
+_LIGHT = ("light",)  # where the directional light's settings sit in "lighting"
 
 
 def _setting(name, help, **kw) -> Option:
@@ -263,8 +272,11 @@ def _setting(name, help, **kw) -> Option:
 
 def _light(name, help, within=(), **kw) -> Option:
     """An attribute of Lighting, in the scene file's "lighting" object (`within` it).
-    The file's key is the attribute's name less its "ao_" prefix inside _AO."""
+    The file's key is the attribute's name less its "ao_" prefix inside _AO, less
+    "light_" inside _LIGHT, where `light` itself is the "direction"."""
     key = name[3:] if within == _AO else name
+    if within == _LIGHT:
+        key = name[len("light_"):] if name != "light" else "direction"
     return Option(name, help, target=f"lighting.{name}", scene_key=("lighting", *within, key), **kw)
 
 SCENE_OPTIONS = (
@@ -344,6 +356,19 @@ SCENE_OPTIONS = (
            low=0, high=MAX_AO_SAMPLES),
     _light("ao_distance", "Length of the ambient-occlusion rays, world units (default: 10 finest "
            "cell widths).", _AO, **_POSITIVE),
+    _light("integrator", "headlight (default): light from the camera (--shading); shadow: a "
+           "directional light (--light) whose transmittance through the volume and the surfaces "
+           "lights every sample, plus --ambient.", kind="choice", choices=INTEGRATORS),
+    _light("light", "With --integrator shadow: the direction toward the light, world (default: "
+           "the camera's key light, 35 degrees above the view and 60 to its left).", _LIGHT, nargs=3,
+           metavar="DX DY DZ", description="[dx, dy, dz], a direction toward the light (not zero)"),
+    _light("light_color", "Colour of the light, in [0, 1] (default 1,1,1).", _LIGHT, kind="numbers",
+           counts=(3,), metavar="R,G,B"),
+    _light("light_intensity", "Intensity of the light (default 0.8: with --ambient 0.2, a surface "
+           "facing an unshadowed light is as bright as under the headlight).", _LIGHT, low=0.0,
+           metavar="I"),
+    _light("ambient", "With --integrator shadow: light that reaches every sample whatever the "
+           "shadows (default 0.2).", low=0.0, metavar="A"),
     Option("background", "Background colour in [0, 1] (RGB is opaque; default transparent in "
            ".exr, black behind a .png).", kind="numbers", counts=(3, 4), metavar="R,G,B[,A]"),
     _setting("exposure", "Scale the frame's colour by 2**STOPS before the background (the film, "

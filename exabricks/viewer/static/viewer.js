@@ -6,6 +6,7 @@
 "use strict";
 
 const WHEEL_SETTLE_MS = 200;  // no wheel event for this long: the zoom has stopped
+const AXES = ["x", "y", "z"];
 
 // ---------------------------------------------------------------- vectors
 const sub = (a, b) => a.map((x, i) => x - b[i]);
@@ -188,6 +189,10 @@ function exabricksViewer(root, channel) {
     rangeInputs();
     $("shading").value = d.lighting.shading;
     $("ao").value = (d.lighting.ambient_occlusion || {}).samples || 0;
+    $("integrator").value = d.lighting.integrator || "headlight";
+    const toward = (d.lighting.light || {}).direction;  // none: the camera's key light
+    AXES.forEach((a, i) => { $(`light-${a}`).value = toward ? toward[i] : ""; });
+    $("ambient").value = d.lighting.ambient ?? 0.2;
     $("background").value = "#" + d.background.slice(0, 3).map((c) => Math.round(c * 255).toString(16).padStart(2, "0")).join("");
     $("reconstruction").value = d.reconstruction;
     $("width").value = d.size[0];
@@ -476,6 +481,17 @@ function exabricksViewer(root, channel) {
       state.doc.background = [1, 3, 5].map((i) => parseInt(h.slice(i, i + 2), 16) / 255).concat([1]);
       send();
     };
+    $("integrator").onchange = () => { state.doc.lighting.integrator = $("integrator").value; send(); };
+    AXES.forEach((a) => {
+      $(`light-${a}`).onchange = () => {
+        const light = { ...(state.doc.lighting.light || {}) }, given = AXES.map((b) => $(`light-${b}`).value);
+        if (given.every((x) => x === "")) delete light.direction;
+        else light.direction = given.map((x) => +x || 0);
+        state.doc.lighting.light = light;
+        send();
+      };
+    });
+    $("ambient").onchange = () => { state.doc.lighting.ambient = Math.max(0, +$("ambient").value); send(); };
     $("reconstruction").onchange = () => { state.doc.reconstruction = $("reconstruction").value; send(); };
     $("width").onchange = $("height").onchange = () => { state.doc.size = [+$("width").value, +$("height").value]; send(); };
     $("spp").onchange = () => { state.doc.spp = +$("spp").value; send(); };
