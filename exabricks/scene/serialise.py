@@ -44,7 +44,7 @@ def scene_to_dict(scene: Scene) -> dict:
                 node = out
                 for key in option.key[:-1]:
                     node = node.setdefault(key, {})
-                node[option.key[-1]] = value
+                node[option.key[-1]] = list(value) if isinstance(value, tuple) else value
     return out
 
 

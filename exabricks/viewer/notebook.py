@@ -25,12 +25,16 @@ import threading
 from functools import cache
 from importlib import resources
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from ..util.errors import ExabricksError
 
+if TYPE_CHECKING:
+    import anywidget
+
 
 def view(dataset, scene=None, *, device: str | None = None, scene_out=None,
-         memory_budget=None, **options):
+         memory_budget=None, **options) -> anywidget.AnyWidget:
     """The progressive viewer of `dataset` (a Dataset, or anything eb.open takes) in
     the output cell, a widget; `scene` and `options` as for eb.render (the first
     picture is render's). `scene_out`: a file "Save scene" writes too. Needs
@@ -100,6 +104,8 @@ def _widget_class():
             self._loop.call_soon_threadsafe(self._loop.stop)
 
         def _received(self, _widget, content, _buffers) -> None:
+            if self.comm is None or self._loop.is_closed() or not self._loop.is_running():
+                return  # closed: nothing answers
             text = content.get("text") if isinstance(content, dict) else None
             asyncio.run_coroutine_threadsafe(self._handle(text), self._loop)
 

@@ -27,7 +27,7 @@ def plume(tmp_path_factory):
 def test_the_public_names_are_documented_and_typed():
     assert set(eb.__all__) == {"__version__", "Dataset", "ExabricksError", "Image", "Renderer", "Scene",
                                "Series", "open", "open_series", "probe", "render", "render_job",
-                               "render_series"}
+                               "render_series", "view"}
     for name in eb.__all__[1:]:
         obj = getattr(eb, name)
         assert inspect.getdoc(obj), name
