@@ -178,3 +178,30 @@ def test_a_surface_lit_from_the_camera_is_the_headlights_without_a_shadow_of_its
                                                           ambient=0.3, light_intensity=0.7))).rgba
     assert (headlight[..., 3] > 0.5).sum() > 150  # the surface fills a good part of the frame
     np.testing.assert_allclose(lit, headlight, atol=2e-3, rtol=0)
+
+
+def test_a_scene_file_with_a_light_draws_the_same_from_the_command_line_python_and_the_viewer(tmp_path):
+    """The command line, eb.render of the file, and the viewer's document of it (what
+    "Save scene" writes) draw the same pixels, light and shadows included."""
+    import json
+
+    import exabricks as eb
+    from exabricks.viewer.session import Session
+
+    from helpers import run_cli
+
+    doc = {"volumes": [{"field": "T", "transfer_function": {"colormap": "inferno", "opacity": [0, 0.3, 0.8]},
+                        "range": [0, 0.6]}],
+           "isosurfaces": [{"field": "T", "value": 0.45}],
+           "lighting": {"integrator": "shadow", "light": {"direction": [-1, 1, 0.5], "color": [1, 0.9, 0.8],
+                                                           "intensity": 0.9}, "ambient": 0.15},
+           "size": [48, 40]}
+    path = tmp_path / "lit.json"
+    path.write_text(json.dumps(doc))
+    run_cli("render", GERRIS, "--scene", path, "-o", tmp_path / "cli.exr", check=0)
+    ds = eb.open(GERRIS, cache=tmp_path / "cache")
+    cli = eb.Image.read(tmp_path / "cli.exr").rgba
+    np.testing.assert_array_equal(eb.render(ds, path).rgba, cli)
+    saved = Session(ds, scene=str(path)).doc  # the viewer's document: what "Save scene" writes
+    assert saved["lighting"]["integrator"] == "shadow" and saved["lighting"]["light"]["direction"] == [-1, 1, 0.5]
+    np.testing.assert_array_equal(eb.render(ds, saved).rgba, cli)
