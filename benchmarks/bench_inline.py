@@ -24,7 +24,6 @@ import argparse
 import json
 import sys
 import tempfile
-import time
 from pathlib import Path
 
 from benchmarks import benchdoc
@@ -59,13 +58,14 @@ const dx = c.position[0] - c.look_at[0], dz = c.position[2] - c.look_at[2];
 c.position = [c.look_at[0] + dx * Math.cos(a) - dz * Math.sin(a), c.position[1],
               c.look_at[2] + dx * Math.sin(a) + dz * Math.cos(a)];
 s.send(false);"""
+CONVERGED = "const s = {state}; return !!(s && s.frame && s.frame.stage === 'converged')"
 DONE = ("const s = {state}, f = s.frame; return f && f.stage === 'converged' && s.sent && "
         "f.version === s.sent[0] && s.version === f.version ? s.latency.filter((l) => l.version === f.version) : null")
 
 
 def measure(dataset, runs: int) -> dict[str, list[float]]:
     sys.path.insert(0, str(benchdoc.ROOT / "tests"))
-    from helpers.browser import chromium
+    from helpers.browser import chromium, wait_for
     from helpers.jupyter import Lab
 
     driver_gen = chromium()
@@ -81,16 +81,17 @@ def measure(dataset, runs: int) -> dict[str, list[float]]:
             driver.set_window_size(1400, 1000)
             driver.get(lab.url())
             lab.run_all(driver)
-            _state(driver, WIDGET)
+            wait_for(driver, CONVERGED.format(state=WIDGET), timeout=300)
             frame = driver.find_element("css selector", "iframe")
             for run in range(runs + 1):
                 for route in ("comm", "proxy"):
                     state = WIDGET
                     if route == "proxy":
                         driver.switch_to.frame(frame)
-                        state = _state(driver, "window.exabricks")
+                        state = "window.exabricks"
+                        wait_for(driver, CONVERGED.format(state=state), timeout=300)
                     driver.execute_script(ORBIT.format(state=state))
-                    shown = _wait(driver, DONE.format(state=state))
+                    shown = wait_for(driver, DONE.format(state=state), timeout=120)
                     if run:
                         times[f"{route}: first frame"].append(shown[0]["ms"] / 1e3)
                         times[f"{route}: its transport"].append((shown[0]["ms"] - shown[0]["drawn"]) / 1e3)
@@ -100,23 +101,6 @@ def measure(dataset, runs: int) -> dict[str, list[float]]:
             lab.stop()
             driver_gen.close()
     return times
-
-
-def _state(driver, expression: str, timeout: float = 300) -> str:
-    """`expression`, once the page state it names shows a converged frame."""
-    _wait(driver, f"const s = {expression}; return !!(s && s.frame && s.frame.stage === 'converged')",
-          timeout=timeout)
-    return expression
-
-
-def _wait(driver, script, timeout: float = 120):
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        value = driver.execute_script(script)
-        if value:
-            return value
-        time.sleep(0.005)
-    raise RuntimeError(f"timed out: {script}")
 
 
 def main(argv=None) -> int:
@@ -131,15 +115,9 @@ def main(argv=None) -> int:
         rows.append((sets[key].name, times))
         print(key, json.dumps({k: round(benchdoc.median_spread(v)[0] * 1e3, 1) for k, v in times.items()}),
               flush=True)
-    columns = list(rows[0][1])
     body = [__doc__.split("\n\n", 2)[2].strip(), "",
             f"{benchdoc.machine(opencl=True)}, headless Chromium, JupyterLab; "
-            f"`python -m benchmarks.bench_inline --runs {args.runs}`.", "",
-            "| dataset | " + " | ".join(f"{c} (ms)" for c in columns) + " |",
-            "|---|" + "---:|" * len(columns)]
-    for title, times in rows:
-        cells = [benchdoc.fmt_spread([t * 1e3 for t in times[c]], unit="", digits=1) for c in columns]
-        body.append(f"| {title} | " + " | ".join(cells) + " |")
+            f"`python -m benchmarks.bench_inline --runs {args.runs}`.", "", *benchdoc.ms_table(rows)]
     benchdoc.publish(TITLE, "\n".join(body), args.write_docs)
     return 0
 

@@ -72,14 +72,9 @@ def main(argv=None) -> int:
         times = measure(sets[key], args.runs)
         rows.append((sets[key].name, times))
         print(key, {k: round(benchdoc.median_spread(v)[0] * 1e3, 1) for k, v in times.items()}, flush=True)
-    stages = list(rows[0][1])
     body = [__doc__.split("\n\n", 2)[2].strip(), "",
             f"{benchdoc.machine(opencl=True)}; `python -m benchmarks.bench_view --runs {args.runs}`.", "",
-            "| dataset | " + " | ".join(f"{s} (ms)" for s in stages) + " |",
-            "|---|" + "---:|" * len(stages)]
-    for title, times in rows:
-        cells = [benchdoc.fmt_spread([t * 1e3 for t in times[s]], unit="", digits=1) for s in stages]
-        body.append(f"| {title} | " + " | ".join(cells) + " |")
+            *benchdoc.ms_table(rows)]
     benchdoc.publish(TITLE, "\n".join(body), args.write_docs)
     return 0
 

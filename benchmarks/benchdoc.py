@@ -70,6 +70,17 @@ def fmt_spread(values, unit: str = "s", digits: int = 3) -> str:
     return f"{m:.{digits}f} ({lo:.{digits}f}-{hi:.{digits}f})" + (f" {unit}" if unit else "")
 
 
+def ms_table(rows) -> list[str]:
+    """A Markdown table of (title, {column: seconds per run}) rows: one column per key
+    of the first row, each cell the median and min-max in milliseconds."""
+    columns = list(rows[0][1])
+    out = ["| dataset | " + " | ".join(f"{c} (ms)" for c in columns) + " |", "|---|" + "---:|" * len(columns)]
+    for title, times in rows:
+        out.append(f"| {title} | " + " | ".join(fmt_spread([t * 1e3 for t in times[c]], unit="", digits=1)
+                                                for c in columns) + " |")
+    return out
+
+
 def fmt_seconds(values) -> str:
     """'median (min-max)' of timings in seconds, no unit: 2 decimals from 1 s up, else at
     least 3 significant digits ('9.19 (8.80-10.30)', '0.116 (0.100-0.200)', '0.00187 (...)')."""
