@@ -28,6 +28,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from ..util.errors import ExabricksError
+from .page import Page, regular_output, save_scene
 
 if TYPE_CHECKING:
     import anywidget
@@ -42,7 +43,6 @@ def view(dataset, scene=None, *, device: str | None = None, scene_out=None,
     from ..api import open as open_dataset
     from ..scene import Scene, scene_to_dict
     from ..util.sizes import parse_size
-    from .page import regular_output
     from .session import Session
 
     widget = _widget_class()
@@ -72,8 +72,6 @@ def _widget_class():
 
         def __init__(self, session, *, scene_out=None):
             super().__init__()
-            from .page import Page
-
             self.session = session
             self.scene_out = None if scene_out is None else Path(scene_out)
             self.lock = asyncio.Lock()  # one frame on the device at a time
@@ -94,8 +92,6 @@ def _widget_class():
 
         def save(self, doc: dict) -> str | None:
             """"Save scene": write `scene_out`, if given (page.save_scene)."""
-            from .page import save_scene
-
             return save_scene(self.scene_out, doc)
 
         def close(self) -> None:
