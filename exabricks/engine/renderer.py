@@ -208,14 +208,15 @@ class Renderer:
                                  f"not with {reconstruction}")
         program = self.dataset.program_for(
             extra, reconstruction=reconstruction, surfaces=surfaces, lod=lod,
-            packets=not shadow and self._packet_width(reconstruction) > 1, domain=self.domain is not None,
+            packets=self._packet_width(reconstruction, shadow) > 1, domain=self.domain is not None,
             cell_location=self.lookup == "cell-location", mixture=self.copies is not None, shadow=shadow)
         return opencl.kernel(program, "eb_render")
 
-    def _packet_width(self, reconstruction: str) -> int:
+    def _packet_width(self, reconstruction: str, shadow: bool = False) -> int:
         """Samples reconstructed at once: PACKET_WIDTH for the basis reconstruction from
-        the regions' lists on a renderer with packets, else 1."""
-        use = self.packets and self.lookup == "regions" and reconstruction == "basis"
+        the regions' lists on a renderer with packets, else 1 (and under the shadow
+        integrator, built one sample at a time)."""
+        use = self.packets and self.lookup == "regions" and reconstruction == "basis" and not shadow
         return PACKET_WIDTH if use else 1
 
     def with_lookup(self, lookup: str) -> "Renderer":
@@ -342,7 +343,7 @@ class Renderer:
             "slices": len(scene.slices), "clip": scene.clip.active,
             "ao_samples": scene.lighting.ao_samples,
             "traversal": traversal, "lookup": self.lookup,
-            "packet_width": self._packet_width(cfg.reconstruction),
+            "packet_width": self._packet_width(cfg.reconstruction, scene.lighting.integrator == "shadow"),
             "reconstruction": cfg.reconstruction,
             "device": self.device_name,
             "visible_regions": int(region_vis.sum()), "regions": s.regions.n_regions,

@@ -114,8 +114,7 @@ def _widget_class():
             except (ValueError, RecursionError):
                 hello = False
             if hello:  # a view of the widget opened (a cell shown, a page reloaded)
-                await self._page.ws.send_str(json.dumps(self.session.info()))
-                self._page.want(self.session.doc, False)
+                await self._page.open()
             else:
                 await self._page.receive(text)
 

@@ -35,6 +35,12 @@ class Page:
         self.task = None
         self.saves = set()  # saves under way (each a task)
 
+    async def open(self) -> None:
+        """A page has opened (a websocket, a view of the notebook widget): its "init"
+        message, then the frames of the current scene."""
+        await self.ws.send_str(json.dumps(self.viewer.session.info()))
+        self.want(self.viewer.session.doc, False)
+
     def want(self, doc: dict, moving: bool, tag=0) -> None:
         self.version += 1
         self.doc, self.moving = doc, moving

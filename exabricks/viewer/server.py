@@ -35,7 +35,6 @@ from __future__ import annotations
 import asyncio
 import hmac
 import ipaddress
-import json
 import logging
 import secrets
 import socket
@@ -117,8 +116,7 @@ class Viewer:
         page = Page(self, ws)
         self.sockets.add(ws)
         try:
-            await ws.send_str(json.dumps(self.session.info()))
-            page.want(self.session.doc, False)
+            await page.open()
             async for msg in ws:
                 if msg.type == WSMsgType.TEXT:
                     await page.receive(msg.data)

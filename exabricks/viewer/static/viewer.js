@@ -192,7 +192,7 @@ function exabricksViewer(root, channel) {
     $("integrator").value = d.lighting.integrator || "headlight";
     const toward = (d.lighting.light || {}).direction;  // none: the camera's key light
     AXES.forEach((a, i) => { $(`light-${a}`).value = toward ? toward[i] : ""; });
-    $("ambient").value = d.lighting.ambient ?? 0.2;
+    $("ambient").value = d.lighting.ambient ?? "";  // none: the scene's default
     $("background").value = "#" + d.background.slice(0, 3).map((c) => Math.round(c * 255).toString(16).padStart(2, "0")).join("");
     $("reconstruction").value = d.reconstruction;
     $("width").value = d.size[0];
