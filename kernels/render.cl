@@ -8,6 +8,9 @@
 #ifdef EB_MIXTURE
 #include "mixture.cl"
 #endif
+#ifdef EB_PATH
+#include "path.cl"
+#endif
 
 /* eb_render's domain arguments (-DEB_DOMAIN, a domain of a frame split by space:
  * frame.cl eb_in_domain): where use_front, the premultiplied RGBA of this sample
@@ -106,7 +109,10 @@ __kernel void eb_render(__constant eb_params *P, int4 band, int sample_index,
         before = front[slot];
 #endif
     /* Constant shade/ordered arguments let the compiler drop the unused paths. */
-#ifdef EB_MIXTURE
+#if defined(EB_PATH)
+    c = eb_path(&fr, &ray, look_f, &n, &t_depth, level_samples);
+    (void)before;
+#elif defined(EB_MIXTURE)
     c = P->shading ? eb_integrate_mixture(&fr, &ray, 1, &n, &t_depth, level_samples)
                    : eb_integrate_mixture(&fr, &ray, 0, &n, &t_depth, level_samples);
     (void)before;

@@ -60,6 +60,9 @@ PARAMS = (
     # the shadow integrator's light (kernels/light.cl): direction toward it (unit,
     # world), colour x intensity and, in w, the ambient term
     ("light_dir", "float4"), ("light_rgb", "float4"),
+    # the path integrator's majorant grid (exabricks.engine.majorants): its lattice
+    # corner and, in w, 1 / macrocell width; its macrocells per axis
+    ("majorant_lower", "float4"), ("majorant_dims", "int4"),
     # distance between fields in the brick, vertex and mip values
     ("field_stride", "long"), ("vertex_stride", "long"), ("mip_stride", "long"),
     # the image and its samples
@@ -91,9 +94,11 @@ PARAMS = (
     ("mesh_tris_at", "int"), ("mesh_nodes_at", "int"), ("mesh_normals_at", "int"),
     # overlapping instances (kernels/mixture.cl): copy_rows float4 rows per copy in the look
     ("copies_at", "int"), ("n_copies", "int"), ("copy_rows", "int"),
+    # the path integrator's majorants: float offset in the look
+    ("majorant_at", "int"),
 ) + tuple((o.name, "float" if o.kind == "float" else "int") for o in SCENE_OPTIONS if o.kernel)
 
-_C_TYPES = {"float4": (np.float32, (4,)), "long": np.int64, "int": np.int32,
+_C_TYPES = {"float4": (np.float32, (4,)), "int4": (np.int32, (4,)), "long": np.int64, "int": np.int32,
             "uint": np.uint32, "float": np.float32}
 
 
@@ -155,7 +160,7 @@ def header() -> str:
 def variant_defines(*, n_fields: int = 1, reconstruction: str = "basis", surfaces: bool = False,
                     lod: bool = False, packets: bool = False, domain: bool = False,
                     cell_location: bool = False, mixture: bool = False,
-                    shadow: bool = False) -> tuple[str, ...]:
+                    shadow: bool = False, path: bool = False) -> tuple[str, ...]:
     """The build defines of the render program for these choices (each a program
     of its own; the host checks which combinations exist before building)."""
     return ((f"EB_N_FIELDS={max(1, int(n_fields))}",)
@@ -165,4 +170,4 @@ def variant_defines(*, n_fields: int = 1, reconstruction: str = "basis", surface
             + (("EB_SURFACES",) if surfaces else ()) + (("EB_LOD",) if lod else ())
             + ((f"EB_PACKET={PACKET_WIDTH}",) if packets else ())
             + (("EB_DOMAIN",) if domain else ()) + (("EB_MIXTURE",) if mixture else ())
-            + (("EB_SHADOW",) if shadow else ()))
+            + (("EB_SHADOW",) if shadow else ()) + (("EB_PATH",) if path else ()))

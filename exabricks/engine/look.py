@@ -19,7 +19,7 @@ ISO_TOLERANCE_CELLS = 1e-3
 
 
 def frame_arrays(scene: Scene, device_dataset: DeviceDataset,
-                 copies=None) -> tuple[tuple, dict, list]:
+                 copies=None, majorants=None) -> tuple[tuple, dict, list]:
     """The look of `scene` as the render kernel takes it: its float and int arrays
     (look_f, look_i of kernels/render.cl), their eb_params members, and how each
     volume layer is looked up (the stats' "transfer_function_tables"). Every
@@ -28,7 +28,8 @@ def frame_arrays(scene: Scene, device_dataset: DeviceDataset,
     table, transfer_function.lookup_table, unless --tf-lookup exact or the table
     is further than TABLE_TOLERANCE from the knots), the volume layers,
     iso-surfaces and slices by field index on the device, clipping, and the
-    `copies` of overlapping instances (Renderer._mixture; None: none)."""
+    `copies` of overlapping instances (Renderer._mixture; None: none) and the path
+    integrator's `majorants` (exabricks.engine.majorants; None: none)."""
     index = {name: i for i, name in enumerate(device_dataset.fields)}
     xs, rgba = [], []
 
@@ -102,6 +103,7 @@ def frame_arrays(scene: Scene, device_dataset: DeviceDataset,
         "copies_at": floats.add(rows(np.zeros((0, 4)) if copies is None else copies, np.float32), 4),
         "n_copies": 0 if copies is None else len(copies),
         "copy_rows": 0 if copies is None else copies.shape[1],
+        "majorant_at": floats.add(np.zeros(1, np.float32) if majorants is None else majorants),
     }
     return (floats.array(), ints.array()), params, tables
 
@@ -113,6 +115,13 @@ def _table(volume, settings):
         return None
     table = volume.transfer_function.table
     return None if max(table.error_rgb, table.error_alpha) > TABLE_TOLERANCE else table
+
+
+def alpha_tolerance(volume, settings) -> float:
+    """How far a volume layer's opacity as the kernel reads it may be above its
+    transfer function's: its lookup table's largest error, 0 where looked up exactly."""
+    table = _table(volume, settings)
+    return 0.0 if table is None else float(table.error_alpha)
 
 
 def table_bytes(scene: Scene) -> int:

@@ -274,4 +274,8 @@ def needs_image_mode(scene) -> str | None:
         return "depth output"
     if scene.settings.reconstruction == "vertex":
         return "the vertex reconstruction"
+    if scene.lighting.integrator == "shadow":  # a ray toward the light crosses every domain
+        return "shadow rays (--integrator shadow)"
+    if scene.lighting.integrator == "path":
+        return "scattered paths (--integrator path)"
     return None

@@ -68,6 +68,8 @@ from ..scene import Lighting, Scene, Settings, VolumeLayer
 from . import instances
 from .device_data import DatasetScale, DeviceDataset
 from .look import frame_arrays
+from .majorants import frame_majorants
+from .variants import check_variant
 
 # Region walks (kernels/traversal.cl): "ordered" keeps a private min-heap of
 # BVH nodes and regions per ray (one traversal per ray); "retrace" is the
@@ -187,6 +189,7 @@ class Renderer:
         self._mesh_set = None
         self._whole = None  # _everywhere's
         self.copies = None  # overlapping instances (_mixture): float32 (n, rows, 4)
+        self._macrocells = {}  # the path integrator's grid and value ranges (majorants.frame_majorants)
 
     def _use(self, lookup: str) -> None:
         _check_lookup(lookup)
@@ -194,29 +197,24 @@ class Renderer:
         if lookup == "cell-location":
             self.dataset.location_args()  # built now: its time is not a frame's
 
-    def _kernel(self, surfaces: bool, reconstruction: str, lod: bool, extra=(), shadow: bool = False):
+    def _kernel(self, surfaces: bool, reconstruction: str, lod: bool, extra=(),
+                integrator: str = "headlight"):
         """eb_render built for this renderer and frame, with `extra` defines (tests)."""
-        if shadow and (self.domain is not None or self.copies is not None):
-            raise ExabricksError("--integrator shadow: a shadow ray needs the whole dataset in one "
-                                 "piece; it does not work yet with --mirror (instances), "
-                                 "--memory-budget or MPI data mode (MPI image mode works)")
-        if self.lookup == "cell-location" and (reconstruction != "basis" or lod):
-            raise ExabricksError("the cell-location lookup exists for the basis reconstruction "
-                                 "without level of detail only")
-        if lod and reconstruction != "basis":
-            raise ExabricksError(f"level of detail (--lod) works with the basis reconstruction, "
-                                 f"not with {reconstruction}")
+        check_variant(integrator, surfaces, reconstruction, lod, self.lookup,
+                      whole=self.domain is None and self.copies is None)
         program = self.dataset.program_for(
             extra, reconstruction=reconstruction, surfaces=surfaces, lod=lod,
-            packets=self._packet_width(reconstruction, shadow) > 1, domain=self.domain is not None,
-            cell_location=self.lookup == "cell-location", mixture=self.copies is not None, shadow=shadow)
+            packets=self._packet_width(reconstruction, integrator) > 1, domain=self.domain is not None,
+            cell_location=self.lookup == "cell-location", mixture=self.copies is not None,
+            shadow=integrator == "shadow", path=integrator == "path")
         return opencl.kernel(program, "eb_render")
 
-    def _packet_width(self, reconstruction: str, shadow: bool = False) -> int:
+    def _packet_width(self, reconstruction: str, integrator: str = "headlight") -> int:
         """Samples reconstructed at once: PACKET_WIDTH for the basis reconstruction from
         the regions' lists on a renderer with packets, else 1 (and under the shadow
-        integrator, built one sample at a time)."""
-        use = self.packets and self.lookup == "regions" and reconstruction == "basis" and not shadow
+        and path integrators, built one sample at a time)."""
+        use = (self.packets and self.lookup == "regions" and reconstruction == "basis"
+               and integrator == "headlight")
         return PACKET_WIDTH if use else 1
 
     def with_lookup(self, lookup: str) -> "Renderer":
@@ -306,9 +304,12 @@ class Renderer:
         if sample is not None and spp > 1:
             frame.rgba[:drawn] *= np.float32(spp)  # the kernel averages: this sample alone
         stats = frame.stats
-        if launch.lod:
+        if launch.lod or scene.lighting.integrator == "path":
             opencl.read_back(self.dataset.queue, launch.level_buf, launch.level_samples)
+        if launch.lod:
             stats["samples_per_level"] = {str(lv): int(c) for lv, c in enumerate(launch.level_samples) if c}
+        if scene.lighting.integrator == "path":  # kernels/path.cl counts its collisions there
+            stats["collisions"] = dict(zip(("real", "null", "ratio"), map(int, launch.level_samples[:3])))
         stats["lod"] = float(scene.settings.lod)
         stats.update(rows=drawn, samples=total, ms=1e3 * seconds,
                      ms_per_sample=1e3 * seconds / (spp if sample is None else 1),
@@ -343,7 +344,8 @@ class Renderer:
             "slices": len(scene.slices), "clip": scene.clip.active,
             "ao_samples": scene.lighting.ao_samples,
             "traversal": traversal, "lookup": self.lookup,
-            "packet_width": self._packet_width(cfg.reconstruction, scene.lighting.integrator == "shadow"),
+            "packet_width": self._packet_width(cfg.reconstruction, scene.lighting.integrator),
+            "integrator": scene.lighting.integrator,
             "reconstruction": cfg.reconstruction,
             "device": self.device_name,
             "visible_regions": int(region_vis.sum()), "regions": s.regions.n_regions,
@@ -372,9 +374,9 @@ class Renderer:
         depth_buf = opencl.empty_buffer(q, band_pixels * 4)
         samples_buf = opencl.empty_buffer(q, band_pixels * 4)
         lod = cfg.lod > 0
-        shadow = lighting.integrator == "shadow"
+        integrator = lighting.integrator
         kernel = self._kernel(bool(scene.isosurfaces or scene.slices or scene.meshes),
-                              cfg.reconstruction, lod, shadow=shadow)
+                              cfg.reconstruction, lod, integrator=integrator)
         level_samples = np.zeros(LOD_LEVELS, np.uint32)
         level_buf = opencl.to_device(q, level_samples, writable=True)
         # Pixels of a cell of width w at distance t: w / (t * 2 tan(fovy / 2) / H).
@@ -383,7 +385,11 @@ class Renderer:
         ao_distance = lighting.ao_distance or AO_DISTANCE_CELLS * s.finest_width_world
         args, layout = s.dataset_args(up(q, s.flags_for(frame.node_vis, frame.region_vis)),
                                       cfg.reconstruction, lod, self.lookup == "cell-location")
-        look, look_params, frame.stats["transfer_function_tables"] = frame_arrays(scene, s, self.copies)
+        path, mu = {}, None
+        if integrator == "path":
+            grid, mu = frame_majorants(scene, s, frame.stats["unit_distance"], self._macrocells)
+            path, frame.stats["macrocells"] = grid.params(), list(grid.dims)
+        look, look_params, frame.stats["transfer_function_tables"] = frame_arrays(scene, s, self.copies, mu)
         mesh_args, mesh_params = self._meshes(scene)
         if scene.meshes:
             frame.stats["meshes"] = self._mesh_set.stats()
@@ -395,12 +401,14 @@ class Renderer:
             cam_origin=(*origin, 0), cam_forward=(*forward, 0), cam_du=(*du, 0), cam_dv=(*dv, 0),
             step_base=s.min_spacing_world / cfg.sampling_rate,
             inv_unit_distance=1.0 / frame.stats["unit_distance"],
-            max_opacity=cfg.max_opacity, shading=not shadow and lighting.shading != "none",
+            max_opacity=cfg.max_opacity,
+            shading=integrator == "headlight" and lighting.shading != "none",
             **light_params(scene, s.finest_width_world),
             ordered=traversal == "ordered",
             # nearest is piecewise constant: its normals come from central differences
             central=lighting.gradient == "central" or cfg.reconstruction == "nearest",
             ao_samples=lighting.ao_samples, ao_distance=ao_distance, lod_scale=lod_scale,
+            **path,
             **(dict(domain_lower=self.domain[0], domain_upper=self.domain[1],
                     use_front=has_front) if self.domain else {})))
         fixed = [*args, *(up(q, a) for a in look), *mesh_args,

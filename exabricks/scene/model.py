@@ -136,8 +136,9 @@ class Lighting:
     `ao_distance` world units (None: 10 finest cell widths); iso_gradient: the
     normals of iso-surfaces, "central" (the default: differences of the
     reconstructed field at the hit) or "analytic"; integrator: "headlight" (the
-    above) or "shadow" (a directional light, its transmittance through the scene,
-    and an ambient term)."""
+    above), "shadow" (a directional light, its transmittance through the scene,
+    and an ambient term) or "path" (the same lights, path-traced through the
+    volume layers with up to `bounces` scattering events and anisotropy g)."""
 
     shading: str = "headlight"
     gradient: str = "analytic"
@@ -154,6 +155,10 @@ class Lighting:
     light_color: tuple[float, float, float] = (1.0, 1.0, 1.0)
     light_intensity: float = 0.8
     ambient: float = 0.2
+    # the path integrator's (docs/design-rendering.md, "Path tracing"): scattering
+    # events of a path at most, and the Henyey-Greenstein phase function's g
+    bounces: int = 8
+    anisotropy: float = 0.0
 
 
 @dataclass(frozen=True)

@@ -4,9 +4,10 @@ both read."""
 
 SHADING_MODES = ("headlight", "none")
 # How light reaches a sample (docs/design-rendering.md, "Lights and shadows"): the
-# camera's headlight (shaded by --shading), or a directional light with the
-# volume's shadows and an ambient term.
-INTEGRATORS = ("headlight", "shadow")
+# camera's headlight (shaded by --shading), a directional light with the
+# volume's shadows and an ambient term, or volumetric path tracing of the same
+# lights with multiple scattering.
+INTEGRATORS = ("headlight", "shadow", "path")
 GRADIENTS = ("analytic", "central")
 # How a point's value comes from the cells (docs/design-rendering.md, "Reconstructions: basis, nearest,
 # vertex").
@@ -21,6 +22,8 @@ MAX_ISOSURFACES = 32
 MAX_SLICES = 8
 MAX_CLIP_PLANES = 16
 MAX_AO_SAMPLES = 256
+# Scattering events of one path of the path integrator.
+MAX_BOUNCES = 256
 MAX_MESHES = 16
 # Instances besides the identity (exabricks.engine.instances).
 MAX_INSTANCES = 7

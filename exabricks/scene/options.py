@@ -17,7 +17,8 @@ from ..util.constants import FLOAT32_MAX, MAX_TITLE_CHARS
 from ..util.errors import ExabricksError
 from ..util.jsonfile import not_regular
 from ..picture.scaling import SCALES
-from .modes import AXES, GRADIENTS, INTEGRATORS, MAX_AO_SAMPLES, RECONSTRUCTIONS, SHADING_MODES, TF_LOOKUPS
+from .modes import (AXES, GRADIENTS, INTEGRATORS, MAX_AO_SAMPLES, MAX_BOUNCES, RECONSTRUCTIONS,
+                    SHADING_MODES, TF_LOOKUPS)
 
 
 @dataclass(frozen=True)
@@ -263,6 +264,7 @@ def _vector(name, help, nargs=3, metavar="X Y Z", **kw) -> Option:
 _POSITIVE = {"low": 0.0, "low_open": True}
 _AO = ("ambient_occlusion",)  # where the ambient-occlusion settings sit in "lighting"
 _LIGHT = ("light",)  # where the directional light's settings sit in "lighting"
+_PATH = ("path",)  # where the path integrator's settings sit in "lighting"
 
 
 def _setting(name, help, **kw) -> Option:
@@ -358,8 +360,16 @@ SCENE_OPTIONS = (
            "cell widths).", _AO, **_POSITIVE),
     _light("integrator", "headlight (default): light from the camera (--shading); shadow: a "
            "directional light (--light) whose transmittance through the volume and the surfaces "
-           "lights every sample, plus --ambient.", kind="choice", choices=INTEGRATORS),
-    _light("light", "With --integrator shadow: the direction toward the light, world (default: "
+           "lights every sample, plus --ambient; path: volumetric path tracing of the volume "
+           "layers under the same lights, with multiple scattering (--bounces, --anisotropy; "
+           "converges with --spp).", kind="choice", choices=INTEGRATORS),
+    _light("bounces", "With --integrator path: scattering events of a path at most (default 8; "
+           "1: single scattering), with Russian roulette from the third.", _PATH, kind="int",
+           low=1, high=MAX_BOUNCES, kernel=True),
+    _light("anisotropy", "With --integrator path: the Henyey-Greenstein phase function's g, "
+           "from -0.99 (back-scattering) to 0.99 (forward; default 0: isotropic).", _PATH,
+           low=-0.99, high=0.99, kernel=True, metavar="G"),
+    _light("light", "With --integrator shadow or path: the direction toward the light, world (default: "
            "the camera's key light, 35 degrees above the view and 60 to its left).", _LIGHT, nargs=3,
            metavar="DX DY DZ", description="[dx, dy, dz], a direction toward the light (not zero)"),
     _light("light_color", "Colour of the light, in [0, 1] (default 1,1,1).", _LIGHT, kind="numbers",
@@ -368,7 +378,8 @@ SCENE_OPTIONS = (
            "facing an unshadowed light is as bright as under the headlight).", _LIGHT, low=0.0,
            metavar="I"),
     _light("ambient", "With --integrator shadow: light that reaches every sample whatever the "
-           "shadows (default 0.2).", low=0.0, metavar="A"),
+           "shadows; with path: the radiance of a uniform environment (default 0.2).", low=0.0,
+           metavar="A"),
     Option("background", "Background colour in [0, 1] (RGB is opaque; default transparent in "
            ".exr, black behind a .png).", kind="numbers", counts=(3, 4), metavar="R,G,B[,A]"),
     _setting("exposure", "Scale the frame's colour by 2**STOPS before the background (the film, "

@@ -41,6 +41,10 @@ HISTOGRAM_SAMPLES = 1 << 20  # values per field the histogram looks at, at most
 COARSE_FRACTION = 4
 COARSE_MIN = 64
 MOVING_LOD = 2.0  # --lod while the camera moves, when the page asks for it
+# Under --integrator path, each stage between the first full frame and the
+# converged one takes this many times the samples of the one before (the
+# stages cost 1/(PATH_REFINE - 1) more than the converged frame alone).
+PATH_REFINE = 4
 MAX_DOC_BYTES = 1 << 20
 # Knots the page is shown (and edits, once touched) for a layer whose transfer
 # function has none of its own (the automatic one, a preset).
@@ -226,12 +230,18 @@ class Session:
         s = scene.settings
         w = max(min(COARSE_MIN, s.width), s.width // COARSE_FRACTION)
         h = max(1, round(s.height * w / s.width))
+        path = scene.lighting.integrator == "path"  # draws at full resolution only
         coarse = replace(s, width=w, height=h, spp=1, depth=False,
-                         lod=max(s.lod, MOVING_LOD) if moving else s.lod)
+                         lod=max(s.lod, MOVING_LOD) if moving and not path else s.lod)
         out = [("coarse", scene.replace(settings=coarse))]
         if not moving:
             if s.spp > 1:
                 out.append(("full", scene.replace(settings=replace(s, spp=1, depth=False))))
+            # a path-traced frame refines in sight: PATH_REFINE times the samples a stage
+            spp = PATH_REFINE
+            while path and spp < s.spp:
+                out.append((f"{spp} spp", scene.replace(settings=replace(s, spp=spp, depth=False))))
+                spp *= PATH_REFINE
             out.append(("converged", scene.replace(settings=replace(s, depth=False))))
         return out
 

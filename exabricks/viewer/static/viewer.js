@@ -193,6 +193,8 @@ function exabricksViewer(root, channel) {
     const toward = (d.lighting.light || {}).direction;  // none: the camera's key light
     AXES.forEach((a, i) => { $(`light-${a}`).value = toward ? toward[i] : ""; });
     $("ambient").value = d.lighting.ambient ?? "";  // none: the scene's default
+    $("bounces").value = (d.lighting.path || {}).bounces ?? "";
+    $("anisotropy").value = (d.lighting.path || {}).anisotropy ?? "";
     $("background").value = "#" + d.background.slice(0, 3).map((c) => Math.round(c * 255).toString(16).padStart(2, "0")).join("");
     $("reconstruction").value = d.reconstruction;
     $("width").value = d.size[0];
@@ -492,6 +494,14 @@ function exabricksViewer(root, channel) {
       };
     });
     $("ambient").onchange = () => { state.doc.lighting.ambient = Math.max(0, +$("ambient").value); send(); };
+    ["bounces", "anisotropy"].forEach((key) => {
+      $(key).onchange = () => {
+        const path = { ...(state.doc.lighting.path || {}) }, v = $(key).value;
+        if (v === "") delete path[key]; else path[key] = +v;
+        state.doc.lighting.path = path;
+        send();
+      };
+    });
     $("reconstruction").onchange = () => { state.doc.reconstruction = $("reconstruction").value; send(); };
     $("width").onchange = $("height").onchange = () => { state.doc.size = [+$("width").value, +$("height").value]; send(); };
     $("spp").onchange = () => { state.doc.spp = +$("spp").value; send(); };

@@ -1,0 +1,28 @@
+"""Which render-kernel variants exist: the combinations of integrator, surfaces,
+reconstruction, level of detail and brick lookup that a frame may ask for
+(kernel_abi.variant_defines builds them), each one that does not refused with
+one line before anything is built."""
+
+from __future__ import annotations
+
+from ..util.errors import ExabricksError
+
+
+def check_variant(integrator: str, surfaces: bool, reconstruction: str, lod: bool, lookup: str,
+                  *, whole: bool) -> None:
+    """ExabricksError unless a frame of these choices can be drawn; `whole`: the
+    renderer holds the whole dataset once (no domain of a partition, no instances)."""
+    if integrator != "headlight" and not whole:
+        raise ExabricksError(f"--integrator {integrator}: a shadow ray needs the whole dataset "
+                             "in one piece; it does not work yet with --mirror (instances), "
+                             "--memory-budget or MPI data mode (MPI image mode works)")
+    if integrator == "path" and (surfaces or lod or reconstruction == "vertex"):
+        raise ExabricksError("--integrator path draws the volume layers of the basis or nearest "
+                             "reconstruction at full resolution: iso-surfaces, slices, meshes, "
+                             "--lod and the vertex reconstruction take --integrator shadow")
+    if lookup == "cell-location" and (reconstruction != "basis" or lod):
+        raise ExabricksError("the cell-location lookup exists for the basis reconstruction "
+                             "without level of detail only")
+    if lod and reconstruction != "basis":
+        raise ExabricksError(f"level of detail (--lod) works with the basis reconstruction, "
+                             f"not with {reconstruction}")
