@@ -48,6 +48,9 @@ BUDGETS = {
     # primary ray's, so twice the walk's stack; with surfaces at the 255 cap, spilling
     ("shadow integrator", "eb_render"): (232, 2688, 0),
     ("shadow integrator, surfaces", "eb_render"): (255, 5680, 344),
+    # the path integrator: no region walk (delta and ratio tracking through the
+    # majorant grid, a BVH point query per tentative collision), so no heap
+    ("path integrator", "eb_render"): (164, 264, 0),
 }
 NOTES = """
 The budgets are today's figures, so that nothing grows unseen; issue 51's targets

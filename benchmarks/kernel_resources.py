@@ -38,6 +38,7 @@ VARIANTS = (
     ("vertex reconstruction", "render.cl", "eb_render", {"reconstruction": "vertex"}),
     ("shadow integrator", "render.cl", "eb_render", {"shadow": True}),
     ("shadow integrator, surfaces", "render.cl", "eb_render", {"shadow": True, "surfaces": True}),
+    ("path integrator", "render.cl", "eb_render", {"path": True}),
     ("uniform-grid marcher", "uniform_grid.cl", "eb_uniform_render", {}),
 )
 ENTRY = re.compile(r"(?:entry function|Function properties for) '?(\w+)'?")
