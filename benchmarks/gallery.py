@@ -457,7 +457,7 @@ def first_picture_section(all_shots: list[Shot]) -> list[str]:
         out.append(f"| {name} | ![before](images/shading-{key}-before.png) | "
                    f"![now](images/shading-{key}-after.png) | ![none](images/shading-{key}-none.png) |")
     out += ["", "```sh", *SHADING_COMMANDS, "```", ""]
-    return out + SHADOWS_SECTION
+    return out + SHADOWS_SECTION + PATH_SECTION
 
 
 # The shadow integrator's sheet (docs/pictures/shadows_picture.py makes its picture).
@@ -471,6 +471,21 @@ SHADOWS_SECTION = [
     "Gerris plume, AMReX advection, Athena++ blast, Enzo moving7.", "",
     "![Headlight and shadow, four datasets](images/shadows.png)", "",
     "```sh", ".venv/bin/python docs/pictures/shadows_picture.py", "```", ""]
+
+
+# The path integrator's sheet (docs/pictures/path_picture.py makes its picture).
+PATH_SECTION = [
+    '<a id="path"></a>', "", "### Path-traced: light that scatters", "",
+    "Each dataset's default picture under `--integrator shadow` (left: single scattering of the key "
+    "light, integrated exactly), and path-traced with up to 8 scattering events under the same light "
+    "and a uniform environment of radiance 0.2, isotropic (middle) and forward-scattering "
+    "(right, `--anisotropy 0.6`): light that enters the matter bounces on inside it, so the matter is "
+    "brighter than under single scattering; forward scattering carries the key light, which comes from the "
+    "camera's side, away from the camera, so that frame is darker (docs/design-rendering.md, \"Path tracing\"). 192 x 192, "
+    "64 samples per pixel for the path-traced frames (still noisy: about 15 % RMSE); rows: Gerris plume, AMReX advection, Athena++ "
+    "blast, Enzo moving7.", "",
+    "![Shadow and path-traced, four datasets](images/path.png)", "",
+    "```sh", ".venv/bin/python docs/pictures/path_picture.py", "```", ""]
 
 
 # The shading comparison's commands (run at b0682ec for "before", as they are for the others).
