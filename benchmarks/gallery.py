@@ -481,9 +481,9 @@ PATH_SECTION = [
     "and a uniform environment of radiance 0.2, isotropic (middle) and forward-scattering "
     "(right, `--anisotropy 0.6`): light that enters the matter bounces on inside it, so the matter is "
     "brighter than under single scattering; forward scattering carries the key light, which comes from the "
-    "camera's side, away from the camera, so that frame is darker (docs/design-rendering.md, \"Path tracing\"). 192 x 192, "
-    "64 samples per pixel for the path-traced frames (still noisy: about 15 % RMSE); rows: Gerris plume, AMReX advection, Athena++ "
-    "blast, Enzo moving7.", "",
+    "camera's side, away from the camera, so that frame is darker (docs/design-rendering.md, "
+    "\"Path tracing\"). 192 x 192, 64 samples per pixel for the path-traced frames (still noisy: "
+    "about 15 % RMSE); rows: Gerris plume, AMReX advection, Athena++ blast, Enzo moving7.", "",
     "![Shadow and path-traced, four datasets](images/path.png)", "",
     "```sh", ".venv/bin/python docs/pictures/path_picture.py", "```", ""]
 

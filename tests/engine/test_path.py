@@ -142,16 +142,14 @@ def test_real_data_free_paths_have_the_opacity_and_conserve_energy(device):
       so each frame's colour is A times its alpha, pixel for pixel. The medium is
       thin enough (opacity 0.6 per 4 cells at most) that paths leave well within
       MAX_BOUNCES events."""
-    from exabricks.picture.camera import default_camera
-    from exabricks.readers import read
+    from helpers.plume_core import plume_core
 
-    built = build(read(GERRIS))
+    core = plume_core()
+    built, camera = core.built, core.camera
     tf = TransferFunction(np.array([[0.01, 1.0, 1.0, 1.0], [0.5, 1.0, 1.0, 1.0]]),
                           np.array([[0.01, 0.0], [0.5, 0.6]]), "white ramp")
-    world = lambda lattice: built.cells.origin_world + built.cells.spacing_world * np.array(lattice)
-    camera = default_camera(world((49, 17, 49)), world((79, 56, 79)))  # the plume's hot core
     ambient = 0.7
-    settings = Settings(width=16, height=16, unit_distance=4.0 * built.finest_width_world)
+    settings = Settings(width=16, height=16, unit_distance=core.unit)
     scene = Scene(camera=camera, volumes=(VolumeLayer("T", tf),),
                   lighting=Lighting(integrator="path", light_intensity=0.0, ambient=ambient,
                                     bounces=MAX_BOUNCES, anisotropy=-0.2), settings=settings)
@@ -254,17 +252,11 @@ def test_single_scattering_on_real_data_is_the_float64_reference_and_converges(d
       frames, over disjoint groups of N, falls as 1/N (slope of log RMSE against
       log N within 0.07 of -1/2, N = 1 .. 32)."""
     import reference
-    from exabricks.picture.camera import default_camera
-    from exabricks.readers import read
+    from helpers.plume_core import plume_core
 
-    built = build(read(GERRIS))
-    lo, hi = (reference.to_world(built.cells, corner) for corner in ((49, 17, 49), (79, 56, 79)))
-    camera = default_camera(lo, hi)
-    mid = 0.5 * (0.01 + 0.5)
-    tf = TransferFunction(np.array([[0.01, 0.1, 0.2, 0.9], [mid, 0.9, 0.9, 0.2], [0.5, 0.9, 0.1, 0.1]]),
-                          np.array([[0.01, 0.0], [mid, 0.3], [0.5, 0.6]]), "ramp")
-    unit = 4.0 * built.finest_width_world
-    light, size = (1.0, 0.4, -0.3), 16
+    core = plume_core()
+    built, camera, tf, unit, light = core.built, core.camera, core.tf, core.unit, core.light
+    size = 16
     scene = Scene(camera=camera, volumes=(VolumeLayer("T", tf),),
                   lighting=Lighting(integrator="path", light=light, ambient=0.0, light_intensity=0.8,
                                     bounces=1),

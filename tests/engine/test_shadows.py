@@ -22,7 +22,6 @@ import numpy as np
 import pytest
 
 from exabricks.engine.renderer import Renderer
-from exabricks.picture.transfer_function import TransferFunction
 from exabricks.picture.light import KEY_ELEVATION, light_direction, light_params
 from exabricks.scene import Lighting, Scene, Settings, VolumeLayer
 from exabricks.util.errors import ExabricksError
@@ -128,19 +127,10 @@ def test_a_shadowed_frame_of_real_data_matches_the_float64_reference(device):
     is a real one: the lit frame differs from the ambient-only one by far more than
     the tolerance (7.5e-2 against 4.4e-6)."""
     import reference
-    from exabricks.picture.camera import default_camera
-    from exabricks.readers import read
+    from helpers.plume_core import plume_core
 
-    from helpers import build
-
-    built = build(read(GERRIS))
-    lo, hi = (reference.to_world(built.cells, corner) for corner in ((49, 17, 49), (79, 56, 79)))
-    camera = default_camera(lo, hi)
-    mid = 0.5 * (0.01 + 0.5)
-    tf = TransferFunction(np.array([[0.01, 0.1, 0.2, 0.9], [mid, 0.9, 0.9, 0.2], [0.5, 0.9, 0.1, 0.1]]),
-                          np.array([[0.01, 0.0], [mid, 0.3], [0.5, 0.6]]), "ramp")
-    unit = 4.0 * built.finest_width_world
-    light = (1.0, 0.4, -0.3)
+    core = plume_core()
+    built, camera, tf, unit, light = core.built, core.camera, core.tf, core.unit, core.light
     scene = Scene(camera=camera, volumes=(VolumeLayer("T", tf),),
                   lighting=Lighting(integrator="shadow", light=light, ambient=0.2, light_intensity=0.8),
                   settings=Settings(width=REAL, height=REAL, sampling_rate=16.0, jitter=False,
