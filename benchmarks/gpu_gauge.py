@@ -29,59 +29,65 @@ GAUGE = Path(os.environ.get("GPU_PROXY", ROOT.parent / "shared" / "tools" / "gpu
 SECTION = "Kernel resources on NVIDIA, offline (gpu-proxy)"
 
 # (variant label of benchmarks.kernel_resources.VARIANTS, kernel entry) ->
-# the most registers, stack frame bytes and spill bytes (stores + loads) it may take.
-# The CPU's packet variant is built for PoCL; its NVIDIA figures are kept from growing.
-# It sits at ptxas' cap of 255 registers, where the spills move by tens of bytes with
-# any edit (two of its loads as literal constants instead: 1188 -> 1236 B), so its
-# spill budget follows the commit that read the frame's scalars from eb_params
-# (1152 -> 1188 B) while that commit took 80 B off every GPU variant's stack.
+# the most registers, stack frame bytes and spill bytes (stores + loads) it may take:
+# today's figures, so that nothing grows unseen. The CPU's packet variant is built for
+# PoCL; its NVIDIA figures (at ptxas' cap of 255, where the spills move by tens of
+# bytes with any edit) are kept from growing. The 64 B stack of the capped variants is
+# the frame of the driver's division slow path, which their entries call.
 BUDGETS = {
-    ("volume, one sample (GPU default)", "eb_render"): (168, 1648, 0),
-    ("volume, one sample (GPU default)", "eb_probe"): (40, 264, 0),
-    ("volume, sample packets (CPU default)", "eb_render"): (255, 3600, 1188),
-    ("surfaces, slices, clipping, AO", "eb_render"): (252, 4272, 0),
-    ("level of detail", "eb_render"): (168, 1904, 0),
-    ("cell location", "eb_render"): (168, 1744, 0),
-    ("vertex reconstruction", "eb_render"): (150, 1648, 0),
-    ("uniform-grid marcher", "eb_uniform_render"): (54, 0, 0),
-    # issue 52's shadow integrator: a shadow ray's walk (its own heap) inside the
-    # primary ray's, so twice the walk's stack; with surfaces at the 255 cap, spilling
-    ("shadow integrator", "eb_render"): (232, 2688, 0),
-    ("shadow integrator, surfaces", "eb_render"): (255, 5680, 344),
+    ("volume, one sample (GPU default)", "eb_render"): (96, 64, 0),
+    ("volume, one sample (GPU default)", "eb_probe"): (60, 0, 0),
+    ("volume, sample packets (CPU default)", "eb_render"): (255, 3216, 1048),
+    ("surfaces, slices, clipping, AO", "eb_render"): (250, 2320, 0),
+    ("level of detail", "eb_render"): (113, 320, 0),
+    ("cell location", "eb_render"): (96, 528, 0),
+    ("vertex reconstruction", "eb_render"): (94, 64, 0),
+    ("uniform-grid marcher", "eb_uniform_render"): (56, 0, 0),
+    # issue 52's shadow integrator: a shadow ray's walk inside the primary ray's;
+    # with surfaces at the 255 cap, spilling
+    ("shadow integrator", "eb_render"): (151, 544, 0),
+    ("shadow integrator, surfaces", "eb_render"): (255, 2944, 136),
     # the path integrator: no region walk (delta and ratio tracking through the
-    # majorant grid, a BVH point query per tentative collision), so no heap
-    ("path integrator", "eb_render"): (164, 264, 0),
+    # majorant grid, a stackless BVH point query per tentative collision)
+    ("path integrator", "eb_render"): (96, 0, 0),
 }
 NOTES = """
-The budgets are today's figures, so that nothing grows unseen; issue 51's targets
-(GPU default: at most 96 registers, no spills, a stack of at most 512 B; surfaces:
-at most 128 registers) are not met yet. Where the 40 registers that ae2d53f added
-come from, measured with the gauge on the GPU default variant (registers / stack B):
+Issue 51's targets: the GPU default at most 96 registers, no spills, a stack of at
+most 512 B (met: 96 / 64 B / none); surfaces at most 128 registers without spills
+(not met: 250). How the GPU default came down from ae2d53f's 168 / 1648, each step
+measured with the gauge on eb_render (registers / stack B):
 
-| change (experiments, not committed) | eb_render |
+| step (in order) | GPU default |
 |---|---|
-| ae2d53f's parent | 128 / 1648 |
-| ae2d53f | 168 / 1648 |
-| none (ed8e089) | 168 / 1728 |
-| the nine BVH and region offsets (`P->node_lower_at` ...) as the constant 0 | 158 / 1728 |
-| every `P->*_at` offset as the constant 0 | 160 / 1728 |
-| eb_params passed by value instead of in a `__constant` buffer | 168 / 2176 |
-| eb_frame's ten scalars read from `P` where used (committed since: issue 50) | 168 / 1648 |
-| every scalar of `P` but counts and offsets as a literal constant | 166 / 2048 |
-| `P` as `__constant volatile eb_params *`: every member reloaded where used (114 `ld.const`, not 40) | 168 / 1648 |
-| `-cl-nv-maxrregcount=144` (at 3e55170) | 144 / 1712, 288 B spills |
-| `-cl-nv-maxrregcount=128` (at 3e55170) | 128 / 1776, 828 B spills |
+| 65d3f60 (before) | 168 / 1648 |
+| 1. central-difference normals a build option | 128 / 1552 |
+| 2. the stackless re-trace walk on GPUs, the heap in CPU builds only | 128 / 560 |
+| 3. the gradient scales read where used | 128 / 64 |
+| 4. eb_params by value | 112 / 64 |
+| 5. NVIDIA's register cap of 96 | 96 / 64, no spills |
 
-So the grouped buffers' offsets account for at most 10 of them, values of `P` held
-from a hoisted load for none (reloading every member where it is used changes
-nothing), and the frame's scalars for none (held on the stack as part of eb_frame: 80 B; the preprocessed
-programs of ae2d53f and its parent have the same private arrays); passed by value,
-the struct is copied to the stack because eb_frame keeps its address. What holds
-the other 30 is still to be found in the `.ptx` (`ptx_proxy.sh --keep DIR`) of
-ae2d53f against its parent. A guess to test next: the 84 pointer arguments were
-reloaded from the parameter bank where needed, where each pointer now derived from
-a grouped buffer (base + offset, 64 bits) is computed once and held in two
-registers across the sample loop.
+1. `EB_CENTRAL` (kernels/common.h), not a frame parameter: the six point queries
+   of a central difference no longer hold registers in every frame.
+2. kernels/traversal.cl, with the parents and child orders of
+   exabricks.engine.walk_links; the heap walk under `EB_ORDERED`; the point
+   query stackless too.
+3. Not a private array indexed by field, which put the whole eb_frame in memory.
+4. kernels/common.h, `EB_PARAMS_ARG`: the offsets into the dataset's buffers are
+   read from the parameter bank where used; from a `__constant` buffer 16 of them
+   were loaded once and held, sign-extended, in 32 registers.
+5. kernel_abi.NV_REGISTER_CAP, for the volume and path variants.
+
+Where the registers of the capped variant go (`nvdisasm -plr` of the gauge's cubin): at
+the peak, the eight cell loads of a brick's trilinear sum (reconstruction.cl,
+eb_add_grid) with their 64-bit addresses, over about 80 values live through the
+sample loop (the ray, the compositing state, the walk's and the sub-intervals'
+state, the basis sums with their gradient, and the look's pointers). Under caps of
+88 and 80 the variant spills 116 and 172 B. The surfaces variant inlines the iso
+crossings, slices and meshes into the same loop (250 registers left alone; under a
+cap of 128 it spills 2.9 KB), so its target needs those paths out of the sample loop.
+The surfaces variants keep eb_params in a `__constant` buffer: their out-of-line
+functions (EB_COLD) take the frame's address, which would copy a by-value struct to
+the stack (2848 B, spilling).
 """
 ROW = re.compile(r"^\| (?P<variant>[^|]+) \| (?P<function>\w+) \| (?P<registers>\d+) \| "
                  r"(?P<stack>\d+) \| (?P<stores>\d+) \| (?P<loads>\d+) \|")

@@ -31,7 +31,7 @@ ROOT = Path(__file__).resolve().parents[1]
 # (label, source, kernel, kernel_abi.variant_defines arguments)
 VARIANTS = (
     ("volume, one sample (GPU default)", "render.cl", "eb_render", {}),
-    ("volume, sample packets (CPU default)", "render.cl", "eb_render", {"packets": True}),
+    ("volume, sample packets (CPU default)", "render.cl", "eb_render", {"packets": True, "ordered": True}),
     ("surfaces, slices, clipping, AO", "render.cl", "eb_render", {"surfaces": True}),
     ("level of detail", "render.cl", "eb_render", {"lod": True}),
     ("cell location", "render.cl", "eb_render", {"cell_location": True}),
@@ -59,9 +59,12 @@ def report_of(log: str, name: str) -> list[str]:
 
 
 def build(context, device, source: str, defines, verbose: bool, cache_dir: str):
+    """The program of a variant, built as exabricks.device.opencl.program_for builds it
+    for `device` (None: for NVIDIA's driver, as ../shared/tools/gpu-proxy calls it)."""
     import pyopencl as cl
 
-    options = opencl.build_options(kernel_abi.variant_defines(**defines))
+    nvidia = device is None or opencl.is_nvidia(device)
+    options = opencl.build_options(kernel_abi.variant_defines(**defines), nvidia)
     if verbose:
         options.append("-cl-nv-verbose")
     text = kernel_abi.header() + (opencl.kernel_dir() / source).read_text()
@@ -79,7 +82,7 @@ def main(argv=None) -> int:
 
     device = opencl.choose_device(args.device)
     context = opencl.context_for(device)[0]
-    nvidia = "NVIDIA" in device.platform.name.upper()
+    nvidia = opencl.is_nvidia(device)
     print(f"device: {device.name.strip()} ({device.platform.version.strip()}), "
           f"{device.max_compute_units} compute units, "
           f"{device.local_mem_size // 1024} KiB local memory per work-group")

@@ -25,6 +25,34 @@
 
 #define EB_INF INFINITY
 
+/* The frame's parameters (eb_params), as the kernels take them
+ * (exabricks.device.kernel_abi.params_by_value): by value, which on NVIDIA
+ * leaves them in the kernel's parameter bank, read where used (from a
+ * __constant buffer the offsets into the dataset's buffers were loaded once
+ * and held in registers across the ray loop: 16 of them); in a __constant
+ * buffer in builds with out-of-line functions (-DEB_SURFACES: surfaces.cl's
+ * EB_COLD), whose pointer to a by-value argument would copy it to the stack. */
+#ifdef EB_SURFACES
+typedef __constant eb_params *eb_params_ref;
+#define EB_PARAMS_ARG __constant eb_params *P
+#define EB_PARAMS_REF
+#else
+typedef const eb_params *eb_params_ref;
+#define EB_PARAMS_ARG eb_params params
+#define EB_PARAMS_REF eb_params_ref P = &params;
+#endif
+
+/* Volume samples' normals from central differences of the reconstructed field
+ * (-DEB_CENTRAL: the "central" gradient, and the nearest reconstruction's),
+ * else from the analytic gradient. A build option, not a frame parameter: the
+ * six point queries of a central difference would hold registers in every
+ * frame that never takes them. */
+#ifdef EB_CENTRAL
+#define EB_CENTRAL_NORMALS 1
+#else
+#define EB_CENTRAL_NORMALS 0
+#endif
+
 /* Force inlining of the hot helpers: PoCL's LLVM otherwise keeps some of them
  * (eb_add_brick, eb_queue_expand) as calls, so the sums go through memory and
  * a constant want_gradient is not folded away. */

@@ -4,7 +4,8 @@
  * (exabricks.engine.device_data.DeviceDataset) and says where each starts in the
  * frame's eb_params (exabricks.device.kernel_abi.PARAMS, the "*_at" members):
  *   geometry  float:  BVH node and region boxes, (n, 3) lower and upper corners;
- *   links     int:    BVH (first, count) links, then its leaf-order region ids;
+ *   links     int:    BVH (first, count) links, its leaf-order region ids, and
+ *                     its nodes' parents and child orders (walk_links);
  *   flags     uchar:  node and region visibility (per frame), region finest level;
  *   brick_grid float4: per brick its box (lower corner, 1 / width), then per
  *                     brick its dims (N.x, N.y, N.z, level) as int4;
@@ -32,15 +33,15 @@
     brick_offset, brick_values, vertex_offset, vertex_values, mip_offset,        \
     mip_values, tree
 
-EB_INLINE eb_bvh eb_bvh_of(__constant eb_params *P, EB_DATASET_ARGS)
+EB_INLINE eb_bvh eb_bvh_of(eb_params_ref P, EB_DATASET_ARGS)
 {
     eb_bvh bvh = {geometry + P->node_lower_at, geometry + P->node_upper_at,
                   (__global const int2 *)(links + P->node_link_at), links + P->node_region_at,
-                  flags + P->node_visible_at, P->n_nodes, P->n_regions};
+                  flags + P->node_visible_at, links + P->node_parent_at, P->n_nodes, P->n_regions};
     return bvh;
 }
 
-EB_INLINE eb_regions eb_regions_of(__constant eb_params *P, EB_DATASET_ARGS)
+EB_INLINE eb_regions eb_regions_of(eb_params_ref P, EB_DATASET_ARGS)
 {
     eb_regions regions = {geometry + P->region_lower_at, geometry + P->region_upper_at,
                           brick_start, brick_ids,
@@ -49,7 +50,7 @@ EB_INLINE eb_regions eb_regions_of(__constant eb_params *P, EB_DATASET_ARGS)
     return regions;
 }
 
-EB_INLINE eb_bricks eb_bricks_of(__constant eb_params *P, EB_DATASET_ARGS)
+EB_INLINE eb_bricks eb_bricks_of(eb_params_ref P, EB_DATASET_ARGS)
 {
     eb_bricks bricks = {brick_grid, (__global const int4 *)(brick_grid + P->n_bricks),
                         brick_offset, brick_values, P->field_stride,
@@ -59,7 +60,7 @@ EB_INLINE eb_bricks eb_bricks_of(__constant eb_params *P, EB_DATASET_ARGS)
 }
 
 #ifdef EB_CELL_LOCATION
-EB_INLINE eb_brick_tree eb_tree_of(__constant eb_params *P, EB_DATASET_ARGS)
+EB_INLINE eb_brick_tree eb_tree_of(eb_params_ref P, EB_DATASET_ARGS)
 {
     eb_brick_tree t = {tree + P->tree_lower_at, tree + P->tree_upper_at,
                        (__global const int2 *)(tree + P->tree_link_at),

@@ -35,8 +35,8 @@ typedef struct {
 } eb_surfaces;
 
 typedef struct {
-    __constant eb_params *P;  /* every scalar of the frame (exabricks.device.kernel_abi.PARAMS),
-                                 read where it is used: no copies here */
+    eb_params_ref P;  /* every scalar of the frame (exabricks.device.kernel_abi.PARAMS),
+                            read where it is used: no copies here */
     eb_bvh bvh;
     eb_regions regions;
     eb_sample_bricks bricks;
@@ -89,7 +89,7 @@ EB_INLINE eb_basis_sums eb_sample_region_at(eb_frame *fr, int r, float3 p, int l
  * the derivative sums where shading uses analytic gradients. */
 EB_INLINE eb_basis_sums eb_sample_shaded(eb_frame *fr, int r, float3 p, int level, const int shade)
 {
-    return shade && !fr->P->central ? eb_sample_region_at(fr, r, p, level, 1)
+    return shade && !EB_CENTRAL_NORMALS ? eb_sample_region_at(fr, r, p, level, 1)
                                  : eb_sample_region_at(fr, r, p, level, 0);
 }
 
@@ -161,13 +161,13 @@ EB_INLINE float3 eb_field_gradient_by(eb_frame *fr, eb_basis_sums *s, float3 p, 
         if (ok)
             g = (float3)(d[0], d[1], d[2]);
     }
-    return g * fr->look.gradient_scale[f];
+    return g * fr->look.gradient_scale[f].xyz;
 }
 
 /* The gradient of field f as the frame's `gradient` setting says. */
 EB_INLINE float3 eb_field_gradient(eb_frame *fr, eb_basis_sums *s, float3 p, int level, int f)
 {
-    return eb_field_gradient_by(fr, s, p, level, f, fr->P->central ? EB_CENTRAL_STEP : 0.0f);
+    return eb_field_gradient_by(fr, s, p, level, f, EB_CENTRAL_NORMALS ? EB_CENTRAL_STEP : 0.0f);
 }
 
 #include "ray.cl"

@@ -61,11 +61,11 @@ EB_INLINE int eb_integrate_region(eb_frame *fr, eb_ray *ray, int r, float t_in, 
 }
 
 /* Premultiplied RGBA of one ray, continuing from the premultiplied `front`
- * composited before it (zero for a whole frame); ordered: 1 for the ordered walk, 0 for the
- * paper's re-trace walk (traversal.cl); *samples counts reconstructions;
+ * composited before it (zero for a whole frame), along the regions of the
+ * program's walk (traversal.cl); *samples counts reconstructions;
  * *depth is the distance to the first opaque surface hit, else where the
  * accumulated opacity first reaches EB_DEPTH_OPACITY (infinity if never). */
-EB_INLINE float4 eb_integrate(eb_frame *fr, eb_ray *ray, const int shade, const int ordered,
+EB_INLINE float4 eb_integrate(eb_frame *fr, eb_ray *ray, const int shade,
                               float4 front, uint *samples, float *depth,
                               __global uint *level_samples)
 {
@@ -85,7 +85,7 @@ EB_INLINE float4 eb_integrate(eb_frame *fr, eb_ray *ray, const int shade, const 
     if (!done)  /* an opaque mesh ends the volume exactly where it is hit */
         keep.y = fmin(keep.y, eb_slices_start(fr, ray, keep.x, keep.y, &st));
     eb_walk w;
-    eb_walk_start(&w, fr->bvh, ray->org, ray->inv_dir, keep.x, keep.y, ordered);
+    eb_walk_start(&w, fr->bvh, ray->org, ray->inv_dir, keep.x, keep.y);
     float t_in, t_out;
     int r;
     eb_sample_batch batch;

@@ -31,13 +31,14 @@ typedef struct {
     __global const int4 *layers;
     int n_layers;
     /* Private copies of what every sample reads (kept out of global memory):
-     * the first layer and its table, and per field the lattice -> world
-     * gradient factor. */
+     * the first layer and its table. */
     int4 layer0;
     __global const float4 *tables;
     __global const int *table_at;
     int table0;
-    float3 gradient_scale[EB_N_FIELDS];
+    /* Per field the lattice -> world gradient factor (xyz). Read where used: as a
+     * private array, indexed by field, it would put the whole frame in memory. */
+    __global const float4 *gradient_scale;
 } eb_look;
 
 /* Colour map (knots first .. first + n - 1) at `value`. */

@@ -85,7 +85,7 @@ EB_INLINE float eb_visibility(eb_frame *fr, float3 org_world, float3 dir_world,
     float3 dir = dir_world * fr->P->inv_spacing.xyz;
     float3 inv_dir = 1.0f / dir;
     eb_walk w;
-    eb_walk_start(&w, fr->bvh, org, inv_dir, t_min, t_max, 1);
+    eb_walk_start(&w, fr->bvh, org, inv_dir, t_min, t_max);
     float t_in, t_out, last_exit = t_min;
     float prev[EB_N_FIELDS];
     int prev_valid = 0;

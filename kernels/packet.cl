@@ -347,7 +347,7 @@ EB_INLINE void eb_packet_medium(eb_frame *fr, eb_packet_sums *s, eb_vf len, floa
                                            + s->dv_z[f] * s->dv_z[f]));
         eb_vi nonzero = nx * nx + ny * ny + nz * nz > noise;
         eb_vf inv_w2 = 1.0f / (w * w);
-        float3 scale = fr->look.gradient_scale[f];
+        float3 scale = fr->look.gradient_scale[f].xyz;
         eb_vf gx = select((eb_vf)(0.0f), nx * inv_w2, nonzero) * scale.x;
         eb_vf gy = select((eb_vf)(0.0f), ny * inv_w2, nonzero) * scale.y;
         eb_vf gz = select((eb_vf)(0.0f), nz * inv_w2, nonzero) * scale.z;

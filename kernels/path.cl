@@ -212,7 +212,7 @@ EB_INLINE float3 eb_sample_phase(float3 d, float g, uint *rng)
 EB_INLINE float4 eb_path(eb_frame *fr, eb_ray *ray, __global const float *look_f, uint *samples,
                          float *depth, __global uint *counts)
 {
-    __constant eb_params *P = fr->P;
+    eb_params_ref P = fr->P;
     eb_majorants m = {look_f + P->majorant_at, P->majorant_lower, P->majorant_dims};
     uint rng = eb_hash(eb_shift(ray->pixel, ray->seed, 7u) + ray->sample * EB_GOLDEN);
     eb_path_counts count = {0u, 0u, 0u};

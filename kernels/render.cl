@@ -25,8 +25,8 @@
 
 /* Sample `sample_index` of P->spp of every pixel in rows row0 .. row0 + rows - 1
  * and columns col0 .. col0 + cols - 1 (band = (row0, rows, col0, cols)) of the
- * P->width x P->height frame, with the parameters P (exabricks.device.kernel_abi.PARAMS)
- * and the dataset's buffers (dataset.cl) (the host
+ * P->width x P->height frame, with the parameters P (exabricks.device.kernel_abi.PARAMS;
+ * EB_PARAMS_ARG, common.h) and the dataset's buffers (dataset.cl) (the host
  * renders a frame, or a tile of it, in bands of rows, so that each enqueue
  * ends well within a second and a signal can stop the run), averaged into
  * rgba, which holds that band, cols pixels a row (sample 0 overwrites, so the
@@ -35,11 +35,12 @@
  * seeded hash. Interleaving offset rho: from the hash with jitter, else 0.5.
  * samples[pixel] and depth[pixel] collect the reconstruction count and the
  * smallest depth over the pixel's samples. */
-__kernel void eb_render(__constant eb_params *P, int4 band, int sample_index,
+__kernel void eb_render(EB_PARAMS_ARG, int4 band, int sample_index,
                         EB_DATASET_ARGS, __global const float *look_f, __global const int *look_i,
                         __global const float4 *meshes EB_DOMAIN_ARGS, __global float4 *rgba, __global float *depth,
                         __global uint *samples, __global uint *level_samples)
 {
+    EB_PARAMS_REF
     int band_col = get_global_id(0), band_row = get_global_id(1);
     int col = band.z + band_col, row = band.x + band_row;
     int width = P->width, spp = P->spp;
@@ -68,8 +69,7 @@ __kernel void eb_render(__constant eb_params *P, int4 band, int sample_index,
          P->n_clip_planes},
     };
 
-    for (int f = 0; f < EB_N_FIELDS; ++f)
-        fr.look.gradient_scale[f] = look_f4[P->gradient_scale_at / 4 + f].xyz;
+    fr.look.gradient_scale = look_f4 + P->gradient_scale_at / 4;
     fr.surf.mesh.tri = meshes + P->mesh_tris_at;
     fr.surf.mesh.node = meshes + P->mesh_nodes_at;
     fr.surf.mesh.normal = (__global const uint *)(meshes + P->mesh_normals_at);
@@ -108,7 +108,7 @@ __kernel void eb_render(__constant eb_params *P, int4 band, int sample_index,
     if (P->use_front)
         before = front[slot];
 #endif
-    /* Constant shade/ordered arguments let the compiler drop the unused paths. */
+    /* A constant shade argument lets the compiler drop the unused path. */
 #if defined(EB_PATH)
     c = eb_path(&fr, &ray, look_f, &n, &t_depth, level_samples);
     (void)before;
@@ -117,12 +117,8 @@ __kernel void eb_render(__constant eb_params *P, int4 band, int sample_index,
                    : eb_integrate_mixture(&fr, &ray, 0, &n, &t_depth, level_samples);
     (void)before;
 #else
-    if (P->ordered)
-        c = P->shading ? eb_integrate(&fr, &ray, 1, 1, before, &n, &t_depth, level_samples)
-                    : eb_integrate(&fr, &ray, 0, 1, before, &n, &t_depth, level_samples);
-    else
-        c = P->shading ? eb_integrate(&fr, &ray, 1, 0, before, &n, &t_depth, level_samples)
-                    : eb_integrate(&fr, &ray, 0, 0, before, &n, &t_depth, level_samples);
+    c = P->shading ? eb_integrate(&fr, &ray, 1, before, &n, &t_depth, level_samples)
+                   : eb_integrate(&fr, &ray, 0, before, &n, &t_depth, level_samples);
 #endif
     c /= (float)spp;
     if (sample_index == 0) {
@@ -139,9 +135,10 @@ __kernel void eb_render(__constant eb_params *P, int4 band, int sample_index,
 /* The reconstructed fields at n world points (x, y, z packed, float): field f
  * of point i in values[f * n + i]; NaN where no region contains the point or
  * no cell has support there (no containing cell, for nearest and vertex). */
-__kernel void eb_probe(int n, __global const float *points_world, __constant eb_params *P,
+__kernel void eb_probe(int n, __global const float *points_world, EB_PARAMS_ARG,
                        EB_DATASET_ARGS, __global float *values)
 {
+    EB_PARAMS_REF
     int i = get_global_id(0);
     if (i >= n)
         return;

@@ -238,7 +238,7 @@ EB_COLD int eb_surface_hit(eb_frame *fr, eb_ray *ray, eb_ray_state *st, float t,
     if (j >= 0) {
         int4 iso = fr->surf.iso[j];
         n = eb_field_gradient_by(fr, &s, p, level, iso.x,
-                                 fr->P->central || fr->P->iso_gradient == EB_ISO_GRADIENT_CENTRAL
+                                 EB_CENTRAL_NORMALS || fr->P->iso_gradient == EB_ISO_GRADIENT_CENTRAL
                                      ? EB_ISO_CENTRAL_STEP : 0.0f);
         rgb = iso.y >= 0 ? eb_lookup(fr->look, iso.z, iso.w, value[iso.y]).xyz
                          : fr->surf.iso_color[j].xyz;

@@ -3,21 +3,27 @@
  * Rays visit the regions they overlap in exact front-to-back order, whatever
  * the builder's node boxes overlap (regions are disjoint, node boxes need not
  * be). Two walks:
- *  - ordered (default): one traversal per ray with a private min-heap of
- *    nodes and regions keyed by entry distance; popping a region means every
- *    node and region still queued starts behind it, so it is the next one.
- *  - re-trace (the paper's scheme, §4): a closest-hit traversal from the root
- *    for every region, starting where the previous region ended. Used when the
- *    heap would overflow, and selectable for comparison.
+ *  - re-trace (the paper's scheme, §4; the GPUs' walk): a closest-hit
+ *    traversal from the root for every region, starting where the previous
+ *    region ended, without a stack: from each node it goes down to the near
+ *    child, across to the sibling or up to the parent, as where it came from
+ *    says (Hapala et al. 2011; the parents and child orders of
+ *    exabricks.engine.walk_links), so it holds a node and a state in
+ *    registers and nothing in memory;
+ *  - ordered (-DEB_ORDERED; the CPUs' walk): one traversal per ray with a
+ *    private min-heap of nodes and regions keyed by entry distance; popping a
+ *    region means every node and region still queued starts behind it, so it
+ *    is the next one. Goes on by re-tracing if the heap fills up.
  * Space skipping (paper §4.1): nodes and regions whose value range maps to zero
  * opacity under the current transfer function carry visible = 0 (computed on
  * the host per frame, so a new transfer function needs no BVH rebuild) and are
  * never entered.
- * Points (probe, cell location): one descent (eb_descent) that yields the
- * leaves whose boxes contain a point.
+ * Points (probe, central differences, the path integrator): the same stackless
+ * walk, first child first, to the first leaf region containing the point.
  * The trees are checked on load (exabricks.schema): children follow their
- * parent, every node has one parent, and the depth fits EB_STACK_SIZE; every
- * loop here is also bounded by the node and region counts. */
+ * parent, every node has one parent, and the depth fits EB_STACK_SIZE (the
+ * cell-location tree's descent, eb_descent); every loop here is also bounded
+ * by the node and region counts. */
 #pragma once
 #include "common.h"
 
@@ -34,6 +40,7 @@ typedef struct {
     __global const int2 *link;         /* (first, count); count 0: inner node */
     __global const int *region_index;
     __global const uchar *visible;
+    __global const int *parent;        /* parent << 3 | flip << 2 | axis (walk_links) */
     int n_nodes;                       /* loop bounds: every walk visits each */
     int n_regions;                     /* node and region at most once        */
 } eb_bvh;
@@ -48,76 +55,92 @@ typedef struct {
     __global const uchar *visible;
 } eb_regions;
 
+/* The stackless walk's states at a node: entered (from its parent or its
+ * sibling), to be tested; or its subtree done, to be left. Which child of its
+ * parent it is says where to go next (eb_walk_up). */
+#define EB_TEST 0
+#define EB_DONE 1
+
+/* The child of inner node `node` (children first, first + 1) that a ray with
+ * 1 / direction inv_dir visits first: the lower one along the node's split
+ * axis for a ray running up that axis (exabricks.engine.walk_links). */
+EB_INLINE int eb_near_child(eb_bvh bvh, int node, int first, float3 inv_dir)
+{
+    int bits = bvh.parent[node];
+    int axis = bits & 3;
+    float d = axis == 0 ? inv_dir.x : (axis == 1 ? inv_dir.y : inv_dir.z);
+    return first + ((d >= 0.0f) == ((bits >> 2) & 1));
+}
+
+/* The step of a stackless walk from `node`, whose subtree is done: across to
+ * its sibling if it was the child visited first (*node the sibling, EB_TEST),
+ * else up (*node its parent, EB_DONE); -1 past the root.
+ * by_ray: children in the ray's order (eb_near_child), else first child first. */
+EB_INLINE int eb_walk_up(eb_bvh bvh, int *node, const int by_ray, float3 inv_dir)
+{
+    if (*node == 0)
+        return -1;
+    int parent = bvh.parent[*node] >> 3;
+    int first = bvh.link[parent].x;
+    int visited_first = by_ray ? eb_near_child(bvh, parent, first, inv_dir) : first;
+    if (*node == visited_first) {
+        *node = 2 * first + 1 - *node;
+        return EB_TEST;
+    }
+    *node = parent;
+    return EB_DONE;
+}
+
 /* The visible region with the smallest entry distance among those the ray
  * overlaps over a non-empty interval after t_cur (and before t_max); -1 if none.
  * On success [*t_in, *t_out] is that overlap, clipped to [t_cur, t_max], with
  * *t_out > *t_in >= t_cur: the caller's next search starts at *t_out, so the
- * walk always advances and visits every region at most once. */
+ * walk always advances and visits every region at most once. A closest-hit
+ * query without a stack: near child first, and no node entered whose entry
+ * lies behind the nearest region found so far. */
 inline int eb_next_region(eb_bvh bvh, eb_regions regions, float3 org, float3 inv_dir,
                           float t_cur, float t_max, float *t_in, float *t_out)
 {
-    int stack[EB_STACK_SIZE];
-    float stack_t[EB_STACK_SIZE];
-    int sp = 0;
     int best = -1;
     float best_in = t_max, best_out = t_max;
-
-    if (!bvh.visible[0])
-        return -1;
-    float2 root = eb_box_interval(EB_CORNER(bvh.lower, 0), EB_CORNER(bvh.upper, 0), org, inv_dir);
-    if (fmin(root.y, t_max) <= fmax(root.x, t_cur))
-        return -1;
-    stack[sp] = 0;
-    stack_t[sp++] = fmax(root.x, t_cur);
-
-    for (int steps = 0; sp > 0 && steps < bvh.n_nodes; ++steps) {
-        --sp;
-        if (stack_t[sp] >= best_in)
-            continue;  /* a nearer region was found since this node was pushed */
-        int node = stack[sp];
+    int node = 0, state = EB_TEST;
+    /* each node is tested once and left once */
+    for (int steps = 0; state >= 0 && steps <= 2 * bvh.n_nodes; ++steps) {
+        if (state == EB_DONE) {
+            state = eb_walk_up(bvh, &node, 1, inv_dir);
+            continue;
+        }
+        float2 iv = eb_box_interval(EB_CORNER(bvh.lower, node), EB_CORNER(bvh.upper, node),
+                                    org, inv_dir);
+        float t_near = fmax(iv.x, t_cur);
         int2 link = bvh.link[node];
-        if (link.y > 0) {
+        if (bvh.visible[node] && fmin(iv.y, t_max) > t_near && t_near < best_in) {
+            if (link.y == 0) {
+                node = eb_near_child(bvh, node, link.x, inv_dir);
+                continue;
+            }
             for (int i = link.x; i < link.x + link.y; ++i) {
                 int r = bvh.region_index[i];
                 if (!regions.visible[r])
                     continue;
-                float2 iv = eb_box_interval(EB_CORNER(regions.lower, r),
+                float2 ir = eb_box_interval(EB_CORNER(regions.lower, r),
                                             EB_CORNER(regions.upper, r), org, inv_dir);
-                float t0 = fmax(iv.x, t_cur), t1 = fmin(iv.y, t_max);
+                float t0 = fmax(ir.x, t_cur), t1 = fmin(ir.y, t_max);
                 if (t1 > t0 && t0 < best_in) {
                     best = r;
                     best_in = t0;
                     best_out = t1;
                 }
             }
-            continue;
         }
-        int c = link.x;
-        float t_near[2];
-        int hit[2];
-        for (int k = 0; k < 2; ++k) {
-            float2 iv = eb_box_interval(EB_CORNER(bvh.lower, c + k), EB_CORNER(bvh.upper, c + k),
-                                        org, inv_dir);
-            t_near[k] = fmax(iv.x, t_cur);
-            hit[k] = bvh.visible[c + k] && fmin(iv.y, t_max) > t_near[k] && t_near[k] < best_in;
-        }
-        /* Push the far child first so the near one is popped first. */
-        int first = t_near[1] < t_near[0] ? 1 : 0;
-        int second = 1 - first;
-        if (hit[second] && sp < EB_STACK_SIZE) {
-            stack[sp] = c + second;
-            stack_t[sp++] = t_near[second];
-        }
-        if (hit[first] && sp < EB_STACK_SIZE) {
-            stack[sp] = c + first;
-            stack_t[sp++] = t_near[first];
-        }
+        state = EB_DONE;
     }
     *t_in = best_in;
     *t_out = best_out;
     return best;
 }
 
+#ifdef EB_ORDERED
 /* EB_QUEUE_SIZE (exabricks.device.kernel_abi.TUNABLES): the capacity of the ordered
  * walk's heap. The queued nodes and regions lie ahead of the ray front on
  * disjoint subtrees, a few tens for any BVH seen so far. A build option
@@ -220,33 +243,40 @@ EB_INLINE int eb_queue_expand(eb_queue *q, eb_bvh bvh, eb_regions regions, int n
     return 1;
 }
 
+#endif
+
 /* The regions along a ray segment [t_min, t_max], front to back: the ordered
- * walk, finishing with the re-trace walk from where it stopped if its heap
- * fills up (or throughout with ordered == 0). Every region is returned at most
- * once, with its overlap [*t_in, *t_out] (t_in >= the previous t_out). */
+ * walk (-DEB_ORDERED), finishing with the re-trace walk from where it stopped
+ * if its heap fills up, or the re-trace walk throughout. Every region is
+ * returned at most once, with its overlap [*t_in, *t_out] (t_in >= the
+ * previous t_out). */
 typedef struct {
+#ifdef EB_ORDERED
     eb_queue q;
-    float t_cur, t_max;
     int retrace;
-    int pops, visits;  /* loop bounds: each node and region is queued at most once */
+    int pops;          /* loop bound: each node and region is queued at most once */
+#endif
+    float t_cur, t_max;
+    int visits;        /* loop bound: each region is returned at most once */
 } eb_walk;
 
 EB_INLINE void eb_walk_start(eb_walk *w, eb_bvh bvh, float3 org, float3 inv_dir,
-                             float t_min, float t_max, const int ordered)
+                             float t_min, float t_max)
 {
     w->t_cur = t_min;
     w->t_max = t_max;
-    w->retrace = !ordered;
-    w->pops = bvh.n_nodes + bvh.n_regions;
     w->visits = bvh.n_regions;
-    w->q.size = 0;
-    if (ordered)
-        eb_queue_start(&w->q, bvh, org, inv_dir, t_min, t_max);
+#ifdef EB_ORDERED
+    w->retrace = 0;
+    w->pops = bvh.n_nodes + bvh.n_regions;
+    eb_queue_start(&w->q, bvh, org, inv_dir, t_min, t_max);
+#endif
 }
 
 EB_PROFILED int eb_walk_next(eb_walk *w, eb_bvh bvh, eb_regions regions, float3 org,
                            float3 inv_dir, float *t_in, float *t_out)
 {
+#ifdef EB_ORDERED
     if (!w->retrace) {
         while (w->q.size > 0 && w->pops-- > 0) {
             int item = eb_queue_pop(&w->q);
@@ -271,6 +301,7 @@ EB_PROFILED int eb_walk_next(eb_walk *w, eb_bvh bvh, eb_regions regions, float3 
         if (!w->retrace)
             return -1;
     }
+#endif
     if (w->visits-- <= 0)
         return -1;
     int r = eb_next_region(bvh, regions, org, inv_dir, w->t_cur, w->t_max, t_in, t_out);
@@ -319,19 +350,29 @@ EB_INLINE int eb_descent_next(eb_descent *d, __global const float *lower,
 
 /* The first region (in BVH order) whose box contains lattice point p; -1 if none.
  * Regions are disjoint, and a point on a shared face gets the same value from
- * either side (each lists every brick with support there). Visibility is ignored. */
+ * either side (each lists every brick with support there). Visibility is
+ * ignored. The stackless walk of eb_next_region, first child first. */
 inline int eb_find_region(eb_bvh bvh, eb_regions regions, float3 p)
 {
-    eb_descent d;
-    eb_descent_start(&d, bvh.lower, bvh.upper, p);
-    int leaf;
-    while ((leaf = eb_descent_next(&d, bvh.lower, bvh.upper, bvh.link, p, bvh.n_nodes)) >= 0) {
-        int2 link = bvh.link[leaf];
-        for (int i = link.x; i < link.x + link.y; ++i) {
-            int r = bvh.region_index[i];
-            if (eb_point_in_box(p, EB_CORNER(regions.lower, r), EB_CORNER(regions.upper, r)))
-                return r;
+    int node = 0, state = EB_TEST;
+    for (int steps = 0; state >= 0 && steps <= 2 * bvh.n_nodes; ++steps) {
+        if (state == EB_DONE) {
+            state = eb_walk_up(bvh, &node, 0, (float3)(0.0f));
+            continue;
         }
+        if (eb_point_in_box(p, EB_CORNER(bvh.lower, node), EB_CORNER(bvh.upper, node))) {
+            int2 link = bvh.link[node];
+            if (link.y == 0) {
+                node = link.x;
+                continue;
+            }
+            for (int i = link.x; i < link.x + link.y; ++i) {
+                int r = bvh.region_index[i];
+                if (eb_point_in_box(p, EB_CORNER(regions.lower, r), EB_CORNER(regions.upper, r)))
+                    return r;
+            }
+        }
+        state = EB_DONE;
     }
     return -1;
 }

@@ -5,7 +5,8 @@
   tunable may be overridden by a build option (-DEB_QUEUE_SIZE=16).
 * `PARAMS`: the scalars of one frame (or probe) and where each of the dataset's
   and the frame's arrays starts in the buffer that groups it, as one C struct
-  `eb_params` that the kernels read from one constant buffer (`params`). The
+  `eb_params` that the kernels take by value or in one constant buffer
+  (`params`, `params_by_value`). The
   render options declared with `kernel=True` (exabricks.scene.options) are
   members too, filled from the scene by `option_params`.
 * `variant_defines`: the build defines of a kernel program.
@@ -69,9 +70,9 @@ PARAMS = (
     ("width", "int"), ("height", "int"), ("spp", "int"), ("seed", "uint"), ("jitter", "int"),
     # integration
     ("step_base", "float"), ("inv_unit_distance", "float"), ("max_opacity", "float"),
-    ("lod_scale", "float"), ("ordered", "int"),
+    ("lod_scale", "float"),
     # lighting
-    ("shading", "int"), ("central", "int"), ("ao_samples", "int"), ("ao_distance", "float"),
+    ("shading", "int"), ("ao_samples", "int"), ("ao_distance", "float"),
     # what the frame holds
     ("n_layers", "int"), ("n_iso", "int"), ("n_slices", "int"), ("iso_tolerance", "float"),
     ("clip_box", "int"), ("n_clip_planes", "int"), ("use_front", "int"),
@@ -80,6 +81,7 @@ PARAMS = (
     ("node_lower_at", "int"), ("node_upper_at", "int"),        # geometry (float)
     ("region_lower_at", "int"), ("region_upper_at", "int"),
     ("node_link_at", "int"), ("node_region_at", "int"),        # links (int)
+    ("node_parent_at", "int"),                                 # (exabricks.engine.walk_links)
     ("node_visible_at", "int"), ("region_visible_at", "int"),  # flags (uchar)
     ("region_level_at", "int"),
     ("tree_lower_at", "int"), ("tree_upper_at", "int"),        # tree (4-byte words)
@@ -128,6 +130,32 @@ def params(**values) -> np.ndarray:
     return out
 
 
+# NVIDIA's register cap (the driver's -cl-nv-maxrregcount) for the render programs
+# that fit it without a spill under the offline gauge (benchmarks/gpu_gauge.py):
+# those of volume layers drawn one sample at a time by the headlight or path
+# integrator. Left alone (about 112 registers for the GPU default) ptxas holds more
+# loads in flight and runs fewer warps; capped, 21 warps fit a multiprocessor where
+# 18 did. The other programs would spill under it. benchmarks/gpu_checks.sh
+# compares the two on a lent GPU (ab_kernels --options=-cl-nv-maxrregcount=112).
+NV_REGISTER_CAP = 96
+_UNCAPPED = ("EB_SURFACES", "EB_SHADOW", "EB_LOD", "EB_PACKET", "EB_MIXTURE")
+
+
+def nv_build_options(defines) -> tuple[str, ...]:
+    """The build options an NVIDIA device gets beyond the others' for a program of
+    these defines (variant_defines)."""
+    capped = not any(d.split("=")[0] in _UNCAPPED for d in defines)
+    return (f"-cl-nv-maxrregcount={NV_REGISTER_CAP}",) if capped else ()
+
+
+def params_by_value(surfaces: bool) -> bool:
+    """Whether the render program (eb_render, eb_probe) of a variant with or without
+    `surfaces` takes its eb_params by value, else in a __constant buffer
+    (kernels/common.h, EB_PARAMS_ARG: by value except where out-of-line functions
+    would copy it to the stack)."""
+    return not surfaces
+
+
 def option_params(scene) -> dict:
     """The eb_params members of the render options the kernels read (`kernel=True`),
     from `scene` (exabricks.scene.Scene)."""
@@ -160,9 +188,13 @@ def header() -> str:
 def variant_defines(*, n_fields: int = 1, reconstruction: str = "basis", surfaces: bool = False,
                     lod: bool = False, packets: bool = False, domain: bool = False,
                     cell_location: bool = False, mixture: bool = False,
-                    shadow: bool = False, path: bool = False) -> tuple[str, ...]:
+                    shadow: bool = False, path: bool = False, ordered: bool = False,
+                    central: bool = False) -> tuple[str, ...]:
     """The build defines of the render program for these choices (each a program
-    of its own; the host checks which combinations exist before building)."""
+    of its own; the host checks which combinations exist before building).
+    ordered: the region walk with a heap (else the stackless re-trace walk,
+    kernels/traversal.cl); central: volume samples' normals from central
+    differences (else the analytic gradient)."""
     return ((f"EB_N_FIELDS={max(1, int(n_fields))}",)
             + {"basis": (), "nearest": ("EB_RECON_NEAREST",),
                "vertex": ("EB_RECON_VERTEX",)}[reconstruction]
@@ -170,4 +202,5 @@ def variant_defines(*, n_fields: int = 1, reconstruction: str = "basis", surface
             + (("EB_SURFACES",) if surfaces else ()) + (("EB_LOD",) if lod else ())
             + ((f"EB_PACKET={PACKET_WIDTH}",) if packets else ())
             + (("EB_DOMAIN",) if domain else ()) + (("EB_MIXTURE",) if mixture else ())
-            + (("EB_SHADOW",) if shadow else ()) + (("EB_PATH",) if path else ()))
+            + (("EB_SHADOW",) if shadow else ()) + (("EB_PATH",) if path else ())
+            + (("EB_ORDERED",) if ordered else ()) + (("EB_CENTRAL",) if central else ()))

@@ -193,9 +193,18 @@ def context_for(device):
     return _CONTEXTS[key]
 
 
-def build_options(defines=()) -> list[str]:
-    """The OpenCL build options of a program with preprocessor `defines`."""
-    return [*BUILD_OPTIONS, f"-I{kernel_dir()}", *(f"-D{d}" for d in defines)]
+def build_options(defines=(), nvidia: bool = False) -> list[str]:
+    """The OpenCL build options of a program with preprocessor `defines`, for an
+    NVIDIA device (kernel_abi.nv_build_options, first: an option added to
+    BUILD_OPTIONS, as benchmarks.ab_kernels adds them, comes later and wins) or
+    another."""
+    return [*(kernel_abi.nv_build_options(defines) if nvidia else ()), *BUILD_OPTIONS,
+            f"-I{kernel_dir()}", *(f"-D{d}" for d in defines)]
+
+
+def is_nvidia(device) -> bool:
+    """Whether `device` runs NVIDIA's OpenCL driver."""
+    return "NVIDIA" in device.platform.name.upper()
 
 
 def program_for(context, defines=(), source_name: str = ENTRY_SOURCE):
@@ -208,7 +217,7 @@ def program_for(context, defines=(), source_name: str = ENTRY_SOURCE):
     if key not in _PROGRAMS:
         directory = kernel_dir()
         source = kernel_abi.header() + (directory / source_name).read_text(encoding="utf-8")
-        options = build_options(defines)
+        options = build_options(defines, is_nvidia(context.devices[0]))
         device = _device_name(context.devices[0])
         what = "the renderer" if source_name == ENTRY_SOURCE else f"kernels/{source_name}"
         start = time.perf_counter()

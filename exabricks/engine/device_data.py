@@ -21,6 +21,7 @@ from .. import schema
 from ..scene import RECONSTRUCTIONS
 from ..util.errors import ExabricksError
 from .grouped import Grouped
+from .walk_links import walk_links
 
 
 # Points per enqueue of `DeviceDataset.probe_fields`: a fraction of a second on a CPU device.
@@ -236,6 +237,8 @@ class DeviceDataset:
             layout[name] = geometry.add(array)
         layout["node_link_at"] = links.add(_packed(np.int32, bvh.first, bvh.count), align=2)
         layout["node_region_at"] = links.add(bvh.region_index)
+        layout["node_parent_at"] = links.add(walk_links(bvh.first, bvh.count, bvh.lower_lattice,
+                                                        bvh.upper_lattice))
         # Per brick its box (lower corner, 1 / width), then its dims (N, level) as int4.
         inv_width = np.ldexp(np.float32(1), -b.level.astype(np.int32))
         grid = np.concatenate([_packed(np.float32, b.lower_lattice, inv_width),
@@ -334,10 +337,11 @@ class DeviceDataset:
         flags = self._all_visible if flags is None else flags
         return [*self._geometry, flags, *self._lists, *vertex, *mip, tree], layout
 
-    def params(self, **values) -> np.ndarray:
-        """eb_params with this dataset's world frame and `values` (kernel_abi.params)."""
+    def params(self, **values) -> np.void:
+        """eb_params with this dataset's world frame and `values` (kernel_abi.params),
+        the kernels' argument by value."""
         return kernel_abi.params(origin_world=(*self.bricks.origin_world, 0.0),
-                                 inv_spacing=(*(1.0 / self.bricks.spacing_world), 0.0), **values)
+                                 inv_spacing=(*(1.0 / self.bricks.spacing_world), 0.0), **values)[0]
 
     def probe_fields(self, points_world, *, reconstruction: str = "basis") -> np.ndarray:
         """Values of every uploaded field at `points_world` (N, 3) world units ->
@@ -359,7 +363,7 @@ class DeviceDataset:
         local = 64
         kernel = opencl.kernel(self.program_for(reconstruction=reconstruction), "eb_probe")
         args, layout = self.dataset_args(reconstruction=reconstruction)
-        params = opencl.to_device(q, self.params(**layout))
+        params = self.params(**layout)
         # In chunks, so that a signal can stop a large probe between enqueues.
         chunk = min(n, PROBE_CHUNK)
         values_buf = opencl.empty_buffer(q, 4 * chunk * n_fields)

@@ -24,11 +24,12 @@ absorption. Conventions the design leaves open, chosen here:
   gradient is unshaded. ``"none"``: pure emission-absorption.
 * depth: world distance along the ray at which the accumulated opacity first
   reaches 0.5 (smallest over the pixel's samples); +inf where it never does.
-* ``traversal="ordered"`` (default) walks the regions with one BVH traversal
-  per ray and a private min-heap (re-tracing if the heap fills up);
-  ``"retrace"`` re-traces from the root for every region as the paper does
-  (§4). Same regions, same image; ordered is faster on PoCL
-  (docs/benchmarks-render.md, "render (PoCL)").
+* ``traversal="ordered"`` walks the regions with one BVH traversal per ray and
+  a private min-heap (re-tracing if the heap fills up); ``"retrace"`` re-traces
+  from the root for every region as the paper does (§4), without a stack.
+  Same regions, same image. The default follows the device: ordered with
+  sample packets (CPUs: faster on PoCL, docs/benchmarks-render.md "render
+  (PoCL)"), re-trace one sample at a time (GPUs: no heap in memory).
 * ``Renderer(..., lookup="cell-location")`` (Python API only) is the
   comparison of paper §6.4.2 (Table 3): the regions still decide where to
   sample, but each sample finds its bricks by descending a tree over the brick
@@ -69,16 +70,7 @@ from . import instances
 from .device_data import DatasetScale, DeviceDataset
 from .look import frame_arrays
 from .majorants import frame_majorants
-from .variants import check_variant
-
-# Region walks (kernels/traversal.cl): "ordered" keeps a private min-heap of
-# BVH nodes and regions per ray (one traversal per ray); "retrace" is the
-# paper's §4 closest-hit traversal from the root for every region.
-TRAVERSALS = ("ordered", "retrace")
-
-# Where a sample finds the bricks it reconstructs from: the region's list (paper
-# §3.2) or a per-sample descent of a tree over the brick supports (§6.4.2).
-LOOKUPS = ("regions", "cell-location")
+from .variants import LOOKUPS, TRAVERSALS, check_choice, check_variant
 
 # Pixels per work-group side: 8 x 8 tiles keep neighbouring rays (which walk the
 # same regions and bricks) together on one core.
@@ -156,13 +148,7 @@ def _check_settings(settings: Settings, traversal: str) -> None:
     unit = settings.unit_distance
     if unit is not None and not (math.isfinite(unit) and unit > 0):
         raise ExabricksError(f"unit distance must be positive, got {unit:g}")
-    if traversal not in TRAVERSALS:
-        raise ExabricksError(f"unknown traversal {traversal!r} (one of {', '.join(TRAVERSALS)})")
-
-
-def _check_lookup(lookup):
-    if lookup not in LOOKUPS:
-        raise ExabricksError(f"unknown brick lookup {lookup!r} (one of {', '.join(LOOKUPS)})")
+    check_choice("traversal", traversal, TRAVERSALS)
 
 
 class Renderer:
@@ -177,7 +163,7 @@ class Renderer:
         a k-d partition (exabricks.engine.partition) that these structures are
         the share of, `scale` the whole dataset's; frames then hold exactly the
         samples inside the box (docs/design-scale.md, "Data-parallel rendering and MPI")."""
-        _check_lookup(lookup)
+        check_choice("brick lookup", lookup, LOOKUPS)
         self.dataset = DeviceDataset(bricks, regions, bvh, field=field, fields=fields, device=device,
                                  scale=scale)
         self.domain = None if domain is None else \
@@ -192,13 +178,13 @@ class Renderer:
         self._macrocells = {}  # the path integrator's grid and value ranges (majorants.frame_majorants)
 
     def _use(self, lookup: str) -> None:
-        _check_lookup(lookup)
+        check_choice("brick lookup", lookup, LOOKUPS)
         self.lookup = lookup
         if lookup == "cell-location":
             self.dataset.location_args()  # built now: its time is not a frame's
 
     def _kernel(self, surfaces: bool, reconstruction: str, lod: bool, extra=(),
-                integrator: str = "headlight"):
+                integrator: str = "headlight", traversal: str = "retrace", central: bool = False):
         """eb_render built for this renderer and frame, with `extra` defines (tests)."""
         check_variant(integrator, surfaces, reconstruction, lod, self.lookup,
                       whole=self.domain is None and self.copies is None)
@@ -206,7 +192,8 @@ class Renderer:
             extra, reconstruction=reconstruction, surfaces=surfaces, lod=lod,
             packets=self._packet_width(reconstruction, integrator) > 1, domain=self.domain is not None,
             cell_location=self.lookup == "cell-location", mixture=self.copies is not None,
-            shadow=integrator == "shadow", path=integrator == "path")
+            shadow=integrator == "shadow", path=integrator == "path",
+            ordered=traversal == "ordered", central=central)
         return opencl.kernel(program, "eb_render")
 
     def _packet_width(self, reconstruction: str, integrator: str = "headlight") -> int:
@@ -232,6 +219,12 @@ class Renderer:
         return other
 
     @property
+    def traversal(self) -> str:
+        """The default region walk: the ordered one beside sample packets (CPUs), the
+        stackless re-trace one where rays take one sample at a time (GPUs)."""
+        return "ordered" if self.packets else "retrace"
+
+    @property
     def field(self) -> str:
         return self.dataset.field
 
@@ -243,7 +236,7 @@ class Renderer:
                sampling_rate: float = 2.0, spp: int = 1, seed: int = 0, jitter: bool = True,
                max_opacity: float = 0.98, unit_distance: float | None = None,
                shading: str = "headlight", depth: bool = False,
-               traversal: str = "ordered", reconstruction: str = "basis") -> RenderResult:
+               traversal: str | None = None, reconstruction: str = "basis") -> RenderResult:
         """One frame of one volume layer (the first uploaded field); see the module
         docstring for the conventions and `render_scene` for everything else."""
         scene = Scene(
@@ -264,14 +257,14 @@ class Renderer:
         develop(result.rgba, scene)
         return result
 
-    def integrate(self, scene: Scene, *, traversal: str = "ordered", rows=None,
+    def integrate(self, scene: Scene, *, traversal: str | None = None, rows=None,
                   window=None, sample: int | None = None, front: np.ndarray | None = None,
                   deadline: float | None = None) -> RenderResult:
         """The premultiplied radiance of `scene` (exabricks.scene.Scene; its fields
         must be uploaded), before the film: no exposure, no background.
 
-        `traversal` picks the region walk (TRAVERSALS); both give the same
-        image up to float rounding, only the speed differs. `rows`: the spans
+        `traversal` picks the region walk (TRAVERSALS; default: `self.traversal`);
+        both give the same image up to float rounding, only the speed differs. `rows`: the spans
         (first row, count) to render (default: all rows; the others stay 0).
         `window`: (first column, first row, columns, rows) of a tile of the
         frame: the result (and `front`, `rows`) is that tile alone, the very
@@ -285,6 +278,7 @@ class Renderer:
         passes it; stats["rows"] then says how many rows from the top were
         drawn (the rest are `front`, else empty)."""
         scene.check()
+        traversal = traversal or self.traversal
         _check_settings(scene.settings, traversal)
         if scene.instances:
             if self.domain is not None:
@@ -375,8 +369,10 @@ class Renderer:
         samples_buf = opencl.empty_buffer(q, band_pixels * 4)
         lod = cfg.lod > 0
         integrator = lighting.integrator
-        kernel = self._kernel(bool(scene.isosurfaces or scene.slices or scene.meshes),
-                              cfg.reconstruction, lod, integrator=integrator)
+        surfaces = bool(scene.isosurfaces or scene.slices or scene.meshes)
+        kernel = self._kernel(surfaces, cfg.reconstruction, lod, integrator=integrator, traversal=traversal,
+                              # nearest is piecewise constant: its normals come from central differences
+                              central=lighting.gradient == "central" or cfg.reconstruction == "nearest")
         level_samples = np.zeros(LOD_LEVELS, np.uint32)
         level_buf = opencl.to_device(q, level_samples, writable=True)
         # Pixels of a cell of width w at distance t: w / (t * 2 tan(fovy / 2) / H).
@@ -394,7 +390,7 @@ class Renderer:
         if scene.meshes:
             frame.stats["meshes"] = self._mesh_set.stats()
         origin, forward, du, dv = scene.camera.frame(frame.width, frame.height)
-        params = up(q, s.params(
+        params = s.params(
             **layout, **look_params, **mesh_params, **kernel_abi.option_params(scene),
             width=frame.width, height=frame.height, spp=frame.spp,
             seed=int(cfg.seed) & 0xFFFFFFFF, jitter=bool(cfg.jitter),
@@ -404,13 +400,11 @@ class Renderer:
             max_opacity=cfg.max_opacity,
             shading=integrator == "headlight" and lighting.shading != "none",
             **light_params(scene, s.finest_width_world),
-            ordered=traversal == "ordered",
-            # nearest is piecewise constant: its normals come from central differences
-            central=lighting.gradient == "central" or cfg.reconstruction == "nearest",
             ao_samples=lighting.ao_samples, ao_distance=ao_distance, lod_scale=lod_scale,
             **path,
             **(dict(domain_lower=self.domain[0], domain_upper=self.domain[1],
-                    use_front=has_front) if self.domain else {})))
+                    use_front=has_front) if self.domain else {}))
+        params = params if kernel_abi.params_by_value(surfaces) else up(q, params)
         fixed = [*args, *(up(q, a) for a in look), *mesh_args,
                  *((front_buf,) if self.domain else ()), rgba_buf, depth_buf, samples_buf, level_buf]
         return _Launch(kernel, params, fixed, band_rows, rgba_buf, front_buf, depth_buf, samples_buf,
@@ -574,7 +568,7 @@ def render(bricks: schema.Bricks, regions: schema.Regions, bvh: schema.Bvh, *, c
            sampling_rate: float = 2.0, spp: int = 1, seed: int = 0, jitter: bool = True,
            max_opacity: float = 0.98, unit_distance: float | None = None,
            shading: str = "headlight", depth: bool = False, device=None,
-           traversal: str = "ordered", lookup: str = "regions",
+           traversal: str | None = None, lookup: str = "regions",
            reconstruction: str = "basis") -> RenderResult:
     """Render one frame of one volume layer of `field` (default: the first); see
     `Renderer.render`."""
@@ -586,7 +580,7 @@ def render(bricks: schema.Bricks, regions: schema.Regions, bvh: schema.Bvh, *, c
 
 
 def render_scene(bricks: schema.Bricks, regions: schema.Regions, bvh: schema.Bvh,
-                 scene: Scene, *, device=None, traversal: str = "ordered",
+                 scene: Scene, *, device=None, traversal: str | None = None,
                  lookup: str = "regions") -> RenderResult:
     """Render `scene` (exabricks.scene.Scene), uploading only the fields it uses."""
     return Renderer(bricks, regions, bvh, fields=scene.fields(), device=device,

@@ -1,11 +1,26 @@
 """Which render-kernel variants exist: the combinations of integrator, surfaces,
-reconstruction, level of detail and brick lookup that a frame may ask for
-(kernel_abi.variant_defines builds them), each one that does not refused with
-one line before anything is built."""
+reconstruction, level of detail, brick lookup and region walk that a frame may
+ask for (kernel_abi.variant_defines builds them), each one that does not
+refused with one line before anything is built."""
 
 from __future__ import annotations
 
 from ..util.errors import ExabricksError
+
+# Region walks (kernels/traversal.cl): "ordered" keeps a private min-heap of
+# BVH nodes and regions per ray (one traversal per ray); "retrace" is the
+# paper's §4 closest-hit traversal from the root for every region, stackless.
+TRAVERSALS = ("ordered", "retrace")
+
+# Where a sample finds the bricks it reconstructs from: the region's list (paper
+# §3.2) or a per-sample descent of a tree over the brick supports (§6.4.2).
+LOOKUPS = ("regions", "cell-location")
+
+
+def check_choice(what: str, value: str, choices) -> None:
+    """ExabricksError unless `value` is one of `choices`."""
+    if value not in choices:
+        raise ExabricksError(f"unknown {what} {value!r} (one of {', '.join(choices)})")
 
 
 def check_variant(integrator: str, surfaces: bool, reconstruction: str, lod: bool, lookup: str,

@@ -1,11 +1,13 @@
 """The two region walks of kernels/traversal.cl give the same frames.
 
-"ordered" (the default: one traversal per ray with a private min-heap) and
-"retrace" (the paper's §4 re-trace from the root per region) must visit the
-same regions over the same intervals, so images and sample counts agree; the
-ordered walk's fallback to re-tracing when its heap fills up (forced here with
-a 2-entry heap) must too. tests/engine/test_render.py checks the default walk against
-the float64 reference integrator.
+"ordered" (the CPUs' default: one traversal per ray with a private min-heap)
+and "retrace" (the GPUs' default: the paper's §4 re-trace from the root per
+region, stackless) must visit the same regions over the same intervals, so
+images and sample counts agree, with sample packets (the CPUs' programs) and
+one sample at a time (the GPUs'); the ordered walk's fallback to re-tracing
+when its heap fills up (forced here with a 2-entry heap) must too.
+tests/engine/test_render.py checks the default walk against the float64
+reference integrator; tests/engine/test_walk_links.py the stackless walk's links.
 """
 
 from __future__ import annotations
@@ -23,8 +25,6 @@ SIZE = 64
 DATASETS = {"gerris": (GERRIS, "T"), "amrex": (AMREX, "phi"), "athena": (ATHENA, "rho")}
 
 
-
-
 def scene(name: str):
     """(bricks, regions, bvh, field, camera, transfer function) of a shared dataset."""
     return built_scene(*DATASETS[name])
@@ -32,7 +32,7 @@ def scene(name: str):
 
 def use_build(renderer, define: str) -> None:
     """Make `renderer` render with its volume program built with one more define."""
-    kernel = renderer._kernel(False, "basis", False, extra=(define,))
+    kernel = renderer._kernel(False, "basis", False, extra=(define,), traversal="ordered")
     renderer._kernel = lambda *args, **kwargs: kernel
 
 
@@ -45,9 +45,10 @@ def frame(renderer, name, **settings):
 @pytest.mark.parametrize("device", DEVICES)
 @pytest.mark.parametrize("name", list(DATASETS))
 @pytest.mark.parametrize("shading", ["headlight", "none"])
-def test_ordered_and_retrace_walks_give_the_same_frame(name, device, shading):
+@pytest.mark.parametrize("packets", [True, False], ids=["packets", "one-sample"])
+def test_ordered_and_retrace_walks_give_the_same_frame(name, device, shading, packets):
     bricks, regions, bvh, field, *_ = scene(name)
-    renderer = Renderer(bricks, regions, bvh, field=field, device=device)
+    renderer = Renderer(bricks, regions, bvh, field=field, device=device, packets=packets)
     results = {t: frame(renderer, name, traversal=t, shading=shading, depth=True)
                for t in TRAVERSALS}
     ordered, retrace = results["ordered"], results["retrace"]
@@ -56,6 +57,15 @@ def test_ordered_and_retrace_walks_give_the_same_frame(name, device, shading):
     np.testing.assert_allclose(ordered.rgba, retrace.rgba, rtol=0, atol=1e-6)
     np.testing.assert_array_equal(np.isinf(ordered.depth), np.isinf(retrace.depth))
     assert ordered.stats["traversal"] == "ordered" and retrace.stats["traversal"] == "retrace"
+
+
+@pytest.mark.parametrize("device", DEVICES)
+def test_the_default_walk_follows_the_device(device):
+    """Packets (CPUs) walk with the heap, one sample at a time (GPUs) without."""
+    bricks, regions, bvh, field, *_ = scene("athena")
+    renderer = Renderer(bricks, regions, bvh, field=field, device=device)
+    assert renderer.with_packets(True).traversal == "ordered"
+    assert frame(renderer.with_packets(False), "athena").stats["traversal"] == "retrace"
 
 
 @pytest.mark.parametrize("device", DEVICES)
