@@ -6,9 +6,9 @@
 Each dataset is run through ingest, brick, regions and bvh (the `exabricks`
 stage commands, once, into --work/<name>/; not timed). A `Renderer` uploads it,
 then for each traversal ("ordered": the private min-heap walk, "retrace": the
-paper's re-trace from the root per region) on the device's default path, and
-for the ordered walk on the other path (sample packets or one sample at a
-time: on a CPU the packets are the default), the script renders one warm-up
+paper's re-trace from the root per region, stackless) on each path (sample
+packets or one sample at a time: on a CPU the packets and the ordered walk are
+the default, on a GPU one sample and the re-trace walk), the script renders one warm-up
 frame and --runs timed frames of size x size (the variants alternating) with the
 default camera on the data bounds (exabricks.picture.camera.default_camera), the default transfer function
 over the field's range (exabricks.picture.transfer_function.default_transfer_function)
@@ -114,12 +114,12 @@ def ensure_scene(work: Path, dataset: benchdoc.Dataset) -> Path:
 
 
 def variants(renderer) -> dict:
-    """{label: renderer}: both walks on the device's default path, and the ordered walk
-    on the other path (sample packets on a CPU, one sample at a time elsewhere)."""
+    """{label: renderer}: both walks on both paths, the device's default path first
+    (sample packets on a CPU with the ordered walk, one sample at a time with the
+    stackless re-trace walk on a GPU)."""
     path = lambda packets: "packets" if packets else "one sample"
-    out = {(t, path(renderer.packets)): renderer for t in TRAVERSALS}
-    out["ordered", path(not renderer.packets)] = renderer.with_packets(not renderer.packets)
-    return out
+    return {(t, path(p)): renderer.with_packets(p) for p in (renderer.packets, not renderer.packets)
+            for t in TRAVERSALS}
 
 
 def bench_one(d: Path, field: str, frames: int, size: int):
