@@ -39,6 +39,7 @@ BUDGETS = {
     ("volume, one sample (GPU default)", "eb_probe"): (60, 264, 0),
     ("volume, sample packets (CPU default)", "eb_render"): (255, 3216, 1048),
     ("surfaces, slices, clipping, AO", "eb_render"): (250, 2544, 0),
+    ("volume, central differences", "eb_render"): (128, 416, 0),
     ("level of detail", "eb_render"): (113, 320, 0),
     ("cell location", "eb_render"): (96, 528, 0),
     ("vertex reconstruction", "eb_render"): (94, 64, 0),

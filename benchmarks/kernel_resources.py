@@ -33,6 +33,7 @@ VARIANTS = (
     ("volume, one sample (GPU default)", "render.cl", "eb_render", {}),
     ("volume, sample packets (CPU default)", "render.cl", "eb_render", {"packets": True, "ordered": True}),
     ("surfaces, slices, clipping, AO", "render.cl", "eb_render", {"surfaces": True}),
+    ("volume, central differences", "render.cl", "eb_render", {"central": True}),
     ("level of detail", "render.cl", "eb_render", {"lod": True}),
     ("cell location", "render.cl", "eb_render", {"cell_location": True}),
     ("vertex reconstruction", "render.cl", "eb_render", {"reconstruction": "vertex"}),

@@ -89,8 +89,8 @@ EB_INLINE eb_basis_sums eb_sample_region_at(eb_frame *fr, int r, float3 p, int l
  * the derivative sums where shading uses analytic gradients. */
 EB_INLINE eb_basis_sums eb_sample_shaded(eb_frame *fr, int r, float3 p, int level, const int shade)
 {
-    return shade && !EB_CENTRAL_NORMALS ? eb_sample_region_at(fr, r, p, level, 1)
-                                 : eb_sample_region_at(fr, r, p, level, 0);
+    return (EB_CENTRAL_NORMALS ? 0 : shade) ? eb_sample_region_at(fr, r, p, level, 1)
+                                            : eb_sample_region_at(fr, r, p, level, 0);
 }
 
 /* The level a region is sampled at: its finest level, or with --lod the

@@ -54,8 +54,8 @@ __attribute__((noinline)) int eb_batch_take(eb_frame *fr, eb_ray *ray, eb_sample
     q->m = q->n_lists = 0;
     if (m == 0)
         return 0;
-    const int grad = shade && !EB_CENTRAL_NORMALS;
-    const int medium = fr->look.n_layers == 1 && !EB_CENTRAL_NORMALS;
+    const int grad = EB_CENTRAL_NORMALS ? 0 : shade;
+    const int medium = EB_CENTRAL_NORMALS ? 0 : fr->look.n_layers == 1;
     if (m < EB_PACKET_MIN_LANES) {
         for (int k = 0; k < m; ++k) {
             float3 p = ray->org + q->tm[k] * ray->dir;

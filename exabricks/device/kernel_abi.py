@@ -133,12 +133,13 @@ def params(**values) -> np.ndarray:
 # NVIDIA's register cap (the driver's -cl-nv-maxrregcount) for the render programs
 # that fit it without a spill under the offline gauge (benchmarks/gpu_gauge.py):
 # those of volume layers drawn one sample at a time by the headlight or path
-# integrator. Left alone (about 112 registers for the GPU default) ptxas holds more
+# integrator, with analytic normals. Left alone (about 112 registers for the GPU default) ptxas holds more
 # loads in flight and runs fewer warps; capped, 21 warps fit a multiprocessor where
-# 18 did. The other programs would spill under it. benchmarks/gpu_checks.sh
+# 18 did. The other programs would spill under it (central differences: 400 B).
+# benchmarks/gpu_checks.sh
 # compares the two on a lent GPU (ab_kernels --options=-cl-nv-maxrregcount=112).
 NV_REGISTER_CAP = 96
-_UNCAPPED = ("EB_SURFACES", "EB_SHADOW", "EB_LOD", "EB_PACKET", "EB_MIXTURE")
+_UNCAPPED = ("EB_SURFACES", "EB_SHADOW", "EB_LOD", "EB_PACKET", "EB_MIXTURE", "EB_CENTRAL")
 
 
 def nv_build_options(defines) -> tuple[str, ...]:
