@@ -91,10 +91,10 @@ browser-deps:
 test-slow: setup browser-deps
 	$(PY) -m pytest -q -n $(WORKERS) --dist loadfile -m "slow"
 
-# The fuzzers with many examples each: 110, which keeps CI within its 45 minutes on
+# The fuzzers with many examples each: 100, which keeps CI within its 45 minutes on
 # two cores (each of tests/cli/test_fuzz.py's ten fuzzers takes about 1 s an example).
 fuzz: setup
-	EXABRICKS_FUZZ_EXAMPLES=110 $(PY) -m pytest -q -n $(WORKERS) -m "fuzz"
+	EXABRICKS_FUZZ_EXAMPLES=100 $(PY) -m pytest -q -n $(WORKERS) -m "fuzz"
 
 # The SLURM workflows on a one-node cluster on this machine (workflows/slurm/up.sh:
 # Debian's slurm-wlm and munge, started by hand; root, or sudo).
