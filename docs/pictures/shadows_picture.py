@@ -14,37 +14,21 @@ the iso-surface), 320x320 each, 4 samples per pixel, and prints each frame's tim
 
 from __future__ import annotations
 
-import io
-import time
-from pathlib import Path
+from sheet import ROOT, render_sheet
 
-from PIL import Image
-
-import exabricks as eb
-
-ROOT = Path(__file__).resolve().parents[2]
 OUT = ROOT / "docs" / "images" / "shadows.png"
-DATA = ROOT.parent / "shared" / "data"
-SHOTS = (  # (source, field, an iso-value of the field's structure, open options)
-    (ROOT / "exabricks" / "data" / "gerris-plume" / "plume7-1.cells", "T", 0.45, {}),
-    (DATA / "amrex-advection3d" / "plt00020", "phi", 1.5, {}),
-    (DATA / "athena-blast3d" / "Blast.out2.00001.athdf", "rho", 1.5, {}),
-    (DATA / "enzo-moving7" / "moving7_0010", "Density", 3.0, {"format": "yt"}),
-)
 SIZE = 320
+ISO = (0.45, 1.5, 1.5, 3.0)  # per dataset of sheet.DATASETS: an iso-value of its structure
+
+
+def columns(row: int):
+    return (("headlight", {"integrator": "headlight", "spp": 4}),
+            ("shadow", {"integrator": "shadow", "spp": 4}),
+            ("shadow, iso-surface", {"integrator": "shadow", "spp": 4, "iso": ISO[row]}))
 
 
 def main() -> None:
-    sheet = Image.new("RGB", (3 * SIZE, SIZE * len(SHOTS)))
-    for row, (source, field, iso, options) in enumerate(SHOTS):
-        renderer = eb.Renderer(eb.open(source, fields=[field], **options))
-        for col, (integrator, more) in enumerate((("headlight", {}), ("shadow", {}), ("shadow", {"iso": iso}))):
-            started = time.perf_counter()
-            image = renderer.render(field=field, size=(SIZE, SIZE), spp=4, integrator=integrator, **more)
-            print(f"{Path(source).name} {integrator}: {time.perf_counter() - started:.1f} s", flush=True)
-            sheet.paste(Image.open(io.BytesIO(image._repr_png_())).convert("RGB"), (SIZE * col, SIZE * row))
-    sheet.save(OUT)
-    print(OUT)
+    render_sheet(OUT, SIZE, columns)
 
 
 if __name__ == "__main__":
