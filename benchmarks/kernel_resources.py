@@ -40,6 +40,7 @@ VARIANTS = (
     ("shadow integrator", "render.cl", "eb_render", {"shadow": True}),
     ("shadow integrator, surfaces", "render.cl", "eb_render", {"shadow": True, "surfaces": True}),
     ("path integrator", "render.cl", "eb_render", {"path": True}),
+    ("path integrator, surfaces", "render.cl", "eb_render", {"path": True, "surfaces": True}),
     ("uniform-grid marcher", "uniform_grid.cl", "eb_uniform_render", {}),
 )
 ENTRY = re.compile(r"(?:entry function|Function properties for) '?(\w+)'?")

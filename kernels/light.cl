@@ -19,7 +19,7 @@
 /* Transmittance toward the light from world point p. */
 EB_INLINE float eb_light_transmittance(eb_frame *fr, float3 p, float rho)
 {
-    return eb_visibility(fr, p, fr->P->light_dir.xyz, 0.0f, EB_INF, rho);
+    return eb_visibility(fr, p, fr->P->light_dir.xyz, 0.0f, EB_INF, rho, 1);
 }
 
 /* The light that reaches a volume sample at world point p. */

@@ -57,9 +57,11 @@ EB_INLINE float eb_mesh_transmittance(eb_frame *fr, float3 org_world, float3 dir
     return vis;
 }
 
-/* Visibility along world ray org_world + t dir_world, t in [t_min, t_max]. */
+/* Visibility along world ray org_world + t dir_world, t in [t_min, t_max]: of the
+ * surfaces, and with `medium` of the volume layers too (the path integrator
+ * tracks those itself). */
 EB_INLINE float eb_visibility(eb_frame *fr, float3 org_world, float3 dir_world,
-                              float t_min, float t_max, float rho)
+                              float t_min, float t_max, float rho, const int medium)
 {
     float2 keep = eb_clip_interval(fr->clip, org_world, dir_world, t_min);
     t_min = keep.x;
@@ -81,6 +83,8 @@ EB_INLINE float eb_visibility(eb_frame *fr, float3 org_world, float3 dir_world,
                 vis *= 1.0f - fr->surf.slice_point[k].w;
         }
     }
+    if (!medium && fr->surf.n_iso == 0)
+        return vis;  /* nothing in the regions to cross */
     float3 org = eb_world_to_lattice(org_world, fr->P->origin_world.xyz, fr->P->inv_spacing.xyz);
     float3 dir = dir_world * fr->P->inv_spacing.xyz;
     float3 inv_dir = 1.0f / dir;
@@ -119,7 +123,7 @@ EB_INLINE float eb_visibility(eb_frame *fr, float3 org_world, float3 dir_world,
             for (int f = 0; f < EB_N_FIELDS; ++f)
                 prev[f] = value[f];
             prev_valid = 1;
-            if (fr->look.n_layers > 0)
+            if (medium && fr->look.n_layers > 0)
                 vis *= 1.0f - eb_medium_step(fr, &s, org + tm * dir, 0, value, len, dir_world, 0).w;
         }
     }
@@ -147,7 +151,7 @@ EB_INLINE float eb_ambient_occlusion(eb_frame *fr, float3 p_world, float3 n, uin
         float u1 = u.x, u2 = u.y;
         float r = sqrt(u1), phi = 6.28318531f * u2;
         float3 d = r * cos(phi) * t + r * sin(phi) * b + sqrt(fmax(0.0f, 1.0f - u1)) * n;
-        sum += eb_visibility(fr, p_world, normalize(d), eps, fr->P->ao_distance, rho);
+        sum += eb_visibility(fr, p_world, normalize(d), eps, fr->P->ao_distance, rho, 1);
     }
     return sum / (float)fr->P->ao_samples;
 }

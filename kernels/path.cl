@@ -37,6 +37,10 @@
 #include "common.h"
 #include "sampler.cl"
 #include "frame.cl"
+#include "path_surfaces.cl"
+#ifdef EB_PATH_QUADRATURE
+#include "occlusion.cl"
+#endif
 
 #ifdef EB_PATH
 #define EB_PATH_ALPHA_CAP (1.0f - 9.5367431640625e-7f)  /* 1 - 2^-20 */
@@ -168,13 +172,24 @@ EB_INLINE float eb_track(eb_frame *fr, eb_majorants *m, float3 o, float3 d, floa
     return ratio ? transmittance : EB_INF;
 }
 
-/* Transmittance from world point p along unit d to the end of the medium. */
+/* Transmittance from world point p along unit d to the end of the medium: of the
+ * volume layers by ratio tracking, and of the surfaces crossed (path_surfaces.cl). */
 EB_INLINE float eb_path_transmittance(eb_frame *fr, eb_majorants *m, float3 p, float3 d, uint *rng,
                                       eb_path_counts *count)
 {
+#ifdef EB_PATH_QUADRATURE
+    /* the shadow integrator's integration instead (benchmarks/bench_shadow_rays.py) */
+    return eb_visibility(fr, p, d, 0.0f, EB_INF, eb_uniform(rng), 1);
+#else
     float2 keep = eb_clip_interval(fr->clip, p, d, 0.0f);
     float3 unused;
-    return keep.y > keep.x ? eb_track(fr, m, p, d, keep.x, keep.y, rng, 1, &unused, count) : 1.0f;
+    float t = keep.y > keep.x ? eb_track(fr, m, p, d, keep.x, keep.y, rng, 1, &unused, count) : 1.0f;
+#ifdef EB_SURFACES
+    if (t > 0.0f)
+        t *= eb_surfaces_transmittance(fr, p, d, eb_uniform(rng));
+#endif
+    return t;
+#endif
 }
 
 /* The Henyey-Greenstein phase function times 4 pi at cos(angle) c between the
@@ -206,9 +221,38 @@ EB_INLINE float3 eb_sample_phase(float3 d, float g, uint *rng)
     return normalize(sine * cos(phi) * t + sine * sin(phi) * b + c * d);
 }
 
+/* The surface `hit` met at world point x coming along d (path_surfaces.cl): its
+ * normals turned toward where the path came from, and the directional light
+ * it reflects back along -d added to *radiance (times `throughput`). */
+#ifdef EB_SURFACES
+EB_INLINE void eb_path_surface_light(eb_frame *fr, eb_majorants *m, eb_surface *hit, float3 x,
+                                     float3 d, float3 throughput, float3 *radiance, uint *rng,
+                                     eb_path_counts *count)
+{
+    float n2 = dot(hit->n, hit->n), s2 = dot(hit->ns, hit->ns);
+    float3 n = n2 > 0.0f ? hit->n * rsqrt(n2) : -d;
+    float3 ns = s2 > 0.0f ? hit->ns * rsqrt(s2) : n;
+    hit->n = dot(n, d) > 0.0f ? -n : n;
+    hit->ns = dot(n, d) > 0.0f ? -ns : ns;
+    eb_params_ref P = fr->P;
+    float3 l = P->light_dir.xyz;
+    float c = dot(hit->ns, l);
+    if (c > 0.0f && any(P->light_rgb.xyz > 0.0f)) {
+        float bias = P->light_dir.w;
+        float3 from = x + (dot(hit->n, l) >= 0.0f ? bias : -bias) * hit->n;
+        float vis = eb_path_transmittance(fr, m, from, l, rng, count);
+        float shine = P->specular > 0.0f
+                          ? P->specular * pow(fmax(dot(hit->ns, normalize(l - d)), 0.0f), P->shininess)
+                          : 0.0f;
+        *radiance += throughput * vis * P->light_rgb.xyz * (hit->rgb * c + shine);
+    }
+}
+#endif
+
 /* One path from the camera ray `ray`: premultiplied radiance (xyz) and alpha (w);
  * *samples counts its reconstructions, *depth is the distance to its first real
- * collision (infinity if none), and `counts` (real, null, ratio) are added to. */
+ * collision or surface met (infinity if none), and `counts` (real, null, ratio)
+ * are added to. */
 EB_INLINE float4 eb_path(eb_frame *fr, eb_ray *ray, __global const float *look_f, uint *samples,
                          float *depth, __global uint *counts)
 {
@@ -221,11 +265,43 @@ EB_INLINE float4 eb_path(eb_frame *fr, eb_ray *ray, __global const float *look_f
     float3 light = P->light_dir.xyz, light_rgb = P->light_rgb.xyz;
     float ambient = P->light_rgb.w, g = P->anisotropy, alpha = 0.0f;
     *depth = EB_INF;
-    for (int event = 0; event < P->bounces; ++event) {
+#ifdef EB_SURFACES
+    float travelled = 0.0f, skip = 0.0f;  /* along the camera ray; past a surface passed through */
+    int crossings = 0;
+#endif
+    for (int event = 0; event < P->bounces;) {
         float2 keep = eb_clip_interval(fr->clip, o, d, 0.0f);
         float3 albedo;
-        float t = keep.y > keep.x ? eb_track(fr, &m, o, d, keep.x, keep.y, &rng, 0, &albedo, &count)
-                                  : EB_INF;
+        float end = keep.y;
+#ifdef EB_SURFACES
+        int sj, sk;
+        float ts = keep.y > keep.x ? eb_nearest_surface(fr, o, d, fmax(keep.x, skip), keep.y,
+                                                        eb_uniform(&rng), &sj, &sk)
+                                   : EB_INF;
+        end = fmin(end, ts);
+        skip = 0.0f;
+#endif
+        float t = end > keep.x ? eb_track(fr, &m, o, d, keep.x, end, &rng, 0, &albedo, &count) : EB_INF;
+#ifdef EB_SURFACES
+        eb_surface hit;
+        if (t == EB_INF && ts < EB_INF) {  /* a surface: met with probability a, else passed */
+            float3 x = o + ts * d;
+            hit = eb_surface_at(fr, eb_world_to_lattice(x, P->origin_world.xyz, P->inv_spacing.xyz),
+                                x, sj, sk);
+            if (!(eb_uniform(&rng) < hit.a)) {
+                if (++crossings > EB_PATH_MAX_CROSSINGS)
+                    break;
+                o = x;
+                skip = EB_PATH_PASS * P->light_dir.w;
+                if (event == 0)
+                    travelled += ts;
+                continue;
+            }
+            t = ts;
+        } else {
+            hit.a = 0.0f;
+        }
+#endif
         if (t == EB_INF) {  /* out of the medium: the environment */
             if (event > 0)
                 radiance += throughput * ambient;
@@ -233,21 +309,38 @@ EB_INLINE float4 eb_path(eb_frame *fr, eb_ray *ray, __global const float *look_f
         }
         if (event == 0) {
             alpha = 1.0f;
+#ifdef EB_SURFACES
+            *depth = travelled + t;
+#else
             *depth = t;
+#endif
         }
         o += t * d;
-        throughput *= albedo;
-        if (any(light_rgb > 0.0f))
-            radiance += throughput * light_rgb * (eb_phase(dot(d, light), g)
-                                                  * eb_path_transmittance(fr, &m, o, light, &rng, &count));
-        d = eb_sample_phase(d, g, &rng);
-        if (event + 1 == P->bounces) {  /* the last event: the environment along d */
+#ifdef EB_SURFACES
+        if (hit.a > 0.0f) {  /* Lambertian: on along a cosine-weighted direction */
+            eb_path_surface_light(fr, &m, &hit, o, d, throughput, &radiance, &rng, &count);
+            throughput *= hit.rgb;
+            float u1 = eb_uniform(&rng), u2 = eb_uniform(&rng);
+            d = eb_sample_cosine(hit.ns, u1, u2);
+            if (!(dot(d, hit.n) > 0.0f))
+                break;  /* below the surface (a mesh's smooth normal tilted from its own) */
+            o += P->light_dir.w * hit.n;
+        } else
+#endif
+        {
+            throughput *= albedo;
+            if (any(light_rgb > 0.0f))
+                radiance += throughput * light_rgb * (eb_phase(dot(d, light), g)
+                                                      * eb_path_transmittance(fr, &m, o, light, &rng, &count));
+            d = eb_sample_phase(d, g, &rng);
+        }
+        if (++event == P->bounces) {  /* the last event: the environment along d */
             if (ambient > 0.0f)
                 radiance += throughput * ambient * eb_path_transmittance(fr, &m, o, d, &rng, &count);
             break;
         }
         float most = fmax(fmax(throughput.x, throughput.y), throughput.z);
-        if (event >= EB_PATH_RR_FROM && most < 1.0f) {
+        if (event > EB_PATH_RR_FROM && most < 1.0f) {
             float survive = fmin(most, 0.95f);
             if (eb_uniform(&rng) >= survive)
                 break;

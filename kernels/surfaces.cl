@@ -216,40 +216,56 @@ EB_INLINE float4 eb_mesh_look(eb_frame *fr, int i, float3 p, float3 x, float3 *n
     return c;
 }
 
-/* Shade and composite one surface hit at distance t: iso-surface j (k < 0),
- * slice k (j < 0), or mesh triangle -1 - k (j < 0, k < 0). Returns 1 once the
- * ray is opaque enough to stop. */
-EB_COLD int eb_surface_hit(eb_frame *fr, eb_ray *ray, eb_ray_state *st, float t, int j, int k)
-{
-    float3 p = ray->org + t * ray->dir;
-    float3 n, rgb;
+/* What a surface hit shows: its normal n (any length and side), its shading
+ * normal ns (on n's side: a mesh's smooth normal, else n), colour and opacity
+ * (a = 0: nothing, as where the field has no data). */
+typedef struct {
+    float3 n, ns, rgb;
     float a;
+} eb_surface;
+
+/* The surface hit at lattice point p, world point x: iso-surface j (k < 0), slice
+ * k (j < 0), or mesh triangle -1 - k (j < 0, k < 0). */
+EB_INLINE eb_surface eb_surface_at(eb_frame *fr, float3 p, float3 x, int j, int k)
+{
+    eb_surface hit;
     if (j < 0 && k < 0) {
-        float3 ns;
-        float4 c = eb_mesh_look(fr, -1 - k, p, ray->org_world + t * ray->dir_world, &n, &ns);
-        return eb_shade_hit(fr, ray, st, t, n, ns, c.xyz, c.w);
+        float4 c = eb_mesh_look(fr, -1 - k, p, x, &hit.n, &hit.ns);
+        hit.rgb = c.xyz;
+        hit.a = c.w;
+        return hit;
     }
     int level;
     eb_basis_sums s = eb_evaluate_at(fr, p, 1, &level);
+    hit.a = 0.0f;
     if (!(s.weight > 0.0f))
-        return 0;  /* no data here: nothing to draw */
+        return hit;  /* no data here: nothing to draw */
     float value[EB_N_FIELDS];
     eb_fields(s, value);
     if (j >= 0) {
         int4 iso = fr->surf.iso[j];
-        n = eb_field_gradient_by(fr, &s, p, level, iso.x,
-                                 EB_CENTRAL_NORMALS || fr->P->iso_gradient == EB_ISO_GRADIENT_CENTRAL
-                                     ? EB_ISO_CENTRAL_STEP : 0.0f);
-        rgb = iso.y >= 0 ? eb_lookup(fr->look, iso.z, iso.w, value[iso.y]).xyz
-                         : fr->surf.iso_color[j].xyz;
-        a = fr->surf.iso_value[j].y;
+        hit.n = eb_field_gradient_by(fr, &s, p, level, iso.x,
+                                     EB_CENTRAL_NORMALS || fr->P->iso_gradient == EB_ISO_GRADIENT_CENTRAL
+                                         ? EB_ISO_CENTRAL_STEP : 0.0f);
+        hit.rgb = iso.y >= 0 ? eb_lookup(fr->look, iso.z, iso.w, value[iso.y]).xyz
+                             : fr->surf.iso_color[j].xyz;
+        hit.a = fr->surf.iso_value[j].y;
     } else {
         int4 slice = fr->surf.slice[k];
-        n = fr->surf.slice_normal[k].xyz;
-        rgb = eb_lookup(fr->look, slice.y, slice.z, value[slice.x]).xyz;
-        a = fr->surf.slice_point[k].w;
+        hit.n = fr->surf.slice_normal[k].xyz;
+        hit.rgb = eb_lookup(fr->look, slice.y, slice.z, value[slice.x]).xyz;
+        hit.a = fr->surf.slice_point[k].w;
     }
-    return eb_shade_hit(fr, ray, st, t, n, n, rgb, a);
+    hit.ns = hit.n;
+    return hit;
+}
+
+/* Shade and composite one surface hit at distance t (eb_surface_at's j and k).
+ * Returns 1 once the ray is opaque enough to stop. */
+EB_COLD int eb_surface_hit(eb_frame *fr, eb_ray *ray, eb_ray_state *st, float t, int j, int k)
+{
+    eb_surface hit = eb_surface_at(fr, ray->org + t * ray->dir, ray->org_world + t * ray->dir_world, j, k);
+    return eb_shade_hit(fr, ray, st, t, hit.n, hit.ns, hit.rgb, hit.a);
 }
 
 /* Composite every surface hit before distance t_limit: iso crossings between

@@ -184,10 +184,11 @@ class Renderer:
             self.dataset.location_args()  # built now: its time is not a frame's
 
     def _kernel(self, surfaces: bool, reconstruction: str, lod: bool, extra=(),
-                integrator: str = "headlight", traversal: str = "retrace", central: bool = False):
+                integrator: str = "headlight", traversal: str = "retrace", central: bool = False,
+                occlusion: bool = False):
         """eb_render built for this renderer and frame, with `extra` defines (tests)."""
-        check_variant(integrator, surfaces, reconstruction, lod, self.lookup,
-                      whole=self.domain is None and self.copies is None)
+        check_variant(integrator, reconstruction, lod, self.lookup,
+                      whole=self.domain is None and self.copies is None, occlusion=occlusion)
         program = self.dataset.program_for(
             extra, reconstruction=reconstruction, surfaces=surfaces, lod=lod,
             packets=self._packet_width(reconstruction, integrator) > 1, domain=self.domain is not None,
@@ -372,7 +373,8 @@ class Renderer:
         surfaces = bool(scene.isosurfaces or scene.slices or scene.meshes)
         kernel = self._kernel(surfaces, cfg.reconstruction, lod, integrator=integrator, traversal=traversal,
                               # nearest is piecewise constant: its normals come from central differences
-                              central=lighting.gradient == "central" or cfg.reconstruction == "nearest")
+                              central=lighting.gradient == "central" or cfg.reconstruction == "nearest",
+                              occlusion=lighting.ao_samples > 0)
         level_samples = np.zeros(LOD_LEVELS, np.uint32)
         level_buf = opencl.to_device(q, level_samples, writable=True)
         # Pixels of a cell of width w at distance t: w / (t * 2 tan(fovy / 2) / H).

@@ -23,18 +23,21 @@ def check_choice(what: str, value: str, choices) -> None:
         raise ExabricksError(f"unknown {what} {value!r} (one of {', '.join(choices)})")
 
 
-def check_variant(integrator: str, surfaces: bool, reconstruction: str, lod: bool, lookup: str,
-                  *, whole: bool) -> None:
+def check_variant(integrator: str, reconstruction: str, lod: bool, lookup: str, *, whole: bool,
+                  occlusion: bool = False) -> None:
     """ExabricksError unless a frame of these choices can be drawn; `whole`: the
-    renderer holds the whole dataset once (no domain of a partition, no instances)."""
+    renderer holds the whole dataset once (no domain of a partition, no instances);
+    `occlusion`: ambient-occlusion rays asked for."""
     if integrator != "headlight" and not whole:
         raise ExabricksError(f"--integrator {integrator}: a shadow ray needs the whole dataset "
                              "in one piece; it does not work yet with --mirror (instances), "
                              "--memory-budget or MPI data mode (MPI image mode works)")
-    if integrator == "path" and (surfaces or lod or reconstruction == "vertex"):
-        raise ExabricksError("--integrator path draws the volume layers of the basis or nearest "
-                             "reconstruction at full resolution: iso-surfaces, slices, meshes, "
-                             "--lod and the vertex reconstruction take --integrator shadow")
+    if integrator == "path" and (lod or reconstruction == "vertex"):
+        raise ExabricksError("--integrator path draws the basis or nearest reconstruction at full "
+                             "resolution: --lod and the vertex reconstruction take --integrator shadow")
+    if integrator == "path" and occlusion:
+        raise ExabricksError("--integrator path: its environment light (--ambient) occludes by "
+                             "itself; ambient-occlusion rays (--ao) are the other integrators'")
     if lookup == "cell-location" and (reconstruction != "basis" or lod):
         raise ExabricksError("the cell-location lookup exists for the basis reconstruction "
                              "without level of detail only")

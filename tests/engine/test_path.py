@@ -18,7 +18,13 @@ ray through it of length L = H / |d_z|):
 * white furnace: a medium of albedo 1 in a uniform environment of radiance A and no
   other light, with unbounded scattering, is in equilibrium: every path that
   meets it carries A out, so the colour is A times the opacity, exactly, whatever
-  the medium. That holds on real data too (test_the_white_furnace_on_real_data)."""
+  the medium. That holds on real data too, with white surfaces in it
+  (test_real_data_free_paths_have_the_opacity_and_conserve_energy,
+  test_white_surfaces_in_a_white_medium_conserve_energy);
+* a slice of opacity a through the middle of the slab, lit from above: the slab's
+  upper half, the slice met with probability a (its colour times the light through
+  the medium above it, from light_dir.w off the surface), and with probability
+  1 - a the lower half, whose light crosses the slice ((1 - a) more)."""
 
 from __future__ import annotations
 
@@ -30,12 +36,13 @@ import pytest
 from exabricks.engine import majorants
 from exabricks.engine.renderer import Renderer
 from exabricks.picture.transfer_function import TransferFunction
-from exabricks.scene import Lighting, Scene, Settings, VolumeLayer
+from exabricks.scene import IsoSurface, Lighting, Scene, Settings, Slice, VolumeLayer
 from exabricks.scene.modes import MAX_BOUNCES
 from exabricks.util.errors import ExabricksError
 
 from helpers import GERRIS, build, device_param
-from helpers.slab import SLAB_CELLS, SLAB_RGB, SLAB_SPACING, SLAB_VALUE, slab, slab_camera
+from helpers.slab import (SLAB_CELLS, SLAB_ORIGIN, SLAB_RGB, SLAB_SPACING, SLAB_VALUE, slab,
+                          slab_camera)
 
 W, H = 24, 16
 A0 = 0.3  # the slab's opacity per unit distance (its finest cell width)
@@ -130,6 +137,47 @@ def test_a_white_furnace_slab_gives_the_environment_times_the_opacity(device):
 
 
 @device_param
+@pytest.mark.parametrize("a", [1.0, 0.4])
+def test_a_slice_in_a_slab_lit_from_above_is_the_closed_form(device, a):
+    """Surfaces under the path integrator (kernels/path_surfaces.cl): met with
+    probability a, lit through the medium above them, and crossed by the light of
+    what lies below; one scattering event, no environment."""
+    from exabricks.picture.light import SHADOW_BIAS_CELLS
+
+    built = slab()
+    renderer = Renderer(built.bricks, built.regions, built.bvh, device=device)
+    intensity, rgb = 0.8, np.array([0.9, 0.5, 0.1])
+    z = SLAB_ORIGIN[2] + 2.0 * SLAB_SPACING  # the middle of the support's 5 cells
+    upper = lower = 2.5 * SLAB_SPACING
+    bias = SHADOW_BIAS_CELLS * SLAB_SPACING
+    colormap = TransferFunction(np.array([[SLAB_VALUE, *rgb]]), np.array([[SLAB_VALUE, 1.0]]), "slice")
+    scene = slab_path(light=(0.0, 0.0, 1.0), light_intensity=intensity, ambient=0.0, bounces=1)
+    scene = scene.replace(slices=(Slice((0.0, 0.0, z), (0.0, 0.0, 1.0), "density", colormap, a),))
+    # 32 frames: the slice's share is a coin toss (met or not) of a large value, whose
+    # standard errors from 16 frames have tails too heavy for Z_MAX
+    got = frames(renderer, scene, 32)
+
+    def colour(d):
+        dz = np.abs(d[..., 2])[..., None]
+        l1, l2 = upper / dz, lower / dz
+        above = np.array(SLAB_RGB) * intensity * -np.expm1(-SIGMA * l1 * (1.0 + dz)) / (1.0 + dz)
+        met = a * rgb * intensity * np.exp(-SIGMA * (upper - bias))
+        below = ((1.0 - a) ** 2 * np.array(SLAB_RGB) * intensity * np.exp(-SIGMA * upper)
+                 * -np.expm1(-SIGMA * l2 * (1.0 + dz)) / (1.0 + dz))
+        return above + np.exp(-SIGMA * l1) * (met + below)
+
+    def opacity(d):
+        return 1.0 - (1.0 - a) * np.exp(-SIGMA * (upper + lower) / np.abs(d[..., 2]))
+
+    camera = slab_camera()
+    assert_normal(z_scores(got[..., :3], pixel_mean(colour, camera)))
+    if a < 1.0:
+        assert_normal(z_scores(got[..., 3], pixel_mean(opacity, camera)))
+    else:
+        assert np.all(got[..., 3] == 1.0)
+
+
+@device_param
 def test_real_data_free_paths_have_the_opacity_and_conserve_energy(device):
     """The Gerris plume's hot core under a white transfer function in a uniform
     environment (radiance A, no other light), tracked through the heterogeneous
@@ -164,6 +212,34 @@ def test_real_data_free_paths_have_the_opacity_and_conserve_energy(device):
     np.testing.assert_allclose(got[..., :3], ambient * got[..., 3:4] * np.ones(3), rtol=1e-5, atol=1e-6)
     collisions = renderer.render_scene(scene).stats["collisions"]
     assert collisions["null"] > 0 and collisions["real"] > 0
+
+
+@device_param
+def test_white_surfaces_in_a_white_medium_conserve_energy(device):
+    """The plume's core in its white medium with two white iso-surfaces in it, one
+    opaque and one of opacity 0.5, and a white slice of opacity 0.3 across it,
+    under a uniform environment: paths reflect off the surfaces, pass through them
+    and scatter in the medium, and every one that meets anything leaves with A, so
+    each frame's colour is A times its alpha, pixel for pixel."""
+    from helpers.plume_core import plume_core
+
+    core = plume_core()
+    built, camera = core.built, core.camera
+    white = TransferFunction(np.array([[0.01, 1.0, 1.0, 1.0], [0.5, 1.0, 1.0, 1.0]]),
+                             np.array([[0.01, 0.0], [0.5, 0.3]]), "white ramp")
+    centre = tuple(np.asarray(camera.look_at, float))
+    ambient = 0.7
+    scene = Scene(camera=camera, volumes=(VolumeLayer("T", white),),
+                  isosurfaces=(IsoSurface("T", 0.3, (1.0, 1.0, 1.0), 1.0),
+                               IsoSurface("T", 0.12, (1.0, 1.0, 1.0), 0.5)),
+                  slices=(Slice(centre, (1.0, 0.2, 0.1), "T", white, 0.3),),
+                  lighting=Lighting(integrator="path", light_intensity=0.0, ambient=ambient,
+                                    bounces=MAX_BOUNCES),
+                  settings=Settings(width=16, height=16, unit_distance=core.unit))
+    renderer = Renderer(built.bricks, built.regions, built.bvh, field="T", device=device)
+    got = frames(renderer, scene, 8)
+    assert (got[..., 3] == 1.0).sum() > 200 and (got[..., 3] == 0.0).sum() > 0
+    np.testing.assert_allclose(got[..., :3], ambient * got[..., 3:4] * np.ones(3), rtol=1e-5, atol=1e-6)
 
 
 @device_param
@@ -228,9 +304,11 @@ def test_the_path_integrator_refuses_what_it_does_not_draw(device, tmp_path):
     import exabricks as eb
 
     ds = eb.open(GERRIS, cache=tmp_path / "cache")
-    for options in ({"iso": (0.3,)}, {"lod": 2.0}, {"reconstruction": "vertex"}):
-        with pytest.raises(ExabricksError, match="--integrator path draws the volume layers"):
+    for options in ({"lod": 2.0}, {"reconstruction": "vertex"}):
+        with pytest.raises(ExabricksError, match="--integrator path draws the basis or nearest"):
             eb.render(ds, integrator="path", size=(16, 16), device=device, **options)
+    with pytest.raises(ExabricksError, match="--integrator path: .*--ao"):
+        eb.render(ds, integrator="path", iso=(0.3,), ao_samples=4, size=(16, 16), device=device)
     with pytest.raises(ExabricksError, match="--integrator path: .*--mirror"):
         eb.render(ds, integrator="path", mirror=("x", 0.0), size=(16, 16), device=device)
 
