@@ -10,7 +10,7 @@ OUT    ?= out
 DATA    = exabricks/data/gerris-plume
 SUDO   := $(shell [ "$$(id -u)" = 0 ] || echo sudo)
 
-.PHONY: setup system-deps demo lint test test-slow fuzz test-slurm test-gauge kernel-resources test-all bench bench-large gallery clean browser-deps
+.PHONY: setup system-deps demo lint test test-slow test-suites fuzz test-slurm test-gauge kernel-resources test-all bench bench-large gallery clean browser-deps
 
 system-deps:
 	@if ! ls /etc/OpenCL/vendors/*.icd >/dev/null 2>&1; then \
@@ -91,6 +91,11 @@ browser-deps:
 test-slow: setup browser-deps
 	$(PY) -m pytest -q -n $(WORKERS) --dist loadfile -m "slow"
 
+# The fast and slow suites in one run (what CI runs: no test process waits idle
+# at the end of one suite for the other to finish its last file).
+test-suites: setup browser-deps
+	$(PY) -m pytest -q -n $(WORKERS) --dist loadfile -m "not slurm and not gauge"
+
 # The fuzzers with many examples each: 100, which keeps CI within its 45 minutes on
 # two cores (each of tests/cli/test_fuzz.py's ten fuzzers takes about 1 s an example).
 fuzz: setup
@@ -102,7 +107,6 @@ test-slurm: setup
 	$(SUDO) workflows/slurm/up.sh
 	EXABRICKS_SLURM=1 $(PY) -m pytest -q -m "slurm"
 
-# What CI runs: the linter and all four suites.
 # The kernels' NVIDIA registers, stack and spills against their budgets, offline
 # (../shared/tools/gpu-proxy, set up once by its setup.sh; benchmarks/gpu_gauge.py).
 test-gauge: setup
@@ -112,7 +116,8 @@ test-gauge: setup
 kernel-resources: setup
 	$(PY) -m benchmarks.gpu_gauge --write-docs
 
-test-all: lint test test-slow fuzz test-gauge test-slurm
+# What CI runs: the linter and every suite.
+test-all: lint test-suites fuzz test-gauge test-slurm
 
 # Every benchmark, in order, each replacing its own "## section" of docs/benchmarks.md
 # (median of 5 runs after a warm-up; figures are only meaningful on a quiet machine).

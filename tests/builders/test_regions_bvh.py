@@ -264,6 +264,7 @@ def test_cli_regions_and_bvh(tmp_path):
     check_bvh(regions, bvh, query_points(regions, np.random.default_rng(0)))
 
 
+@pytest.mark.slow
 def test_cli_chain_gerris(tmp_path):
     """ingest -> brick -> regions -> bvh through the CLI; info reads the outputs."""
     cells, bricks, regions, bvh = (tmp_path / f"{k}.npz" for k in ("cells", "bricks", "regions", "bvh"))

@@ -108,6 +108,7 @@ def exr_pixels(path):
     return read_image(path)[0]
 
 
+@pytest.mark.slow
 def test_render_with_values_equals_a_full_rebuild(series, tmp_path):
     d = series
     run_cli("render", *structures(d, 0), "--values", d / "v1.npz", "-o", tmp_path / "a.exr", *VIEW, check=0)

@@ -30,6 +30,7 @@ def scene(d):
 SMALL = ["--size", "48", "32", "--field", "T"]
 
 
+@pytest.mark.slow
 def test_render_exr_png_and_metadata(plume, tmp_path):
     exr, png = tmp_path / "a.exr", tmp_path / "a.png"
     run_cli("render", *scene(plume), "-o", exr, *SMALL, "--depth", "--no-jitter", check=0)
@@ -106,6 +107,7 @@ def test_unknown_colormap_and_field(plume, tmp_path):
     assert list(tmp_path.iterdir()) == []
 
 
+@pytest.mark.slow
 def test_mismatched_and_wrong_kind_inputs(plume, tmp_path):
     # A bvh built from other regions: a dataset with one field only.
     other = tmp_path / "other"
@@ -130,6 +132,7 @@ def test_output_kinds(plume, tmp_path):
     assert list(tmp_path.iterdir()) == []
 
 
+@pytest.mark.slow
 def test_devices_and_device_choice(plume, tmp_path):
     listing = json.loads(run_cli("devices", "--json", check=0).stdout)
     assert listing and all({"spec", "name", "platform", "type", "version"} <= set(d) for d in listing)

@@ -51,7 +51,8 @@ def test_data_parallel_equals_one_process(request, dataset, n, cli, tmp_path):
     assert meta["settings"]["mpi"] == {"ranks": n, "mode": "data"}
 
 
-@pytest.mark.parametrize("mode", ["data", pytest.param("image", marks=pytest.mark.slow)])
+@pytest.mark.parametrize("mode", ["data", "image"])
+@pytest.mark.slow
 def test_exposure_under_mpi_is_the_one_process_frame(gerris, cli, tmp_path, mode):
     """The film develops the composite of every rank once (tests/film/test_film.py holds
     the one-process frame to the definition)."""
@@ -62,6 +63,7 @@ def test_exposure_under_mpi_is_the_one_process_frame(gerris, cli, tmp_path, mode
     same_image(tmp_path / "many.exr", tmp_path / "one.exr", exact=mode == "image")
 
 
+@pytest.mark.slow
 def test_image_parallel_and_fallback(amrex, cli, tmp_path):
     iso = ["--iso", 0.5, "--depth", "--ao-samples", 2]
     cli("render", *amrex, "-o", tmp_path / "one.exr", *FLAGS, *iso, check=0)

@@ -170,6 +170,7 @@ def test_a_surface_lit_from_the_camera_is_the_headlights_without_a_shadow_of_its
     np.testing.assert_allclose(lit, headlight, atol=2e-3, rtol=0)
 
 
+@pytest.mark.slow
 def test_a_scene_file_with_a_light_draws_the_same_from_the_command_line_python_and_the_viewer(tmp_path):
     """The command line, eb.render of the file, and the viewer's document of it (what
     "Save scene" writes) draw the same pixels, light and shadows included."""

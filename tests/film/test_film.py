@@ -53,8 +53,8 @@ def test_exposure_is_exact_for_a_resident_frame_and_its_tiles(name, mode):
     close(rgba, reference)
 
 
-@pytest.mark.parametrize("name,mode,n", [pytest.param("gerris", "emission", 8, marks=pytest.mark.slow),
-                                         ("amrex", "central", 8)])
+@pytest.mark.parametrize("name,mode,n", [("gerris", "emission", 8), ("amrex", "central", 8)])
+@pytest.mark.slow
 def test_exposure_is_exact_under_a_memory_budget(name, mode, n):
     """Each domain continues the radiance in front of it: the exposure comes once,
     after the last (a kernel-side exposure scaled each domain's front again)."""
@@ -90,6 +90,7 @@ def test_no_exposure_is_the_frame_as_before():
     close(develop(radiance.copy(), scene), developed(radiance, exposure=0.0))
 
 
+@pytest.mark.slow
 def test_exposure_from_the_command_line_and_the_scene_file(cli, tmp_path):
     """--exposure and a scene file's settings.exposure give the same frame: the
     unexposed frame's colour times 2**STOPS."""

@@ -45,6 +45,7 @@ def assert_same(a, b, what):
 
 @pytest.mark.parametrize("name,counts", [("shell", (2, 3, 8)), ("gerris", (2, 5)),
                                          ("amrex", (3,)), ("athena", (2,)), ("enzo", (4,))])
+@pytest.mark.slow
 def test_joined_pieces_equal_the_whole_build(name, counts):
     """Each stage's N shares, joined in piece order, equal the whole build array for
     array; each share alone is a valid file of its kind."""
@@ -142,6 +143,7 @@ def enzo_files(tmp_path_factory):
 
 
 @pytest.mark.parametrize("kind,n", [("bricks", 3), ("regions", 2), ("bvh", 4)])
+@pytest.mark.slow
 def test_join_command_equals_the_whole_command(enzo_files, tmp_path, cli, kind, n):
     d = enzo_files
     parts = [d / f"{kind}.{k}.npz" for k in reversed(range(n))]  # any order
@@ -157,6 +159,7 @@ def test_join_command_equals_the_whole_command(enzo_files, tmp_path, cli, kind, 
         assert joined.meta["consistency"]["n_regions"] == joined.n_regions
 
 
+@pytest.mark.slow
 def test_joined_files_render_like_the_whole_ones(enzo_files, tmp_path, cli):
     d = enzo_files
     for kind, n in (("bricks", 3), ("regions", 2), ("bvh", 4)):

@@ -122,15 +122,16 @@ def assert_one_error_line(proc, *needles):
         assert str(n) in lines[0], (n, lines[0])
 
 
-def peak_rss(args, env=None) -> int:
-    """Peak resident bytes of `exabricks ARGS` (run twice: the second, with the
-    kernels in PoCL's and numba's caches, is measured)."""
+def peak_rss(args, env=None, warm=None) -> int:
+    """Peak resident bytes of `exabricks ARGS`, measured once the kernels are in
+    PoCL's and numba's caches: after `exabricks WARM` (a cheaper command of the same
+    kernels), else after ARGS itself."""
     launcher = ("import os, subprocess, sys, resource; p = subprocess.run(sys.argv[1:]); "
                 "print(os.wait4 and resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss); "
                 "sys.exit(p.returncode)")
-    for _ in range(2):
+    for run in (warm or args, args):
         proc = subprocess.run([sys.executable, "-c", launcher, sys.executable, "-m",
-                               "exabricks.cli.main", *map(str, args)],
+                               "exabricks.cli.main", *map(str, run)],
                               capture_output=True, text=True, env={**os.environ, **(env or {})})
         assert proc.returncode == 0, proc.stderr
     return int(proc.stdout.split()[-1]) * 1024

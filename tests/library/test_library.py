@@ -37,6 +37,7 @@ def test_the_public_names_are_documented_and_typed():
     assert api.render is eb.render
 
 
+@pytest.mark.slow
 def test_a_scene_file_gives_the_commands_pixels(tmp_path, plume):
     out = tmp_path / "cli.exr"
     run_cli("render", GERRIS, "--scene", SCENE, "--size", "96", "80", "--spp", "2", "-o", out,
@@ -163,6 +164,7 @@ def test_a_yt_dataset_with_a_field_yt_derives(tmp_path):
     np.testing.assert_array_equal(eb.Image.read(tmp_path / "cli.exr").rgba, image.rgba)
 
 
+@pytest.mark.slow
 def test_annotated_pictures_from_python_and_the_command(tmp_path, plume):
     image = eb.render(plume, field="T", colormap="inferno", **SMALL)
     image.save(tmp_path / "py.png", annotate=True, title="plume")

@@ -40,12 +40,8 @@ def entries(cache):
     return sorted(p.name for p in cache.iterdir() if (p / "entry.json").is_file())
 
 
-@pytest.mark.parametrize("name", [
-    "gerris",
-    pytest.param("amrex", marks=pytest.mark.slow),
-    pytest.param("athena", marks=pytest.mark.slow),
-    pytest.param("enzo", marks=pytest.mark.slow),
-])
+@pytest.mark.parametrize("name", ["gerris", "amrex", "athena", "enzo"])
+@pytest.mark.slow
 def test_render_source_is_the_staged_image_bit_for_bit(tmp_path, name):
     source, view = SOURCES[name]
     trio = staged(tmp_path, source)
@@ -162,6 +158,7 @@ def test_two_renders_of_one_source_at_once(tmp_path):
     np.testing.assert_array_equal(pixels(tmp_path / "0.exr"), pixels(tmp_path / "1.exr"))
 
 
+@pytest.mark.slow
 def test_source_usage_errors(tmp_path, plume_trio):
     out = tmp_path / "x.png"
     proc = run_cli("render", *plume_trio[:2], "-o", out)

@@ -115,6 +115,7 @@ def gerris_files(tmp_path_factory):
     return d
 
 
+@pytest.mark.slow
 def test_orbit_and_render_frames(cli, gerris_files, tmp_path):
     d = gerris_files
     path = tmp_path / "orbit.json"

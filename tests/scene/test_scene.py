@@ -461,6 +461,7 @@ def test_mistakes_are_reported_in_file_order(bricks, tmp_path):
 # through the command line (errors come before any rendering)
 
 
+@pytest.mark.slow
 def test_cli_names_the_scene_file_and_key(trio, tmp_path):
     scene = write(tmp_path, {"volumes": [VOL, {"field": "T", "transfer_function": 3}]})
     out = tmp_path / "x.png"
@@ -484,6 +485,7 @@ def test_cli_refuses_an_output_that_is_a_file_the_scene_names(trio, tmp_path):
     assert json.loads((tmp_path / "tf.png").read_text()) == PRESET
 
 
+@pytest.mark.slow
 def test_cli_usage_errors_and_depth_with_png(trio, tmp_path):
     out = tmp_path / "x.png"
     proc = run_cli("render", *trio, "-o", out, "--iso", "1", "--iso-color", "1,0,0", "--iso-color-field", "T")

@@ -279,6 +279,7 @@ def test_plotfile_ratio_4_uses_covered_data_and_skips_the_fine_level(tmp_path):
 # the command line
 
 
+@pytest.mark.slow
 def test_cli_chain_renders(tmp_path):
     """ingest -> coarsen --levels 2 -> brick -> regions -> bvh -> render."""
     p = {k: tmp_path / f"{k}.npz" for k in ("cells", "coarse", "bricks", "regions", "bvh")}

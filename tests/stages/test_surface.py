@@ -52,6 +52,7 @@ def interior(points, margin=1.0):
     return np.all((points >= 1 + margin) & (points <= 9 - margin), axis=1)
 
 
+@pytest.mark.slow
 def test_the_amrex_surface_lies_on_its_value(tmp_path):
     import trimesh
 

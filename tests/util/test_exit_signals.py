@@ -20,6 +20,7 @@ from helpers.hostile import TIMEOUT
 
 @pytest.mark.parametrize("signum", [signal.SIGTERM, pytest.param(signal.SIGINT, marks=pytest.mark.slow),
                                     pytest.param(signal.SIGHUP, marks=pytest.mark.slow)])
+@pytest.mark.slow
 def test_a_signal_once_the_output_is_in_place(signum, plume_trio, tmp_path):
     out = tmp_path / "regions.npz"
     for _ in range(4):

@@ -274,6 +274,7 @@ def test_a_tiled_frame_is_the_whole_frame(session, monkeypatch):
         assert tiled.png == whole.png
 
 
+@pytest.mark.slow
 def test_a_budgeted_frame_in_tiles_is_the_whole_frame(budgeted, monkeypatch):
     """Under a memory budget, the frame drawn in tiles of columns (so that a newer
     change can drop it) is the frame `render --memory-budget` draws, pixel for pixel."""

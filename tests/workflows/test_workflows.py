@@ -236,6 +236,7 @@ def test_slurm_failed_task_stops_what_depends_on_it(tmp_path):
     assert not list((tmp_path / "out").glob("step_*/cells.npz"))
 
 
+@pytest.mark.slow
 def test_field_range_over_a_series(series, tmp_path, cli):
     """`info --field-range` is the union of the files' ranges; a field one file lacks
     is one error line naming that file."""
