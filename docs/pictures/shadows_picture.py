@@ -14,11 +14,10 @@ the iso-surface), 320x320 each, 4 samples per pixel, and prints each frame's tim
 
 from __future__ import annotations
 
-from sheet import ROOT, render_sheet
+from sheet import ISO, ROOT, render_sheet
 
 OUT = ROOT / "docs" / "images" / "shadows.png"
 SIZE = 320
-ISO = (0.45, 1.5, 1.5, 3.0)  # per dataset of sheet.DATASETS: an iso-value of its structure
 
 
 def columns(row: int):

@@ -20,6 +20,9 @@ DATASETS = (  # (source, field, open options)
     (DATA / "athena-blast3d" / "Blast.out2.00001.athdf", "rho", {}),
     (DATA / "enzo-moving7" / "moving7_0010", "Density", {"format": "yt"}),
 )
+# per dataset, an iso-value of its structure: the plume's core of `make demo`, else
+# the iso-values of docs/gallery.md's iso and shell shots
+ISO = (0.45, 1.5, 1.5, 3.0)
 
 
 def render_sheet(out: Path, size: int, columns) -> None:
