@@ -62,6 +62,7 @@ from .. import schema
 from ..util.constants import MAX_SAMPLES_PER_RAY
 from ..device.kernel_abi import LOD_LEVELS, PACKET_WIDTH
 from ..util.errors import ExabricksError
+from ..film import denoise
 from ..film.film import develop
 from ..mesh import mesh_set
 from ..picture.light import light_params
@@ -254,6 +255,8 @@ class Renderer:
         the film (exabricks.film.film: exposure, background).  A whole frame's
         renderer only: domains, samples and tiles that others composite call
         `integrate`, and the film follows their compositing."""
+        if scene.settings.denoise:
+            denoise.check()  # before the frame, not after
         result = self.integrate(scene, **options)
         develop(result.rgba, scene)
         return result

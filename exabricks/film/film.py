@@ -5,9 +5,10 @@ Every way of drawing a frame (resident, in tiles, streamed domain by domain
 under a memory budget, progressive, MPI in data or image mode, instanced)
 composites the premultiplied radiance (float32 RGBA) of all its domains,
 samples and tiles first (`Renderer.integrate` and the compositing that follows
-it), and then develops it here, once: the exposure, then the background.  What
-is applied pixel by pixel is the same whether the frame is developed whole or a
-tile or band at a time.  The 8-bit encoding of a PNG (image_io.to_png_pixels)
+it), and then develops it here, once: the exposure, the optional denoiser
+(denoise.py, whole frames only), then the background.  What is applied pixel by
+pixel is the same whether the frame is developed whole or a tile or band at a
+time.  The 8-bit encoding of a PNG (image_io.to_png_pixels)
 and the annotations (annotate) work on the developed frame; an EXR keeps it in
 float.
 """
@@ -16,15 +17,19 @@ from __future__ import annotations
 
 import numpy as np
 
+from .denoise import denoise
+
 
 def develop(rgba: np.ndarray, scene) -> np.ndarray:
     """`rgba` (premultiplied radiance, float32 (..., 4), composited over every
     domain and sample) developed in place for `scene` (exabricks.scene.Scene):
-    its colour scaled by 2**settings.exposure, then composited over the
-    background.  Returns `rgba`."""
+    its colour scaled by 2**settings.exposure, denoised with settings.denoise (a
+    whole frame), then composited over the background.  Returns `rgba`."""
     exposure = float(scene.settings.exposure)
     if exposure:
         rgba[..., :3] *= np.float32(2.0 ** exposure)
+    if scene.settings.denoise:
+        denoise(rgba)
     return over_background(rgba, scene.background)
 
 

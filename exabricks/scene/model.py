@@ -179,6 +179,7 @@ class Settings:
     tf_lookup: str = "table"
     transparent: bool = False
     exposure: float = 0.0
+    denoise: bool = False
 
 
 @dataclass(frozen=True)

@@ -386,6 +386,10 @@ SCENE_OPTIONS = (
              "docs/design.md; default 0). Exact under every way of drawing a frame: tiles, "
              "--memory-budget, MPI, instances.", low=-24.0, high=24.0, metavar="STOPS",
              description="a number of stops in [-24, 24] (0: as integrated)"),
+    _setting("denoise", "Denoise the frame for a preview with Intel Open Image Denoise "
+             "(pip install 'exabricks[denoise]'; whole frames, not --tile). Never for a reference "
+             "image: the error is then the network's, not the integrator's (default off).",
+             kind="flag"),
     _setting("transparent", "A .png keeps the frame's alpha (un-premultiplied colour) instead of "
              "being composited over the background made opaque (default; black behind a "
              "transparent background).", kind="flag"),

@@ -21,6 +21,7 @@ import time
 from pathlib import Path
 
 from .. import parallel, schema
+from ..film import denoise
 from ..util.version import __version__
 from ..util import progress
 from ..util.errors import ExabricksError, UsageError
@@ -67,6 +68,10 @@ def render_job(dataset, output, *, flags: dict | None = None,
     renderer, scene, jobs, inputs, described = parallel.agree(
         comm, _prepare, dataset, output, scene_path, camera_path,
         path_file, frame, frames, flags, device, mpi_mode, comm, steps)
+    if scene.settings.denoise:
+        if tile is not None:
+            raise UsageError("--denoise needs the whole frame, not --tile")
+        denoise.check()
     root = comm is None or comm.Get_rank() == 0
     with progress.bar(total=len(jobs), desc="render", unit="frame", disable=not root) as bar:
         for index, cam, image in jobs:
