@@ -137,21 +137,13 @@ EB_INLINE float eb_visibility(eb_frame *fr, float3 org_world, float3 dir_world,
 EB_INLINE float eb_ambient_occlusion(eb_frame *fr, float3 p_world, float3 n, uint pixel,
                                      uint sample, uint seed, float rho)
 {
-    /* An orthonormal frame (t, b, n) (Duff et al. 2017). */
-    float sign = n.z >= 0.0f ? 1.0f : -1.0f;
-    float a = -1.0f / (sign + n.z), bxy = n.x * n.y * a;
-    float3 t = (float3)(1.0f + sign * n.x * n.x * a, sign * bxy, -sign * n.x);
-    float3 b = (float3)(bxy, sign + n.y * n.y * a, -n.y);
     /* Start a little off the surface so that it does not occlude itself. */
     float eps = 1e-3f * fr->P->ao_distance;
     float sum = 0.0f;
     for (int k = 0; k < fr->P->ao_samples; ++k) {
         uint index = sample * (uint)fr->P->ao_samples + (uint)k;
         float2 u = eb_r2(pixel, index, seed, 3u);  /* stratified over the pixel's rays */
-        float u1 = u.x, u2 = u.y;
-        float r = sqrt(u1), phi = 6.28318531f * u2;
-        float3 d = r * cos(phi) * t + r * sin(phi) * b + sqrt(fmax(0.0f, 1.0f - u1)) * n;
-        sum += eb_visibility(fr, p_world, normalize(d), eps, fr->P->ao_distance, rho, 1);
+        sum += eb_visibility(fr, p_world, eb_sample_cosine(n, u.x, u.y), eps, fr->P->ao_distance, rho, 1);
     }
     return sum / (float)fr->P->ao_samples;
 }

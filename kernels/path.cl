@@ -213,11 +213,8 @@ EB_INLINE float3 eb_sample_phase(float3 d, float g, uint *rng)
     }
     c = clamp(c, -1.0f, 1.0f);
     float sine = sqrt(fmax(0.0f, 1.0f - c * c)), phi = 6.28318531f * u2;
-    /* An orthonormal frame (t, b, d) (Duff et al. 2017). */
-    float sign = d.z >= 0.0f ? 1.0f : -1.0f;
-    float a = -1.0f / (sign + d.z), bxy = d.x * d.y * a;
-    float3 t = (float3)(1.0f + sign * d.x * d.x * a, sign * bxy, -sign * d.x);
-    float3 b = (float3)(bxy, sign + d.y * d.y * a, -d.y);
+    float3 t, b;
+    eb_orthonormal(d, &t, &b);
     return normalize(sine * cos(phi) * t + sine * sin(phi) * b + c * d);
 }
 

@@ -150,14 +150,4 @@ EB_INLINE float eb_surfaces_transmittance(eb_frame *fr, float3 p, float3 d, floa
     return eb_visibility(fr, p, d, 0.0f, EB_INF, rho, 0);
 }
 
-/* A cosine-weighted direction about unit n. */
-EB_INLINE float3 eb_sample_cosine(float3 n, float u1, float u2)
-{
-    float sign = n.z >= 0.0f ? 1.0f : -1.0f;
-    float a = -1.0f / (sign + n.z), bxy = n.x * n.y * a;
-    float3 t = (float3)(1.0f + sign * n.x * n.x * a, sign * bxy, -sign * n.x);
-    float3 b = (float3)(bxy, sign + n.y * n.y * a, -n.y);
-    float r = sqrt(u1), phi = 6.28318531f * u2;
-    return normalize(r * cos(phi) * t + r * sin(phi) * b + sqrt(fmax(0.0f, 1.0f - u1)) * n);
-}
 #endif

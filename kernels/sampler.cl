@@ -65,6 +65,24 @@ inline float2 eb_r2(uint pixel, uint index, uint seed, uint stream)
                     eb_fixed_to_unit(eb_shift(pixel, seed, stream + 1u) + index * EB_R2_Y));
 }
 
+/* Unit t and b with (t, b, n) orthonormal, for unit n (Duff et al. 2017). */
+EB_INLINE void eb_orthonormal(float3 n, float3 *t, float3 *b)
+{
+    float sign = n.z >= 0.0f ? 1.0f : -1.0f;
+    float a = -1.0f / (sign + n.z), bxy = n.x * n.y * a;
+    *t = (float3)(1.0f + sign * n.x * n.x * a, sign * bxy, -sign * n.x);
+    *b = (float3)(bxy, sign + n.y * n.y * a, -n.y);
+}
+
+/* A cosine-weighted direction about unit n from uniform (u1, u2) in [0, 1)^2. */
+EB_INLINE float3 eb_sample_cosine(float3 n, float u1, float u2)
+{
+    float3 t, b;
+    eb_orthonormal(n, &t, &b);
+    float r = sqrt(u1), phi = 6.28318531f * u2;
+    return normalize(r * cos(phi) * t + r * sin(phi) * b + sqrt(fmax(0.0f, 1.0f - u1)) * n);
+}
+
 /* The sub-intervals of one ray interval, produced one at a time. */
 typedef struct {
     float ta;       /* start of the next sub-interval                    */
