@@ -92,14 +92,15 @@ test-slow: setup browser-deps
 	$(PY) -m pytest -q -n $(WORKERS) --dist loadfile -m "slow"
 
 # The fast and slow suites in one run (what CI runs: no test process waits idle
-# at the end of one suite for the other to finish its last file).
+# at the end of one suite for the other to finish its last file), less the
+# fuzzers, which `make fuzz` runs with many examples.
 test-suites: setup browser-deps
-	$(PY) -m pytest -q -n $(WORKERS) --dist loadfile -m "not slurm and not gauge"
+	$(PY) -m pytest -q -n $(WORKERS) --dist loadfile -m "not slurm and not gauge and not fuzz"
 
-# The fuzzers with many examples each: 100, which keeps CI within its 45 minutes on
+# The fuzzers with many examples each: 80, which keeps CI within its 45 minutes on
 # two cores (each of tests/cli/test_fuzz.py's ten fuzzers takes about 1 s an example).
 fuzz: setup
-	EXABRICKS_FUZZ_EXAMPLES=100 $(PY) -m pytest -q -n $(WORKERS) -m "fuzz"
+	EXABRICKS_FUZZ_EXAMPLES=80 $(PY) -m pytest -q -n $(WORKERS) -m "fuzz"
 
 # The SLURM workflows on a one-node cluster on this machine (workflows/slurm/up.sh:
 # Debian's slurm-wlm and munge, started by hand; root, or sudo).

@@ -65,7 +65,7 @@ def test_sizes_parse_like_slurm_and_numfmt():
 
 
 CASES = [("gerris", "emission", 2), ("gerris", "emission", 8),
-         pytest.param("gerris", "emission", 64, marks=pytest.mark.slow),
+         pytest.param("gerris", "emission", 32, marks=pytest.mark.slow),
          ("amrex", "central", 8), pytest.param("athena", "spp", 8, marks=pytest.mark.slow),
          pytest.param("enzo", "clip-slice", 8, marks=pytest.mark.slow), ("enzo", "clip-slice", 3),
          ("amrex", "two-layers", 3),
