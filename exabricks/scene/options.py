@@ -361,8 +361,8 @@ SCENE_OPTIONS = (
     _light("integrator", "headlight (default): light from the camera (--shading); shadow: a "
            "directional light (--light) whose transmittance through the volume and the surfaces "
            "lights every sample, plus --ambient; path: volumetric path tracing of the volume "
-           "layers under the same lights, with multiple scattering (--bounces, --anisotropy; "
-           "converges with --spp).", kind="choice", choices=INTEGRATORS),
+           "layers and the surfaces under the same lights, with multiple scattering (--bounces, "
+           "--anisotropy; converges with --spp).", kind="choice", choices=INTEGRATORS),
     _light("bounces", "With --integrator path: scattering events of a path at most (default 8; "
            "1: single scattering), with Russian roulette from the third.", _PATH, kind="int",
            low=1, high=MAX_BOUNCES, kernel=True),
