@@ -226,22 +226,13 @@ EB_INLINE void eb_path_surface_light(eb_frame *fr, eb_majorants *m, eb_surface *
                                      float3 d, float3 throughput, float3 *radiance, uint *rng,
                                      eb_path_counts *count)
 {
-    float n2 = dot(hit->n, hit->n), s2 = dot(hit->ns, hit->ns);
-    float3 n = n2 > 0.0f ? hit->n * rsqrt(n2) : -d;
-    float3 ns = s2 > 0.0f ? hit->ns * rsqrt(s2) : n;
-    hit->n = dot(n, d) > 0.0f ? -n : n;
-    hit->ns = dot(n, d) > 0.0f ? -ns : ns;
+    eb_face(&hit->n, &hit->ns, d);
     eb_params_ref P = fr->P;
     float3 l = P->light_dir.xyz;
     float c = dot(hit->ns, l);
     if (c > 0.0f && any(P->light_rgb.xyz > 0.0f)) {
-        float bias = P->light_dir.w;
-        float3 from = x + (dot(hit->n, l) >= 0.0f ? bias : -bias) * hit->n;
-        float vis = eb_path_transmittance(fr, m, from, l, rng, count);
-        float shine = P->specular > 0.0f
-                          ? P->specular * pow(fmax(dot(hit->ns, normalize(l - d)), 0.0f), P->shininess)
-                          : 0.0f;
-        *radiance += throughput * vis * P->light_rgb.xyz * (hit->rgb * c + shine);
+        float vis = eb_path_transmittance(fr, m, eb_off_surface(P, x, hit->n, l), l, rng, count);
+        *radiance += throughput * vis * P->light_rgb.xyz * (hit->rgb * c + eb_highlight(P, hit->ns, l, d));
     }
 }
 #endif
@@ -262,8 +253,9 @@ EB_INLINE float4 eb_path(eb_frame *fr, eb_ray *ray, __global const float *look_f
     float3 light = P->light_dir.xyz, light_rgb = P->light_rgb.xyz;
     float ambient = P->light_rgb.w, g = P->anisotropy, alpha = 0.0f;
     *depth = EB_INF;
+    float travelled = 0.0f;  /* along the camera ray, to the last surface passed through */
 #ifdef EB_SURFACES
-    float travelled = 0.0f, skip = 0.0f;  /* along the camera ray; past a surface passed through */
+    float skip = 0.0f;  /* past a surface passed through */
     int crossings = 0;
 #endif
     for (int event = 0; event < P->bounces;) {
@@ -306,11 +298,7 @@ EB_INLINE float4 eb_path(eb_frame *fr, eb_ray *ray, __global const float *look_f
         }
         if (event == 0) {
             alpha = 1.0f;
-#ifdef EB_SURFACES
             *depth = travelled + t;
-#else
-            *depth = t;
-#endif
         }
         o += t * d;
 #ifdef EB_SURFACES

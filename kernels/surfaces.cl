@@ -146,6 +146,39 @@ EB_COLD float eb_refine_crossing(eb_frame *fr, eb_ray *ray, int f, float iso,
     return da != db ? ta + (tb - ta) * (da / (da - db)) : 0.5f * (ta + tb);
 }
 
+/* Normal n (any length and side) and shading normal ns (on n's side) of a hit seen
+ * along unit d, made unit and turned toward where d comes from (a zero normal
+ * faces -d). */
+EB_INLINE void eb_face(float3 *n, float3 *ns, float3 d)
+{
+    float n2 = dot(*n, *n), s2 = dot(*ns, *ns);
+    float3 u = n2 > 0.0f ? *n * rsqrt(n2) : -d;
+    float3 v = s2 > 0.0f ? *ns * rsqrt(s2) : u;
+    if (dot(u, d) > 0.0f) {
+        u = -u;
+        v = -v;
+    }
+    *n = u;
+    *ns = v;
+}
+
+/* Where a ray toward l leaves surface point x of unit normal n: off the surface by
+ * light_dir.w along n, on l's side, so that a ray grazing the surface meets
+ * neither its cell-scale bumps nor the surface itself. */
+EB_INLINE float3 eb_off_surface(eb_params_ref P, float3 x, float3 n, float3 l)
+{
+    float bias = P->light_dir.w;
+    return x + (dot(n, l) >= 0.0f ? bias : -bias) * n;
+}
+
+/* The Blinn-Phong highlight of a light toward l on shading normal ns seen along d
+ * (about the half vector of l and -d), 0 without `specular`. */
+EB_INLINE float eb_highlight(eb_params_ref P, float3 ns, float3 l, float3 d)
+{
+    return P->specular > 0.0f ? P->specular * pow(fmax(dot(ns, normalize(l - d)), 0.0f), P->shininess)
+                              : 0.0f;
+}
+
 /* Composite a surface hit at distance t of normal n (any length and side) and
  * shading normal ns (on n's side; a mesh's smooth normal, else n), colour rgb
  * and opacity a: headlight and specular from ns, ambient occlusion about n. */
@@ -154,28 +187,17 @@ EB_INLINE int eb_shade_hit(eb_frame *fr, eb_ray *ray, eb_ray_state *st, float t,
 {
     if (!(a > 0.0f))
         return 0;
-    float n2 = dot(n, n), s2 = dot(ns, ns);
-    n = n2 > 0.0f ? n * rsqrt(n2) : -ray->dir_world;
-    ns = s2 > 0.0f ? ns * rsqrt(s2) : n;
-    if (dot(n, ray->dir_world) > 0.0f) {  /* toward the viewer */
-        n = -n;
-        ns = -ns;
-    }
+    eb_face(&n, &ns, ray->dir_world);
 #ifdef EB_SHADOW
     {  /* the directional light (light.cl) */
         float3 l = fr->P->light_dir.xyz;
         float c = dot(ns, l);
         float3 lit = (float3)(fr->P->light_rgb.w), shine = (float3)(0.0f);
         if (c > 0.0f) {
-            /* from off the surface, along its normal to the light's side: a shadow ray
-             * that grazes the surface meets neither its cell-scale bumps nor itself */
-            float bias = fr->P->light_dir.w;
-            float3 x = ray->org_world + t * ray->dir_world + (dot(n, l) >= 0.0f ? bias : -bias) * n;
+            float3 x = eb_off_surface(fr->P, ray->org_world + t * ray->dir_world, n, l);
             float vis = eb_light_transmittance(fr, x, ray->rho);
             lit += vis * c * fr->P->light_rgb.xyz;
-            if (fr->P->specular > 0.0f)  /* Blinn-Phong about the half vector of l and v */
-                shine = vis * fr->P->specular * fr->P->light_rgb.xyz
-                        * pow(fmax(dot(ns, normalize(l - ray->dir_world)), 0.0f), fr->P->shininess);
+            shine = vis * eb_highlight(fr->P, ns, l, ray->dir_world) * fr->P->light_rgb.xyz;
         }
         rgb = rgb * lit + shine;
     }
