@@ -181,7 +181,7 @@ class Renderer:
 
         metadata = frame_metadata(chosen, self.dataset.describe(), None, None, result.stats)
         return Image(result.rgba, result.depth, metadata, scene=chosen,
-                     facts=facts_from_meta(self.dataset.meta))
+                     facts=facts_from_meta(self.dataset.meta), inputs=self.dataset.inputs)
 
     def _on_device(self, fields):
         from .engine.renderer import Renderer as DeviceRenderer

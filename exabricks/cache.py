@@ -38,6 +38,7 @@ from pathlib import Path
 
 from .util.version import __version__
 from .util.errors import ExabricksError
+from .util import source_files
 
 log = logging.getLogger(__name__)
 
@@ -57,69 +58,18 @@ def default_root() -> Path:
 
 
 def source_digest(path: str | os.PathLike) -> str:
-    """The sha256 of what a source holds: a directory's every file (relative name
-    and content; symbolic links inside it are followed, a loop is refused), or a
-    file with its siblings that share its name up to the last suffix (an Enzo
-    output's .hierarchy and .cpu files, a Gerris .cells file's .scalars), which a
-    reader may also read."""
+    """The sha256 of what a source holds: the relative name and content of every
+    file it is made of (exabricks.util.source_files: a directory's every file, or
+    a file with the siblings a reader may also read)."""
     from .formats.provenance import sha256_file
 
-    path = Path(path)
     h = hashlib.sha256()
     try:
-        if path.is_dir():
-            found = _walk(path)
-            names = [n for n, _ in found]
-            members = [p for _, p in found]
-        else:
-            stem = path.name.rsplit(".", 1)[0] if "." in path.name[1:] else path.name
-            members = sorted(p for p in path.parent.iterdir()
-                             if p.name.startswith(stem) and p.is_file())
-            if path not in members:
-                members.append(path)
-            names = [p.name for p in members]
-        for name, member in zip(names, members):
+        for name, member in source_files.members(path):
             h.update(json.dumps([name, sha256_file(member)]).encode())
     except OSError as e:
         raise ExabricksError(f"{path}: cannot read the source ({e.strerror or e})") from None
     return h.hexdigest()
-
-
-_MAX_DEPTH = 256
-
-
-def _walk(top: Path) -> list[tuple[str, Path]]:
-    """(relative name, path) of every regular file under directory `top`, sorted
-    by name, following symbolic links; ExabricksError on a loop of links (a
-    directory that leads back to one that holds it)."""
-    out: list[tuple[str, Path]] = []
-
-    def visit(directory: Path, rel: str, held: frozenset) -> None:
-        st = os.stat(directory)
-        ident = (st.st_dev, st.st_ino)
-        if ident in held:
-            raise ExabricksError(f"{top}: a loop of symbolic links: {rel} leads back to a "
-                                 "directory that holds it")
-        if len(held) > _MAX_DEPTH:
-            raise ExabricksError(f"{top}: directories nested more than {_MAX_DEPTH} deep "
-                                 f"at {rel}")
-        held = held | {ident}
-        with os.scandir(directory) as it:
-            found = sorted(it, key=lambda e: e.name)
-        for e in found:
-            name = f"{rel}/{e.name}" if rel else e.name
-            try:
-                is_dir = e.is_dir(follow_symlinks=True)
-                is_file = not is_dir and e.is_file(follow_symlinks=True)
-            except OSError:
-                continue
-            if is_dir:
-                visit(Path(e.path), name, held)
-            elif is_file:
-                out.append((name, Path(e.path)))
-
-    visit(top, "", frozenset())
-    return out
 
 
 _CODE: list[str] = []

@@ -136,7 +136,7 @@ def render_series(series, directory, *, movie=None, fps: float = 10.0, suffix: s
     step before the frames: `range` and `position` with `look_at` save them."""
     from .util import progress
     from .api import Renderer
-    from .util.output import write_json
+    from .util.output import check_output, write_json
     from .scene import scene_to_dict
     from .scene.build import default_field
     from .stages.movie import make_movie
@@ -154,20 +154,33 @@ def render_series(series, directory, *, movie=None, fps: float = 10.0, suffix: s
     if not any(options.get(k) is not None for k in ("range", "transfer_function")):
         field = options.get("field") or default_field(series.first.fields)
         options = {**options, "range": series.field_range(field)}
+    frames = frame_paths(series.steps, directory, suffix)
+    for out in [directory / "scene.json", *frames, *([movie] if movie is not None else [])]:
+        check_output(out, series.steps)
     scene = first.scene(**options)
     if not placed and not scene.instances:
         scene = scene.replace(camera=_framed_over(series, scene, options))
-    write_json(directory / "scene.json", scene_to_dict(scene))
-    frames = []
+    write_json(directory / "scene.json", scene_to_dict(scene), inputs=series.steps)
     with progress.bar(total=len(series), desc="series", unit="step") as bar:
         for i, dataset in enumerate(series):
             image = (first if i == 0 else Renderer(dataset, device=device)).render(scene)
-            frames.append(directory / (series.steps[i].name + suffix))
-            image.save(frames[-1])
+            image.inputs = (*image.inputs, *series.steps)
+            image.save(frames[i])
             bar.update()
     if movie is not None:
         make_movie(frames, movie, fps=fps)
     return frames
+
+
+def frame_paths(steps, directory, suffix: str) -> list[Path]:
+    """The frame of each step: DIRECTORY/STEPNAME + `suffix`, or, where two steps
+    share a name (run1/plt00010 and run2/plt00010), DIRECTORY/NNNN-STEPNAME for
+    every step (NNNN its place in the series), so that no frame replaces another."""
+    names = [Path(s).name for s in steps]
+    if len(set(names)) < len(names):
+        width = max(4, len(str(len(names) - 1)))
+        names = [f"{i:0{width}d}-{n}" for i, n in enumerate(names)]
+    return [Path(directory) / (n + suffix) for n in names]
 
 
 def _whole_view(dataset) -> dict:

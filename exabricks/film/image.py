@@ -19,15 +19,18 @@ class Image:
     scene:    the eb.Scene it was drawn with (None for an image read from a file).
     facts:    what the source says of itself (simulation time, units;
               exabricks.film.layout.facts_from_meta), for `annotated`.
+    inputs:   the files it was drawn from, which `save` never replaces
+              (exabricks.util.output).
     """
 
     def __init__(self, rgba: np.ndarray, depth: np.ndarray | None = None, metadata: dict | None = None,
-                 *, scene=None, facts: dict | None = None):
+                 *, scene=None, facts: dict | None = None, inputs=()):
         self.rgba = rgba
         self.depth = depth
         self.metadata = metadata or {}
         self.scene = scene
         self.facts = facts
+        self.inputs = tuple(inputs)
 
     @classmethod
     def read(cls, path: str | os.PathLike) -> Image:
@@ -60,7 +63,7 @@ class Image:
 
         image = self.annotated(title=title) if annotate else self
         write_image(path, image.rgba, metadata=self.metadata, depth=image.depth,
-                    backdrop=png_backdrop(self.scene))
+                    backdrop=png_backdrop(self.scene), inputs=self.inputs)
 
     def annotated(self, *, title: str | None = None) -> Image:
         """The picture with colour bars (the volume's with its opacity curve), field
@@ -74,7 +77,8 @@ class Image:
             raise ExabricksError("an image read from a file has no scene to annotate: render it "
                                  "with eb.render, or with `exabricks render --annotate`")
         pixels = annotate(self.rgba, self.scene, facts=self.facts, title=title)
-        return Image(from_png_pixels(pixels), None, self.metadata, scene=self.scene, facts=self.facts)
+        return Image(from_png_pixels(pixels), None, self.metadata, scene=self.scene, facts=self.facts,
+                     inputs=self.inputs)
 
     def to_rgba8(self) -> np.ndarray:
         """(H, W, 4) uint8, un-premultiplied, as the .png holds it."""

@@ -15,9 +15,12 @@ fresh temporary file and then puts the result at `path`:
 * a character device or a FIFO given by name (``/dev/null``, a named pipe) is
   written into directly, never replaced;
 * a directory, a socket or a block device is refused;
-* an output that is one of the command's inputs (after resolving symbolic
-  links, or a hard link to one) is refused before anything is computed:
-  `check_output` runs when a command starts, `write_output` checks again.
+* an output that is one of the command's inputs, any file an input is made of
+  (exabricks.util.source_files: every file of a source folder, an ExaJet file's
+  scalars, an Enzo output's companions), or a new file inside an input folder is
+  refused before anything is computed, whatever the symbolic or hard links on
+  either side: `check_output` runs when a command starts, `write_output` checks
+  again.
 
 What goes through a descriptor, a device or a FIFO is first written to an
 anonymous in-memory file (memfd; a file in the system's temporary directory
@@ -41,7 +44,7 @@ import tempfile
 from pathlib import Path
 from typing import Callable, Iterable
 
-from . import interrupt
+from . import interrupt, source_files
 from .errors import ExabricksError
 from .jsonfile import kind_of
 
@@ -124,14 +127,38 @@ def _check_descriptor(path, fd: int, inputs: Iterable) -> None:
         raise ExabricksError(f"{path}: descriptor {fd} is not open for writing")
     if stat.S_ISDIR(st.st_mode):
         raise ExabricksError(f"{path}: descriptor {fd} is open on a directory")
+    if stat.S_ISREG(st.st_mode):
+        _refuse_members(path, None, (st.st_dev, st.st_ino), inputs)
+
+
+def _refuse_members(path, target: Path | None, ident, inputs: Iterable) -> None:
+    """Refuse an output that is, or lies inside, any of `inputs` or any file one of
+    them is made of (exabricks.util.source_files: a folder's every file, the
+    siblings a reader reads), whatever the symbolic links on either side.
+    `target`: the output's resolved path (None for a descriptor); `ident`: the
+    (device, inode) of the file it names, where one exists."""
     for inp in inputs:
-        try:
-            other = os.stat(inp) if inp is not None else None
-        except OSError:
+        if inp is None:
             continue
-        if other is not None and stat.S_ISREG(st.st_mode) \
-                and (other.st_dev, other.st_ino) == (st.st_dev, st.st_ino):
+        inp = Path(inp)
+        if target is not None and _same_file(path, inp):
             raise ExabricksError(f"{path}: the output would overwrite the input {inp}")
+        if target is not None and inp.is_dir() and target.is_relative_to(_resolved(inp)):
+            raise ExabricksError(f"{path}: the output would land inside the input folder {inp}")
+        if ident is None:
+            continue
+        try:
+            found = source_files.members(inp) if inp.exists() else []
+        except (OSError, ExabricksError):
+            found = []
+        for _, member in found:
+            try:
+                other = os.stat(member)
+            except OSError:
+                continue
+            if (other.st_dev, other.st_ino) == ident:
+                raise ExabricksError(f"{path}: the output would overwrite {member}, "
+                                     f"a file of the input {inp}")
 
 
 def check_output(path, inputs: Iterable = ()) -> Path:
@@ -149,9 +176,12 @@ def check_output(path, inputs: Iterable = ()) -> Path:
         _check_descriptor(path, fd, inputs)
         return _FD_DIR / str(fd)
     target = _resolved(path)
-    for inp in inputs:
-        if inp is not None and _same_file(path, Path(inp)):
-            raise ExabricksError(f"{path}: the output would overwrite the input {inp}")
+    try:
+        st = os.stat(target)
+        ident = (st.st_dev, st.st_ino)
+    except OSError:
+        ident = None
+    _refuse_members(path, target, ident, inputs)
     if len(os.fsencode(target.name)) > 255:
         raise ExabricksError(f"{path}: file name too long ({len(os.fsencode(target.name))} bytes, "
                              "at most 255)")

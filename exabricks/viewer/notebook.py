@@ -46,10 +46,10 @@ def view(dataset, scene=None, *, device: str | None = None, scene_out=None,
     from .session import Session
 
     widget = _widget_class()
-    if scene_out is not None:
-        regular_output(Path(scene_out))
     budget = None if memory_budget is None else parse_size(memory_budget)
     dataset = open_dataset(dataset)
+    if scene_out is not None:
+        regular_output(Path(scene_out), dataset.inputs)
     if isinstance(scene, Scene):
         scene = scene_to_dict(scene)
     session = Session(dataset, device=device, scene=scene, options=options, budget=budget)
@@ -92,7 +92,7 @@ def _widget_class():
 
         def save(self, doc: dict) -> str | None:
             """"Save scene": write `scene_out`, if given (page.save_scene)."""
-            return save_scene(self.scene_out, doc)
+            return save_scene(self.scene_out, doc, self.session.inputs)
 
         def close(self) -> None:
             self._page.close()

@@ -174,17 +174,22 @@ async def _finished(future):
         raise
 
 
-def regular_output(path: Path) -> None:
+def regular_output(path: Path, inputs=()) -> None:
     """Refuse --scene-out naming something other than a regular file (or nothing yet):
     a FIFO, a device or a descriptor would hold a save up, so the viewer never
-    writes into one (exabricks.util.output writes into them for other commands)."""
+    writes into one (exabricks.util.output writes into them for other commands);
+    or naming any file the `inputs` are made of (check_output)."""
+    from ..util.output import check_output
+
     try:
         mode = os.stat(path).st_mode
     except FileNotFoundError:
+        check_output(path, inputs)
         return
     except OSError as e:
         raise ExabricksError(f"--scene-out {path}: cannot look at it ({e.strerror or e})") from None
     if stat.S_ISREG(mode):
+        check_output(path, inputs)
         return
     kind = ("a directory" if stat.S_ISDIR(mode) else "a FIFO" if stat.S_ISFIFO(mode)
             else "a device" if stat.S_ISCHR(mode) or stat.S_ISBLK(mode)
@@ -192,13 +197,13 @@ def regular_output(path: Path) -> None:
     raise ExabricksError(f"--scene-out {path}: is {kind}; the viewer saves scenes to a regular file only")
 
 
-def save_scene(path: Path | None, doc: dict) -> str | None:
-    """Write the scene `doc` to `path` (--scene-out; a regular file, atomically);
-    its path, or None without one."""
+def save_scene(path: Path | None, doc: dict, inputs=()) -> str | None:
+    """Write the scene `doc` to `path` (--scene-out; a regular file, atomically,
+    never one of the files `inputs` are made of); its path, or None without one."""
     from ..util.output import write_json
 
     if path is None:
         return None
-    regular_output(path)
-    write_json(path, doc)
+    regular_output(path, inputs)
+    write_json(path, doc, inputs=inputs)
     return str(path)

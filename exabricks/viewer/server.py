@@ -65,7 +65,7 @@ class Viewer:
         self.port = port
         self.scene_out = None if scene_out is None else Path(scene_out)
         if self.scene_out is not None:
-            regular_output(self.scene_out)
+            regular_output(self.scene_out, session.inputs)
         self.token = token or secrets.token_urlsafe(24)
         self.lock = asyncio.Lock()  # one frame on the device at a time
         self.runner = None
@@ -183,7 +183,7 @@ class Viewer:
     def save(self, doc: dict) -> str | None:
         """Write `doc` to --scene-out; its path, or None without one (page.save_scene).
         Called off the event loop (page._in_thread): a write never holds the server up."""
-        return save_scene(self.scene_out, doc)
+        return save_scene(self.scene_out, doc, self.session.inputs)
 
 
 def _url_host(name: str) -> str:

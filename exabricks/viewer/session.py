@@ -94,6 +94,11 @@ class Session:
                                  "a source through the cache (not --no-cache)")
         self._domains = None  # (fields, size, Budgeted) under a memory budget
 
+    @property
+    def inputs(self) -> list:
+        """The files no save of the viewer may replace: the dataset's and the meshes'."""
+        return [*self.renderer.dataset.inputs, *self.meshes]
+
     def check(self, doc) -> object:
         """The eb.Scene of a document from the page, or ExabricksError (one line)."""
         if not isinstance(doc, dict):
