@@ -32,6 +32,7 @@ import numpy as np
 
 from ..picture.camera import Camera, box_corners
 from ..util.errors import ExabricksError
+from ..util.vectors import unit
 from ..scene.model import Clip, Scene
 from ..scene.modes import MAX_CLIP_PLANES
 
@@ -204,7 +205,6 @@ def copy_rows(scene: Scene, box) -> np.ndarray:
     most = max(len(o.clip.planes) for o in clips)
     n_slices = len(scene.slices)
     out = np.zeros((len(maps), 6 + 2 * most + 2 * n_slices, 4), np.float32)
-    unit = lambda v: np.asarray(v, np.float64) / np.linalg.norm(v)
     for k, ((r, t), obj) in enumerate(zip(maps, clips)):
         out[k, :3] = np.column_stack([r.T, -r.T @ t])
         clip = obj.clip

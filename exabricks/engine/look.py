@@ -10,6 +10,7 @@ import numpy as np
 
 from ..scene import Scene
 from ..picture.transfer_function import TABLE_TOLERANCE, knot_buckets
+from ..util.vectors import unit
 from .device_data import DeviceDataset, gradient_scales
 from .grouped import Grouped
 
@@ -72,13 +73,12 @@ def frame_arrays(scene: Scene, device_dataset: DeviceDataset,
     slices, slice_point, slice_normal = [], [], []
     for plane in scene.slices:
         slices.append((index[plane.field], *knots(plane.colormap), 0))
-        normal = np.asarray(plane.normal, np.float64)
         slice_point.append((*plane.point, plane.opacity))
-        slice_normal.append((*(normal / np.linalg.norm(normal)), 0.0))
+        slice_normal.append((*unit(plane.normal), 0.0))
     clip = scene.clip
     box = clip.box or ((0.0, 0.0, 0.0), (0.0, 0.0, 0.0))
     planes = [(*p, 0.0) for point, normal in clip.planes
-              for p in (point, np.asarray(normal, np.float64) / np.linalg.norm(normal))]
+              for p in (point, unit(normal))]
     cat = lambda parts, shape: np.concatenate(parts) if parts else np.zeros(shape, np.float32)
     rows = lambda r, dtype: np.asarray(r, dtype).reshape(-1, 4)
     params = {

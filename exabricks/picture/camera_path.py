@@ -36,6 +36,7 @@ import numpy as np
 
 from .camera import DEFAULT_VIEW_DIRECTION, Camera, default_camera
 from ..util.errors import ExabricksError
+from ..util.vectors import unit
 
 KIND = "exabricks camera path"
 VERSION = 1
@@ -53,11 +54,6 @@ def _check_frames(n: int) -> int:
     if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or not 1 <= n <= MAX_FRAMES:
         raise ExabricksError(f"the number of frames must be an integer in [1, {MAX_FRAMES:,}], got {n!r}")
     return int(n)
-
-
-def _unit(v) -> np.ndarray:
-    v = np.asarray(v, np.float64)
-    return v / np.linalg.norm(v)
 
 
 def _perpendicular_up(up: np.ndarray, forward: np.ndarray, fallback: np.ndarray) -> np.ndarray:
@@ -133,7 +129,7 @@ def interpolate(keyframes: list[Camera], times, n_frames: int, *, loop: bool = F
     pos = np.array([k.position for k in keys])
     look = np.array([k.look_at for k in keys])
     fovy = np.array([[k.fovy] for k in keys])
-    ups = [_unit(k.up) for k in keys]
+    ups = [unit(k.up) for k in keys]
     tangents = [_tangents(t, v, loop) for v in (pos, look, fovy)]
     span = t[-1] - t[0]
     samples = t[0] + span * (np.arange(n_frames) / (n_frames if loop else max(n_frames - 1, 1)))
@@ -174,7 +170,7 @@ def orbit(lower_world, upper_world, n_frames: int, *, look_at=None, axis=None,
         raise ExabricksError(f"orbit: the angle must be finite, got {degrees!r}")
     a = a / np.linalg.norm(a)
     distance = float(np.linalg.norm(np.subtract(start.position, start.look_at)))
-    d = _unit(DEFAULT_VIEW_DIRECTION)
+    d = unit(DEFAULT_VIEW_DIRECTION)
     # the default direction's components along the axis and in its plane
     along = float(np.dot(d, a))
     flat = d - along * a

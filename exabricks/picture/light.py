@@ -9,6 +9,8 @@ import math
 
 import numpy as np
 
+from ..util.vectors import unit
+
 # The key light when the scene names no direction: KEY_ELEVATION degrees above the
 # view, KEY_AZIMUTH degrees to its left, from in front of the data (behind the
 # camera): from the side enough that what faces away from it, and what lies in
@@ -25,8 +27,7 @@ SHADOW_BIAS_CELLS = 0.5
 def light_direction(scene) -> np.ndarray:
     """The unit world direction toward the light of `scene` (exabricks.scene.Scene), float64."""
     if scene.lighting.light is not None:
-        d = np.asarray(scene.lighting.light, np.float64)
-        return d / np.linalg.norm(d)
+        return unit(scene.lighting.light)
     _, forward, du, dv = scene.camera.frame(1, 1)
     right, up = du / np.linalg.norm(du), dv / np.linalg.norm(dv)
     elevation, azimuth = math.radians(KEY_ELEVATION), math.radians(KEY_AZIMUTH)

@@ -517,13 +517,15 @@ def builtin_presets() -> list[str]:
 
 
 def widen_degenerate_range(value_range) -> tuple[float, float]:
-    """`value_range`, or for a constant field (low == high = v) ``v -+ max(1, |v|) / 2``."""
+    """`value_range`, or for a constant field (low == high = v) ``v -+ max(1, |v|) / 2``,
+    cut at float32's largest magnitude, which the kernels compute in (a constant
+    field of 3e38 is then at the top of its range, not beyond it)."""
     lo, hi = (float(v) for v in value_range)
     if not (math.isfinite(lo) and math.isfinite(hi)):
         raise ExabricksError(f"value range must be finite, got [{lo:g}, {hi:g}]")
     if lo == hi:
         half = 0.5 * max(1.0, abs(lo))
-        return lo - half, hi + half
+        return max(lo - half, -FLOAT32_MAX), min(hi + half, FLOAT32_MAX)
     return lo, hi
 
 

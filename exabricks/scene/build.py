@@ -18,6 +18,7 @@ from ..picture.camera import Camera
 from ..util.errors import ExabricksError
 from ..picture.field_statistics import field_range
 from ..picture.transfer_function import TransferFunction
+from .applies import check_applies
 from .file import SceneFile, shown
 from .model import (DEFAULT_COLORMAP, DEFAULT_FOVY, Clip, Instance, IsoSurface, Lighting, MeshLayer, Scene,
                     Settings, Slice, VolumeLayer)
@@ -442,4 +443,5 @@ def scene_from_options(bricks, *, scene_path=None, camera_path=None, flags: dict
         settings=settings,
     )
     scene.check()
+    check_applies(scene, SCENE_OPTIONS, f)
     return scene

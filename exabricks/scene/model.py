@@ -13,8 +13,9 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from ..picture.camera import Camera
-from ..util.constants import MAX_COORDINATE
+from ..util.constants import MAX_COORDINATE, MAX_RADIANCE
 from ..util.errors import ExabricksError
+from ..util.vectors import unit
 from ..picture.transfer_function import TransferFunction
 from .modes import (AXES, MAX_CLIP_PLANES, MAX_INSTANCES, MAX_ISOSURFACES, MAX_MESHES, MAX_SLICES,
                     MAX_VOLUMES)
@@ -91,8 +92,7 @@ class Instance:
             a = AXES.index(self.mirror[0])
             m[a, a], t[a] = -1.0, 2.0 * float(self.mirror[1])
         if self.rotate is not None:
-            axis = np.asarray(self.rotate[:3], np.float64)
-            x, y, z = axis / np.linalg.norm(axis)
+            x, y, z = unit(self.rotate[:3])
             angle = np.radians(float(self.rotate[3]))
             k = np.array([[0.0, -z, y], [z, 0.0, -x], [-y, x, 0.0]])
             r = np.eye(3) + np.sin(angle) * k + (1.0 - np.cos(angle)) * (k @ k)  # Rodrigues
@@ -106,7 +106,7 @@ class Instance:
                                  f"{MAX_COORDINATE:g}, got {list(self.mirror)}")
         if self.rotate is not None:
             r = np.asarray(self.rotate, np.float64)
-            if not (r.shape == (4,) and np.all(np.isfinite(r)) and r[:3] @ r[:3] > 0):
+            if not (r.shape == (4,) and np.all(np.isfinite(r)) and np.any(r[:3] != 0)):
                 raise ExabricksError(f"a rotation is a non-zero axis x, y, z and an angle in "
                                      f"degrees, all finite, got {list(self.rotate)}")
         if not (len(self.translate) == 3 and np.all(np.abs(self.translate) <= MAX_COORDINATE)):
@@ -231,7 +231,7 @@ class Scene:
                 raise ExabricksError("an iso-surface colour field needs a colour map and vice versa")
         for s in self.slices:
             n = np.asarray(s.normal, float)
-            if not (np.all(np.isfinite(s.point)) and np.all(np.isfinite(n)) and n @ n > 0):
+            if not (np.all(np.isfinite(s.point)) and np.all(np.isfinite(n)) and np.any(n != 0)):
                 raise ExabricksError(f"slice of {s.field!r} needs a finite point and a non-zero normal")
             if not 0.0 <= s.opacity <= 1.0:
                 raise ExabricksError(f"slice opacity must lie in [0, 1], got {s.opacity}")
@@ -246,7 +246,7 @@ class Scene:
             instance.check()
         for p, n in self.clip.planes:
             n = np.asarray(n, float)
-            if not (np.all(np.isfinite(p)) and np.all(np.isfinite(n)) and n @ n > 0):
+            if not (np.all(np.isfinite(p)) and np.all(np.isfinite(n)) and np.any(n != 0)):
                 raise ExabricksError("a clip plane needs a finite point and a non-zero normal")
         if self.clip.box is not None:
             lo, hi = (np.asarray(b, float) for b in self.clip.box)
@@ -256,3 +256,22 @@ class Scene:
         bg = self.background
         if len(bg) != 4 or not all(0.0 <= c <= 1.0 for c in bg):
             raise ExabricksError(f"background must be RGBA in [0, 1], got {list(bg)}")
+        self._check_radiance()
+
+    def _check_radiance(self) -> None:
+        """ExabricksError, before any sample is drawn, where the lights and the
+        exposure could carry a pixel beyond float32 (a colour of at most 1 lit by
+        the ambient term and the light, its highlight included, through the
+        exposure's 2**stops; MAX_RADIANCE leaves room for the sums of samples)."""
+        light = self.lighting
+        if light.integrator == "headlight":
+            peak, what = 1.0 + light.specular, f"--specular {light.specular:g}"
+        else:
+            peak = light.ambient + light.light_intensity * max(light.light_color) * (1 + light.specular)
+            what = f"--light-intensity {light.light_intensity:g}, --ambient {light.ambient:g}"
+            what += f", --specular {light.specular:g}" if light.specular else ""
+        peak *= 2.0 ** self.settings.exposure
+        if not peak <= MAX_RADIANCE:
+            raise ExabricksError(f"{what} and --exposure {self.settings.exposure:g}: a pixel could "
+                                 f"reach {peak:.3g}, beyond what the frame is computed in (at most "
+                                 f"{MAX_RADIANCE:.3g}, float32 with room for its sums): lower them")

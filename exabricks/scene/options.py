@@ -62,6 +62,9 @@ class Option:
     # (exabricks.device.kernel_abi.PARAMS; a choice as its index in `choices`, a flag as 0/1),
     # filled from the scene for every frame; kernel code reads it as fr->P->NAME.
     kernel: bool = False
+    # Where the option acts: names of exabricks.scene.applies.CONDITIONS that the
+    # scene must meet; given where one fails, the option is refused.
+    applies: tuple = ()
 
     @property
     def flag(self) -> str:
@@ -335,7 +338,8 @@ SCENE_OPTIONS = (
     _vector("clip_plane", "Keep only the half-space (p - P).N >= 0; repeatable; replaces the "
             "scene's planes.", nargs=6, metavar="PX PY PZ NX NY NZ", multiple=True),
     _light("shading", "headlight (default): diffuse (+ --specular) light from the camera; none: "
-           "emission-absorption only.", kind="choice", choices=SHADING_MODES),
+           "emission-absorption only.", kind="choice", choices=SHADING_MODES,
+           applies=("headlight",)),
     _setting("reconstruction", "basis (default): the paper's continuous blend of cells; nearest: "
              "the value of the containing leaf cell; vertex: trilinear in stitched vertex values.",
              kind="choice", choices=RECONSTRUCTIONS),
@@ -347,17 +351,18 @@ SCENE_OPTIONS = (
              "colormap), else within 1/1024 (docs/design.md); exact: from the knots.",
              kind="choice", choices=TF_LOOKUPS),
     _light("gradient", "Normals from the analytic gradient (default) or central differences.",
-           kind="choice", choices=GRADIENTS),
+           kind="choice", choices=GRADIENTS, applies=("shaded",)),
     _light("iso_gradient", "Normals of iso-surfaces from central differences of the "
            "reconstructed field (default; computed at hits only) or the analytic gradient.",
-           kind="choice", choices=GRADIENTS, kernel=True),
+           kind="choice", choices=GRADIENTS, kernel=True, applies=("surfaces",)),
     _light("specular", "Blinn-Phong specular weight on surfaces (default 0).", low=0.0,
-           kernel=True),
-    _light("shininess", "Blinn-Phong exponent (default 32).", **_POSITIVE, kernel=True),
+           kernel=True, applies=("surfaces",)),
+    _light("shininess", "Blinn-Phong exponent (default 32).", **_POSITIVE, kernel=True,
+           applies=("surfaces",)),
     _light("ao_samples", "Ambient-occlusion rays per surface hit (default 0: off).", _AO, kind="int",
-           low=0, high=MAX_AO_SAMPLES),
+           low=0, high=MAX_AO_SAMPLES, applies=("surfaces",)),
     _light("ao_distance", "Length of the ambient-occlusion rays, world units (default: 10 finest "
-           "cell widths).", _AO, **_POSITIVE),
+           "cell widths).", _AO, **_POSITIVE, applies=("surfaces",)),
     _light("integrator", "headlight (default): light from the camera (--shading); shadow: a "
            "directional light (--light) whose transmittance through the volume and the surfaces "
            "lights every sample, plus --ambient; path: volumetric path tracing of the volume "
@@ -365,21 +370,22 @@ SCENE_OPTIONS = (
            "--anisotropy; converges with --spp).", kind="choice", choices=INTEGRATORS),
     _light("bounces", "With --integrator path: scattering events of a path at most (default 8; "
            "1: single scattering), with Russian roulette from the third.", _PATH, kind="int",
-           low=1, high=MAX_BOUNCES, kernel=True),
+           low=1, high=MAX_BOUNCES, kernel=True, applies=("path",)),
     _light("anisotropy", "With --integrator path: the Henyey-Greenstein phase function's g, "
            "from -0.99 (back-scattering) to 0.99 (forward; default 0: isotropic).", _PATH,
-           low=-0.99, high=0.99, kernel=True, metavar="G"),
+           low=-0.99, high=0.99, kernel=True, metavar="G", applies=("path",)),
     _light("light", "With --integrator shadow or path: the direction toward the light, world (default: "
            "the camera's key light, 35 degrees above the view and 60 to its left).", _LIGHT, nargs=3,
-           metavar="DX DY DZ", description="[dx, dy, dz], a direction toward the light (not zero)"),
+           metavar="DX DY DZ", description="[dx, dy, dz], a direction toward the light (not zero)",
+           applies=("light",)),
     _light("light_color", "Colour of the light, in [0, 1] (default 1,1,1).", _LIGHT, kind="numbers",
-           counts=(3,), metavar="R,G,B"),
+           counts=(3,), metavar="R,G,B", applies=("light",)),
     _light("light_intensity", "Intensity of the light (default 0.8: with --ambient 0.2, a surface "
            "facing an unshadowed light is as bright as under the headlight).", _LIGHT, low=0.0,
-           metavar="I"),
+           metavar="I", applies=("light",)),
     _light("ambient", "With --integrator shadow: light that reaches every sample whatever the "
            "shadows; with path: the radiance of a uniform environment (default 0.2).", low=0.0,
-           metavar="A"),
+           metavar="A", applies=("light",)),
     Option("background", "Background colour in [0, 1] (RGB is opaque; default transparent in "
            ".exr, black behind a .png).", kind="numbers", counts=(3, 4), metavar="R,G,B[,A]"),
     _setting("exposure", "Scale the frame's colour by 2**STOPS before the background (the film, "
@@ -401,11 +407,11 @@ SCENE_OPTIONS = (
     _setting("seed", "Seed of the interleaved jitter and sub-pixel positions (default 0).",
              kind="int", low=0, high=2**32 - 1),
     _setting("jitter", "--no-jitter: no interleaved jitter (rho = 0.5): fully deterministic sample "
-             "positions.", kind="flag"),
+             "positions.", kind="flag", applies=("marched",)),
     _setting("sampling_rate", "Samples per finest cell width of each region (default 2).",
              **_POSITIVE),
     _setting("max_opacity", "Early ray termination threshold (default 0.98; 1 turns it off).",
-             low=0.0, high=1.0, low_open=True),
+             low=0.0, high=1.0, low_open=True, applies=("marched",)),
     _setting("depth", "Add a depth channel Z (.exr only): distance to the first opaque surface, "
              "else where the opacity reaches 0.5.", kind="flag"),
 )

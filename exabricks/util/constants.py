@@ -29,6 +29,10 @@ MAX_BRICK_WIDTH = 32
 # coordinate and data range as float32, so a value beyond it is refused (it would
 # overflow to infinity there).
 FLOAT32_MAX = float(np.finfo(np.float32).max)
+# The largest radiance a lit sample may carry (exabricks.scene.model's check of the
+# lights and the exposure): float32's range less room for summing 4096 samples of
+# a pixel and the compositing of layers, a million-fold.
+MAX_RADIANCE = FLOAT32_MAX * 1e-6
 # Largest world coordinate a mesh vertex or an instance's mirror or translation may
 # hold: beyond it, float32 ray arithmetic overflows.
 MAX_COORDINATE = 1e30

@@ -157,3 +157,127 @@ def test_series_frames_and_movie_never_replace_a_step(gerris, tmp_path):
     proc = run("series", gerris, "-o", tmp_path / "f2", "--size", "8", "8", "--movie", movie)
     assert_one_error_line(proc, "would overwrite")
     assert digest(gerris.parent) == before
+
+
+# ---------------------------------------------------------------------------
+# 5. options that would draw the same frame as without them
+
+
+@pytest.mark.parametrize("args, flag", [
+    (["--light", "1", "0", "0"], "--light"),
+    (["--ambient", "0.3"], "--ambient"),
+    (["--light-intensity", "2"], "--light-intensity"),
+    (["--light-color", "1,0,0"], "--light-color"),
+    (["--integrator", "shadow", "--bounces", "2"], "--bounces"),
+    (["--integrator", "shadow", "--anisotropy", "0.5"], "--anisotropy"),
+    (["--integrator", "shadow", "--shading", "none"], "--shading"),
+    (["--integrator", "path", "--max-opacity", "0.5"], "--max-opacity"),
+    (["--integrator", "path", "--no-jitter"], "--no-jitter"),
+    (["--integrator", "shadow", "--gradient", "central"], "--gradient"),
+    (["--shading", "none", "--gradient", "central"], "--gradient"),
+    (["--specular", "0.5"], "--specular"),
+    (["--ao-samples", "4"], "--ao-samples"),
+])
+def test_an_option_that_does_not_act_is_refused(tmp_path, args, flag):
+    out = tmp_path / "x.png"
+    proc = run("render", GERRIS, "--size", "8", "8", *args, "-o", out)
+    assert_one_error_line(proc, flag, "does not apply")
+    assert not out.exists()
+
+
+def test_the_option_table_says_where_each_option_acts():
+    from exabricks.scene.applies import CONDITIONS
+    from exabricks.scene.options import SCENE_OPTIONS
+
+    given = {o.name: o.applies for o in SCENE_OPTIONS if o.applies}
+    assert set(given) >= {"light", "ambient", "light_intensity", "light_color", "bounces",
+                          "anisotropy", "shading", "max_opacity", "jitter", "gradient",
+                          "specular"}
+    assert all(name in CONDITIONS for names in given.values() for name in names)
+
+
+def test_the_same_options_act_where_they_apply(tmp_path):
+    """Where each condition holds, the option changes the frame."""
+    import exabricks as eb
+
+    ds = eb.open(GERRIS, cache=False)
+    base = dict(field="T", size=(16, 16), seed=1)
+    for extra, option in ((dict(integrator="shadow"), dict(light=(1, 0, 0))),
+                          (dict(integrator="path", spp=2), dict(anisotropy=0.8)),
+                          (dict(iso=0.45), dict(specular=1.0))):
+        a = eb.render(ds, **base, **extra).rgba
+        b = eb.render(ds, **base, **extra, **option).rgba
+        assert np.abs(a - b).max() > 1e-3, option
+
+
+# ---------------------------------------------------------------------------
+# 6. directions of any magnitude
+
+
+def test_unit_vectors_of_tiny_and_huge_directions():
+    from exabricks.util.vectors import unit
+
+    for v in ([1e-300, 0, 0], [1e300, 0, 0], [1e200, 1e200, 0], [5e-324, 5e-324, 0], [3, 4, 0]):
+        u = unit(v)
+        assert np.isfinite(u).all() and abs(np.dot(u, u) - 1) < 1e-15
+        np.testing.assert_allclose(u, np.asarray(v) / np.max(np.abs(v)) / np.linalg.norm(
+            np.asarray(v) / np.max(np.abs(v))), rtol=1e-15)
+    with pytest.raises(ExabricksError):
+        unit([0, 0, 0])
+
+
+def test_a_tiny_light_direction_is_the_light_of_its_unit_vector():
+    import exabricks as eb
+
+    ds = eb.open(GERRIS, cache=False)
+    base = dict(field="T", size=(16, 16), seed=1)
+    for integrator in ("shadow", "path"):
+        want = eb.render(ds, **base, integrator=integrator, light=(1, 0, 0)).rgba
+        for tiny in (1e-200, 1e-300):
+            got = eb.render(ds, **base, integrator=integrator, light=(tiny, 0, 0)).rgba
+            np.testing.assert_array_equal(got, want)
+
+
+def test_huge_normals_and_axes_draw_the_frames_of_their_unit_vectors():
+    import exabricks as eb
+
+    ds = eb.open(GERRIS, cache=False)
+    (lo, hi) = ds.bounds
+    mid = [(a + b) / 2 for a, b in zip(lo, hi)]
+
+    def frame(normal, axis):
+        scene = {"slices": [{"point": mid, "normal": normal, "field": "T", "opacity": 0.5}],
+                 "clip": {"planes": [[*mid, *normal]]},
+                 "instances": [{"rotate": [*axis, 30]}]}
+        return eb.render(ds, scene, field="T", size=(16, 16), seed=1).rgba
+
+    want = frame([1, 0, 0], [1, 0, 0])
+    for normal, axis in (([1e300, 0, 0], [1e300, 0, 0]), ([1e160, 0, 0], [1e-300, 0, 0])):
+        np.testing.assert_array_equal(frame(normal, axis), want)
+    np.testing.assert_array_equal(frame([1e200, 1e200, 0], [1, 0, 0]),
+                                  frame([1, 1, 0], [1, 0, 0]))
+
+
+# ---------------------------------------------------------------------------
+# 8, 9. lights, exposures and fields at float32's limit
+
+
+@pytest.mark.parametrize("args", [
+    ["--integrator", "shadow", "--light-intensity", "3e38"],
+    ["--integrator", "shadow", "--ambient", "3e38"],
+    ["--integrator", "path", "--ambient", "3e38"],
+    ["--integrator", "shadow", "--light-intensity", "1e36", "--exposure", "24"],
+])
+def test_lights_that_overflow_are_refused_before_the_frame(tmp_path, args):
+    out = tmp_path / "x.png"
+    proc = run("render", GERRIS, "--size", "8", "8", *args, "-o", out)
+    assert_one_error_line(proc, "--exposure", "beyond")
+    assert "non-finite" not in proc.stderr and not out.exists()
+
+
+@pytest.mark.parametrize("value", [3e38, -3e38])
+def test_a_constant_field_at_float32s_limit_is_drawn(tmp_path, value):
+    raw = tmp_path / "c.raw"
+    np.full((8, 8, 8), value, np.float32).tofile(raw)
+    proc = run("render", raw, "--dims", "8", "8", "8", "--size", "16", "16", "-o", tmp_path / "c.png")
+    assert proc.returncode == 0, proc.stderr

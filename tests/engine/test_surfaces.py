@@ -357,7 +357,7 @@ def test_iso_gradient_central_is_the_central_gradient_at_iso_hits(device):
     np.testing.assert_array_equal(frames["iso"], frames["central"])
     assert np.abs(frames["iso"] - frames["analytic"]).max() > 0.01
     assert scene_from_options(built.bricks).lighting.iso_gradient == "central"
-    flagged = scene_from_options(built.bricks, flags={"iso_gradient": "analytic"})
+    flagged = scene_from_options(built.bricks, flags={"iso_gradient": "analytic", "iso": (0.3,)})
     assert flagged.lighting.iso_gradient == "analytic" and flagged.lighting.gradient == "analytic"
     assert scene_to_dict(flagged)["lighting"]["iso_gradient"] == "analytic"
 
