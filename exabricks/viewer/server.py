@@ -4,7 +4,9 @@ Security, as a Jupyter server has it (docs/view.md):
 
 - it listens on the loopback interface unless told otherwise (`--host`);
 - every request needs the random token of the printed URL, as `?token=` or as the
-  cookie the page gets with it; anything else is 403;
+  cookie the page gets with it, named after the port (cookies do not tell ports
+  apart: two viewers on one host would overwrite each other's, as Jupyter servers
+  would without the port in theirs); anything else is 403;
 - the Host header must name this server (no DNS rebinding): the loopback names,
   `--host`, and, listening on every interface (`--host 0.0.0.0` or `::`), this
   machine's names and addresses (_own_names); a websocket's Origin must be this
@@ -46,7 +48,7 @@ from .page import Page, regular_output, save_scene
 
 log = logging.getLogger(__name__)
 
-COOKIE = "exabricks_view_token"
+COOKIE = "exabricks_view_token"  # and "_PORT"
 ASSETS = {"/": ("index.html", "text/html"), "/viewer.js": ("viewer.js", "text/javascript"),
           "/viewer.css": ("viewer.css", "text/css")}
 MAX_MESSAGE = 1 << 20
@@ -73,6 +75,11 @@ class Viewer:
         self.names = set()  # this machine's names and addresses, listening on every interface
         self.warning = None  # one line, listening beyond the loopback interface
 
+    @property
+    def cookie(self) -> str:
+        """The token cookie's name, this port's own."""
+        return f"{COOKIE}_{self.port}"
+
     # -- checks ---------------------------------------------------------------
 
     def _allowed_hosts(self) -> set[str]:
@@ -84,7 +91,7 @@ class Viewer:
 
         if request.host.lower() not in self._allowed_hosts():
             raise web.HTTPForbidden(text="unknown host")
-        given = request.query.get("token") or _cookie(request) or ""
+        given = request.query.get("token") or _cookie(request, self.cookie) or ""
         if not hmac.compare_digest(given.encode("utf-8", "surrogateescape"), self.token.encode()):
             raise web.HTTPForbidden(text="a token is needed: open the URL that `exabricks view` printed")
 
@@ -101,7 +108,7 @@ class Viewer:
                                          "Content-Security-Policy": "default-src 'self'; img-src 'self' blob: data:; "
                                          "connect-src 'self'; style-src 'self'",
                                          "X-Content-Type-Options": "nosniff"})
-        response.set_cookie(COOKIE, self.token, httponly=True, samesite="Strict")
+        response.set_cookie(self.cookie, self.token, httponly=True, samesite="Strict")
         return response
 
     async def socket(self, request):
@@ -238,11 +245,11 @@ def _own_names() -> set[str]:
     return names
 
 
-def _cookie(request) -> str | None:
-    """The token cookie, or None where the Cookie header cannot be parsed (a
+def _cookie(request, name: str) -> str | None:
+    """The token cookie `name`, or None where the Cookie header cannot be parsed (a
     non-ASCII byte, say): then the request simply has no token (403)."""
     try:
-        return request.cookies.get(COOKIE)
+        return request.cookies.get(name)
     except (ValueError, KeyError, UnicodeError) as e:
         log.debug("view: unreadable cookie: %s", e)
         return None

@@ -43,15 +43,18 @@ class StubSession:
         return []
 
 
+async def serving_async(viewer, body):
+    """`await body(base_url)` with `viewer` listening; the server stops after."""
+    url = await viewer.start()
+    try:
+        return await body(url.split("/?token=")[0])
+    finally:
+        await asyncio.wait_for(viewer.stop(), 5)
+
+
 def serving(viewer, body):
     """Run `await body(base_url)` with `viewer` listening; the server stops after."""
-    async def run():
-        url = await viewer.start()
-        try:
-            return await body(url.split("/?token=")[0])
-        finally:
-            await asyncio.wait_for(viewer.stop(), 5)
-    return asyncio.run(run())
+    return asyncio.run(serving_async(viewer, body))
 
 
 async def raw_get(base: str, headers: bytes) -> bytes:
@@ -68,7 +71,7 @@ async def raw_get(base: str, headers: bytes) -> bytes:
 
 
 def test_a_non_ascii_cookie_gets_403_and_no_traceback(caplog):
-    from exabricks.viewer.server import COOKIE, Viewer
+    from exabricks.viewer.server import Viewer
 
     viewer = Viewer(StubSession())
 
@@ -77,14 +80,39 @@ def test_a_non_ascii_cookie_gets_403_and_no_traceback(caplog):
             "Cookie: exabricks_view_token=é\r\n".encode(),
             b"Cookie: exabricks_view_token=\xff\xc3\x28\r\n",
             b"Cookie: \xff\xfe=\xc3\x28\r\n",
-            f"Cookie: a=\u00e9; {COOKIE}={viewer.token}\r\n".encode(),
-            f"Cookie: {COOKIE}={viewer.token}\r\n".encode())]
+            f"Cookie: a=\u00e9; {viewer.cookie}={viewer.token}\r\n".encode(),
+            f"Cookie: {viewer.cookie}={viewer.token}\r\n".encode())]
 
     with caplog.at_level(logging.DEBUG, logger="aiohttp"):
         lines = serving(viewer, body)
     assert [line.split()[1] for line in lines[:3]] == [b"403", b"403", b"403"], lines
     assert lines[3].split()[1] in (b"200", b"403") and lines[4].split()[1] == b"200", lines
     assert not [r for r in caplog.records if r.levelno >= logging.ERROR], caplog.text
+
+
+def test_two_viewers_cookies_do_not_collide():
+    """Cookies do not tell ports apart: a second viewer's page on the same host
+    leaves the first one's cookie alone, and each server takes its own."""
+    from exabricks.viewer.server import Viewer
+
+    first, second = Viewer(StubSession()), Viewer(StubSession())
+
+    async def body(base):
+        async def other(base2):
+            async with aiohttp.ClientSession(cookie_jar=aiohttp.CookieJar(unsafe=True)) as s:
+                for b, v in ((base, first), (base2, second)):  # each page opened with its URL
+                    async with s.get(f"{b}/?token={v.token}") as r:
+                        assert r.status == 200
+                statuses = []
+                for b in (base, base2):  # then by the cookie alone, as the page's assets are
+                    async with s.get(f"{b}/viewer.js") as r:
+                        statuses.append(r.status)
+                return statuses, {c.key for c in s.cookie_jar}
+        return await serving_async(second, other)
+
+    statuses, names = serving(first, body)
+    assert statuses == [200, 200] and names == {first.cookie, second.cookie}, (statuses, names)
+    assert first.cookie != second.cookie
 
 
 def test_a_fifo_or_a_device_as_scene_out_is_refused(tmp_path):
