@@ -115,6 +115,118 @@ def test_two_viewers_cookies_do_not_collide():
     assert first.cookie != second.cookie
 
 
+MALFORMED = {
+    "a header line over 8 KB": b"GET / HTTP/1.1\r\nHost: h\r\nX: " + b"a" * 9000 + b"\r\n\r\n",
+    "a request line over 8 KB": b"GET /" + b"a" * 9000 + b" HTTP/1.1\r\nHost: h\r\n\r\n",
+    "a bad HTTP version": b"GET / HTTP/9.9x\r\nHost: h\r\n\r\n",
+    "a bad chunked body": b"POST / HTTP/1.1\r\nHost: h\r\nTransfer-Encoding: chunked\r\n\r\nzz\r\n",
+    "a NUL in a header": b"GET / HTTP/1.1\r\nHost: h\r\nX: a\x00b\r\n\r\n",
+    "200 headers": b"GET / HTTP/1.1\r\nHost: h\r\n" + b"".join(b"X%d: y\r\n" % i for i in range(200)) + b"\r\n",
+}
+
+
+async def raw_status(base: str, data: bytes) -> bytes:
+    """The status line the server answers the raw bytes `data` with."""
+    host, port = base.removeprefix("http://").rsplit(":", 1)
+    reader, writer = await asyncio.open_connection(host, int(port))
+    writer.write(data)
+    await writer.drain()
+    line = await asyncio.wait_for(reader.readline(), 10)
+    writer.close()
+    return line
+
+
+def test_malformed_requests_get_400_and_one_line_a_kind(caplog, capfd):
+    """Each malformed request (sent twice) is a 400, logged at most once per kind,
+    in one line and without a traceback."""
+    from exabricks.viewer.server import Viewer
+
+    viewer = Viewer(StubSession())
+
+    async def body(base):
+        return {name: [await raw_status(base, data) for _ in range(2)] for name, data in MALFORMED.items()}
+
+    with caplog.at_level(logging.DEBUG):
+        lines = serving(viewer, body)
+    assert all(line.split()[1] == b"400" for got in lines.values() for line in got), lines
+    assert not [r for r in caplog.records if r.exc_info], caplog.text
+    warned = [r.getMessage() for r in caplog.records if r.levelno >= logging.WARNING]
+    assert 1 <= len(warned) <= len(MALFORMED) and len(set(warned)) == len(warned), warned
+    assert all("\n" not in w and "malformed request" in w for w in warned), warned
+    assert "Traceback" not in caplog.text + capfd.readouterr().err
+
+
+def test_idle_clients_never_keep_the_owner_waiting(caplog, capfd):
+    """200 connections without the token, idle or sending a request slowly: the
+    server keeps at most its bound of them (the oldest closed) and closes a slow
+    one after its request timeout; the owner's page is answered at once, and the
+    refusals are one line each kind, no traceback."""
+    from exabricks.viewer.server import Viewer
+
+    viewer = Viewer(StubSession(), waiting=16, request_timeout=0.5)
+
+    async def body(base):
+        host, port = base.removeprefix("http://").rsplit(":", 1)
+        idle = [await asyncio.open_connection(host, int(port)) for _ in range(200)]
+        await asyncio.sleep(0.1)
+        started = time.monotonic()
+        async with aiohttp.ClientSession() as s:
+            async with s.get(f"{base}/?token={viewer.token}") as r:
+                owner = r.status, time.monotonic() - started
+
+        async def closed(reader):
+            try:
+                return await asyncio.wait_for(reader.read(), 0.05) == b""
+            except (asyncio.TimeoutError, ConnectionError):
+                return False
+
+        still_open = sum([not await closed(reader) for reader, _ in idle])
+        slow = []
+        for _ in range(4):  # a request's first bytes, and never the rest
+            reader, writer = await asyncio.open_connection(host, int(port))
+            writer.write(b"GET / HTTP/1.1\r\nHost: ")
+            slow.append((reader, writer))
+        ended = await asyncio.wait_for(asyncio.gather(*(reader.read() for reader, _ in slow)), 5)
+        for _, writer in idle + slow:
+            writer.close()
+        return owner, still_open, ended
+
+    with caplog.at_level(logging.DEBUG):
+        (status, seconds), still_open, ended = serving(viewer, body)
+    assert status == 200 and seconds < 2, (status, seconds)
+    assert still_open <= 16, still_open
+    assert ended == [b""] * 4
+    warned = [r.getMessage() for r in caplog.records if r.levelno >= logging.WARNING]
+    assert len([w for w in warned if "too many connections" in w]) == 1, warned
+    assert not [r for r in caplog.records if r.exc_info]
+    assert "Traceback" not in caplog.text + capfd.readouterr().err
+
+
+def test_an_accept_out_of_descriptors_is_one_line():
+    """asyncio reports an accept() that fails (too many open files) through the
+    loop's exception handler, with a traceback, again each second while it lasts:
+    the viewer's handler logs it once, in one line."""
+    from exabricks.viewer.guard import Refusals
+
+    refusals, records = Refusals(), []
+    handler = logging.Handler()
+    handler.emit = records.append
+    logger = logging.getLogger("exabricks.viewer.guard")
+    logger.addHandler(handler)
+    try:
+        for _ in range(3):
+            try:
+                raise OSError(24, "Too many open files")
+            except OSError as e:
+                refusals.loop_error(None, {"message": "socket.accept() out of system resource",
+                                           "exception": e})
+    finally:
+        logger.removeHandler(handler)
+    warned = [r for r in records if r.levelno >= logging.WARNING]
+    assert len(warned) == 1 and not warned[0].exc_info and "\n" not in warned[0].getMessage()
+    assert "Too many open files" in warned[0].getMessage()
+
+
 def test_a_fifo_or_a_device_as_scene_out_is_refused(tmp_path):
     from exabricks.util.errors import ExabricksError
     from exabricks.viewer.server import Viewer
