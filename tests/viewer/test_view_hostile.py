@@ -227,6 +227,69 @@ def test_an_accept_out_of_descriptors_is_one_line():
     assert "Too many open files" in warned[0].getMessage()
 
 
+# `exabricks view`'s serving, with a session whose frame draws until it is
+# cancelled (between tiles, as a real one is): what it prints on stopping
+DRAWING = """
+import asyncio, logging, sys, time
+from types import SimpleNamespace
+from exabricks.viewer.server import Viewer, serve
+from exabricks.viewer.session import Cancelled
+
+class Drawing:
+    doc = {}
+    def info(self): return {"type": "init", "scene": self.doc}
+    def check(self, doc): return SimpleNamespace(settings=SimpleNamespace(width=8, height=8))
+    def layer(self, scene): return None
+    def stages(self, scene, moving=False): return [("converged", scene)]
+    def draw(self, stage, scene, cancelled):
+        print("drawing", file=sys.stderr, flush=True)
+        while not cancelled():
+            time.sleep(0.01)
+        raise Cancelled
+
+logging.basicConfig(level=logging.WARNING, format="%(message)s", stream=sys.stderr)
+viewer = Viewer(Drawing())
+asyncio.run(serve(viewer, lambda url: print(url, file=sys.stderr, flush=True)))
+print("stopped", file=sys.stderr)
+"""
+
+
+@pytest.mark.parametrize("how", ["SIGTERM mid-frame", "page gone mid-frame, then SIGINT"])
+def test_stopping_mid_frame_prints_nothing_more(how):
+    """Stopped while a frame draws (or after its page went away mid-frame), the
+    viewer prints no "Future exception was never retrieved" and no traceback."""
+    import signal
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    import exabricks
+
+    env = {**os.environ, "PYTHONPATH": str(Path(exabricks.__file__).parents[1])}
+    proc = subprocess.Popen([sys.executable, "-c", DRAWING], stderr=subprocess.PIPE, text=True, env=env)
+    try:
+        url = proc.stderr.readline().strip()
+        base, token = url.split("/?token=")
+
+        async def page():
+            async with aiohttp.ClientSession() as s:
+                async with s.ws_connect(f"{base}/ws?token={token}", headers={"Origin": base}) as ws:
+                    await asyncio.wait_for(ws.receive(), 10)  # init
+                    assert proc.stderr.readline() == "drawing\n"
+                    if how.startswith("SIGTERM"):
+                        proc.send_signal(signal.SIGTERM)
+                        await asyncio.wait_for(ws.receive(), 10)  # closed by the server
+            await asyncio.sleep(0.2)
+            if not how.startswith("SIGTERM"):
+                proc.send_signal(signal.SIGINT)
+
+        asyncio.run(page())
+        rest = proc.communicate(timeout=20)[1]
+    finally:
+        proc.kill()
+    assert rest == "stopped\n", rest
+
+
 def test_a_fifo_or_a_device_as_scene_out_is_refused(tmp_path):
     from exabricks.util.errors import ExabricksError
     from exabricks.viewer.server import Viewer
