@@ -9,6 +9,7 @@ addresses (and no other name) and warns that the token alone guards it."""
 from __future__ import annotations
 
 import asyncio
+import io
 import ipaddress
 import json
 import logging
@@ -19,6 +20,7 @@ import time
 
 import numpy as np
 import pytest
+from PIL import Image
 
 from helpers import GERRIS
 
@@ -475,6 +477,22 @@ def test_a_tiled_frame_is_the_whole_frame(session, monkeypatch):
         monkeypatch.setattr(module, "TILE_SAMPLES", budget)
         tiled = session.draw("converged", scene, cancelled=lambda: False)
         assert tiled.png == whole.png
+
+
+def test_a_tiled_denoised_frame_is_renders(session, monkeypatch):
+    """`--integrator path --spp 4 --denoise`: the frame drawn in tiles is denoised
+    once, whole, as `render` does (tile by tile, the denoiser left seams of up to
+    76/255): the frame drawn whole, within float rounding."""
+    pytest.importorskip("pyoidn", reason="--denoise needs pyoidn (the denoise extra)")
+    from exabricks.viewer import session as module
+
+    lighting = {**session.doc["lighting"], "integrator": "path"}
+    scene = session.check({**session.doc, "lighting": lighting, "size": [100, 60], "spp": 4, "denoise": True})
+    whole = session.draw("converged", scene)
+    monkeypatch.setattr(module, "TILE_SAMPLES", 4 * 32)  # square tiles of 8 pixels
+    tiled = session.draw("converged", scene, cancelled=lambda: False)
+    a, b = (np.asarray(Image.open(io.BytesIO(f.png)), np.int16) for f in (whole, tiled))
+    assert int(np.abs(a - b).max()) <= 1, int(np.abs(a - b).max())
 
 
 @pytest.mark.slow
