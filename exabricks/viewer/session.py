@@ -94,6 +94,12 @@ class Session:
                                  "a source through the cache (not --no-cache)")
         self._domains = None  # (fields, size, Budgeted) under a memory budget
 
+    def release(self) -> None:
+        """Free the dataset's copy on the device and a budget's domains there; the
+        next frame uploads them again."""
+        self.renderer.release()
+        self._domains = None
+
     def check(self, doc) -> object:
         """The eb.Scene of a document from the page, or ExabricksError (one line)."""
         if not isinstance(doc, dict):
