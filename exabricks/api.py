@@ -183,6 +183,12 @@ class Renderer:
         return Image(result.rgba, result.depth, metadata, scene=chosen,
                      facts=facts_from_meta(self.dataset.meta), inputs=self.dataset.inputs)
 
+    def release(self) -> None:
+        """Free the dataset's copy on the device (the next frame uploads it again):
+        a viewer no view shows holds none."""
+        self._renderer = None
+        self._fields = ()
+
     def _on_device(self, fields):
         from .engine.renderer import Renderer as DeviceRenderer
 

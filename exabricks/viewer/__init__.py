@@ -7,6 +7,8 @@
   channel the page comes (a websocket, a widget's comm);
 - `server`: the web server (aiohttp): the page, its assets, one websocket per
   page, a token and an Origin check as a Jupyter server has them;
+- `guard`: the server against clients without the token: their connections
+  bounded and timed out, each kind of refusal logged once, in one line;
 - `notebook`: `eb.view`, the page in a notebook's output cell (an anywidget
   widget over the kernel's comm);
 - `static/`: the page (HTML, JavaScript, CSS), shipped in the package: no CDN.

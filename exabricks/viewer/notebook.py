@@ -12,9 +12,13 @@ of ours. Each comm message is {"text": JSON} or, for a frame's PNG,
 
 The frames are drawn on the widget's own event loop, in a thread (page.Page), so
 the kernel goes on taking the page's messages: a newer change drops what is left
-of an older frame, as on `exabricks view`'s page. `viewer.document` is the scene
-file's object that "Save scene" writes, `viewer.scene` its eb.Scene for
-`eb.render`.
+of an older frame, as on `exabricks view`'s page. That loop, its threads and the
+dataset's copy on the device exist only while a view shows the widget: they
+start with a view's "hello" and go when the last view says "bye" (its output
+cleared, its cell run again: ipywidgets keeps every widget until it is closed, so
+a dropped one is never collected), on `close()`, or when the widget is collected.
+`viewer.document` is the scene file's object that "Save scene" writes,
+`viewer.scene` its eb.Scene for `eb.render`.
 """
 
 from __future__ import annotations
@@ -22,6 +26,8 @@ from __future__ import annotations
 import asyncio
 import json
 import threading
+import weakref
+from concurrent.futures import ThreadPoolExecutor
 from functools import cache
 from importlib import resources
 from pathlib import Path
@@ -32,6 +38,10 @@ from .page import Page, regular_output, save_scene
 
 if TYPE_CHECKING:
     import anywidget
+
+# Threads drawing a widget's frames while it is shown: one draws under the device
+# lock while the other checks the newest change.
+DRAWING_THREADS = 2
 
 
 def view(dataset, scene=None, *, device: str | None = None, scene_out=None,
@@ -74,16 +84,15 @@ def _widget_class():
             super().__init__()
             self.session = session
             self.scene_out = None if scene_out is None else Path(scene_out)
-            self.lock = asyncio.Lock()  # one frame on the device at a time
-            self._loop = asyncio.new_event_loop()
-            threading.Thread(target=self._loop.run_forever, name="exabricks-inline", daemon=True).start()
-            self._page = Page(self, _Comm(self))
+            self._drawing = _Drawing(session, self.scene_out, _Comm(weakref.ref(self)))
+            # the drawing holds no reference to the widget: collected, it stops
+            self._release = weakref.finalize(self, self._drawing.close)
             self.on_msg(self._received)
 
         @property
         def document(self) -> dict:
             """The scene file's object of the view (what "Save scene" writes)."""
-            return json.loads(json.dumps(self._page.good))
+            return json.loads(json.dumps(self._drawing.page.good))
 
         @property
         def scene(self):
@@ -95,34 +104,121 @@ def _widget_class():
             return save_scene(self.scene_out, doc, self.session.inputs)
 
         def close(self) -> None:
-            self._page.close()
+            self._release()
             super().close()
-            self._loop.call_soon_threadsafe(self._loop.stop)
 
         def _received(self, _widget, content, _buffers) -> None:
-            if self.comm is None or self._loop.is_closed() or not self._loop.is_running():
+            if self.comm is None:
                 return  # closed: nothing answers
-            text = content.get("text") if isinstance(content, dict) else None
-            asyncio.run_coroutine_threadsafe(self._handle(text), self._loop)
-
-        async def _handle(self, text) -> None:
-            if not isinstance(text, str):
-                await self._page.error('a message is {"text": ...}')
-                return
-            try:
-                hello = json.loads(text) == {"type": "hello"}
-            except (ValueError, RecursionError):
-                hello = False
-            if hello:  # a view of the widget opened (a cell shown, a page reloaded)
-                await self._page.open()
-            else:
-                await self._page.receive(text)
+            self._drawing.received(content.get("text") if isinstance(content, dict) else None)
 
     return Inline
 
 
+class _Drawing:
+    """What draws a widget's frames while a view shows it: an event loop in a thread
+    of its own, with its executor's threads, and the dataset's copy on the device
+    (module docstring). The host of the widget's page.Page (its `session`, `lock`
+    and `save`); it holds no reference to the widget (its channel's is weak), so
+    that none of its threads keeps a dropped widget alive."""
+
+    def __init__(self, session, scene_out, channel):
+        self.session, self.scene_out = session, scene_out
+        self.page = Page(self, channel)
+        self.lock = None  # one frame on the device at a time: an asyncio.Lock of the running loop
+        self.views = 0
+        self.loop = self.thread = None
+        self.closed = False
+        self._starting = threading.Lock()  # the kernel's thread starts; a finalizer may stop
+
+    def save(self, doc: dict) -> str | None:
+        """"Save scene": write `scene_out`, if given (page.save_scene)."""
+        return save_scene(self.scene_out, doc, self.session.inputs)
+
+    def received(self, text) -> None:
+        """A message of a view (on the kernel's thread): "hello" counts a view and
+        "bye" one gone, the last stopping the drawing; any other is handled on the
+        loop, started if none runs (a view that opened before a "bye" of another)."""
+        kind = _kind(text)
+        if kind == "bye":
+            self.views = max(0, self.views - 1)
+            if self.views == 0:
+                self.stop()
+            return
+        if kind == "hello":
+            self.views += 1
+        with self._starting:
+            if self.closed:
+                return
+            if self.loop is None:
+                self.loop, self.lock = asyncio.new_event_loop(), asyncio.Lock()
+                self.thread = threading.Thread(target=self._run, args=(self.loop,), name="exabricks-inline",
+                                               daemon=True)
+                self.thread.start()
+            asyncio.run_coroutine_threadsafe(self._handle(text, kind == "hello"), self.loop)
+
+    async def _handle(self, text, hello: bool) -> None:
+        if not isinstance(text, str):
+            await self.page.error('a message is {"text": ...}')
+        elif hello:  # a view of the widget opened (a cell shown, a page reloaded)
+            await self.page.open()
+        else:
+            await self.page.receive(text)
+
+    def _run(self, loop) -> None:
+        """The loop's thread: until stopped, then the page's frame and saves dropped
+        (the frame's thread ends its tile) and the executor's threads ended."""
+        asyncio.set_event_loop(loop)
+        loop.set_default_executor(ThreadPoolExecutor(DRAWING_THREADS, thread_name_prefix="exabricks-inline"))
+        try:
+            loop.run_forever()
+            loop.run_until_complete(self._wind_down())
+            loop.run_until_complete(loop.shutdown_default_executor())
+        finally:
+            loop.close()
+
+    async def _wind_down(self) -> None:
+        tasks = [t for t in (self.page.task, *self.page.saves) if t is not None]
+        self.page.close()
+        if tasks:
+            await asyncio.wait(tasks)
+
+    def stop(self) -> None:
+        """Stop the loop and its threads (waited for) and free the device's copy of
+        the dataset; the next message starts them again."""
+        with self._starting:
+            loop, thread = self.loop, self.thread
+            self.loop = self.thread = None
+        if loop is None:
+            return
+        loop.call_soon_threadsafe(loop.stop)
+        # a finalizer may run on one of the drawing's own threads (the widget
+        # collected there): waiting for the loop would then wait for itself
+        if not threading.current_thread().name.startswith("exabricks-inline"):
+            thread.join()
+        self.session.release()
+
+    def close(self) -> None:
+        """Stop for good: no message starts the drawing again."""
+        with self._starting:
+            self.closed = True
+        self.stop()
+
+
+def _kind(text) -> str | None:
+    """The "type" of a view's message, if it is "hello" or "bye"."""
+    if not isinstance(text, str) or len(text) > 64:  # either is a few bytes
+        return None
+    try:
+        message = json.loads(text)
+    except (ValueError, RecursionError):
+        return None
+    return message["type"] if message in ({"type": "hello"}, {"type": "bye"}) else None
+
+
 class _Comm:
-    """The page's channel (page.Page's `ws`) over the widget's comm. ipykernel's
+    """The page's channel (page.Page's `ws`) over the comm of the widget `widget()`
+    (a weak reference: the channel is closed once the widget is gone). ipykernel's
     messages may be sent from any thread."""
 
     def __init__(self, widget):
@@ -130,15 +226,18 @@ class _Comm:
 
     @property
     def closed(self) -> bool:
-        return self.widget.comm is None
+        widget = self.widget()
+        return widget is None or widget.comm is None
 
     async def send_str(self, text: str) -> None:
-        if not self.closed:
-            self.widget.send({"text": text})
+        widget = self.widget()
+        if widget is not None and widget.comm is not None:
+            widget.send({"text": text})
 
     async def send_bytes(self, data: bytes) -> None:
-        if not self.closed:
-            self.widget.send({"binary": True}, buffers=[data])
+        widget = self.widget()
+        if widget is not None and widget.comm is not None:
+            widget.send({"binary": True}, buffers=[data])
 
 
 def _module() -> str:
@@ -154,7 +253,7 @@ export default {{
     el.innerHTML = MARKUP;
     const viewer = exabricksViewer(el, widgetChannel(model));
     (window.exabricksViews ||= []).push(viewer);  // for the browser tests and the curious
-    return () => viewer.close();
+    return () => viewer.close();  // the channel's close says "bye": the kernel frees the drawing
   }},
 }};
 """

@@ -66,8 +66,8 @@ class Page:
                         break
                     async with self.viewer.lock:
                         try:
-                            frame = await _finished(loop.run_in_executor(None, session.draw, stage, staged,
-                                                                         cancelled))
+                            frame = await _finished(loop.run_in_executor(None, _outcome, session.draw, stage,
+                                                                         staged, cancelled))
                         except Cancelled:
                             break
                     if version != self.version or self.ws.closed:
@@ -163,15 +163,30 @@ def _in_thread(function, *args):
     return future
 
 
-async def _finished(future):
-    """The result of a frame drawn in a thread. When the page goes away meanwhile,
-    the drawing is waited for before the cancel goes on, so that the lock on the
-    device is not released while a thread still draws."""
+def _outcome(function, *args):
+    """(`function(*args)`, None), or (None, the exception it raised): what a frame's
+    thread hands back. The executor's future then never holds an exception: one
+    whose page went away, or whose loop stopped (SIGTERM) before the thread ended,
+    would be reported as "Future exception was never retrieved", with a traceback."""
     try:
-        return await asyncio.shield(future)
+        return function(*args), None
+    except Exception as e:  # raised again by _finished, in the coroutine that waits
+        return None, e
+
+
+async def _finished(future):
+    """The result of a frame drawn in a thread (an `_outcome`), or its exception
+    raised. When the page goes away meanwhile, the drawing is waited for before the
+    cancel goes on, so that the lock on the device is not released while a thread
+    still draws."""
+    try:
+        result, error = await asyncio.shield(future)
     except asyncio.CancelledError:
         await asyncio.wait([future])
         raise
+    if error is not None:
+        raise error
+    return result
 
 
 def regular_output(path: Path, inputs=()) -> None:

@@ -4,7 +4,13 @@ Security, as a Jupyter server has it (docs/view.md):
 
 - it listens on the loopback interface unless told otherwise (`--host`);
 - every request needs the random token of the printed URL, as `?token=` or as the
-  cookie the page gets with it; anything else is 403;
+  cookie the page gets with it, named after the port (cookies do not tell ports
+  apart: two viewers on one host would overwrite each other's, as Jupyter servers
+  would without the port in theirs); anything else is 403;
+- connections that have shown no token are bounded, the oldest closed for a new
+  one, and each has REQUEST_TIMEOUT seconds to send a whole request: idle or slow
+  clients never keep the owner's page from being answered (guard.py); each kind
+  of refusal is logged once, in one line, never a traceback;
 - the Host header must name this server (no DNS rebinding): the loopback names,
   `--host`, and, listening on every interface (`--host 0.0.0.0` or `::`), this
   machine's names and addresses (_own_names); a websocket's Origin must be this
@@ -42,11 +48,14 @@ from importlib import resources
 from pathlib import Path
 
 from ..util.errors import ExabricksError
+from .guard import Refusals, Waiting
 from .page import Page, regular_output, save_scene
 
 log = logging.getLogger(__name__)
 
-COOKIE = "exabricks_view_token"
+COOKIE = "exabricks_view_token"  # and "_PORT"
+WAITING = 64  # connections without the token at most (the fd limit is often 1024)
+REQUEST_TIMEOUT = 10.0  # seconds to send a whole request; also a keep-alive connection's idle time
 ASSETS = {"/": ("index.html", "text/html"), "/viewer.js": ("viewer.js", "text/javascript"),
           "/viewer.css": ("viewer.css", "text/css")}
 MAX_MESSAGE = 1 << 20
@@ -59,7 +68,8 @@ class Viewer:
     """The web application over one Session."""
 
     def __init__(self, session, *, host: str = "127.0.0.1", port: int = 0, scene_out=None,
-                 token: str | None = None):
+                 token: str | None = None, waiting: int = WAITING,
+                 request_timeout: float = REQUEST_TIMEOUT):
         self.session = session
         self.host = host
         self.port = port
@@ -69,9 +79,18 @@ class Viewer:
         self.token = token or secrets.token_urlsafe(24)
         self.lock = asyncio.Lock()  # one frame on the device at a time
         self.runner = None
+        self.server = None  # the listening asyncio server
+        self.request_timeout = float(request_timeout)
+        self.refusals = Refusals()
+        self.waiting = Waiting(waiting, self.refusals)
         self.sockets = set()  # the open pages' websockets, closed on stopping
         self.names = set()  # this machine's names and addresses, listening on every interface
         self.warning = None  # one line, listening beyond the loopback interface
+
+    @property
+    def cookie(self) -> str:
+        """The token cookie's name, this port's own."""
+        return f"{COOKIE}_{self.port}"
 
     # -- checks ---------------------------------------------------------------
 
@@ -83,10 +102,13 @@ class Viewer:
         from aiohttp import web
 
         if request.host.lower() not in self._allowed_hosts():
+            self.refusals.refused("a request naming another host refused (403)")
             raise web.HTTPForbidden(text="unknown host")
-        given = request.query.get("token") or _cookie(request) or ""
+        given = request.query.get("token") or _cookie(request, self.cookie) or ""
         if not hmac.compare_digest(given.encode("utf-8", "surrogateescape"), self.token.encode()):
+            self.refusals.refused("a request without the token refused (403)")
             raise web.HTTPForbidden(text="a token is needed: open the URL that `exabricks view` printed")
+        self.waiting.shown(request.protocol)
 
     # -- handlers -------------------------------------------------------------
 
@@ -101,7 +123,7 @@ class Viewer:
                                          "Content-Security-Policy": "default-src 'self'; img-src 'self' blob: data:; "
                                          "connect-src 'self'; style-src 'self'",
                                          "X-Content-Type-Options": "nosniff"})
-        response.set_cookie(COOKIE, self.token, httponly=True, samesite="Strict")
+        response.set_cookie(self.cookie, self.token, httponly=True, samesite="Strict")
         return response
 
     async def socket(self, request):
@@ -110,6 +132,7 @@ class Viewer:
         self._check(request)
         origin = request.headers.get("Origin")
         if origin is not None and origin.lower() not in {f"http://{h}" for h in self._allowed_hosts()}:
+            self.refusals.refused("a cross-origin websocket refused (403)")
             raise web.HTTPForbidden(text="cross-origin websocket refused")
         ws = web.WebSocketResponse(max_msg_size=MAX_MESSAGE, heartbeat=30)
         await ws.prepare(request)
@@ -142,17 +165,20 @@ class Viewer:
         """Listen; the URL with the token."""
         from aiohttp import web
 
-        self.runner = web.AppRunner(self.app(), access_log=None)
+        # aiohttp's keep-alive timeout also runs from a connection's start until
+        # its first whole request: the time a client has to send one
+        self.runner = web.AppRunner(self.app(), access_log=None, logger=self.refusals,
+                                    keepalive_timeout=self.request_timeout)
         await self.runner.setup()
-        site = web.TCPSite(self.runner, self.host, self.port)
-        try:
-            await site.start()
+        try:  # aiohttp's server as the protocol factory, as its TCPSite has it, behind the bound
+            self.server = await asyncio.get_running_loop().create_server(
+                self._connection, self.host, self.port, backlog=128)
         except OSError as e:
             await self.runner.cleanup()
             raise ExabricksError(f"--host {self.host} --port {self.port}: cannot listen there "
                                  f"({e.strerror or e})") from None
-        bound = [sock.getsockname()[0] for sock in site._server.sockets]
-        self.port = site._server.sockets[0].getsockname()[1]
+        bound = [sock.getsockname()[0] for sock in self.server.sockets]
+        self.port = self.server.sockets[0].getsockname()[1]
         url = f"http://{_url_host(WILDCARDS.get(self.host, self.host))}:{self.port}/?token={self.token}"
         if self.host in WILDCARDS:
             self.names = _own_names()
@@ -175,10 +201,18 @@ class Viewer:
         shutdown timeout, tens of seconds, for pages left open), then the server."""
         from aiohttp import WSCloseCode
 
+        if self.server is not None:
+            self.server.close()
         for ws in list(self.sockets):
             await ws.close(code=WSCloseCode.GOING_AWAY, message=b"exabricks view stopped")
         if self.runner is not None:
             await self.runner.cleanup()
+
+    def _connection(self):
+        """aiohttp's protocol for a newly accepted connection, once the oldest
+        connections without the token beyond the bound are closed."""
+        self.waiting.make_room(self.runner.server.connections)
+        return self.runner.server()
 
     def save(self, doc: dict) -> str | None:
         """Write `doc` to --scene-out; its path, or None without one (page.save_scene).
@@ -238,11 +272,11 @@ def _own_names() -> set[str]:
     return names
 
 
-def _cookie(request) -> str | None:
-    """The token cookie, or None where the Cookie header cannot be parsed (a
+def _cookie(request, name: str) -> str | None:
+    """The token cookie `name`, or None where the Cookie header cannot be parsed (a
     non-ASCII byte, say): then the request simply has no token (403)."""
     try:
-        return request.cookies.get(COOKIE)
+        return request.cookies.get(name)
     except (ValueError, KeyError, UnicodeError) as e:
         log.debug("view: unreadable cookie: %s", e)
         return None
@@ -267,6 +301,9 @@ async def serve(viewer: Viewer, on_url) -> int | None:
 
     for s in interrupt.SIGNALS:
         loop.add_signal_handler(s, on_signal, s)
+    # what asyncio would print with a traceback (an accept() out of descriptors,
+    # again each second while it lasts): one line a kind
+    loop.set_exception_handler(viewer.refusals.loop_error)
     try:
         url = await viewer.start()
         on_url(url)

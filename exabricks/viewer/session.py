@@ -99,6 +99,12 @@ class Session:
         """The files no save of the viewer may replace: the dataset's and the meshes'."""
         return [*self.renderer.dataset.inputs, *self.meshes]
 
+    def release(self) -> None:
+        """Free the dataset's copy on the device and a budget's domains there; the
+        next frame uploads them again."""
+        self.renderer.release()
+        self._domains = None
+
     def check(self, doc) -> object:
         """The eb.Scene of a document from the page, or ExabricksError (one line)."""
         if not isinstance(doc, dict):
@@ -281,9 +287,13 @@ class Session:
                      float(st.get("samples_per_second", 0.0)), str(st.get("device", "")))
 
     def _tiled(self, scene, cancelled):
-        """The frame drawn tile by tile (each the very pixels the whole frame has
-        there, Renderer.render_scene's `window`), Cancelled between two tiles once
-        `cancelled()` is true."""
+        """The frame drawn tile by tile (each tile's radiance the very pixels the
+        whole frame has there, Renderer.integrate's `window`), then developed by the
+        film once, whole (its denoiser sees the whole frame, as `render`'s does: tile
+        by tile it left seams), Cancelled between two tiles once `cancelled()` is
+        true."""
+        from ..film import denoise
+        from ..film.film import develop
         from ..film.image import Image
         from ..schema import memory_limit
 
@@ -292,6 +302,8 @@ class Session:
         limit = memory_limit()
         if limit is not None and width * height * 16 > limit:
             raise ExabricksError(f"scene: a {width}x{height} frame needs more than the memory available")
+        if s.denoise:
+            denoise.check()  # before the frame, not after
         device = self.renderer._on_device(scene.fields())
         rgba = np.zeros((height, width, 4), np.float32)
         if width * spp <= TILE_SAMPLES:
@@ -305,10 +317,13 @@ class Session:
         for c, r, w, h in tiles:
             if cancelled():
                 raise Cancelled
-            result = device.render_scene(scene, window=(c, r, w, h))
+            result = device.integrate(scene, window=(c, r, w, h))
             rgba[r:r + h, c:c + w] = result.rgba
             samples += int(result.stats.get("samples", 0))
             stats = result.stats
+        if cancelled():  # before the film's work (the denoiser's is a whole frame's)
+            raise Cancelled
+        develop(rgba, scene)
         seconds = time.perf_counter() - started
         stats = {**stats, "width": width, "height": height, "samples": samples, "ms": 1e3 * seconds,
                  "samples_per_second": samples / seconds if seconds > 0 else 0.0}

@@ -90,6 +90,30 @@ def test_bad_messages_get_an_error_and_the_widget_goes_on(viewer):
     time.sleep(0.3)
 
 
+def test_a_widget_no_view_shows_frees_its_threads_and_the_device():
+    """`viewer = eb.view(ds)` run again and again: each time the earlier widget's
+    view goes ("bye": its output replaced) and the widget is dropped; its threads
+    and the dataset's copy on the device go with it, not only on close()."""
+    import gc
+    import threading
+    import weakref
+
+    import exabricks as eb
+
+    dataset = eb.open(GERRIS, cache=False)
+    baseline, uploads = threading.active_count(), []
+    for _ in range(4):
+        viewer = eb.view(dataset, **OPTIONS)
+        assert sum(isinstance(m, bytes) for m in frames(viewer, [{"type": "hello"}], 3)) == 3
+        uploads.append(weakref.ref(viewer.session.renderer._renderer))
+        assert threading.active_count() > baseline
+        viewer._received(viewer, {"text": json.dumps({"type": "bye"})}, [])
+        del viewer
+    gc.collect()
+    assert threading.active_count() == baseline, threading.enumerate()
+    assert [u() for u in uploads] == [None] * 4
+
+
 def test_without_anywidget_one_error_line(monkeypatch):
     import sys
 

@@ -9,6 +9,7 @@ addresses (and no other name) and warns that the token alone guards it."""
 from __future__ import annotations
 
 import asyncio
+import io
 import ipaddress
 import json
 import logging
@@ -19,6 +20,7 @@ import time
 
 import numpy as np
 import pytest
+from PIL import Image
 
 from helpers import GERRIS
 
@@ -29,6 +31,7 @@ class StubSession:
     """What the server needs of a Session, without a device: frames are never drawn."""
 
     doc = {"volumes": []}
+    inputs = ()
 
     def info(self):
         return {"type": "init", "scene": self.doc}
@@ -43,15 +46,18 @@ class StubSession:
         return []
 
 
+async def serving_async(viewer, body):
+    """`await body(base_url)` with `viewer` listening; the server stops after."""
+    url = await viewer.start()
+    try:
+        return await body(url.split("/?token=")[0])
+    finally:
+        await asyncio.wait_for(viewer.stop(), 5)
+
+
 def serving(viewer, body):
     """Run `await body(base_url)` with `viewer` listening; the server stops after."""
-    async def run():
-        url = await viewer.start()
-        try:
-            return await body(url.split("/?token=")[0])
-        finally:
-            await asyncio.wait_for(viewer.stop(), 5)
-    return asyncio.run(run())
+    return asyncio.run(serving_async(viewer, body))
 
 
 async def raw_get(base: str, headers: bytes) -> bytes:
@@ -68,7 +74,7 @@ async def raw_get(base: str, headers: bytes) -> bytes:
 
 
 def test_a_non_ascii_cookie_gets_403_and_no_traceback(caplog):
-    from exabricks.viewer.server import COOKIE, Viewer
+    from exabricks.viewer.server import Viewer
 
     viewer = Viewer(StubSession())
 
@@ -77,14 +83,214 @@ def test_a_non_ascii_cookie_gets_403_and_no_traceback(caplog):
             "Cookie: exabricks_view_token=é\r\n".encode(),
             b"Cookie: exabricks_view_token=\xff\xc3\x28\r\n",
             b"Cookie: \xff\xfe=\xc3\x28\r\n",
-            f"Cookie: a=\u00e9; {COOKIE}={viewer.token}\r\n".encode(),
-            f"Cookie: {COOKIE}={viewer.token}\r\n".encode())]
+            f"Cookie: a=\u00e9; {viewer.cookie}={viewer.token}\r\n".encode(),
+            f"Cookie: {viewer.cookie}={viewer.token}\r\n".encode())]
 
     with caplog.at_level(logging.DEBUG, logger="aiohttp"):
         lines = serving(viewer, body)
     assert [line.split()[1] for line in lines[:3]] == [b"403", b"403", b"403"], lines
     assert lines[3].split()[1] in (b"200", b"403") and lines[4].split()[1] == b"200", lines
     assert not [r for r in caplog.records if r.levelno >= logging.ERROR], caplog.text
+
+
+def test_two_viewers_cookies_do_not_collide():
+    """Cookies do not tell ports apart: a second viewer's page on the same host
+    leaves the first one's cookie alone, and each server takes its own."""
+    from exabricks.viewer.server import Viewer
+
+    first, second = Viewer(StubSession()), Viewer(StubSession())
+
+    async def body(base):
+        async def other(base2):
+            async with aiohttp.ClientSession(cookie_jar=aiohttp.CookieJar(unsafe=True)) as s:
+                for b, v in ((base, first), (base2, second)):  # each page opened with its URL
+                    async with s.get(f"{b}/?token={v.token}") as r:
+                        assert r.status == 200
+                statuses = []
+                for b in (base, base2):  # then by the cookie alone, as the page's assets are
+                    async with s.get(f"{b}/viewer.js") as r:
+                        statuses.append(r.status)
+                return statuses, {c.key for c in s.cookie_jar}
+        return await serving_async(second, other)
+
+    statuses, names = serving(first, body)
+    assert statuses == [200, 200] and names == {first.cookie, second.cookie}, (statuses, names)
+    assert first.cookie != second.cookie
+
+
+MALFORMED = {
+    "a header line over 8 KB": b"GET / HTTP/1.1\r\nHost: h\r\nX: " + b"a" * 9000 + b"\r\n\r\n",
+    "a request line over 8 KB": b"GET /" + b"a" * 9000 + b" HTTP/1.1\r\nHost: h\r\n\r\n",
+    "a bad HTTP version": b"GET / HTTP/9.9x\r\nHost: h\r\n\r\n",
+    "a bad chunked body": b"POST / HTTP/1.1\r\nHost: h\r\nTransfer-Encoding: chunked\r\n\r\nzz\r\n",
+    "a NUL in a header": b"GET / HTTP/1.1\r\nHost: h\r\nX: a\x00b\r\n\r\n",
+    "200 headers": b"GET / HTTP/1.1\r\nHost: h\r\n" + b"".join(b"X%d: y\r\n" % i for i in range(200)) + b"\r\n",
+}
+
+
+async def raw_status(base: str, data: bytes) -> bytes:
+    """The status line the server answers the raw bytes `data` with."""
+    host, port = base.removeprefix("http://").rsplit(":", 1)
+    reader, writer = await asyncio.open_connection(host, int(port))
+    writer.write(data)
+    await writer.drain()
+    line = await asyncio.wait_for(reader.readline(), 10)
+    writer.close()
+    return line
+
+
+def test_malformed_requests_get_400_and_one_line_a_kind(caplog, capfd):
+    """Each malformed request (sent twice) is a 400, logged at most once per kind,
+    in one line and without a traceback."""
+    from exabricks.viewer.server import Viewer
+
+    viewer = Viewer(StubSession())
+
+    async def body(base):
+        return {name: [await raw_status(base, data) for _ in range(2)] for name, data in MALFORMED.items()}
+
+    with caplog.at_level(logging.DEBUG):
+        lines = serving(viewer, body)
+    assert all(line.split()[1] == b"400" for got in lines.values() for line in got), lines
+    assert not [r for r in caplog.records if r.exc_info], caplog.text
+    warned = [r.getMessage() for r in caplog.records if r.levelno >= logging.WARNING]
+    assert 1 <= len(warned) <= len(MALFORMED) and len(set(warned)) == len(warned), warned
+    assert all("\n" not in w and "malformed request" in w for w in warned), warned
+    assert "Traceback" not in caplog.text + capfd.readouterr().err
+
+
+def test_idle_clients_never_keep_the_owner_waiting(caplog, capfd):
+    """200 connections without the token, idle or sending a request slowly: the
+    server keeps at most its bound of them (the oldest closed) and closes a slow
+    one after its request timeout; the owner's page is answered at once, and the
+    refusals are one line each kind, no traceback."""
+    from exabricks.viewer.server import Viewer
+
+    viewer = Viewer(StubSession(), waiting=16, request_timeout=0.5)
+
+    async def body(base):
+        host, port = base.removeprefix("http://").rsplit(":", 1)
+        idle = [await asyncio.open_connection(host, int(port)) for _ in range(200)]
+        await asyncio.sleep(0.1)
+        started = time.monotonic()
+        async with aiohttp.ClientSession() as s:
+            async with s.get(f"{base}/?token={viewer.token}") as r:
+                owner = r.status, time.monotonic() - started
+
+        async def closed(reader):
+            try:
+                return await asyncio.wait_for(reader.read(), 0.05) == b""
+            except (asyncio.TimeoutError, ConnectionError):
+                return False
+
+        still_open = sum([not await closed(reader) for reader, _ in idle])
+        slow = []
+        for _ in range(4):  # a request's first bytes, and never the rest
+            reader, writer = await asyncio.open_connection(host, int(port))
+            writer.write(b"GET / HTTP/1.1\r\nHost: ")
+            slow.append((reader, writer))
+        ended = await asyncio.wait_for(asyncio.gather(*(reader.read() for reader, _ in slow)), 5)
+        for _, writer in idle + slow:
+            writer.close()
+        return owner, still_open, ended
+
+    with caplog.at_level(logging.DEBUG):
+        (status, seconds), still_open, ended = serving(viewer, body)
+    assert status == 200 and seconds < 2, (status, seconds)
+    assert still_open <= 16, still_open
+    assert ended == [b""] * 4
+    warned = [r.getMessage() for r in caplog.records if r.levelno >= logging.WARNING]
+    assert len([w for w in warned if "too many connections" in w]) == 1, warned
+    assert not [r for r in caplog.records if r.exc_info]
+    assert "Traceback" not in caplog.text + capfd.readouterr().err
+
+
+def test_an_accept_out_of_descriptors_is_one_line():
+    """asyncio reports an accept() that fails (too many open files) through the
+    loop's exception handler, with a traceback, again each second while it lasts:
+    the viewer's handler logs it once, in one line."""
+    from exabricks.viewer.guard import Refusals
+
+    refusals, records = Refusals(), []
+    handler = logging.Handler()
+    handler.emit = records.append
+    logger = logging.getLogger("exabricks.viewer.guard")
+    logger.addHandler(handler)
+    try:
+        for _ in range(3):
+            try:
+                raise OSError(24, "Too many open files")
+            except OSError as e:
+                refusals.loop_error(None, {"message": "socket.accept() out of system resource",
+                                           "exception": e})
+    finally:
+        logger.removeHandler(handler)
+    warned = [r for r in records if r.levelno >= logging.WARNING]
+    assert len(warned) == 1 and not warned[0].exc_info and "\n" not in warned[0].getMessage()
+    assert "Too many open files" in warned[0].getMessage()
+
+
+# `exabricks view`'s serving, with a session whose frame draws until it is
+# cancelled (between tiles, as a real one is): what it prints on stopping
+DRAWING = """
+import asyncio, logging, sys, time
+from types import SimpleNamespace
+from exabricks.viewer.server import Viewer, serve
+from exabricks.viewer.session import Cancelled
+
+class Drawing:
+    doc = {}
+    def info(self): return {"type": "init", "scene": self.doc}
+    def check(self, doc): return SimpleNamespace(settings=SimpleNamespace(width=8, height=8))
+    def layer(self, scene): return None
+    def stages(self, scene, moving=False): return [("converged", scene)]
+    def draw(self, stage, scene, cancelled):
+        print("drawing", file=sys.stderr, flush=True)
+        while not cancelled():
+            time.sleep(0.01)
+        raise Cancelled
+
+logging.basicConfig(level=logging.WARNING, format="%(message)s", stream=sys.stderr)
+viewer = Viewer(Drawing())
+asyncio.run(serve(viewer, lambda url: print(url, file=sys.stderr, flush=True)))
+print("stopped", file=sys.stderr)
+"""
+
+
+@pytest.mark.parametrize("how", ["SIGTERM mid-frame", "page gone mid-frame, then SIGINT"])
+def test_stopping_mid_frame_prints_nothing_more(how):
+    """Stopped while a frame draws (or after its page went away mid-frame), the
+    viewer prints no "Future exception was never retrieved" and no traceback."""
+    import signal
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    import exabricks
+
+    env = {**os.environ, "PYTHONPATH": str(Path(exabricks.__file__).parents[1])}
+    proc = subprocess.Popen([sys.executable, "-c", DRAWING], stderr=subprocess.PIPE, text=True, env=env)
+    try:
+        url = proc.stderr.readline().strip()
+        base, token = url.split("/?token=")
+
+        async def page():
+            async with aiohttp.ClientSession() as s:
+                async with s.ws_connect(f"{base}/ws?token={token}", headers={"Origin": base}) as ws:
+                    await asyncio.wait_for(ws.receive(), 10)  # init
+                    assert proc.stderr.readline() == "drawing\n"
+                    if how.startswith("SIGTERM"):
+                        proc.send_signal(signal.SIGTERM)
+                        await asyncio.wait_for(ws.receive(), 10)  # closed by the server
+            await asyncio.sleep(0.2)
+            if not how.startswith("SIGTERM"):
+                proc.send_signal(signal.SIGINT)
+
+        asyncio.run(page())
+        rest = proc.communicate(timeout=20)[1]
+    finally:
+        proc.kill()
+    assert rest == "stopped\n", rest
 
 
 def test_a_fifo_or_a_device_as_scene_out_is_refused(tmp_path):
@@ -123,7 +329,7 @@ def test_a_save_never_holds_the_servers_loop(tmp_path, monkeypatch):
     assert reply["type"] == "error" and "is a FIFO" in reply["message"], reply
 
     for module in (page, server):  # the race: the FIFO comes later
-        monkeypatch.setattr(module, "regular_output", lambda path: None)
+        monkeypatch.setattr(module, "regular_output", lambda path, inputs=(): None)
     viewer = server.Viewer(StubSession(), scene_out=out)
 
     async def blocked(base):
@@ -272,6 +478,22 @@ def test_a_tiled_frame_is_the_whole_frame(session, monkeypatch):
         monkeypatch.setattr(module, "TILE_SAMPLES", budget)
         tiled = session.draw("converged", scene, cancelled=lambda: False)
         assert tiled.png == whole.png
+
+
+def test_a_tiled_denoised_frame_is_renders(session, monkeypatch):
+    """`--integrator path --spp 4 --denoise`: the frame drawn in tiles is denoised
+    once, whole, as `render` does (tile by tile, the denoiser left seams of up to
+    76/255): the frame drawn whole, within float rounding."""
+    pytest.importorskip("pyoidn", reason="--denoise needs pyoidn (the denoise extra)")
+    from exabricks.viewer import session as module
+
+    lighting = {**session.doc["lighting"], "integrator": "path"}
+    scene = session.check({**session.doc, "lighting": lighting, "size": [100, 60], "spp": 4, "denoise": True})
+    whole = session.draw("converged", scene)
+    monkeypatch.setattr(module, "TILE_SAMPLES", 4 * 32)  # square tiles of 8 pixels
+    tiled = session.draw("converged", scene, cancelled=lambda: False)
+    a, b = (np.asarray(Image.open(io.BytesIO(f.png)), np.int16) for f in (whole, tiled))
+    assert int(np.abs(a - b).max()) <= 1, int(np.abs(a - b).max())
 
 
 @pytest.mark.slow

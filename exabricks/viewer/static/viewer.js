@@ -38,7 +38,8 @@ function socketChannel(on) {
 
 // A notebook widget's comm (anywidget's model): each message is { text } or, for a
 // frame's PNG, { binary: true } with the PNG as its buffer. "hello" asks the kernel
-// for the "init" message and the current frame, as a websocket's opening does.
+// for the "init" message and the current frame, as a websocket's opening does;
+// "bye", when the view goes, lets the kernel free what draws when none is left.
 function widgetChannel(model) {
   return (on) => {
     const handler = (msg, buffers) => {
@@ -47,7 +48,12 @@ function widgetChannel(model) {
     };
     model.on("msg:custom", handler);
     model.send({ text: JSON.stringify({ type: "hello" }) });
-    return { send: (text) => model.send({ text }), close: () => model.off("msg:custom", handler) };
+    const close = () => {
+      model.off("msg:custom", handler);
+      // a widget closed in the kernel has no comm left to say it on
+      try { model.send({ text: JSON.stringify({ type: "bye" }) }); } catch (e) { /* closed */ }
+    };
+    return { send: (text) => model.send({ text }), close };
   };
 }
 
