@@ -9,6 +9,7 @@ exabricks.device.kernel_abi.PARAMS).
 
 from __future__ import annotations
 
+import math
 import time
 import weakref
 from dataclasses import dataclass
@@ -128,6 +129,24 @@ def field_magnitude(values: np.ndarray) -> float:
     return magnitude if magnitude > 0 else 1.0
 
 
+# Fields whose largest |value| lies outside [2**-VALUE_EXPONENT_LIMIT,
+# 2**VALUE_EXPONENT_LIMIT] reach the device times a power of two that brings it
+# to [1, 2) (`value_exponent`), and so do their transfer functions' knots, iso-values
+# and colour-map ranges (exabricks.engine.look): a field of 1e-39 would otherwise be
+# summed and interpolated in float32's subnormals, which CPU devices flush to zero,
+# and one of 3e38 would overflow in the reconstruction's sums. A power of two is
+# exact; fields within the limits are uploaded as they are, bit for bit.
+VALUE_EXPONENT_LIMIT = 32
+
+
+def value_exponent(magnitude: float) -> int:
+    """The power of two (its exponent) a field of largest |value| `magnitude` is
+    scaled by on the device (VALUE_EXPONENT_LIMIT), 0 for most fields."""
+    if 2.0 ** -VALUE_EXPONENT_LIMIT <= magnitude <= 2.0 ** VALUE_EXPONENT_LIMIT:
+        return 0
+    return 1 - math.frexp(magnitude)[1]  # magnitude = m 2**e, m in [0.5, 1)
+
+
 @dataclass(frozen=True)
 class DatasetScale:
     """What a dataset's frames are scaled by: its finest cell width (the default
@@ -136,6 +155,11 @@ class DatasetScale:
 
     finest_width_world: float
     magnitudes: dict  # field name -> magnitude
+
+    @property
+    def exponents(self) -> dict:
+        """Field name -> the power of two its values are scaled by on the device."""
+        return {f: value_exponent(m) for f, m in self.magnitudes.items()}
 
     @classmethod
     def of(cls, bricks: schema.Bricks, fields) -> "DatasetScale":
@@ -161,10 +185,12 @@ def gradient_scale(spacing_world, span: float) -> np.ndarray:
     return inv / inv.max() * SHADING_CELLS / span
 
 
-def gradient_scales(spacing_world, fields, magnitudes: dict, volumes=()) -> np.ndarray:
+def gradient_scales(spacing_world, fields, magnitudes: dict, volumes=(),
+                    exponents: dict | None = None) -> np.ndarray:
     """(F, 4) float32 rows of `gradient_scale` of each of `fields`: against the
     value range of the first volume layer of that field (`volumes`: the scene's
-    VolumeLayer), else against the field's largest |value| (`magnitudes`)."""
+    VolumeLayer), else against the field's largest |value| (`magnitudes`), for
+    values scaled by 2**`exponents` (value_exponent; default none)."""
     spans = {}
     for layer in volumes:
         lo, hi = layer.transfer_function.value_range
@@ -172,7 +198,8 @@ def gradient_scales(spacing_world, fields, magnitudes: dict, volumes=()) -> np.n
     rows = []
     for f in fields:
         floor = MIN_SHADING_SPAN * magnitudes[f]
-        rows.append([*gradient_scale(spacing_world, max(spans.get(f, magnitudes[f]), floor)), 0.0])
+        span = math.ldexp(max(spans.get(f, magnitudes[f]), floor), (exponents or {}).get(f, 0))
+        rows.append([*gradient_scale(spacing_world, span), 0.0])
     return np.array(rows or [[1.0, 1.0, 1.0, 0.0]], np.float32)
 
 
@@ -248,6 +275,8 @@ class DeviceDataset:
         consecutive = self.field_indices == list(range(first, first + len(self.field_indices)))
         values = b.values[first:first + max(1, len(self.field_indices))] if consecutive \
             else b.values[self.field_indices]
+        self.exponents = {f: scale.exponents.get(f, 0) for f in self.fields}
+        values = self.scaled(values)
         self._geometry = [up(q, geometry.array()), up(q, links.array())]
         self._lists = [up(q, r.brick_start, np.int64), up(q, r.brick_ids, np.int32),
                        up(q, grid, np.float32), up(q, b.offset, np.int64),
@@ -343,6 +372,16 @@ class DeviceDataset:
         return kernel_abi.params(origin_world=(*self.bricks.origin_world, 0.0),
                                  inv_spacing=(*(1.0 / self.bricks.spacing_world), 0.0), **values)[0]
 
+    def scaled(self, values: np.ndarray, inverse: bool = False) -> np.ndarray:
+        """`values` ((F, n), a row per field of `fields`) as the device holds them:
+        each row times 2**its exponent (value_exponent), or back with `inverse`;
+        `values` themselves where no field is scaled."""
+        exponents = [self.exponents.get(f, 0) for f in self.fields]
+        if not any(exponents):
+            return values
+        sign = -1 if inverse else 1
+        return np.stack([np.ldexp(row, sign * e) for row, e in zip(values, exponents)])
+
     def probe_fields(self, points_world, *, reconstruction: str = "basis") -> np.ndarray:
         """Values of every uploaded field at `points_world` (N, 3) world units ->
         (F, N) float32, F = len(self.fields), with `reconstruction`.
@@ -350,6 +389,10 @@ class DeviceDataset:
         NaN where no region contains the point or no cell has support there (no
         containing cell, for nearest and vertex). Points travel as float32.
         """
+        return self.scaled(self._probe(points_world, reconstruction), inverse=True)
+
+    def _probe(self, points_world, reconstruction: str) -> np.ndarray:
+        """`probe_fields` as the device holds the values (`scaled`)."""
         points = np.asarray(points_world)
         if points.ndim != 2 or points.shape[1] != 3 or not np.issubdtype(points.dtype, np.number):
             raise ExabricksError(f"points must be a numeric (N, 3) array, got shape {points.shape} "
@@ -385,8 +428,8 @@ class DeviceDataset:
         if self._mip_args is None:
             from .lod import brick_mips
 
-            self._mip_args = self._per_brick_args(
-                "mip levels", *brick_mips(self.bricks, self.field_indices or [0]))
+            offset, mips = brick_mips(self.bricks, self.field_indices or [0])
+            self._mip_args = self._per_brick_args("mip levels", offset, self.scaled(mips))
         return self._mip_args
 
     def vertex_args(self) -> list:
@@ -399,7 +442,7 @@ class DeviceDataset:
             points_world = lambda lattice: self.bricks.origin_world + \
                 self.bricks.spacing_world * lattice
             self._vertex_args = self._per_brick_args("vertex values", *vertex_values(
-                self.bricks, lambda lattice: self.probe_fields(points_world(lattice))))
+                self.bricks, lambda lattice: self._probe(points_world(lattice), "basis")))
         return self._vertex_args
 
     def _per_brick_args(self, what: str, offset: np.ndarray, values: np.ndarray) -> tuple:

@@ -32,26 +32,40 @@ def frame_arrays(scene: Scene, device_dataset: DeviceDataset,
     `copies` of overlapping instances (Renderer._mixture; None: none) and the path
     integrator's `majorants` (exabricks.engine.majorants; None: none)."""
     index = {name: i for i, name in enumerate(device_dataset.fields)}
+    exponents = device_dataset.exponents
     xs, rgba = [], []
 
-    def knots(tf) -> tuple[int, int]:
-        x, c = tf.merged_knots()
+    def value(v, field):  # a data value as the device holds the field's (DeviceDataset.scaled)
+        return np.ldexp(np.asarray(v, np.float64), exponents.get(field, 0))
+
+    def knots(tf, field) -> tuple[int, int]:
+        x, c = tf.merged_knots(np.float32, exponents.get(field, 0))
         first = sum(len(k) for k in xs)
-        xs.append(np.asarray(x, np.float32))
+        xs.append(x)
         rgba.append(np.asarray(c, np.float32))
         return first, len(x)
+
+    def on_device(table, volume):  # a lookup table's header (x0, K / span, K) for scaled values
+        e = exponents.get(volume.field, 0)
+        if e == 0:
+            return table.rows
+        x, _ = volume.transfer_function.merged_knots(np.float64, e)  # in float64: K / span
+        rows = table.rows.copy()  # of a tiny span overflows float32 before it is scaled
+        k = float(rows[0, 2])
+        rows[0, :2] = x[0], k / (x[-1] - x[0]) if x[-1] > x[0] else rows[0, 1]
+        return rows
 
     buckets = []  # each volume layer's knot index (knot_buckets), its offset in layer.w
     floats, ints = Grouped(np.float32), Grouped(np.int32)
     tables, table_at = [], []  # each volume layer's lookup table (stats) and its float4 offset
 
     def layer(volume) -> tuple[int, int, int, int]:
-        first, n = knots(volume.transfer_function)
+        first, n = knots(volume.transfer_function, volume.field)
         offset = sum(len(b) for b in buckets)
         buckets.append(knot_buckets(xs[-1]))
         table = _table(volume, scene.settings)
         exact = table is None
-        table_at.append(-1 if exact else floats.add(table.rows, 4) // 4)
+        table_at.append(-1 if exact else floats.add(on_device(table, volume), 4) // 4)
         tables.append({"lookup": "exact"} if exact else
                       {"lookup": "table", "intervals": len(table.rows) - 2,
                        "error_rgb": table.error_rgb, "error_alpha": table.error_alpha})
@@ -60,19 +74,20 @@ def frame_arrays(scene: Scene, device_dataset: DeviceDataset,
     layers = [layer(v) for v in scene.volumes]
     iso, iso_value, iso_color = [], [], []
     for surface in scene.isosurfaces:
-        first, n = knots(surface.colormap) if surface.colormap is not None else (0, 0)
+        first, n = knots(surface.colormap, surface.color_field) \
+            if surface.colormap is not None else (0, 0)
         color_field = index[surface.color_field] if surface.color_field else -1
         iso.append((index[surface.field], color_field, first, n))
-        iso_value.append((surface.value, surface.opacity, 0.0, 0.0))
+        iso_value.append((value(surface.value, surface.field), surface.opacity, 0.0, 0.0))
         iso_color.append((*surface.color, 0.0))
     mesh_color, mesh_info = [], []
     for mesh in scene.meshes:
-        first, n = knots(mesh.colormap) if mesh.colormap is not None else (0, 0)
+        first, n = knots(mesh.colormap, mesh.color_field) if mesh.colormap is not None else (0, 0)
         mesh_color.append((*mesh.color, mesh.opacity))
         mesh_info.append((index[mesh.color_field] if mesh.color_field else -1, first, n, 0))
     slices, slice_point, slice_normal = [], [], []
     for plane in scene.slices:
-        slices.append((index[plane.field], *knots(plane.colormap), 0))
+        slices.append((index[plane.field], *knots(plane.colormap, plane.field), 0))
         slice_point.append((*plane.point, plane.opacity))
         slice_normal.append((*unit(plane.normal), 0.0))
     clip = scene.clip
@@ -84,7 +99,8 @@ def frame_arrays(scene: Scene, device_dataset: DeviceDataset,
     params = {
         "tf_xs_at": floats.add(cat(xs, (1,))), "tf_rgba_at": floats.add(cat(rgba, (1, 4)), 4),
         "gradient_scale_at": floats.add(gradient_scales(device_dataset.spacing_world, device_dataset.fields,
-                                                        device_dataset.magnitudes, scene.volumes), 4),
+                                                        device_dataset.magnitudes, scene.volumes,
+                                                        exponents), 4),
         "iso_value_at": floats.add(rows(iso_value, np.float32), 4),
         "iso_color_at": floats.add(rows(iso_color, np.float32), 4),
         "slice_point_at": floats.add(rows(slice_point, np.float32), 4),

@@ -306,8 +306,10 @@ class TransferFunction:
         renderer looks it up every frame of every domain)."""
         return lookup_table(*self.merged_knots(np.float64))
 
-    def merged_knots(self, dtype=np.float32):
-        """Knots of the whole RGBA function: ``(xs (K,), rgba (K, 4))`` in `dtype`.
+    def merged_knots(self, dtype=np.float32, exponent: int = 0):
+        """Knots of the whole RGBA function: ``(xs (K,), rgba (K, 4))`` in `dtype`,
+        xs times 2**`exponent` (for a field the device holds so scaled,
+        exabricks.engine.device_data.value_exponent).
 
         xs is the sorted union of the colour and opacity knots and rgba the
         function evaluated there, so interpolating linearly between consecutive
@@ -316,8 +318,8 @@ class TransferFunction:
         """
         xs = np.union1d(self.rgb_points[:, 0], self.alpha_points[:, 0])
         if np.dtype(dtype) == np.float32:
-            xs = _apart_in_float32(xs)
-        return xs.astype(dtype), self.evaluate(xs).astype(dtype)
+            xs = np.ldexp(_apart_in_float32(np.ldexp(xs, exponent)), -exponent)
+        return np.ldexp(xs, exponent).astype(dtype), self.evaluate(xs).astype(dtype)
 
     def any_alpha(self, lo, hi) -> np.ndarray:
         """Whether alpha is above 0 somewhere in each value interval ``[lo_i, hi_i]``.
@@ -455,8 +457,10 @@ def lookup_table(xs: np.ndarray, rgba: np.ndarray) -> LookupTable:
         error_rgb, error_alpha = float(off[:, :3].max(initial=0.0)), float(off[:, 3].max(initial=0.0))
         if max(error_rgb, error_alpha) <= TABLE_TOLERANCE:
             break
-    rows = np.concatenate([[[x0, k / span, float(k), 0.0]], table]).astype(np.float32)
-    return LookupTable(rows, error_rgb, error_alpha)
+    # K / span beyond float32 (a span of a field the device holds scaled, whose
+    # header exabricks.engine.look writes again) is cut rather than overflowed.
+    rows = np.concatenate([[[x0, min(k / span, FLOAT32_MAX), float(k), 0.0]], table])
+    return LookupTable(rows.astype(np.float32), error_rgb, error_alpha)
 
 
 def _apart_in_float32(xs: np.ndarray) -> np.ndarray:

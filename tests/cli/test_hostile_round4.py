@@ -281,3 +281,50 @@ def test_a_constant_field_at_float32s_limit_is_drawn(tmp_path, value):
     np.full((8, 8, 8), value, np.float32).tofile(raw)
     proc = run("render", raw, "--dims", "8", "8", "8", "--size", "16", "16", "-o", tmp_path / "c.png")
     assert proc.returncode == 0, proc.stderr
+
+
+# ---------------------------------------------------------------------------
+# 7. fields of very small and very large values
+
+
+@pytest.fixture(scope="module")
+def blob_volumes(tmp_path_factory):
+    """A smooth blob as raw volumes, times 1 and times tiny and huge factors
+    (stored in float32, so 1e-39 is subnormal on disk already)."""
+    folder = tmp_path_factory.mktemp("magnitudes")
+    x = np.linspace(-1, 1, 24)
+    X, Y, Z = np.meshgrid(x, x, x, indexing="ij")
+    blob = np.exp(-4 * (X ** 2 + Y ** 2 + Z ** 2)) + 0.01
+    out = {}
+    for k in (1.0, 1e-36, 1e-37, 1e-39, 1e30, 3e38 / 1.02):
+        out[k] = folder / f"v{k:g}.raw"
+        (blob * k).astype(np.float32).tofile(out[k])
+    return out
+
+
+@pytest.mark.parametrize("k", [1e-36, 1e-37, 1e-39, 1e30, 3e38 / 1.02])
+def test_a_scaled_field_draws_the_fields_picture(blob_volumes, k):
+    import exabricks as eb
+
+    def frame(factor, **options):
+        ds = eb.open(blob_volumes[factor], dims=(24, 24, 24), cache=False)
+        return eb.render(ds, size=(48, 48), jitter=False, **options).rgba
+
+    # Stored in float32: 1e-39's values keep about 16 of their 24 bits.
+    tolerance = 1e-4 if k < 1e-38 else 1e-5
+    given = dict(colormap="viridis", scale="linear", opacity=(0, 0.5))
+    want = frame(1.0, range=(0, 1), **given)
+    got = frame(k, range=(0, k), **given)
+    assert np.sqrt(np.mean((got - want) ** 2)) < tolerance
+    want, got = frame(1.0), frame(k)  # the defaults: the same picture
+    assert np.sqrt(np.mean((got - want) ** 2)) < 1e-3 and np.abs(got - want).max() < 0.02
+
+
+@pytest.mark.parametrize("k", [1e-39, 1e30])
+def test_a_scaled_field_probes_its_values(blob_volumes, k):
+    import exabricks as eb
+
+    points = np.random.default_rng(0).uniform(2, 20, (64, 3))
+    want = eb.probe(eb.open(blob_volumes[1.0], dims=(24, 24, 24), cache=False), points)
+    got = eb.probe(eb.open(blob_volumes[k], dims=(24, 24, 24), cache=False), points)
+    np.testing.assert_allclose(got / k, want, rtol=1e-4 if k < 1e-38 else 1e-6)
