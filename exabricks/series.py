@@ -123,8 +123,9 @@ def open_series(steps, *, fields=None, cache=None, **ingest_options) -> Series:
 def render_series(series, directory, *, movie=None, fps: float = 10.0, suffix: str = ".png",
                   device: str | None = None, **options) -> list[Path]:
     """Every step of `series` (a Series, or what `open_series` takes) drawn with one
-    scene into `directory` (made if missing) as STEPNAME + `suffix`, and with
-    `movie` (.mp4 or .gif) the movie of the frames at `fps`; returns the frames.
+    scene into `directory` (made if missing, also where a dangling symbolic link
+    names it) as STEPNAME + `suffix`, and with `movie` (.mp4 or .gif) the movie of
+    the frames at `fps`; returns the frames.
 
     The scene is the first step's, with `options` (eb.render's), its colours over
     the series' range of the field (`Series.field_range`) unless `range` or a
@@ -146,7 +147,12 @@ def render_series(series, directory, *, movie=None, fps: float = 10.0, suffix: s
     directory = Path(directory)
     if directory.exists() and not directory.is_dir():
         raise ExabricksError(f"{directory}: not a directory")
-    directory.mkdir(parents=True, exist_ok=True)
+    try:
+        # A dangling symbolic link is followed, as exabricks.util.output follows one to
+        # a file: the folder it names is made (mkdir of the link itself: FileExistsError).
+        Path(os.path.realpath(directory)).mkdir(parents=True, exist_ok=True)
+    except OSError as e:
+        raise ExabricksError(f"{directory}: cannot make the folder ({e.strerror or e})") from None
     first = Renderer(series.first, device=device)
     placed = options.get("position") is not None and options.get("look_at") is not None
     if not placed:  # the first step's framing is replaced below: none made

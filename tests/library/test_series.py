@@ -57,6 +57,23 @@ def test_series_errors(runs, tmp_path):
         eb.render_series([runs[0] / "plt00000"], tmp_path / "file", size=(8, 8))
 
 
+def test_series_into_a_dangling_link_makes_the_folder_it_names(tmp_path):
+    """`series -o LINK`, a dangling symbolic link: followed as a link to an output
+    file is (exabricks.util.output), not "internal error: FileExistsError"; a link
+    to a folder it cannot make is one error line."""
+    from helpers import GERRIS, assert_one_error_line, run_cli
+
+    link = tmp_path / "frames"
+    link.symlink_to("made")
+    run_cli("series", GERRIS, "-o", link, "--size", "8", "8", check=0)
+    assert (tmp_path / "made" / "plume7-1.cells.png").is_file() and link.is_symlink()
+    (tmp_path / "file").write_text("")
+    link.unlink()
+    link.symlink_to("file/below")
+    assert_one_error_line(run_cli("series", GERRIS, "-o", link, "--size", "8", "8"),
+                          str(link), "cannot make the folder")
+
+
 @pytest.mark.slow
 def test_render_series_frames_are_the_command_lines(runs, tmp_path):
     fixed, _, cache = runs
