@@ -140,8 +140,11 @@ def render_series(series, directory, *, movie=None, fps: float = 10.0, suffix: s
     from .util.output import write_json
     from .scene import scene_to_dict
     from .scene.build import default_field
-    from .stages.movie import make_movie
+    from .stages.movie import check_fps, make_movie, movie_format
 
+    if movie is not None:  # before any frame is drawn
+        movie_format(movie)
+        check_fps(fps)
     if not isinstance(series, Series):
         series = open_series(series)
     directory = Path(directory)
