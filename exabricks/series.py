@@ -19,7 +19,7 @@ import os
 from pathlib import Path
 
 from .dataset import Dataset
-from .util.errors import ExabricksError
+from .util.errors import ExabricksError, quoted
 
 
 class Series:
@@ -53,7 +53,7 @@ class Series:
 
         options = {k: v for k, v in self._open.items() if k != "cache" and v is not None}
         try:
-            cells = source_cells(step, options)
+            cells = self._with_fields_of_first(source_cells(step, options), step)
             values = values_of(cells, first.bricks, [step], where=str(step),
                                bricks_where=str(self.steps[0]))
         except CellsDiffer:
@@ -65,6 +65,20 @@ class Series:
             return Dataset(with_values(*first.structures(), values, where=str(step),
                                        bricks_where=str(self.steps[0])), source=about)
         return Dataset(paths=first.paths, values=values, source=about)
+
+    def _with_fields_of_first(self, cells, step: Path):
+        """`cells` of `step` with the first step's fields, in its order; a field of
+        the first step that `step` lacks is refused naming both (not --field, as
+        step_values' message for `exabricks values` says)."""
+        from .readers import select_fields
+
+        fields = tuple(self.first.fields)
+        missing = [f for f in fields if f not in cells.fields]
+        if missing:
+            raise ExabricksError(f"{step}: no field {quoted(missing[0])} (its fields: "
+                                 f"{', '.join(cells.fields) or 'none'}), which the first step "
+                                 f"{self.steps[0]} has")
+        return select_fields(cells, fields, source=str(step))
 
     @property
     def first(self) -> Dataset:
