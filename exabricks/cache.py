@@ -258,9 +258,7 @@ class Cache:
         from .util.jsonfile import read_small
 
         out = []
-        if not self.root.is_dir():
-            return out
-        for p in sorted(self.root.iterdir()):
+        for p in _listing(self.root):
             if _KEY.fullmatch(p.name) and not p.is_symlink() and (p / ENTRY).is_file():
                 try:
                     about = json.loads(read_small(p / ENTRY, "a cache entry's entry.json"))
@@ -273,9 +271,7 @@ class Cache:
         """Remove every entry, whole or broken, and what is left of unfinished builds,
         except what a live process holds: (entries removed, bytes freed)."""
         n = freed = 0
-        if not self.root.is_dir():
-            return n, freed
-        for p in sorted(self.root.iterdir()):
+        for p in _listing(self.root):
             if p.name.startswith(_BUILDING):
                 if p.is_symlink() or not p.is_dir():
                     _unlink(p)  # left by an older exabricks: never followed
@@ -324,12 +320,34 @@ def _unlink(p: Path) -> None:
         pass
 
 
+def _listing(root: Path) -> list[Path]:
+    """What `root` holds, sorted; nothing where it is missing (or removed meanwhile)."""
+    try:
+        return sorted(root.iterdir())
+    except OSError:
+        return []
+
+
 def _size(directory: Path) -> int:
+    """Bytes of the regular files under `directory`, links not followed. Other
+    processes build and clear entries meanwhile: a file or folder that vanishes
+    between its listing and its stat counts nothing (Path.rglob raised
+    FileNotFoundError for a folder removed while it walked)."""
     total = 0
-    for p in directory.rglob("*"):
+    folders = [directory]
+    while folders:  # a stack, not recursion: a folder nested thousands deep is summed too
         try:
-            st = p.stat(follow_symlinks=False)
+            with os.scandir(folders.pop()) as it:
+                found = list(it)
         except OSError:
             continue
-        total += st.st_size if stat.S_ISREG(st.st_mode) else 0
+        for e in found:
+            try:
+                st = e.stat(follow_symlinks=False)
+            except OSError:
+                continue
+            if stat.S_ISDIR(st.st_mode):
+                folders.append(Path(e.path))
+            elif stat.S_ISREG(st.st_mode):
+                total += st.st_size
     return total

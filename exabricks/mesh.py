@@ -72,8 +72,12 @@ def read_mesh(path) -> Mesh:
     suffix = path.suffix.lower()
     source = str(path)
     if suffix in (".obj", ".ply"):
+        # The size found, not the limit: read(n) reserves n bytes up front, and 8 GiB
+        # of address space is refused under a `ulimit -v` of a few GB (clusters).
         with open(path, "rb") as f:
-            data = f.read(MAX_FILE_BYTES + 1)
+            data = f.read(size + 1)
+        if len(data) > size:
+            raise ExabricksError(f"{where}: cannot read the mesh: it grew while it was read")
         source = io.BytesIO(_plain_obj(data, where) if suffix == ".obj" else _plain_ply(data, where))
     try:
         loaded = trimesh.load(source, file_type=suffix[1:], force="mesh", process=False,

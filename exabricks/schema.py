@@ -25,7 +25,7 @@ and re-exports their public names (use them as `schema.load`, `schema.Bricks`):
 
 from __future__ import annotations
 
-from .formats.checks import first_misaligned, tree_depth, validate
+from .formats.checks import check_field_names, field_names_problem, first_misaligned, tree_depth, validate
 from .formats.files import load, peek, save
 from .formats.kinds import KINDS, ArraySpec, Bricks, Bvh, Cells, Kind, Regions, Values, summary, world_bounds
 from .formats.memory import (CHUNK, discard, mapping, memory_limit, reduce_chunks, release, release_arrays, rows,
@@ -44,7 +44,7 @@ __all__ = [
     # kinds
     "ArraySpec", "Kind", "Cells", "Bricks", "Regions", "Bvh", "Values", "KINDS", "world_bounds", "summary",
     # checks
-    "validate", "first_misaligned", "tree_depth",
+    "validate", "check_field_names", "field_names_problem", "first_misaligned", "tree_depth",
     # provenance
     "sha256_file", "prefetch_sha256", "make_meta", "content_sha256", "built_from", "check_built_from",
     # memory

@@ -19,7 +19,7 @@ import os
 from pathlib import Path
 
 from .dataset import Dataset
-from .util.errors import ExabricksError
+from .util.errors import ExabricksError, quoted
 
 
 class Series:
@@ -53,7 +53,7 @@ class Series:
 
         options = {k: v for k, v in self._open.items() if k != "cache" and v is not None}
         try:
-            cells = source_cells(step, options)
+            cells = self._with_fields_of_first(source_cells(step, options), step)
             values = values_of(cells, first.bricks, [step], where=str(step),
                                bricks_where=str(self.steps[0]))
         except CellsDiffer:
@@ -65,6 +65,20 @@ class Series:
             return Dataset(with_values(*first.structures(), values, where=str(step),
                                        bricks_where=str(self.steps[0])), source=about)
         return Dataset(paths=first.paths, values=values, source=about)
+
+    def _with_fields_of_first(self, cells, step: Path):
+        """`cells` of `step` with the first step's fields, in its order; a field of
+        the first step that `step` lacks is refused naming both (not --field, as
+        step_values' message for `exabricks values` says)."""
+        from .readers import select_fields
+
+        fields = tuple(self.first.fields)
+        missing = [f for f in fields if f not in cells.fields]
+        if missing:
+            raise ExabricksError(f"{step}: no field {quoted(missing[0])} (its fields: "
+                                 f"{', '.join(cells.fields) or 'none'}), which the first step "
+                                 f"{self.steps[0]} has")
+        return select_fields(cells, fields, source=str(step))
 
     @property
     def first(self) -> Dataset:
@@ -123,8 +137,9 @@ def open_series(steps, *, fields=None, cache=None, **ingest_options) -> Series:
 def render_series(series, directory, *, movie=None, fps: float = 10.0, suffix: str = ".png",
                   device: str | None = None, **options) -> list[Path]:
     """Every step of `series` (a Series, or what `open_series` takes) drawn with one
-    scene into `directory` (made if missing) as STEPNAME + `suffix`, and with
-    `movie` (.mp4 or .gif) the movie of the frames at `fps`; returns the frames.
+    scene into `directory` (made if missing, also where a dangling symbolic link
+    names it) as STEPNAME + `suffix`, and with `movie` (.mp4 or .gif) the movie of
+    the frames at `fps`; returns the frames.
 
     The scene is the first step's, with `options` (eb.render's), its colours over
     the series' range of the field (`Series.field_range`) unless `range` or a
@@ -139,14 +154,22 @@ def render_series(series, directory, *, movie=None, fps: float = 10.0, suffix: s
     from .util.output import check_output, write_json
     from .scene import scene_to_dict
     from .scene.build import default_field
-    from .stages.movie import make_movie
+    from .stages.movie import check_fps, make_movie, movie_format
 
+    if movie is not None:  # before any frame is drawn
+        movie_format(movie)
+        check_fps(fps)
     if not isinstance(series, Series):
         series = open_series(series)
     directory = Path(directory)
     if directory.exists() and not directory.is_dir():
         raise ExabricksError(f"{directory}: not a directory")
-    directory.mkdir(parents=True, exist_ok=True)
+    try:
+        # A dangling symbolic link is followed, as exabricks.util.output follows one to
+        # a file: the folder it names is made (mkdir of the link itself: FileExistsError).
+        Path(os.path.realpath(directory)).mkdir(parents=True, exist_ok=True)
+    except OSError as e:
+        raise ExabricksError(f"{directory}: cannot make the folder ({e.strerror or e})") from None
     first = Renderer(series.first, device=device)
     placed = options.get("position") is not None and options.get("look_at") is not None
     if not placed:  # the first step's framing is replaced below: none made

@@ -11,7 +11,7 @@ import numpy as np
 
 from ..util.constants import LATTICE_DTYPE, LEVEL_DTYPE, MAX_LEVEL, NAN_POLICIES, VALUE_DTYPE
 from ..util.errors import ExabricksError
-from ..schema import Cells, first_misaligned
+from ..schema import Cells, check_field_names, first_misaligned
 
 
 def validate_cells(cells: Cells, *, source: str, nan_policy: str = "error") -> Cells:
@@ -34,6 +34,7 @@ def validate_cells(cells: Cells, *, source: str, nan_policy: str = "error") -> C
         raise ExabricksError(
             f"unknown NaN policy {nan_policy!r} (choose from {', '.join(NAN_POLICIES)})"
         )
+    check_field_names(cells.fields, source)  # a reader's, --name's, a derived field's
     n = cells.n_cells
     if n == 0:
         raise ExabricksError(f"{source}: no cells (empty input)")

@@ -22,8 +22,10 @@ def devices(as_json, warm, device):
     from ..device.opencl import choose_device, list_devices
     from ..device.runtime import prepare
 
-    infos = list_devices()
     runtime = prepare()
+    if not as_json:  # first, also when no device is found: the runtime tells why
+        click.echo(f"OpenCL runtime: {runtime.why} ({runtime.detail})")
+    infos = list_devices()
     default = choose_device(None)
     rows = [{**d.to_dict(), "default": d.name == default.name.strip(), "runtime": runtime.source,
              "runtime_detail": runtime.detail} for d in infos]
@@ -31,7 +33,6 @@ def devices(as_json, warm, device):
         click.echo(json.dumps(rows, indent=2))
         return
     if not as_json:
-        click.echo(f"OpenCL runtime: {runtime.why} ({runtime.detail})")
         for r in rows:
             mark = "*" if r["default"] else " "
             click.echo(f"{mark} {r['spec']}  {r['type']:<4} {r['name']}  [{r['platform']}, {r['version']}, "

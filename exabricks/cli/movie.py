@@ -8,7 +8,7 @@ import os
 import click
 
 from ..util.errors import ExabricksError
-from .options import finite, numbers, output_option
+from .options import fps_option, numbers, output_option
 
 
 def expand_frames(arguments) -> list[str]:
@@ -36,8 +36,7 @@ def expand_frames(arguments) -> list[str]:
 @click.command()
 @click.argument("frames", nargs=-1, required=True, metavar="FRAMES...")
 @output_option
-@click.option("--fps", type=click.FloatRange(0, 1000, min_open=True), default=30.0,
-              show_default=True, callback=finite, help="Frames per second.")
+@fps_option(30.0)
 @click.option("--crf", type=click.IntRange(0, 51), default=None, metavar="N",
               help="MP4 quality as the encoder's constant rate factor: 0 (best, largest) "
               "to 51 (worst); default 18, hard to tell from the frames.")

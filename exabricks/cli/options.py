@@ -43,6 +43,23 @@ def finite(ctx, param, value):
     return value
 
 
+def _fps(ctx, param, value):
+    """Callback: a movie's frames per second, in the range both encoders take
+    (exabricks.stages.movie.fps_problem), refused before anything is drawn."""
+    from ..stages.movie import fps_problem
+
+    problem = fps_problem(value)
+    if problem is not None:
+        raise click.BadParameter(problem)
+    return value
+
+
+def fps_option(default: float):
+    """--fps of `movie` and `series`."""
+    return click.option("--fps", type=float, default=default, show_default=True, callback=_fps,
+                        help="Frames per second of the movie (0.01 to 1000).")
+
+
 def size(ctx, param, text):
     """Callback: a size in bytes ("2G", "512MiB"; exabricks.util.sizes.parse_size)."""
     if text is None:

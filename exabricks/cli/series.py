@@ -7,7 +7,7 @@ from __future__ import annotations
 import click
 
 from ..scene.options import SCENE_OPTIONS
-from .options import (cache_option, declared, device_option, finite, ingest_given, ingest_kwargs,
+from .options import (cache_option, declared, device_option, fps_option, ingest_given, ingest_kwargs,
                       ingest_options)
 
 
@@ -17,8 +17,7 @@ from .options import (cache_option, declared, device_option, finite, ingest_give
               help="Folder of the frames (STEPNAME.png) and of scene.json, the scene they share.")
 @click.option("--movie", default=None, metavar="FILE", type=click.Path(dir_okay=False),
               help="Also the movie of the frames: .mp4 or .gif.")
-@click.option("--fps", type=click.FloatRange(0, 1000, min_open=True), default=10.0,
-              show_default=True, callback=finite, help="Frames per second of the movie.")
+@fps_option(10.0)
 @click.option("--exr", is_flag=True, help="Frames as .exr (float RGBA) instead of .png.")
 @declared(*SCENE_OPTIONS)
 @device_option

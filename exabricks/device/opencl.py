@@ -53,12 +53,6 @@ ENTRY_SOURCE = "render.cl"
 # from exabricks.device.kernel_abi, whose header() starts every program.
 BUILD_OPTIONS = ("-cl-mad-enable", "-cl-no-signed-zeros", "-cl-denorms-are-zero")
 
-_NO_PLATFORM = (
-    "no OpenCL platform found; install an OpenCL driver (on a CPU-only machine: the "
-    "Debian/Ubuntu package pocl-opencl-icd, or without root: pip install 'exabricks[cpu]')"
-)
-
-
 def _cl():
     try:
         import pyopencl as cl
@@ -102,7 +96,7 @@ def _platforms():
     except cl.LogicError:  # PLATFORM_NOT_FOUND_KHR: no ICD installed
         platforms = []
     if not platforms:
-        raise ExabricksError(_NO_PLATFORM)
+        raise ExabricksError(runtime.none_found("platform"))
     return platforms
 
 
@@ -118,7 +112,7 @@ def _devices():
         for d, device in enumerate(devices):
             out.append((f"{p}:{d}", platform, device))
     if not out:
-        raise ExabricksError(_NO_PLATFORM.replace("platform", "device", 1))
+        raise ExabricksError(runtime.none_found("device"))
     return out
 
 

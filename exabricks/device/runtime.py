@@ -73,6 +73,24 @@ def pypi_cpu_runtime() -> Path | None:
 
 _CHOSEN: Runtime | None = None
 
+_INSTALL = ("install an OpenCL driver (on a CPU-only machine: the Debian/Ubuntu package "
+            f"pocl-opencl-icd, or without root: {CPU_EXTRA})")
+
+
+def none_found(what: str = "platform") -> str:
+    """The message where the loader finds no OpenCL `what` (platform, device): where
+    an OCL_ICD_* variable the user set chose, it names the variable, its value and
+    the system's drivers it hides (the loader then reads nothing else), for a
+    driver may well be installed; else how to install one."""
+    chosen = prepare()
+    if chosen.source != "environment":
+        return f"no OpenCL {what} found; {_INSTALL}"
+    folder = system_folder()
+    icds = system_icds(folder)
+    hidden = (f"it hides the system's drivers ({folder}: {', '.join(icds)}): unset it to use them"
+              if icds else f"no driver is in the system's folder {folder} either: {_INSTALL}")
+    return f"no OpenCL {what} found through {chosen.detail} (set in the environment); {hidden}"
+
 
 def prepare() -> Runtime:
     """Choose the runtime (module docstring) once per process, before pyopencl's

@@ -8,7 +8,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..util.constants import LATTICE_DTYPE, MAX_LEVEL, MAX_TREE_DEPTH
-from ..util.errors import ExabricksError
+from ..util.errors import ExabricksError, one_line, quoted
 from .kinds import Bricks, Bvh, Cells, Kind, Regions
 from .memory import reduce_chunks, rows
 
@@ -53,8 +53,7 @@ def _check_semantics(obj: Kind, where: str) -> None:
             and np.all(spacing >= np.finfo(np.float64).tiny)):
         raise ExabricksError(f"{where}: origin must be finite and spacing finite, positive and "
                              f"normal (origin {obj.origin_world.tolist()}, spacing {spacing.tolist()})")
-    if len(set(obj.fields)) != len(obj.fields):
-        raise ExabricksError(f"{where}: duplicate field names {list(obj.fields)}")
+    check_field_names(obj.fields, where)
     if isinstance(obj, (Cells, Bricks)):
         _check_levels(obj.level, where, obj.KIND[:-1])
         i = first_misaligned(obj.lower_lattice, obj.level)
@@ -71,6 +70,33 @@ def _check_semantics(obj: Kind, where: str) -> None:
         _check_levels(obj.finest_level, where, "region")
     if isinstance(obj, Bvh):
         _check_bvh(obj, where)
+
+
+def field_names_problem(names) -> str | None:
+    """What is wrong with a list of field names, or None: the one rule for a field
+    name wherever one is given (a reader's, --name, --field, --derive NAME=...,
+    a file's). A name is a non-empty string without control characters: a newline
+    in one forged a line of `info`'s output, and an empty one names no field. No
+    name may be given twice."""
+    seen = set()
+    for name in names:
+        if not isinstance(name, str):
+            return f"field name {quoted(name)} is not a string"
+        if not name:
+            return "a field name is empty"
+        if one_line(name) != name:  # what an error line would escape
+            return f"field name {quoted(name)} holds a control character"
+        if name in seen:
+            return f"field {quoted(name)} is given twice"
+        seen.add(name)
+    return None
+
+
+def check_field_names(names, where: str) -> None:
+    """ExabricksError `WHERE: problem` unless `field_names_problem` finds none."""
+    problem = field_names_problem(names)
+    if problem is not None:
+        raise ExabricksError(f"{where}: {problem}")
 
 
 def first_misaligned(lower: np.ndarray, level: np.ndarray) -> int:

@@ -14,7 +14,7 @@ import numpy as np
 from ..util.constants import (
     BOUNDS_DTYPE, INDEX_DTYPE, LATTICE_DTYPE, LEVEL_DTYPE, OFFSET_DTYPE, VALUE_DTYPE, WORLD_DTYPE
 )
-from ..util.errors import ExabricksError
+from ..util.errors import ExabricksError, quoted
 from .pieces import RUNS_KEY
 from .memory import rows
 
@@ -57,7 +57,7 @@ class Kind:
             return 0
         if name not in self.fields:
             raise ExabricksError(
-                f"no field {name!r} (fields: {', '.join(self.fields) or 'none'})"
+                f"no field {quoted(name)} (fields: {', '.join(self.fields) or 'none'})"
             )
         return self.fields.index(name)
 

@@ -14,7 +14,7 @@ import re
 import stat
 from pathlib import Path
 
-from ..util.errors import ExabricksError
+from ..util.errors import ExabricksError, quoted
 from ..util.jsonfile import kind_of, not_regular
 from ..schema import Cells
 
@@ -186,7 +186,7 @@ def select_fields(cells: Cells, fields, *, source: str) -> Cells:
     missing = [f for f in fields if f not in cells.fields]
     if missing:
         raise ExabricksError(
-            f"{source}: no field {missing[0]!r} (fields: {', '.join(cells.fields) or 'none'})"
+            f"{source}: no field {quoted(missing[0])} (fields: {', '.join(cells.fields) or 'none'})"
         )
     if len(set(fields)) != len(fields):
         raise ExabricksError(f"{source}: field listed twice in {fields}")

@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from ..util.constants import VALUE_DTYPE, WORLD_DTYPE
-from ..util.errors import ExabricksError
+from ..util.errors import ExabricksError, quoted
 from ..schema import Cells
 
 DTYPES = ("uint8", "int8", "uint16", "int16", "uint32", "int32", "float32", "float64")
@@ -51,9 +51,11 @@ def read(
         raise ExabricksError(f"{path}: unknown --dtype {dtype!r} (choose from {', '.join(DTYPES)})")
     if byte_order not in BYTE_ORDERS:
         raise ExabricksError(f"{path}: unknown byte order {byte_order!r} (little or big)")
-    if fields and list(fields) != [name]:
-        missing = next(f for f in fields if f != name)
-        raise ExabricksError(f"{path}: no field {missing!r} (fields: {name})")
+    missing = [f for f in fields or () if f != name]
+    if missing:
+        raise ExabricksError(f"{path}: no field {quoted(missing[0])} (fields: {quoted(name)})")
+    if fields and len(fields) > 1:
+        raise ExabricksError(f"{path}: field {quoted(name)} is given twice")
     dt = np.dtype(dtype).newbyteorder(BYTE_ORDERS[byte_order])
     # Python ints: --dims of 2**22 each must not wrap around to a plausible size.  The
     # file must hold exactly the claimed voxels before any of them is allocated.

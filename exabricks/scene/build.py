@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from ..picture.camera import Camera
-from ..util.errors import ExabricksError
+from ..util.errors import ExabricksError, quoted
 from ..picture.field_statistics import field_range
 from ..picture.transfer_function import TransferFunction
 from .applies import check_applies
@@ -107,7 +107,8 @@ def _within(where: str, build, *args, **kw):
 
 def _field(bricks, name: str, where: str) -> str:
     if name not in bricks.fields:
-        raise ExabricksError(f"{where}: no field {name!r} (fields: {', '.join(bricks.fields) or 'none'})")
+        raise ExabricksError(f"{where}: no field {quoted(name)} (fields: "
+                             f"{', '.join(bricks.fields) or 'none'})")
     return name
 
 

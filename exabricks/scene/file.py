@@ -6,7 +6,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from ..util.errors import ExabricksError
+from ..util.errors import ExabricksError, quoted, shortened
 from ..util.jsonfile import not_regular
 
 MAX_SCHEMA_ERRORS = 500
@@ -41,7 +41,8 @@ def _key_path(path) -> str:
     for key in path:
         if isinstance(key, int):
             out += f"[{key}]"
-        elif key.isidentifier():
+        elif key.isidentifier():  # shortened: a key of megabytes is not echoed whole
+            key = shortened(key)
             out += f".{key}" if out else key
         else:
             out += f"[{shown(key)}]"
@@ -49,14 +50,14 @@ def _key_path(path) -> str:
 
 
 def shown(value, most: int = 60) -> str:
-    """A short JSON rendering of `value` for messages."""
+    """A short JSON rendering of `value` for messages (util.errors.shortened)."""
     import json
 
     try:
         text = json.dumps(value)
     except RecursionError:
         return "a deeply nested value"
-    return text if len(text) <= most else text[: most - 3] + "..."
+    return shortened(text, most)
 
 
 def key_at(name: str | None, path) -> str:
@@ -134,7 +135,7 @@ def _no_duplicate_keys(pairs):
     out = {}
     for key, value in pairs:
         if key in out:
-            raise ValueError(f"duplicate key {key!r}")
+            raise ValueError(f"duplicate key {quoted(key)}")
         out[key] = value
     return out
 
@@ -212,7 +213,7 @@ class SceneFile:
         problem = not_regular(file)
         if problem:
             raise ExabricksError(f"{self.at(*path)}: expected {what} (found {shown(value)}: "
-                                 f"{problem}: {file})")
+                                 f"{problem}: {shortened(str(file))})")
         return file
 
     def camera_file(self) -> Path | None:
@@ -231,7 +232,7 @@ class SceneFile:
             return None
         raise ExabricksError(
             f"{self.at(*path)}: expected a preset file, a built-in preset name or a preset object "
-            f"(found {shown(value)}: {problem}: {file}, nor a built-in preset: "
+            f"(found {shown(value)}: {problem}: {shortened(str(file))}, nor a built-in preset: "
             f"{', '.join(builtin_presets())})")
 
     def mesh_file(self, i: int) -> Path:

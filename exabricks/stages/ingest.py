@@ -103,6 +103,7 @@ def ingest(
     expressions = derived_expressions(derive, [k for k, _ in derived], source=source)
     if mask is not None and not mask:
         raise ExabricksError(f"{source}: --mask needs a field name")
+    _check_names(source, fields, name if fmt == "raw" else None, derived, expressions)
     reads = _Reads.plan(path, fmt, options, fields, derived, expressions, mask, auto_mask)
 
     with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
@@ -153,6 +154,15 @@ def _fields_made(cells: Cells, reads: _Reads, derived, expressions, fields: list
     if fields:
         cells = readers.select_fields(cells, fields, source=source)
     return cells, n_masked
+
+
+def _check_names(source: str, fields: list, name: str | None, derived, expressions) -> None:
+    """The field names given (schema.field_names_problem), each refused naming its
+    option before anything is read; a reader's own names are checked with the cells."""
+    given = [("--fields", fields), ("--name", [] if name is None else [name]),
+             ("--magnitude", [k for k, _ in derived]), ("--derive", [e.name for e in expressions])]
+    for flag, names in given:
+        schema.check_field_names(names, f"{source}: {flag}")
 
 
 def _parameters(fmt, fields, nan_policy, reads, auto_mask, options, derived, expressions) -> dict:

@@ -16,6 +16,7 @@ PNGs' own 8-bit colours.
 
 from __future__ import annotations
 
+import math
 import os
 import re
 import subprocess
@@ -31,6 +32,13 @@ from ..film.image_io import to_png_pixels
 FORMATS = (".mp4", ".gif")
 CODECS = {"h264": "libx264", "h265": "libx265"}
 DEFAULT_CRF = 18
+# Frames per second a movie may have. A GIF's delay is a 16-bit count of hundredths
+# of a second (655.35 s at most: Pillow overflowed at 0.001) and ffmpeg refuses
+# rates below about 1e-5; one range for both, checked before any frame is drawn.
+MIN_FPS, MAX_FPS = 0.01, 1000.0
+# The longest a GIF shows one frame, in hundredths of a second (Pillow adds up the
+# delays of identical frames in a row into one).
+GIF_MAX_DELAY = 0xFFFF
 
 
 def movie_format(path) -> str:
@@ -40,6 +48,21 @@ def movie_format(path) -> str:
         raise ExabricksError(f"{path}: unknown movie format {Path(path).suffix or '(no extension)'!r} "
                              "(use .mp4 or .gif)")
     return suffix
+
+
+def fps_problem(fps) -> str | None:
+    """What is wrong with a movie's frames per second, or None (`MIN_FPS`, `MAX_FPS`)."""
+    if isinstance(fps, bool) or not isinstance(fps, (int, float)) or not math.isfinite(fps) \
+            or not MIN_FPS <= fps <= MAX_FPS:
+        return f"frames per second must lie in [{MIN_FPS:g}, {MAX_FPS:g}], got {fps!r}"
+    return None
+
+
+def check_fps(fps) -> None:
+    """ExabricksError `--fps: ...` unless `fps_problem` finds none."""
+    problem = fps_problem(fps)
+    if problem is not None:
+        raise ExabricksError(f"--fps: {problem}")
 
 
 def natural_key(name: str):
@@ -155,19 +178,36 @@ def _start_ffmpeg(path, shape, *, fps: float, crf: int, codec: str, name=None):
     return process, log
 
 
-def write_gif(path, frames: Iterator[np.ndarray], *, fps: float) -> int:
+def write_gif(path, frames: Iterator[np.ndarray], *, fps: float, name=None) -> int:
     """Encode uint8 RGB `frames` into a looping GIF file `path`; returns the frame count.
 
     Each frame is reduced to its own 256-colour palette as it arrives (one byte per
-    pixel kept in memory); the delay is 1/fps rounded to hundredths of a second."""
+    pixel kept in memory); the delay is 1/fps rounded to hundredths of a second.
+    Identical frames in a row show as one for their delays together, at most
+    GIF_MAX_DELAY: a longer run is refused naming `name` (default `path`)."""
     from PIL import Image
 
-    images = [Image.fromarray(frame).quantize(256) for frame in frames]
+    check_fps(fps)
+    delay = max(1, round(100.0 / fps))  # hundredths of a second
+    images, previous, run = [], None, 0
+    for frame in frames:
+        run = run + 1 if previous is not None and np.array_equal(frame, previous) else 1
+        if run * delay > GIF_MAX_DELAY:
+            raise ExabricksError(
+                f"{name or path}: {run} identical frames in a row at --fps {fps:g} would show "
+                f"for {run * delay / 100:g} s, longer than a GIF shows one frame "
+                f"({GIF_MAX_DELAY / 100:g} s); use a higher --fps or .mp4")
+        previous = frame
+        images.append(Image.fromarray(frame).quantize(256))
     if not images:
         return 0
-    delay_ms = 10 * max(1, round(100.0 / fps))
-    images[0].save(path, format="GIF", save_all=True, append_images=images[1:],
-                   duration=delay_ms, loop=0, disposal=1)
+    try:
+        images[0].save(path, format="GIF", save_all=True, append_images=images[1:],
+                       duration=10 * delay, loop=0, disposal=1)
+    except OverflowError:  # frames that differ but share their 256 colours, merged by Pillow
+        raise ExabricksError(f"{name or path}: frames alike in a row at --fps {fps:g} would show "
+                             f"longer than a GIF shows one frame ({GIF_MAX_DELAY / 100:g} s); "
+                             "use a higher --fps or .mp4") from None
     return len(images)
 
 
@@ -181,6 +221,7 @@ def make_movie(paths, output, *, fps: float, crf: int | None = None, codec: str 
     from ..util.output import check_output, write_output
 
     kind = movie_format(output)
+    check_fps(fps)
     check_output(output, paths)
 
     def frames_of(bar):
@@ -206,7 +247,7 @@ def make_movie(paths, output, *, fps: float, crf: int | None = None, codec: str 
                           codec=codec or "h264", name=output)
                 return
             try:
-                write_gif(tmp, frames_of(bar), fps=fps)
+                write_gif(tmp, frames_of(bar), fps=fps, name=output)
             except (OSError, ValueError) as e:  # Pillow's
                 raise ExabricksError(f"{output}: cannot write the GIF: "
                                      f"{getattr(e, 'strerror', None) or e}") from None

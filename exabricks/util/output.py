@@ -7,7 +7,9 @@ fresh temporary file and then puts the result at `path`:
   the temporary file lives in the target's directory under a short name
   (``.eb-XXXXXXXX.tmp``) and is renamed into place, so a failed or killed run
   never leaves a file that `make` would take as up to date;
-* a symbolic link is followed: the file it names is replaced, the link stays;
+* a symbolic link is followed: the file it names is replaced, the link stays; a
+  dangling one is written through too (the file it names is made, where that
+  file's directory exists; else refused with one line naming the directory);
 * an open descriptor named by ``/dev/stdout``, ``/dev/stderr``, ``/dev/fd/N``
   or ``/proc/self/fd/N`` (or a link to one) is written through, whatever it
   is open on (a file opened for appending, a pipe, a terminal): the file

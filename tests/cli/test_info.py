@@ -160,6 +160,29 @@ def test_raw_volume_with_non_finite_values(tmp_path, cli):
     assert_one_error_line(cli("info", path), str(path), "--dims")
 
 
+@pytest.mark.parametrize("flags, needles", [
+    (["--fields", "value", "--fields", "value"], ["--fields", "given twice"]),
+    (["--name", "v\nerror: forged line"], ["--name", "control character"]),
+    (["--name", ""], ["--name", "empty"]),
+])
+def test_bad_field_names_of_a_source_are_one_error_line(tmp_path, cli, flags, needles):
+    """No forged output line, no field without a name, no StopIteration: the one
+    rule of field names (schema.field_names_problem), naming the option."""
+    path = tmp_path / "v.raw"
+    np.arange(8, dtype="<f4").tofile(path)
+    proc = cli("info", path, "--dims", 2, 2, 2, *flags)
+    assert_one_error_line(proc, str(path), *needles)
+    assert proc.stdout == ""
+
+
+def test_a_file_with_a_control_character_in_a_field_name_is_refused(tmp_path):
+    cells = ingest(GERRIS, fields=["T"])
+    path = tmp_path / "c.npz"
+    with pytest.raises(Exception, match="control character"):
+        schema.save(path, cells.replace(fields=("T\nerror: forged",)))
+    assert schema.field_names_problem(["T", "rho", "a b", "ρ"]) is None
+
+
 @pytest.mark.parametrize("case", ["missing", "fifo", "garbage", "garbage athdf", "plain directory"])
 def test_bad_input_is_one_error_line(tmp_path, cli, case):
     path = tmp_path / {"garbage athdf": "x.athdf", "plain directory": "dir"}.get(case, case)

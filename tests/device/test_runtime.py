@@ -14,7 +14,7 @@ import pytest
 
 from exabricks.device import runtime
 from exabricks.film.image_io import read_image
-from helpers import GERRIS, ROOT, run_cli
+from helpers import GERRIS, ROOT, assert_one_error_line, run_cli
 
 
 @pytest.fixture
@@ -69,6 +69,30 @@ def test_nothing_found_says_how_to_get_a_runtime(fresh, monkeypatch, tmp_path):
     monkeypatch.setattr(sys, "base_prefix", str(tmp_path))
     chosen = runtime.prepare()
     assert chosen.source == "none" and "pip install 'exabricks[cpu]'" in chosen.why
+
+
+def test_nothing_found_through_a_variable_names_it_and_what_it_hides(fresh, monkeypatch, tmp_path):
+    monkeypatch.setenv("OCL_ICD_VENDORS", str(tmp_path / "nothing"))
+    message = runtime.none_found()
+    assert f"OCL_ICD_VENDORS={tmp_path / 'nothing'}" in message and "install" in message
+    (fresh / "pocl.icd").write_text("libpocl.so.2\n")
+    message = runtime.none_found("device")
+    assert message.startswith(f"no OpenCL device found through OCL_ICD_VENDORS={tmp_path / 'nothing'}")
+    assert f"hides the system's drivers ({fresh}: pocl.icd): unset it" in message
+
+
+def test_devices_without_a_driver_through_ocl_icd_vendors_keeps_its_first_line(tmp_path):
+    """OCL_ICD_VENDORS naming a folder with no usable driver while the system has one:
+    the error named neither, and `devices` dropped its line saying which runtime."""
+    empty, system = tmp_path / "empty", tmp_path / "system"
+    empty.mkdir()
+    system.mkdir()
+    (system / "pocl.icd").write_text("libpocl.so.2\n")
+    proc = run_cli("devices", env={"OCL_ICD_VENDORS": str(empty),
+                                   "EXABRICKS_SYSTEM_OPENCL_VENDORS": str(system)})
+    assert proc.stdout == f"OpenCL runtime: OCL_ICD_VENDORS is set: the loader reads what it " \
+                          f"names (OCL_ICD_VENDORS={empty})\n"
+    assert_one_error_line(proc, f"OCL_ICD_VENDORS={empty}", f"{system}: pocl.icd", "unset it")
 
 
 def test_devices_says_which_runtime_and_why(cli):

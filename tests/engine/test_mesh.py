@@ -79,6 +79,30 @@ def test_a_hostile_mesh_file_ends_render_in_one_error_line(tmp_path, name):
     assert not out.exists()
 
 
+def test_a_small_mesh_renders_under_a_clusters_address_space_limit(tmp_path):
+    """`ulimit -v 4000000` (4 GB, as many clusters set): a 36-byte OBJ once failed
+    with "out of memory", its read reserving the 8 GiB a mesh file may hold. A
+    plain render fits that limit, PoCL's reservations included."""
+    import resource
+    import subprocess
+    import sys
+
+    limit = 4_000_000_000
+
+    def limited():
+        hard = resource.getrlimit(resource.RLIMIT_AS)[1]
+        resource.setrlimit(resource.RLIMIT_AS, (limit if hard == resource.RLIM_INFINITY
+                                                else min(limit, hard), hard))
+
+    mesh = write_text(tmp_path / "t.obj", "v 0 0 0\nv 0.1 0 0\nv 0 0.1 0\nf 1 2 3\n")
+    out = tmp_path / "out.png"
+    proc = subprocess.run([sys.executable, "-m", "exabricks.cli.main", "render", GERRIS, "-o", out,
+                           "--size", "16", "16", "--mesh", mesh],
+                          capture_output=True, text=True, preexec_fn=limited, timeout=300)
+    assert proc.returncode == 0, proc.stderr
+    assert out.stat().st_size > 0
+
+
 def test_degenerate_triangles_among_others_are_dropped(tmp_path):
     path = write_text(tmp_path / "m.obj", "v 0 0 0\nv 1 0 0\nv 0 1 0\nv 2 0 0\nf 1 2 3\nf 1 2 4\n")
     mesh = read_mesh(path)

@@ -57,6 +57,44 @@ def test_series_errors(runs, tmp_path):
         eb.render_series([runs[0] / "plt00000"], tmp_path / "file", size=(8, 8))
 
 
+def test_a_step_without_the_first_steps_field_is_named(tmp_path):
+    """A step whose plotfile holds another field: the step and the missing field are
+    named, not --field (the flag of `exabricks values`), by the library and by
+    `series`, with or without the drawn --field."""
+    from helpers import assert_one_error_line, run_cli
+
+    run = _series(tmp_path / "run", "--fixed-hierarchy")
+    header = run / "plt00010" / "Header"
+    lines = header.read_text().splitlines(keepends=True)
+    assert lines[2] == "phi\n"
+    header.write_text("".join([*lines[:2], "psi\n", *lines[3:]]))
+    series = eb.open_series(str(run / "plt*"), cache=tmp_path / "cache")
+    with pytest.raises(eb.ExabricksError, match=r"plt00010: no field 'phi' .*first step .*plt00000"):
+        series[1]
+    for drawn in ([], ["--field", "phi"]):
+        proc = run_cli("series", run / "plt*", "-o", tmp_path / "frames", "--size", "8", "8",
+                       "--cache", tmp_path / "cache", *drawn)
+        assert_one_error_line(proc, "plt00010: no field 'phi'", "plt00000")
+        assert "--field" not in proc.stderr
+
+
+def test_series_into_a_dangling_link_makes_the_folder_it_names(tmp_path):
+    """`series -o LINK`, a dangling symbolic link: followed as a link to an output
+    file is (exabricks.util.output), not "internal error: FileExistsError"; a link
+    to a folder it cannot make is one error line."""
+    from helpers import GERRIS, assert_one_error_line, run_cli
+
+    link = tmp_path / "frames"
+    link.symlink_to("made")
+    run_cli("series", GERRIS, "-o", link, "--size", "8", "8", check=0)
+    assert (tmp_path / "made" / "plume7-1.cells.png").is_file() and link.is_symlink()
+    (tmp_path / "file").write_text("")
+    link.unlink()
+    link.symlink_to("file/below")
+    assert_one_error_line(run_cli("series", GERRIS, "-o", link, "--size", "8", "8"),
+                          str(link), "cannot make the folder")
+
+
 @pytest.mark.slow
 def test_render_series_frames_are_the_command_lines(runs, tmp_path):
     fixed, _, cache = runs

@@ -457,6 +457,35 @@ def test_mistakes_are_reported_in_file_order(bricks, tmp_path):
         read_scene_file(path)
 
 
+HUGE = "a" * 10_000_000  # a 10 MB key or value: a message quotes at most 80 characters of it
+
+
+@pytest.mark.parametrize("text, needle", [
+    ('{"%s": 1}' % HUGE, "unknown key"),
+    ('{"volumes": [{"%s x": 1}]}' % HUGE, "unknown key"),
+    ('{"b%s": 1, "b%s": 2}' % (HUGE[:100_000], HUGE[:100_000]), "duplicate key"),
+    ('{"volumes": [{"field": "%s"}]}' % HUGE, "no field"),
+    ('{"camera": "%s"}' % HUGE, "expected a camera file"),
+    ('{"volumes": [{"field": "T", "transfer_function": "%s"}]}' % HUGE, "expected a preset file"),
+], ids=["key", "nested-key", "duplicate-key", "field", "camera", "preset"])
+def test_a_huge_key_or_value_is_quoted_shortened(bricks, tmp_path, text, needle):
+    path = tmp_path / "scene.json"
+    path.write_text(text)
+    with pytest.raises(ExabricksError) as info:
+        scene_from_options(bricks, scene_path=path, flags={})
+    message = str(info.value)
+    assert needle in message and "..." in message, message[:300]
+    assert len(message) < 200 + len(", ".join(scene_schema()["properties"])), message[:300]
+
+
+def test_cli_quotes_a_huge_key_shortened(tmp_path):
+    path = tmp_path / "scene.json"
+    path.write_text('{"%s": 1}' % HUGE)
+    proc = run_cli("render", GERRIS, "--scene", path, "--size", "8", "8", "-o", tmp_path / "x.png")
+    assert_one_error_line(proc, str(path), "unknown key")
+    assert len(proc.stderr) < 1000
+
+
 # ---------------------------------------------------------------------------
 # through the command line (errors come before any rendering)
 

@@ -506,6 +506,31 @@ def test_raw_volume_through_cli(tmp_path):
     assert cells.meta["parameters"]["dims"] == [6, 4, 4]
 
 
+@pytest.mark.parametrize("flags, needles", [
+    (["--field", "value", "--field", "value"], ["--fields", "'value' is given twice"]),
+    (["--fields", "value,value"], ["--fields", "'value' is given twice"]),
+    (["--name", ""], ["--name", "empty"]),
+    (["--name", "v\nerror: forged line"], ["--name", "control character"]),
+    (["--derive", "a\tb=value"], ["--derive", "control character"]),
+    (["--magnitude", "m\x1b[31m=value"], ["--magnitude", "control character"]),
+], ids=["field-twice", "fields-twice", "empty-name", "newline-name", "tab-derive", "escape-magnitude"])
+def test_bad_field_names_are_one_error_line_naming_the_option(tmp_path, flags, needles):
+    """Field names given twice (once "internal error: StopIteration"), empty, or with
+    a control character (a newline forged an output line) are refused before
+    anything is read; the library refuses them too."""
+    path = tmp_path / "v.raw"
+    np.arange(8, dtype="<f4").tofile(path)
+    out = tmp_path / "cells.npz"
+    assert_one_error_line(run_cli("ingest", path, "--dims", 2, 2, 2, *flags, "-o", out),
+                          str(path), *needles)
+    assert not out.exists()
+    with pytest.raises(ExabricksError, match="given twice"):
+        ingest(path, dims=(2, 2, 2), fields=["value", "value"])
+    with pytest.raises(ExabricksError, match="given twice"):
+        from exabricks.readers import raw
+        raw.read(path, dims=(2, 2, 2), fields=["value", "value"])
+
+
 # ---------------------------------------------------------------------------
 # format detection, and the other readers through `--format auto`
 

@@ -163,12 +163,43 @@ def test_outputs_that_are_refused(tmp_path):
     assert not leftovers(tmp_path) and not (tmp_path / "m.mp4").exists()
 
 
-@pytest.mark.parametrize("fps", ["0", "-1", "nan", "inf"])
-def test_fps_must_be_positive(fps, tmp_path):
+@pytest.mark.parametrize("suffix", [".mp4", ".gif"])
+@pytest.mark.parametrize("fps", ["0", "-1", "nan", "inf", "0.001", "1e-9", "1001"])
+def test_fps_must_lie_in_the_range_both_encoders_take(fps, suffix, tmp_path):
+    """--fps 0.001 was "internal error: OverflowError" in a GIF (its delay is a 16-bit
+    count of hundredths of a second) and 1e-9 ffmpeg's internals: refused when the
+    options are parsed, the one error line saying the range."""
     paths = write_frames(tmp_path, n=1)
-    proc = run_cli("movie", *paths, "-o", tmp_path / "m.mp4", "--fps", fps)
-    assert proc.returncode == 2 and "--fps" in proc.stderr
-    assert not (tmp_path / "m.mp4").exists()
+    proc = run_cli("movie", *paths, "-o", tmp_path / f"m{suffix}", "--fps", fps)
+    assert proc.returncode == 2, proc.stderr
+    (error,) = [line for line in proc.stderr.splitlines() if line.startswith("Error:")]
+    assert "--fps" in error and "[0.01, 1000]" in error and "Traceback" not in proc.stderr
+    assert not (tmp_path / f"m{suffix}").exists()
+
+
+def test_series_fps_is_refused_before_drawing(tmp_path):
+    from helpers import GERRIS
+
+    proc = run_cli("series", GERRIS, "-o", tmp_path / "frames", "--fps", "0.001", "--movie",
+                   tmp_path / "s.gif")
+    assert proc.returncode == 2 and "[0.01, 1000]" in proc.stderr
+    assert not (tmp_path / "frames").exists()
+    import exabricks as eb
+    with pytest.raises(eb.ExabricksError, match=r"--fps: .*\[0.01, 1000\]"):
+        eb.render_series([GERRIS], tmp_path / "frames", movie=tmp_path / "s.gif", fps=0.001)
+    assert not (tmp_path / "frames").exists()
+
+
+def test_a_gif_refuses_a_still_longer_than_it_can_show(tmp_path):
+    """Pillow adds up the delays of identical frames in a row: 7 of 100 s each are
+    more than the 655.35 s a GIF shows one frame (OverflowError, before)."""
+    paths = write_frames(tmp_path / "f", n=1) * 7
+    out = tmp_path / "m.gif"
+    assert_one_error_line(run_cli("movie", *paths, "-o", out, "--fps", "0.01"), str(out),
+                          "7 identical frames", "655.35 s")
+    assert not out.exists() and not leftovers(tmp_path)
+    run_cli("movie", *paths[:6], "-o", out, "--fps", "0.01", check=0)
+    assert len(read_gif(out)) == 1  # shown once, for 600 s
 
 
 def test_h265(tmp_path):
