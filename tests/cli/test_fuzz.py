@@ -1057,3 +1057,78 @@ def test_descriptor_outputs(tiny, tmp_path, data):
     if case == "read-only":
         assert proc.returncode == 1 and data_bytes == b"before\n", note
     assert not temporaries(work), note
+
+
+# Magnitudes from float32's smallest subnormal to its largest (issue 65, round 4).
+MAGNITUDES = st.one_of(st.sampled_from((1e-45, 1e-39, 1.2e-38, 1e-30, 1.0, 1e30, 3e38)),
+                       st.floats(-45, 38.5).map(lambda e: 10.0 ** e))
+
+
+@pytest.fixture(scope="session")
+def plume(gerris):
+    import exabricks as eb
+
+    return eb.open(GERRIS, fields=["T"], cache=False)
+
+
+@pytest.mark.fuzz
+@settings(max_examples=FUZZ_EXAMPLES, deadline=None, suppress_health_check=SUPPRESSED)
+@given(data=st.data())
+def test_directions_of_any_magnitude(plume, data):
+    """A light direction, a slice's or a clip plane's normal or a rotation axis of
+    any magnitude draws the frame of the same direction scaled to 1, bit for bit."""
+    import exabricks as eb
+
+    d = data.draw
+    direction = np.array([d(st.sampled_from((0.0, 1.0, -1.0, 0.3, -0.7)), label=f"d{i}")
+                          for i in range(3)])
+    if not direction.any():
+        direction[0] = 1.0
+    magnitude = d(MAGNITUDES, label="magnitude")
+    where = d(st.sampled_from(("light", "slice", "clip", "rotate")), label="where")
+    (lo, hi) = plume.bounds
+    mid = [(a + b) / 2 for a, b in zip(lo, hi)]
+
+    def frame(v):
+        v = [float(c) for c in v]
+        scene = {"light": dict(integrator="shadow", light=v),
+                 "slice": dict(scene={"slices": [{"point": mid, "normal": v, "field": "T"}]}),
+                 "clip": dict(scene={"clip": {"planes": [[*mid, *v]]}}),
+                 "rotate": dict(scene={"instances": [{"rotate": [*v, 40]}]})}[where]
+        return eb.render(plume, field="T", size=(12, 12), seed=3, **scene).rgba
+
+    np.testing.assert_array_equal(frame(direction * magnitude), frame(direction))
+
+
+@pytest.mark.fuzz
+@settings(max_examples=FUZZ_EXAMPLES, deadline=None, suppress_health_check=SUPPRESSED)
+@given(data=st.data())
+def test_fields_of_any_magnitude(tmp_path, data):
+    """A field of any magnitude, as float32 stores it, draws and probes as the same
+    stored values scaled by a power of two into float32's normal range (exact)."""
+    import exabricks as eb
+
+    magnitude = data.draw(MAGNITUDES, label="magnitude")
+    x = np.linspace(-1, 1, 12)
+    X, Y, Z = np.meshgrid(x, x, x, indexing="ij")
+    stored = ((np.exp(-4 * (X ** 2 + Y ** 2 + Z ** 2)) + 0.01) * magnitude).astype(np.float32)
+    largest = float(np.abs(stored).max())
+    if largest == 0.0:
+        return  # nothing float32 can hold: the field is zero
+    shift = -np.frexp(largest)[1]
+    files = {}
+    for name, values in (("given", stored), ("scaled", np.ldexp(stored.astype(np.float64), shift))):
+        files[name] = tmp_path / f"{name}.raw"
+        values.astype(np.float32).tofile(files[name])
+    lo, hi = float(stored.min()), largest
+    frames, probes = {}, {}
+    points = np.random.default_rng(0).uniform(1, 10, (16, 3))
+    for name, factor in (("given", 0), ("scaled", shift)):
+        ds = eb.open(files[name], dims=(12, 12, 12), cache=False)
+        r = (np.ldexp(lo, factor), np.ldexp(hi, factor)) if hi > lo else None
+        frames[name] = eb.render(ds, size=(16, 16), jitter=False, colormap="viridis",
+                                 scale="linear", **({"range": r} if r else {})).rgba
+        probes[name] = np.ldexp(eb.probe(ds, points).astype(np.float64), -factor)
+    assert np.sqrt(np.mean((frames["given"] - frames["scaled"]) ** 2)) < 1e-5
+    np.testing.assert_allclose(probes["given"], probes["scaled"], rtol=1e-5,
+                               atol=float(np.finfo(np.float32).smallest_subnormal))
