@@ -45,16 +45,6 @@ def frame_arrays(scene: Scene, device_dataset: DeviceDataset,
         rgba.append(np.asarray(c, np.float32))
         return first, len(x)
 
-    def on_device(table, volume):  # a lookup table's header (x0, K / span, K) for scaled values
-        e = exponents.get(volume.field, 0)
-        if e == 0:
-            return table.rows
-        x, _ = volume.transfer_function.merged_knots(np.float64, e)  # in float64: K / span
-        rows = table.rows.copy()  # of a tiny span overflows float32 before it is scaled
-        k = float(rows[0, 2])
-        rows[0, :2] = x[0], k / (x[-1] - x[0]) if x[-1] > x[0] else rows[0, 1]
-        return rows
-
     buckets = []  # each volume layer's knot index (knot_buckets), its offset in layer.w
     floats, ints = Grouped(np.float32), Grouped(np.int32)
     tables, table_at = [], []  # each volume layer's lookup table (stats) and its float4 offset
@@ -65,7 +55,7 @@ def frame_arrays(scene: Scene, device_dataset: DeviceDataset,
         buckets.append(knot_buckets(xs[-1]))
         table = _table(volume, scene.settings)
         exact = table is None
-        table_at.append(-1 if exact else floats.add(on_device(table, volume), 4) // 4)
+        table_at.append(-1 if exact else floats.add(_table_rows(table, volume, exponents), 4) // 4)
         tables.append({"lookup": "exact"} if exact else
                       {"lookup": "table", "intervals": len(table.rows) - 2,
                        "error_rgb": table.error_rgb, "error_alpha": table.error_alpha})
@@ -131,6 +121,21 @@ def _table(volume, settings):
         return None
     table = volume.transfer_function.table
     return None if max(table.error_rgb, table.error_alpha) > TABLE_TOLERANCE else table
+
+
+def _table_rows(table, volume, exponents: dict) -> np.ndarray:
+    """A volume layer's lookup table as the kernel reads it for the field's values
+    as the device holds them (DeviceDataset.scaled): its header (x0, K / span, K)
+    made again in float64 for a scaled field (K / span of a tiny span overflows
+    float32 before it is scaled)."""
+    e = exponents.get(volume.field, 0)
+    if e == 0:
+        return table.rows
+    x, _ = volume.transfer_function.merged_knots(np.float64, e)
+    rows = table.rows.copy()
+    k = float(rows[0, 2])
+    rows[0, :2] = x[0], k / (x[-1] - x[0]) if x[-1] > x[0] else rows[0, 1]
+    return rows
 
 
 def alpha_tolerance(volume, settings) -> float:

@@ -159,8 +159,8 @@ def _refuse_members(path, target: Path | None, ident, inputs: Iterable) -> None:
             except OSError:
                 continue
             if (other.st_dev, other.st_ino) == ident:
-                raise ExabricksError(f"{path}: the output would overwrite {member}, "
-                                     f"a file of the input {inp}")
+                what = f"the input {inp}" if member == inp else f"{member}, a file of the input {inp}"
+                raise ExabricksError(f"{path}: the output would overwrite {what}")
 
 
 def check_output(path, inputs: Iterable = ()) -> Path:

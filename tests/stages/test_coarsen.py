@@ -312,8 +312,12 @@ def test_cli_plotfile(tmp_path):
     assert coarse.meta["parameters"]["covered_level"] == 2
     assert_one_error_line(run_cli("coarsen", AMREX, "--levels", "1", "--field", "rho",
                                   "-o", out), "plt00020", "no field 'rho'")
-    assert_one_error_line(run_cli("coarsen", tmp_path, "--levels", "1", "-o", out),
+    folder = tmp_path / "folder"
+    folder.mkdir()
+    assert_one_error_line(run_cli("coarsen", folder, "--levels", "1", "-o", out),
                           "not an AMReX plotfile")
+    assert_one_error_line(run_cli("coarsen", folder, "--levels", "1", "-o", folder / "c.npz"),
+                          "inside the input folder")
     proc = run_cli("coarsen", out, "--levels", "1", "--field", "phi", "-o", tmp_path / "x.npz")
     assert proc.returncode == 2 and "Traceback" not in proc.stderr
 
