@@ -28,32 +28,38 @@ ROOT = Path(__file__).resolve().parents[1]
 GAUGE = Path(os.environ.get("GPU_PROXY", ROOT.parent / "shared" / "tools" / "gpu-proxy"))
 SECTION = "Kernel resources on NVIDIA, offline (gpu-proxy)"
 
-# (variant label of benchmarks.kernel_resources.VARIANTS, kernel entry) ->
+# (variant label of benchmarks.kernel_resources.VARIANTS: the program's defines less
+# their EB_ prefix, exabricks.engine.variants.Variant.label; kernel entry) ->
 # the most registers, stack frame bytes and spill bytes (stores + loads) it may take:
 # today's figures, so that nothing grows unseen. The CPU's packet variant is built for
 # PoCL; its NVIDIA figures (at ptxas' cap of 255, where the spills move by tens of
 # bytes with any edit) are kept from growing. The 64 B stack of the capped variants is
 # the frame of the driver's division slow path, which their entries call.
 BUDGETS = {
-    ("volume, one sample (GPU default)", "eb_render"): (96, 64, 0),
-    ("volume, one sample (GPU default)", "eb_probe"): (60, 264, 0),
-    ("volume, sample packets (CPU default)", "eb_render"): (255, 3216, 1048),
-    ("surfaces, slices, clipping, AO", "eb_render"): (254, 2656, 0),
-    ("volume, central differences", "eb_render"): (128, 416, 0),
-    ("level of detail", "eb_render"): (113, 320, 0),
-    ("cell location", "eb_render"): (96, 528, 0),
-    ("vertex reconstruction", "eb_render"): (94, 64, 0),
+    ("N_FIELDS=1", "eb_render"): (96, 64, 0),
+    ("N_FIELDS=1", "eb_probe"): (60, 264, 0),
+    ("N_FIELDS=1 PACKET=8 ORDERED", "eb_render"): (255, 3216, 1048),
+    ("N_FIELDS=1 SURFACES", "eb_render"): (254, 2656, 0),
+    ("N_FIELDS=1 CENTRAL", "eb_render"): (128, 416, 0),
+    ("N_FIELDS=1 LOD", "eb_render"): (113, 320, 0),
+    ("N_FIELDS=1 CELL_LOCATION", "eb_render"): (96, 528, 0),
+    ("N_FIELDS=1 RECON_VERTEX", "eb_render"): (94, 64, 0),
+    # issue 61's feature table: a program of every axis (variants.representatives)
+    ("N_FIELDS=1 RECON_NEAREST CENTRAL", "eb_render"): (114, 416, 0),
+    ("N_FIELDS=1 DOMAIN", "eb_render"): (96, 64, 0),
+    ("N_FIELDS=1 DOMAIN MIXTURE", "eb_render"): (80, 1472, 0),
+    ("N_FIELDS=1 ORDERED", "eb_render"): (96, 608, 0),
     ("uniform-grid marcher", "eb_uniform_render"): (56, 0, 0),
     # issue 52's shadow integrator: a shadow ray's walk inside the primary ray's;
     # with surfaces at the 255 cap, spilling
-    ("shadow integrator", "eb_render"): (133, 560, 0),
-    ("shadow integrator, surfaces", "eb_render"): (255, 3120, 8),
+    ("N_FIELDS=1 SHADOW", "eb_render"): (133, 560, 0),
+    ("N_FIELDS=1 SURFACES SHADOW", "eb_render"): (255, 3120, 8),
     # the path integrator: no region walk (delta and ratio tracking through the
     # majorant grid, a BVH point query per tentative collision: its descent's stack)
-    ("path integrator", "eb_render"): (96, 264, 0),
+    ("N_FIELDS=1 PATH", "eb_render"): (96, 264, 0),
     # with surfaces: the nearest-surface walk (iso brackets, mesh BVH) and the
     # surfaces' transmittance beside tracking, uncapped as every surfaces variant
-    ("path integrator, surfaces", "eb_render"): (231, 2112, 0),
+    ("N_FIELDS=1 SURFACES PATH", "eb_render"): (231, 2112, 0),
 }
 NOTES = """
 Issue 51's targets: the GPU default at most 96 registers, no spills, a stack of at

@@ -24,25 +24,18 @@ import tempfile
 from pathlib import Path
 
 from exabricks.device import kernel_abi, opencl
+from exabricks.engine import variants
 
 ROOT = Path(__file__).resolve().parents[1]
 
 
-# (label, source, kernel, kernel_abi.variant_defines arguments)
-VARIANTS = (
-    ("volume, one sample (GPU default)", "render.cl", "eb_render", {}),
-    ("volume, sample packets (CPU default)", "render.cl", "eb_render", {"packets": True, "ordered": True}),
-    ("surfaces, slices, clipping, AO", "render.cl", "eb_render", {"surfaces": True}),
-    ("volume, central differences", "render.cl", "eb_render", {"central": True}),
-    ("level of detail", "render.cl", "eb_render", {"lod": True}),
-    ("cell location", "render.cl", "eb_render", {"cell_location": True}),
-    ("vertex reconstruction", "render.cl", "eb_render", {"reconstruction": "vertex"}),
-    ("shadow integrator", "render.cl", "eb_render", {"shadow": True}),
-    ("shadow integrator, surfaces", "render.cl", "eb_render", {"shadow": True, "surfaces": True}),
-    ("path integrator", "render.cl", "eb_render", {"path": True}),
-    ("path integrator, surfaces", "render.cl", "eb_render", {"path": True, "surfaces": True}),
-    ("uniform-grid marcher", "uniform_grid.cl", "eb_uniform_render", {}),
-)
+# (label, source, kernel, exabricks.engine.variants.Variant or None): a program of each
+# axis of the feature table on a GPU (variants.representatives) and the CPU default,
+# labelled by their defines, and the uniform-grid marcher.
+VARIANTS = tuple(
+    [(v.label, "render.cl", "eb_render", v) for v in variants.representatives("gpu")]
+    + [(v.label, "render.cl", "eb_render", v) for v in variants.declared("cpu")[:1]]
+    + [("uniform-grid marcher", "uniform_grid.cl", "eb_uniform_render", None)])
 ENTRY = re.compile(r"(?:entry function|Function properties for) '?(\w+)'?")
 
 
@@ -60,13 +53,15 @@ def report_of(log: str, name: str) -> list[str]:
     return lines
 
 
-def build(context, device, source: str, defines, verbose: bool, cache_dir: str):
-    """The program of a variant, built as exabricks.device.opencl.program_for builds it
-    for `device` (None: for NVIDIA's driver, as ../shared/tools/gpu-proxy calls it)."""
+def build(context, device, source: str, variant, verbose: bool, cache_dir: str):
+    """The program of a variant (None: the default's defines), built as
+    exabricks.device.opencl.program_for builds it for `device` (None: for NVIDIA's
+    driver, as ../shared/tools/gpu-proxy calls it)."""
     import pyopencl as cl
 
     nvidia = device is None or opencl.is_nvidia(device)
-    options = opencl.build_options(kernel_abi.variant_defines(**defines), nvidia)
+    variant = variant or variants.variant()
+    options = opencl.build_options(variant.defines, nvidia, variant.capped)
     if verbose:
         options.append("-cl-nv-verbose")
     text = kernel_abi.header() + (opencl.kernel_dir() / source).read_text()
@@ -92,9 +87,9 @@ def main(argv=None) -> int:
     print("| variant | private B/work-item | local B | max work-group | preferred multiple "
           "| driver's resource report |")
     print("|---|---:|---:|---:|---:|---|")
-    for label, source, name, defines in VARIANTS:
+    for label, source, name, variant in VARIANTS:
         with tempfile.TemporaryDirectory() as cache_dir:
-            program, log = build(context, device, source, defines, nvidia, cache_dir)
+            program, log = build(context, device, source, variant, nvidia, cache_dir)
         kernel = cl.Kernel(program, name)
         lines = report_of(log, name)
         print(f"| {label} | {kernel.get_work_group_info(info.PRIVATE_MEM_SIZE, device)} "

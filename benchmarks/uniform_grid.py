@@ -18,7 +18,8 @@ import time
 
 import numpy as np
 
-from exabricks.device import kernel_abi, opencl
+from exabricks.device import opencl
+from exabricks.engine import variants
 from exabricks.util.errors import ExabricksError
 
 # Points per probe call while resampling (float32 (N, 3) points: 24 MiB).
@@ -95,7 +96,7 @@ class UniformGridRenderer:
         self.device = device if device is not None and not isinstance(device, str) \
             else opencl.choose_device(device)
         self.context, self.queue = opencl.context_for(self.device)
-        self.kernel = opencl.kernel(opencl.program_for(self.context, kernel_abi.variant_defines(),
+        self.kernel = opencl.kernel(opencl.program_for(self.context, variants.variant().defines,
                                                        source_name=SOURCE),
                                     "eb_uniform_render")
         nz, ny, nx = volume.shape

@@ -110,7 +110,8 @@ def worker_exabricks(spec: dict) -> dict:
     uniform-grid ceiling, their frames interleaved (module docstring)."""
     import resource
 
-    from exabricks.device import kernel_abi, opencl
+    from exabricks.device import opencl
+    from exabricks.engine import variants
     from exabricks.picture.camera import Camera
     from benchmarks import uniform_grid
     from exabricks.engine.cell_location import build_brick_tree
@@ -126,8 +127,8 @@ def worker_exabricks(spec: dict) -> dict:
     t = time.perf_counter()
     device = opencl.choose_device(None)
     # the program of the frames below (memoised: the Renderer reuses it)
-    opencl.program_for(opencl.context_for(device)[0],
-                       kernel_abi.variant_defines(packets=opencl.is_cpu(device)))
+    program = variants.program_variant(variants.frame(kind=variants.device_kind(device)))
+    opencl.program_for(opencl.context_for(device)[0], program.defines, capped=program.capped)
     t_kernels = time.perf_counter() - t
     t = time.perf_counter()
     renderer = Renderer(bricks, regions, bvh, field=field, device=device)

@@ -7,14 +7,17 @@ import json
 
 import click
 
+from ..warm import SETS
 from .options import device_option
 
 
 @click.command()
 @click.option("--json", "as_json", is_flag=True, help="Machine-readable output.")
-@click.option("--warm", is_flag=True,
-              help="Also build the renderer's kernels for the default render and `make demo`'s "
-              "picture on the device (--device; once per machine: the driver caches them).")
+@click.option("--warm", type=click.Choice(SETS), is_flag=False, flag_value="first", default=None,
+              help="Also build the renderer's kernels on the device (--device; once per machine: "
+              "the driver caches them): `first` (--warm alone) those of the first pictures (the "
+              "default render, make demo's, the viewer's level of detail, the first shadow and "
+              "path frames), `all` every program a frame of one field can reach.")
 @device_option
 def devices(as_json, warm, device):
     """List OpenCL devices; pass a SPEC (P:D or a name substring) to --device.
@@ -46,7 +49,7 @@ def devices(as_json, warm, device):
             if not as_json:
                 click.echo(f"kernels ready for {row['frame']} on {target}: {row['seconds']:.1f} s")
 
-        warmed = warm_kernels(device, on_frame=said)
+        warmed = warm_kernels(device, warm, on_frame=said)
         if as_json:
             for r in rows:
                 if r["name"] == target:

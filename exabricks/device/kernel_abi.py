@@ -9,7 +9,7 @@
   (`params`, `params_by_value`). The
   render options declared with `kernel=True` (exabricks.scene.options) are
   members too, filled from the scene by `option_params`.
-* `variant_defines`: the build defines of a kernel program.
+* the build defines of a kernel program come from exabricks.engine.variants.
 
 exabricks.device.opencl.program_for puts `header()` in front of every program it
 builds; kernels/common.h refuses to build without it (#error).
@@ -139,13 +139,11 @@ def params(**values) -> np.ndarray:
 # benchmarks/gpu_checks.sh
 # compares the two on a lent GPU (ab_kernels --options=-cl-nv-maxrregcount=112).
 NV_REGISTER_CAP = 96
-_UNCAPPED = ("EB_SURFACES", "EB_SHADOW", "EB_LOD", "EB_PACKET", "EB_MIXTURE", "EB_CENTRAL")
 
 
-def nv_build_options(defines) -> tuple[str, ...]:
-    """The build options an NVIDIA device gets beyond the others' for a program of
-    these defines (variant_defines)."""
-    capped = not any(d.split("=")[0] in _UNCAPPED for d in defines)
+def nv_build_options(capped: bool) -> tuple[str, ...]:
+    """The build options an NVIDIA device gets beyond the others' for a program that
+    the register cap fits (`capped`: exabricks.engine.variants.Variant.capped) or not."""
     return (f"-cl-nv-maxrregcount={NV_REGISTER_CAP}",) if capped else ()
 
 
@@ -184,24 +182,3 @@ def header() -> str:
     lines += [f"    {ctype} {name};" for name, ctype in PARAMS]
     lines.append("} eb_params;")
     return "\n".join(lines) + "\n"
-
-
-def variant_defines(*, n_fields: int = 1, reconstruction: str = "basis", surfaces: bool = False,
-                    lod: bool = False, packets: bool = False, domain: bool = False,
-                    cell_location: bool = False, mixture: bool = False,
-                    shadow: bool = False, path: bool = False, ordered: bool = False,
-                    central: bool = False) -> tuple[str, ...]:
-    """The build defines of the render program for these choices (each a program
-    of its own; the host checks which combinations exist before building).
-    ordered: the region walk with a heap (else the stackless re-trace walk,
-    kernels/traversal.cl); central: volume samples' normals from central
-    differences (else the analytic gradient)."""
-    return ((f"EB_N_FIELDS={max(1, int(n_fields))}",)
-            + {"basis": (), "nearest": ("EB_RECON_NEAREST",),
-               "vertex": ("EB_RECON_VERTEX",)}[reconstruction]
-            + (("EB_CELL_LOCATION",) if cell_location else ())
-            + (("EB_SURFACES",) if surfaces else ()) + (("EB_LOD",) if lod else ())
-            + ((f"EB_PACKET={PACKET_WIDTH}",) if packets else ())
-            + (("EB_DOMAIN",) if domain else ()) + (("EB_MIXTURE",) if mixture else ())
-            + (("EB_SHADOW",) if shadow else ()) + (("EB_PATH",) if path else ())
-            + (("EB_ORDERED",) if ordered else ()) + (("EB_CENTRAL",) if central else ()))

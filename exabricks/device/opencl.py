@@ -187,12 +187,12 @@ def context_for(device):
     return _CONTEXTS[key]
 
 
-def build_options(defines=(), nvidia: bool = False) -> list[str]:
+def build_options(defines=(), nvidia: bool = False, capped: bool = True) -> list[str]:
     """The OpenCL build options of a program with preprocessor `defines`, for an
-    NVIDIA device (kernel_abi.nv_build_options, first: an option added to
-    BUILD_OPTIONS, as benchmarks.ab_kernels adds them, comes later and wins) or
+    NVIDIA device (kernel_abi.nv_build_options of `capped`, first: an option added
+    to BUILD_OPTIONS, as benchmarks.ab_kernels adds them, comes later and wins) or
     another."""
-    return [*(kernel_abi.nv_build_options(defines) if nvidia else ()), *BUILD_OPTIONS,
+    return [*(kernel_abi.nv_build_options(capped) if nvidia else ()), *BUILD_OPTIONS,
             f"-I{kernel_dir()}", *(f"-D{d}" for d in defines)]
 
 
@@ -201,17 +201,18 @@ def is_nvidia(device) -> bool:
     return "NVIDIA" in device.platform.name.upper()
 
 
-def program_for(context, defines=(), source_name: str = ENTRY_SOURCE):
+def program_for(context, defines=(), source_name: str = ENTRY_SOURCE, capped: bool = True):
     """The built kernel program `source_name` (a main file of kernels/) of
     `context` with preprocessor `defines` (e.g. ``("EB_CELL_LOCATION",)``, each
-    passed as ``-D``), compiled once per process (BUILDS records each build)."""
+    passed as ``-D``; `capped`: under NVIDIA's register cap), compiled once per
+    process (BUILDS records each build)."""
     cl = _cl()
     defines = tuple(defines)
-    key = (context.int_ptr, defines, source_name)
+    key = (context.int_ptr, defines, source_name, capped)
     if key not in _PROGRAMS:
         directory = kernel_dir()
         source = kernel_abi.header() + (directory / source_name).read_text(encoding="utf-8")
-        options = build_options(defines, is_nvidia(context.devices[0]))
+        options = build_options(defines, is_nvidia(context.devices[0]), capped)
         device = _device_name(context.devices[0])
         what = "the renderer" if source_name == ENTRY_SOURCE else f"kernels/{source_name}"
         start = time.perf_counter()

@@ -19,20 +19,14 @@ import numpy as np
 from ..util import interrupt
 from ..device import kernel_abi, opencl
 from .. import schema
-from ..scene import RECONSTRUCTIONS
 from ..util.errors import ExabricksError
 from .grouped import Grouped
+from .variants import device_kind, frame, program_variant
 from .walk_links import walk_links
 
 
 # Points per enqueue of `DeviceDataset.probe_fields`: a fraction of a second on a CPU device.
 PROBE_CHUNK = 1 << 18
-
-
-def check_reconstruction(reconstruction: str) -> None:
-    if reconstruction not in RECONSTRUCTIONS:
-        raise ExabricksError(f"unknown reconstruction {reconstruction!r} "
-                             f"(one of {', '.join(RECONSTRUCTIONS)})")
 
 
 def load_structures(bricks_path, regions_path, bvh_path):
@@ -248,7 +242,6 @@ class DeviceDataset:
         # when the dataset goes, even unwinding from a signal mid-frame, its kernels
         # must have finished before that memory is freed.
         weakref.finalize(self, self.queue.finish)
-        self.program = self.program_for()
         q = self.queue
 
         def up(queue, array, dtype=None):  # resident for the dataset's life: shared on CPUs
@@ -305,13 +298,10 @@ class DeviceDataset:
         self._location_args = None
         self.brick_tree = self.brick_tree_seconds = None
 
-    def program_for(self, extra=(), **variant):
-        """The kernel program of this dataset's field count and the `variant`
-        (kernel_abi.variant_defines: reconstruction, surfaces, ...), with `extra`
-        defines."""
-        check_reconstruction(variant.get("reconstruction", "basis"))
-        return opencl.program_for(self.context, (*kernel_abi.variant_defines(
-            n_fields=len(self.fields), **variant), *extra))
+    def program_for(self, variant, extra=()):
+        """The kernel program `variant` (exabricks.engine.variants.Variant), with
+        `extra` defines (tests)."""
+        return opencl.program_for(self.context, (*variant.defines, *extra), capped=variant.capped)
 
     @property
     def empty(self) -> bool:
@@ -404,7 +394,9 @@ class DeviceDataset:
             return out
         q = self.queue
         local = 64
-        kernel = opencl.kernel(self.program_for(reconstruction=reconstruction), "eb_probe")
+        kernel = opencl.kernel(self.program_for(program_variant(frame(
+            kind=device_kind(self.device), n_fields=len(self.fields) or 1,
+            reconstruction=reconstruction))), "eb_probe")
         args, layout = self.dataset_args(reconstruction=reconstruction)
         params = self.params(**layout)
         # In chunks, so that a signal can stop a large probe between enqueues.

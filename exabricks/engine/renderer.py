@@ -71,7 +71,7 @@ from . import instances
 from .device_data import DatasetScale, DeviceDataset
 from .look import frame_arrays
 from .majorants import frame_majorants
-from .variants import LOOKUPS, TRAVERSALS, check_choice, check_variant
+from .variants import LOOKUPS, TRAVERSALS, check_choice, frame, program_variant, uses_packets
 
 # Pixels per work-group side: 8 x 8 tiles keep neighbouring rays (which walk the
 # same regions and bricks) together on one core.
@@ -187,23 +187,22 @@ class Renderer:
     def _kernel(self, surfaces: bool, reconstruction: str, lod: bool, extra=(),
                 integrator: str = "headlight", traversal: str = "retrace", central: bool = False,
                 occlusion: bool = False):
-        """eb_render built for this renderer and frame, with `extra` defines (tests)."""
-        check_variant(integrator, reconstruction, lod, self.lookup,
-                      whole=self.domain is None and self.copies is None, occlusion=occlusion)
-        program = self.dataset.program_for(
-            extra, reconstruction=reconstruction, surfaces=surfaces, lod=lod,
-            packets=self._packet_width(reconstruction, integrator) > 1, domain=self.domain is not None,
-            cell_location=self.lookup == "cell-location", mixture=self.copies is not None,
-            shadow=integrator == "shadow", path=integrator == "path",
-            ordered=traversal == "ordered", central=central)
-        return opencl.kernel(program, "eb_render")
+        """eb_render built for this renderer and frame (exabricks.engine.variants), with
+        `extra` defines (tests)."""
+        variant = program_variant(frame(
+            kind="cpu" if self.packets else "gpu", n_fields=len(self.dataset.fields) or 1,
+            integrator=integrator, surfaces=surfaces, reconstruction=reconstruction, lod=lod,
+            gradient="central" if central else "analytic", lookup=self.lookup,
+            domain=self.domain is not None, mixture=self.copies is not None,
+            occlusion=occlusion, traversal=traversal))
+        return opencl.kernel(self.dataset.program_for(variant, extra), "eb_render")
 
     def _packet_width(self, reconstruction: str, integrator: str = "headlight") -> int:
         """Samples reconstructed at once: PACKET_WIDTH for the basis reconstruction from
         the regions' lists on a renderer with packets, else 1 (and under the shadow
         and path integrators, built one sample at a time)."""
-        use = (self.packets and self.lookup == "regions" and reconstruction == "basis"
-               and integrator == "headlight")
+        use = uses_packets(frame(kind="cpu" if self.packets else "gpu", lookup=self.lookup,
+                                 reconstruction=reconstruction, integrator=integrator))
         return PACKET_WIDTH if use else 1
 
     def with_lookup(self, lookup: str) -> "Renderer":
@@ -375,8 +374,7 @@ class Renderer:
         integrator = lighting.integrator
         surfaces = bool(scene.isosurfaces or scene.slices or scene.meshes)
         kernel = self._kernel(surfaces, cfg.reconstruction, lod, integrator=integrator, traversal=traversal,
-                              # nearest is piecewise constant: its normals come from central differences
-                              central=lighting.gradient == "central" or cfg.reconstruction == "nearest",
+                              central=lighting.gradient == "central",
                               occlusion=lighting.ao_samples > 0)
         level_samples = np.zeros(LOD_LEVELS, np.uint32)
         level_buf = opencl.to_device(q, level_samples, writable=True)

@@ -8,22 +8,18 @@ import pytest
 from helpers import DEVICES
 
 from exabricks.device import kernel_abi, opencl
-
-# Every program a frame or probe can reach (the host refuses the other combinations).
-VARIANTS = [dict(), dict(packets=True), dict(surfaces=True, n_fields=3), dict(lod=True),
-            dict(cell_location=True, domain=True, surfaces=True), dict(reconstruction="vertex"),
-            dict(reconstruction="nearest", domain=True, surfaces=True, lod=False),
-            dict(packets=True, domain=True, surfaces=True, lod=True)]
+from exabricks.engine import variants
+from exabricks.engine.variants import device_kind as kind_of
 
 
-def argument_counts(device, variants) -> dict:
+def argument_counts(device, programs) -> dict:
     context, _ = opencl.context_for(device)
     counts = {}
-    for variant in variants:
-        program = opencl.program_for(context, kernel_abi.variant_defines(**variant))
+    for variant in programs:
+        program = opencl.program_for(context, variant.defines, capped=variant.capped)
         for name in ("eb_render", "eb_probe"):
             kernel = opencl.kernel(program, name)
-            counts[name, tuple(variant.items())] = kernel.get_info(cl.kernel_info.NUM_ARGS)
+            counts[name, variant.label] = kernel.get_info(cl.kernel_info.NUM_ARGS)
     return counts
 
 
@@ -32,17 +28,29 @@ def test_no_entry_point_takes_more_than_24_arguments(device):
     """Only a domain's frame (EB_DOMAIN: its `front` buffer) changes the entry
     points' arguments; these are the programs a CPU or GPU frame builds anyway."""
     dev = opencl.choose_device(device)
-    packets = opencl.is_cpu(dev)
-    counts = argument_counts(dev, [dict(packets=packets), dict(packets=packets, domain=True)])
-    assert counts["eb_render", (("packets", packets),)] == 23
-    assert counts["eb_render", (("packets", packets), ("domain", True))] == 24
+    default = variants.program_variant(variants.frame(kind=kind_of(dev)))
+    domain = variants.program_variant(variants.frame(kind=kind_of(dev), domain=True))
+    counts = argument_counts(dev, [default, domain])
+    assert counts["eb_render", default.label] == 23
+    assert counts["eb_render", domain.label] == 24
     assert max(counts.values()) <= 24
+
+
+@pytest.mark.parametrize("device", DEVICES)
+def test_a_program_of_every_axis_builds_within_24_arguments(device):
+    """A program per value of each axis of the feature table on this device
+    (variants.representatives: every define compiled at least once)."""
+    dev = opencl.choose_device(device)
+    counts = argument_counts(dev, variants.representatives(kind_of(dev)))
+    assert max(counts.values()) <= 24, counts
 
 
 @pytest.mark.slow
 @pytest.mark.parametrize("device", DEVICES)
-def test_no_program_variant_takes_more_than_24_arguments(device):
-    counts = argument_counts(opencl.choose_device(device), VARIANTS)
+def test_every_declared_program_builds_within_24_arguments(device):
+    """Every program a frame can reach on this device (variants.declared)."""
+    dev = opencl.choose_device(device)
+    counts = argument_counts(dev, variants.declared(kind_of(dev)))
     assert max(counts.values()) <= 24, counts
 
 
@@ -72,7 +80,7 @@ def test_kernels_refuse_to_build_without_the_header(device):
     context, _ = opencl.context_for(opencl.choose_device(device))
     source = (opencl.kernel_dir() / opencl.ENTRY_SOURCE).read_text()
     with pytest.raises(cl.RuntimeError, match="exabricks.device.kernel_abi"):
-        cl.Program(context, source).build(options=opencl.build_options(kernel_abi.variant_defines()))
+        cl.Program(context, source).build(options=opencl.build_options(variants.variant().defines))
 
 
 def test_header_declares_every_bound_once():

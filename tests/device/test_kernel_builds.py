@@ -26,7 +26,8 @@ pytestmark = pytest.mark.skipif(not DEVICES, reason="no OpenCL device")
 BUILD = """
 import logging, sys, time
 import pyopencl as cl
-from exabricks.device import kernel_abi, opencl
+from exabricks.device import opencl
+from exabricks.engine import variants
 if sys.argv[1:] == ["-v"]:
     logging.basicConfig(level=logging.INFO, format="%(message)s", stream=sys.stderr)
 build = cl.Program.build
@@ -35,7 +36,7 @@ def slow(self, *a, **kw):
     return build(self, *a, **kw)
 cl.Program.build = slow
 context = opencl.context_for(opencl.choose_device(None))[0]
-opencl.program_for(context, kernel_abi.variant_defines())
+opencl.program_for(context, variants.variant().defines)
 print("built", len(opencl.BUILDS))
 """
 NOTICE = "compiling the renderer for "
@@ -161,3 +162,37 @@ def test_after_warm_in_a_new_kernel_cache_a_default_render_compiles_nothing(tmp_
                              "32", "32"], env=env, capture_output=True, text=True, timeout=600)
     assert render.returncode == 0, render.stderr
     assert "compiling" not in render.stderr, render.stderr
+
+
+def test_warm_draws_each_frame_with_the_program_the_table_names():
+    """`devices --warm` (the first pictures) builds exactly the programs that the
+    feature table gives their frames, one frame each, on the default device."""
+    from exabricks.device import opencl
+    from exabricks.engine import variants
+    from exabricks.warm import FIRST, warm
+
+    kind = variants.device_kind(opencl.choose_device(None))
+    before = len(opencl.BUILDS)
+    rows = warm(None, "first")
+    built = [defines for source, defines, _ in opencl.BUILDS[before:] if source == opencl.ENTRY_SOURCE]
+    want = {variants.program_variant(variants.frame(kind=kind, **axes)).defines for _, axes in FIRST}
+    assert [r["frame"] for r in rows] == [what for what, _ in FIRST]
+    assert set(built) <= want  # this process may hold some already
+    warmed = {defines for _, defines, _ in opencl.BUILDS if defines in want}
+    assert warmed == want
+
+
+@pytest.mark.slow
+def test_warm_all_builds_every_declared_program():
+    """`devices --warm all`: every program a frame of one field can reach on the
+    device, each drawn by a frame of its own axes."""
+    from exabricks.device import opencl
+    from exabricks.engine import variants
+    from exabricks.warm import warm
+
+    kind = variants.device_kind(opencl.choose_device(None))
+    rows = warm(None, "all")
+    want = {v.defines for v in variants.declared(kind)}
+    assert len(rows) == len(want)
+    warmed = {defines for _, defines, _ in opencl.BUILDS if defines in want}
+    assert warmed == want

@@ -17,6 +17,7 @@ import pytest
 import trimesh
 
 from exabricks.device import kernel_abi, opencl
+from exabricks.engine import variants
 from exabricks.engine.renderer import Renderer
 from exabricks.util.errors import ExabricksError
 from exabricks.mesh import build_mesh_set, read_mesh
@@ -134,7 +135,7 @@ def device_hits(device, triangles, origins, directions, each=False) -> np.ndarra
 
     context, queue = opencl.context_for(opencl.choose_device(device))
     program = cl.Program(context, kernel_abi.header() + HIT_SOURCE).build(
-        options=opencl.build_options(kernel_abi.variant_defines()))
+        options=opencl.build_options(variants.variant().defines))
     tri = np.zeros((len(triangles), 3, 4), np.float32)
     tri[..., :3] = triangles
     rays = np.stack([origins, directions], axis=1).astype(np.float32)

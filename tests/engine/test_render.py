@@ -18,6 +18,7 @@ import numpy as np
 import pytest
 
 from exabricks.device import kernel_abi, opencl
+from exabricks.engine import variants
 from exabricks.picture.camera import default_camera
 from exabricks.readers import read
 from exabricks.engine.renderer import Renderer
@@ -263,7 +264,7 @@ def test_opacity_correction_matches_float64(device):
 
     context, queue = opencl.context_for(opencl.choose_device(device))
     program = cl.Program(context, kernel_abi.header() + OPACITY_TEST_SOURCE).build(
-        options=opencl.build_options(kernel_abi.variant_defines()))
+        options=opencl.build_options(variants.variant().defines))
     alphas = np.concatenate([np.geomspace(1e-7, 1, 400), np.linspace(0, 1, 401)[1:],
                              1 - np.geomspace(1e-7, 0.5, 200)])
     ks = np.concatenate([np.geomspace(1e-4, 1e3, 120), [0.5, 1.0, 2.0]])

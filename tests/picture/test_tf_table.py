@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 
 from exabricks.device import kernel_abi, opencl
+from exabricks.engine import variants
 from exabricks.engine.renderer import Renderer
 from exabricks.scene.model import Lighting, Scene, Settings, VolumeLayer
 from exabricks.picture.transfer_function import (
@@ -134,7 +135,7 @@ def test_the_device_reads_the_table_as_its_mirror(device, rng):
 
     context, queue = opencl.context_for(opencl.choose_device(device))
     program = cl.Program(context, kernel_abi.header() + LOOKUP_SOURCE).build(
-        options=opencl.build_options(kernel_abi.variant_defines()))
+        options=opencl.build_options(variants.variant().defines))
     for tf in (default_transfer_function((-3.0, 7.5)), random_function(rng, 40)):
         xs, rgba = tf.merged_knots(np.float64)
         rows = lookup_table(xs, rgba).rows
