@@ -35,13 +35,14 @@ def test_the_readme_picture_exists_and_shows_data():
 
 def test_the_set_up_commands_come_first_and_are_the_makefiles():
     """The first code block is `make demo` and `make test`; the Makefile has both, and
-    CI (.ci/run) runs `make test-all`, which runs the fast suite."""
+    CI (.ci/run) runs `make test-all`, which runs the fast suite and builds the site."""
     first = next(text for _, _, text in code_blocks("README.md"))
     commands = [line.split("#")[0].strip() for line in first.splitlines() if line.strip()]
     assert commands == ["make demo", "make test"], commands
     makefile = (ROOT / "Makefile").read_text()
-    for target in ("demo", "test", "test-all"):
+    for target in ("demo", "test", "test-all", "docs"):
         assert re.search(rf"^{re.escape(target)}:", makefile, re.M), target
+    assert re.search(r"^test-all:.*\bdocs\b", makefile, re.M)
     assert "make test-all" in (ROOT / ".ci" / "run").read_text()
 
 
