@@ -37,6 +37,7 @@ from pathlib import Path
 import pytest
 
 from helpers import ROOT
+from helpers.pictures import assert_visible_png
 
 DOCS = ("README.md", *sorted(p.relative_to(ROOT).as_posix() for p in (ROOT / "docs").glob("*.md")))
 EXAMPLES = ROOT / "docs" / "examples"
@@ -309,30 +310,13 @@ def _docs_with_examples():
             yield pytest.param(doc, True, id=f"{doc}-slow", marks=pytest.mark.slow)
 
 
-def _visible_png(path: Path, least: float = 0.05) -> None:
-    """`path` is an opaque PNG in which at least `least` of the pixels stand out from
-    its most common colour (the background) by more than 16 of 255."""
-    from PIL import Image
-
-    import numpy as np
-
-    with Image.open(path) as im:
-        assert im.format == "PNG", (path, im.format)
-        rgba = np.asarray(im.convert("RGBA")).astype(np.int16)
-    assert (rgba[..., 3] == 255).all(), f"{path.name}: not opaque"
-    colours, counts = np.unique(rgba[..., :3].reshape(-1, 3), axis=0, return_counts=True)
-    background = colours[counts.argmax()]
-    shown = (np.abs(rgba[..., :3] - background).max(axis=-1) > 16).mean()
-    assert shown >= least, f"{path.name}: {shown:.1%} of the pixels show data (at least {least:.0%})"
-
-
 def _quick_start(namespace: dict, folder: Path) -> None:
     """README's quick start: what it says `info` prints, and its pictures."""
     printed = "".join(namespace["__stdout__"])
     assert "cells: 67,712" in printed and "levels: 5" in printed, printed
     assert all(f"field {f}:" in printed for f in "PTUVW"), printed
     for name in ("plume-T.png", "phi.png", "plume-T-python.png"):
-        _visible_png(folder / name)
+        assert_visible_png(folder / name)
     import exabricks as eb
 
     assert eb.Image.read(folder / "phi.png").rgba.shape[1] > 512  # annotated: the colour bar beside
@@ -343,7 +327,7 @@ def _first_picture(namespace: dict, folder: Path) -> None:
     printed = "".join(namespace["__stdout__"])
     assert "exajet source" in printed and "cells: 67,712" in printed and "field T: [" in printed
     for name in ("plume-auto.png", "plume-inferno.png", "plume-iso.png", "phi.png"):
-        _visible_png(folder / name)
+        assert_visible_png(folder / name)
 
 
 def _python_page(namespace: dict, folder: Path) -> None:

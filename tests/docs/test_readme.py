@@ -9,9 +9,14 @@ from __future__ import annotations
 import re
 
 from helpers import ROOT
-from test_docs_examples import _visible_png, code_blocks, examples
+from helpers.pictures import assert_visible_png
 
 README = ROOT / "README.md"
+
+
+def _blocks(text: str) -> list[tuple[str, str]]:
+    """(language, text) of the fenced code blocks of `text`."""
+    return re.findall(r"^```(\w*)\n(.*?)^```", text, re.S | re.M)
 
 
 def _section(title: str) -> str:
@@ -30,13 +35,13 @@ def test_the_readme_picture_exists_and_shows_data():
     assert len(pictures) == 1, pictures
     path = ROOT / pictures[0]
     assert path.is_file(), pictures[0]
-    _visible_png(path, least=0.2)
+    assert_visible_png(path, least=0.2)
 
 
 def test_the_set_up_commands_come_first_and_are_the_makefiles():
     """The first code block is `make demo` and `make test`; the Makefile has both, and
     CI (.ci/run) runs `make test-all`, which runs the fast suite and builds the site."""
-    first = next(text for _, _, text in code_blocks("README.md"))
+    first = _blocks(README.read_text())[0][1]
     commands = [line.split("#")[0].strip() for line in first.splitlines() if line.strip()]
     assert commands == ["make demo", "make test"], commands
     makefile = (ROOT / "Makefile").read_text()
@@ -48,18 +53,20 @@ def test_the_set_up_commands_come_first_and_are_the_makefiles():
 
 def test_the_quick_start_names_what_exists_and_runs_from_the_checkout():
     """Every path the quick start names exists in the checkout; its commands are
-    `.venv/bin/exabricks` (what `make demo` made), none exempt but the viewer."""
+    `.venv/bin/exabricks` (what `make demo` made); all but the viewer run in
+    tests/docs/test_docs_examples.py."""
     quick = _section("Quick start")
     assert "make demo" in quick and ".venv/bin/activate" in README.read_text()
     paths = re.findall(r"(?:exabricks|tests)/[\w./-]+", quick)
     assert paths, quick
     for path in paths:
         assert (ROOT / path).exists(), path
-    run, skipped, _ = examples("README.md")
-    commands = [e for e in run if e.kind == "sh" and not e.text.startswith("make ")]
-    assert len(commands) >= 3 and all(e.text.startswith(".venv/bin/exabricks ") for e in commands)
-    assert any(e.kind == "python" for e in run)
-    assert [e.text.split()[1] for e, _ in skipped if not e.text.startswith("make ")] == ["view"]
+    blocks = _blocks(quick)
+    commands = [line for lang, text in blocks if lang == "sh" for line in text.splitlines()
+                if line.strip() and not line.startswith((" ", "#"))]
+    assert len(commands) >= 4 and all(c.startswith(".venv/bin/exabricks ") for c in commands), commands
+    assert [c.split()[1] for c in commands].count("view") == 1  # served until Ctrl-C: the one not run
+    assert any(lang == "python" for lang, _ in blocks)
 
 
 def test_where_next_links_pages_that_exist():
