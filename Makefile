@@ -78,6 +78,16 @@ lint: setup
 docs: setup
 	$(PY) -m mkdocs build --strict --site-dir site
 
+# A wheel of the package into $(DIST) (exabricks is not on PyPI): the package, its
+# kernels and the embedded plume; `pip install "$$(ls dist/exabricks-*.whl)[cpu]"`
+# installs it anywhere (docs/install.md). tests/device/test_runtime.py builds it with
+# this target, installs it into a fresh venv with the cpu extra and renders the demo.
+DIST ?= dist
+wheel: $(VENV)/.installed-run
+	rm -f $(DIST)/exabricks-*.whl
+	$(PY) -m pip wheel --no-deps -q -w $(DIST) .
+	@ls $(DIST)/exabricks-*.whl
+
 # Test processes (pytest-xdist), a file's tests in one of them: PoCL's kernel
 # builds and numba's compiles of a fresh checkout spread over the cores.
 WORKERS ?= 2

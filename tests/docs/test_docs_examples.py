@@ -68,8 +68,8 @@ EXEMPT = [
     ("docs/commands.md", r"build_piece\.sbatch", "block", "joins what the sbatch array builds"),
     ("docs/install.md", r"pip install", "block",
      "a new environment from PyPI (Intel's CPU runtime is 0.9 GB): tests/device/test_runtime.py installs "
-     "the checkout with the cpu extra into a fresh venv with no system driver visible and renders the demo, "
-     "tests/install/test_wheel.py the wheel that make wheel builds"),
+     "the wheel that make wheel builds, with the cpu extra, into a fresh venv with no system driver visible "
+     "and renders the demo"),
     ("README.md", r"exabricks view ", "command", "serves the viewer until interrupted (tests/viewer/test_view.py)"),
     ("docs/commands.md", r"--size 16384 16384", "command",
      "a 16384² poster: a 4 GiB scratch file and CPU minutes (tests/engine/test_streaming.py draws posters in tiles)"),

@@ -45,7 +45,7 @@ def test_the_set_up_commands_come_first_and_are_the_makefiles():
     commands = [line.split("#")[0].strip() for line in first.splitlines() if line.strip()]
     assert commands == ["make demo", "make test"], commands
     makefile = (ROOT / "Makefile").read_text()
-    for target in ("demo", "test", "test-all", "docs"):
+    for target in ("demo", "test", "test-all", "docs", "wheel"):
         assert re.search(rf"^{re.escape(target)}:", makefile, re.M), target
     assert re.search(r"^test-all:.*\bdocs\b", makefile, re.M)
     assert "make test-all" in (ROOT / ".ci" / "run").read_text()
