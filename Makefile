@@ -10,7 +10,7 @@ OUT    ?= out
 DATA    = exabricks/data/gerris-plume
 SUDO   := $(shell [ "$$(id -u)" = 0 ] || echo sudo)
 
-.PHONY: setup system-deps demo lint test test-slow test-suites fuzz test-slurm test-gauge kernel-resources test-all bench bench-large gallery clean browser-deps
+.PHONY: setup system-deps demo lint docs wheel test test-slow test-suites fuzz test-slurm test-gauge kernel-resources test-all bench bench-large gallery clean browser-deps
 
 system-deps:
 	@if ! ls /etc/OpenCL/vendors/*.icd >/dev/null 2>&1; then \
@@ -18,7 +18,7 @@ system-deps:
 	  $(SUDO) env DEBIAN_FRONTEND=noninteractive apt-get install -y -qq pocl-opencl-icd ocl-icd-libopencl1 >/dev/null; \
 	fi
 
-# The package with the dev extra (tests, linter, benchmarks' peers; about 1.8 GB): setup, test.
+# The package with the dev extra (tests, linter, the site's tools, benchmarks' peers; about 2.1 GB): setup, test.
 $(VENV)/.installed: pyproject.toml
 	$(PYTHON) -m venv $(VENV)
 	$(VENV)/bin/pip install -q --upgrade pip
@@ -68,7 +68,25 @@ demo: system-deps $(OUT)/plume.png
 # ruff (its rules in pyproject.toml) over the package, the tests, the benchmarks,
 # the users' workflows and the picture scripts.
 lint: setup
-	$(VENV)/bin/ruff check exabricks tests benchmarks workflows docs/pictures
+	$(VENV)/bin/ruff check exabricks tests benchmarks workflows docs/pictures docs/hooks.py
+
+# The documentation site from docs/ into site/ (mkdocs.yml; MkDocs in strict mode: a
+# warning, a broken link or anchor, a page outside the nav fails the build). The
+# reference pages are generated from the code: the command line from click, the
+# render options from exabricks/scene/options.py (docs/hooks.py), the Python API
+# from the docstrings (mkdocstrings). About 10 s.
+docs: setup
+	$(PY) -m mkdocs build --strict --site-dir site
+
+# A wheel of the package into $(DIST) (exabricks is not on PyPI): the package, its
+# kernels and the embedded plume; `pip install "$$(ls dist/exabricks-*.whl)[cpu]"`
+# installs it anywhere (docs/install.md). tests/device/test_runtime.py builds it with
+# this target, installs it into a fresh venv with the cpu extra and renders the demo.
+DIST ?= dist
+wheel: $(VENV)/.installed-run
+	rm -f $(DIST)/exabricks-*.whl
+	$(PY) -m pip wheel --no-deps -q -w $(DIST) .
+	@ls $(DIST)/exabricks-*.whl
 
 # Test processes (pytest-xdist), a file's tests in one of them: PoCL's kernel
 # builds and numba's compiles of a fresh checkout spread over the cores.
@@ -117,8 +135,8 @@ test-gauge: setup
 kernel-resources: setup
 	$(PY) -m benchmarks.gpu_gauge --write-docs
 
-# What CI runs: the linter and every suite.
-test-all: lint test-suites fuzz test-gauge test-slurm
+# What CI runs: the linter, the documentation site (warnings as errors) and every suite.
+test-all: lint docs test-suites fuzz test-gauge test-slurm
 
 # Every benchmark, in order, each replacing its own "## section" of docs/benchmarks.md
 # (median of 5 runs after a warm-up; figures are only meaningful on a quiet machine).

@@ -402,7 +402,7 @@ def write_doc(all_shots: list[Shot], sets: dict) -> None:
            "512 x 512 PNG (8-bit, opaque: composited over the background, black unless "
            "`--background` says otherwise), one sample per pixel unless the command or the scene file says "
            "otherwise. The flags and the scene file are described in [scene.md](scene.md); "
-           "render times of every mode are in [benchmarks.md](benchmarks.md#render-modes). "
+           "render times of every mode are in [benchmarks-render.md](benchmarks-render.md#render-modes). "
            "The faint terraces on shaded iso-surfaces are the analytic gradient's jumps at "
            "cell faces ([design.md](design.md), \"Integration and images\"; compare the two "
            "gradient shots).", ""]

@@ -35,19 +35,43 @@ def open(source, *, fields: Sequence | None = None, cache: str | os.PathLike | b
          values: str | os.PathLike | None = None, **ingest_options) -> Dataset:
     """A dataset to render or probe.
 
-    source: a path that `ingest` reads (AMReX plotfile directory, Athena++ .athdf,
+    Parameters
+    ----------
+    source
+        A path that `ingest` reads (AMReX plotfile directory, Athena++ .athdf,
         Enzo, FLASH, ExaJet .cells, raw volume, ...) or a cells file, built with
         `ingest`'s options (`format`, `scalars`, `magnitude`, `derive`, `mask`,
         `auto_mask`, `nan_policy`, `dims`, ...) and the builders' defaults; a
         `(bricks, regions, bvh)` triple of structure files; a yt dataset object
         (`yt.load(...)`), whose `fields` may name yt's derived fields
         (`("gas", "vorticity_magnitude")`); or a Dataset (returned as it is).
-    fields: the fields to keep (default: all).
-    cache: where built structures are kept (default: $EXABRICKS_CACHE, else
+    fields
+        The fields to keep (default: all).
+    cache
+        Where built structures are kept (default: $EXABRICKS_CACHE, else
         $XDG_CACHE_HOME/exabricks, else ~/.cache/exabricks); False builds in memory.
-    values: with three structure files, a values file of another step of the same
+    values
+        With three structure files, a values file of another step of the same
         cells (`exabricks values`; docs/time-series.md), drawn instead of the
         bricks' own values.
+    **ingest_options
+        `ingest`'s options, by their keyword (`format="amrex"`, `mask=False`, ...).
+
+    Returns
+    -------
+    Dataset
+        Built structures are read from the cache where it holds them.
+
+    Raises
+    ------
+    ExabricksError
+        The source cannot be read, or the options do not go with it.
+
+    Examples
+    --------
+    >>> ds = eb.open("exabricks/data/gerris-plume/plume7-1.cells")
+    >>> ds.fields
+    ('P', 'T', 'U', 'V', 'W')
     """
     if isinstance(source, Dataset):
         return source
@@ -89,25 +113,61 @@ def _open_yt(ds, fields, options) -> Dataset:
 
 
 def render(dataset, scene=None, *, device: str | None = None, **options) -> Image:
-    """One frame of `dataset` (a Dataset, or anything `open` takes) as an Image.
+    """One frame of `dataset` as an Image.
 
-    scene: a scene file path, a dict in the scene-file format, or an eb.Scene
+    Parameters
+    ----------
+    dataset
+        A Dataset, or anything `open` takes.
+    scene
+        A scene file path, a dict in the scene-file format, or an eb.Scene
         (`Renderer.scene`); options override it (module docstring).
-    device: an OpenCL device ('P:D' or a name substring; default: $EXABRICKS_DEVICE,
+    device
+        An OpenCL device ('P:D' or a name substring; default: $EXABRICKS_DEVICE,
         else the first GPU, else the first CPU).
+    **options
+        The render flags by their keyword, `-` as `_` (`field="T"`, `colormap="inferno"`,
+        `range=(0, 0.6)`, `size=(512, 512)`, `iso=0.45`, ...): docs/reference/scene-options.md.
+
+    Returns
+    -------
+    Image
+        The frame: `.save(path)` writes it, a notebook shows it.
+
+    Notes
+    -----
     A render job's strategies (memory budget, tiles, progressive, MPI) write files:
     `render_job`.
+
+    Examples
+    --------
+    >>> ds = eb.open("exabricks/data/gerris-plume/plume7-1.cells")
+    >>> image = eb.render(ds, field="T", colormap="inferno", size=(64, 48))
+    >>> image.rgba.shape
+    (48, 64, 4)
     """
     return Renderer(dataset, device=device).render(scene, **options)
 
 
 def render_job(dataset, output: str | os.PathLike, scene=None, *, device: str | None = None,
                **options) -> None:
-    """What `exabricks render ... -o output` does, every strategy included: the
-    render flags as options (as `render`), and the job's: `memory_budget` (bytes or
-    "2G"), `tile` ((W, H)), `progressive` and `time_limit` (seconds), `camera_path`
-    with `frame` or `frames` (a printf field in `output` numbers the frames),
-    `mpi_mode` ("data" or "image") when the process was started by mpiexec or srun."""
+    """What `exabricks render ... -o output` does, every strategy included.
+
+    Parameters
+    ----------
+    dataset
+        A Dataset, or anything `open` takes.
+    output
+        The image file (.png or .exr); with `camera_path` and `frames`, a printf
+        field in it numbers the frames (`frame_%05d.png`).
+    scene, device
+        As `render`.
+    **options
+        The render flags (as `render`), and the job's: `memory_budget` (bytes or
+        "2G"), `tile` ((W, H)), `progressive` and `time_limit` (seconds),
+        `camera_path` with `frame` or `frames`, `mpi_mode` ("data" or "image")
+        when the process was started by mpiexec or srun.
+    """
     from .scene.options import JOB_OPTIONS
     from .stages.render import render_job as job
 
@@ -124,10 +184,27 @@ def render_job(dataset, output: str | os.PathLike, scene=None, *, device: str | 
 
 def probe(dataset, points, field: str | None = None, *, reconstruction: str = "basis",
           device: str | None = None) -> np.ndarray:
-    """The reconstructed `field` (default: the first) at world `points` (N, 3):
-    (N,) float32, NaN where no cell has support. `reconstruction`: "basis" (the
-    paper's continuous blend), "nearest" (the containing leaf cell's value) or
-    "vertex" (trilinear in stitched vertex values)."""
+    """The reconstructed field at world points.
+
+    Parameters
+    ----------
+    dataset
+        A Dataset, or anything `open` takes.
+    points
+        World points, an (N, 3) array of numbers (a .npy file: numpy.load it first).
+    field
+        The field (default: the first).
+    reconstruction
+        "basis" (the paper's continuous blend), "nearest" (the containing leaf
+        cell's value) or "vertex" (trilinear in stitched vertex values).
+    device
+        As `render`.
+
+    Returns
+    -------
+    numpy.ndarray
+        (N,) float32, NaN where no cell has support.
+    """
     from .scene import RECONSTRUCTIONS
     from .stages.probe import probe as probe_points
     from .stages.probe import world_points

@@ -53,7 +53,7 @@ def describe(path: str | os.PathLike, options: dict | None = None, *, fields=Non
         if fmt is None:
             fmt = readers.guess_format(p, dims=options.get("dims"))  # asks yt's front ends
         if fmt is None and p.is_dir():
-            raise ExabricksError(f"cannot tell the format of {path}; use --format")
+            raise readers.unknown_format(path)
         if fmt is None:
             try:
                 return _file_summary(path, options)

@@ -203,14 +203,7 @@ class TransferFunction:
         ramp; one value is a constant).
         """
         lo, hi = _range(value_range, f"colormap {name!r}")
-        try:
-            import matplotlib
-
-            cmap = matplotlib.colormaps[name]
-        except KeyError:
-            raise ExabricksError(
-                f"unknown colormap {name!r} (any matplotlib colormap name, e.g. viridis, inferno, magma, coolwarm)"
-            ) from None
+        cmap = matplotlib_colormap(name)
         t = np.linspace(0.0, 1.0, COLORMAP_KNOTS)
         xs = lo + (hi - lo) * t
         rgb = np.column_stack([xs, np.asarray(cmap(t), dtype=np.float64)[:, :3]])
@@ -504,6 +497,29 @@ def _range(value_range, what: str) -> tuple[float, float]:
 
 def _reject_constant(name):
     raise ValueError(f"{name} is not a number")
+
+
+def matplotlib_colormap(name):
+    """matplotlib's colormap `name`; an ExabricksError that names it otherwise, with
+    the names closest to it ('infern': did you mean inferno?)."""
+    import matplotlib
+
+    try:
+        return matplotlib.colormaps[name]
+    except (KeyError, TypeError):
+        pass
+    from ..util.errors import quoted
+
+    hint = ""
+    if isinstance(name, str):
+        import difflib
+
+        # the reversed maps (NAME_r) only for a name that asks for one
+        names = {n.lower(): n for n in matplotlib.colormaps if n.endswith("_r") == name.endswith("_r")}
+        close = difflib.get_close_matches(name.lower(), list(names), n=1, cutoff=0.6)
+        hint = f"; did you mean {names[close[0]]!r}?" if close else ""
+    raise ExabricksError(f"unknown colormap {quoted(str(name))}{hint} (any matplotlib colormap name, e.g. "
+                         "viridis, inferno, magma, coolwarm)")
 
 
 def preset_path(name: str) -> Path:

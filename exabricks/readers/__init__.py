@@ -38,8 +38,45 @@ def detect_format(path: str | Path, *, dims=None) -> str:
     """
     fmt = guess_format(path, dims=dims)
     if fmt is None:
-        raise ExabricksError(f"cannot tell the format of {path}; use --format")
+        raise unknown_format(path)
     return fmt
+
+
+def unknown_format(path: str | Path) -> ExabricksError:
+    """The error for a source no format claims: use --format, and for a folder that
+    holds AMReX plotfiles (a run's folder, given where one of its plotfiles belongs)
+    a hint naming them."""
+    message = f"cannot tell the format of {path}; use --format"
+    plotfiles = plotfiles_in(path)
+    if plotfiles:
+        names = [p.name for p in plotfiles]
+        shown = ", ".join(names) if len(names) <= 3 else f"{names[0]}, {names[1]}, ..., {names[-1]}"
+        stem = os.path.commonprefix(names).rstrip("0123456789")
+        glob = Path(path) / f"{stem}*" if stem else None
+        series = f", or every step with exabricks series {quoted(str(glob))}" if glob else ""
+        message = (f"{path} is a folder of {len(names)} AMReX plotfile{'s' if len(names) > 1 else ''} "
+                   f"({shown}), not a plotfile: give one, e.g. {Path(path) / names[-1]}{series}")
+    return ExabricksError(message)
+
+
+def plotfiles_in(path: str | Path, limit: int = 10000) -> list[Path]:
+    """The AMReX plotfiles (folders with a Header and Level_0/) directly inside the
+    folder `path`, in natural order of their names (plt10 after plt9); [] for anything
+    else. Looks at `limit` entries at most."""
+    folder = Path(path)
+    try:
+        if not folder.is_dir():
+            return []
+        found = []
+        for k, entry in enumerate(os.scandir(folder)):
+            if k >= limit:
+                break
+            candidate = Path(entry.path)
+            if entry.is_dir() and (candidate / "Header").is_file() and (candidate / "Level_0").is_dir():
+                found.append(candidate)
+    except OSError:
+        return []
+    return sorted(found, key=lambda p: [int(t) if t.isdigit() else t for t in re.split(r"(\d+)", p.name)])
 
 
 def guess_format(path: str | Path, *, dims=None, ask_yt: bool = True) -> str | None:

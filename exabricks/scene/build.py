@@ -17,7 +17,7 @@ import numpy as np
 from ..picture.camera import Camera
 from ..util.errors import ExabricksError, quoted
 from ..picture.field_statistics import field_range
-from ..picture.transfer_function import TransferFunction
+from ..picture.transfer_function import TransferFunction, matplotlib_colormap
 from .applies import check_applies
 from .file import SceneFile, shown
 from .model import (DEFAULT_COLORMAP, DEFAULT_FOVY, Clip, Instance, IsoSurface, Lighting, MeshLayer, Scene,
@@ -117,6 +117,9 @@ def _value_range(value, where: str):
     if value is None:
         return None
     lo, hi = (float(v) for v in value)
+    if np.isfinite(lo) and np.isfinite(hi) and lo >= hi:
+        raise ExabricksError(f"{where}: low {lo:g} {'>' if lo > hi else '='} high {hi:g} (expected low < high, "
+                             "the low end first)")
     if not (np.isfinite(lo) and np.isfinite(hi) and lo < hi):
         raise ExabricksError(f"{where}: expected [low, high] with low < high (found {shown([lo, hi])})")
     return lo, hi
@@ -204,8 +207,12 @@ def _volumes(bricks, file: SceneFile, f, base: str, base_at: str) -> tuple[Volum
     if f["volume"] is False:
         return ()
     if any(f[name] is not None for name in VOLUME_FLAGS):
+        # the flags' own faults name the flag, not the field they apply to
+        if f["colormap"] is not None:
+            _within(flag_name("colormap"), matplotlib_colormap, f["colormap"])
+        value_range = _value_range(f["range"], flag_name("range"))
         tf = _within(base_at if f["field"] is None else "--field", choose_transfer_function, bricks, base,
-                     f["transfer_function"], f["colormap"], f["range"], f["opacity"], f["scale"])
+                     f["transfer_function"], f["colormap"], value_range, f["opacity"], f["scale"])
         return (VolumeLayer(base, tf),)
     entries = file.get("volumes")
     if entries is None or (not entries and f["volume"]):

@@ -1,7 +1,7 @@
 """Which OpenCL runtime (exabricks.device.runtime, issue 53 item 2): the system's
 drivers, else Intel's CPU runtime that `pip install 'exabricks[cpu]'` brings into
 the environment, without root; and, in a fresh venv that sees no system driver, the
-demo rendered through it as through PoCL."""
+wheel of `make wheel` with the cpu extra, its demo rendered through it as through PoCL."""
 
 from __future__ import annotations
 
@@ -15,6 +15,7 @@ import pytest
 from exabricks.device import runtime
 from exabricks.film.image_io import read_image
 from helpers import GERRIS, ROOT, assert_one_error_line, run_cli
+from helpers.pictures import assert_visible_png
 
 
 @pytest.fixture
@@ -104,16 +105,26 @@ def test_devices_says_which_runtime_and_why(cli):
 
 @pytest.mark.slow
 def test_a_fresh_venv_without_root_renders_the_demo(tmp_path):
-    """`pip install 'exabricks[cpu]'` into a new venv (no system site packages), with
-    no system driver visible: `devices` names Intel's runtime from PyPI, and the
-    demo's frame equals PoCL's (where the suite runs) within float rounding."""
-    wheels = tmp_path / "wheels"
-    subprocess.run([sys.executable, "-m", "pip", "wheel", "--no-deps", "-q", str(ROOT), "-w", str(wheels)],
-                   check=True, timeout=600)
-    wheel = next(wheels.glob("exabricks-*.whl"))
+    """The wheel that `make wheel` builds (exabricks is not on PyPI), installed with
+    the `cpu` extra into a new venv (no system site packages), with no system driver
+    visible: `devices` names Intel's runtime from PyPI, the wheel's own embedded
+    plume renders from a folder outside the checkout, and the demo's frame equals
+    PoCL's (where the suite runs) within float rounding. The extra's packages come
+    from PyPI, or offline from $EXABRICKS_WHEELHOUSE (a folder of downloaded wheels:
+    `pip download -d DIR "dist/exabricks-*.whl[cpu]"` once) where it is set."""
+    dist = tmp_path / "dist"
+    made = subprocess.run(["make", "-C", str(ROOT), "--no-print-directory", "-o", f"{sys.prefix}/.installed-run",
+                           "wheel", f"VENV={sys.prefix}", f"DIST={dist}"],
+                          capture_output=True, text=True, timeout=600)
+    assert made.returncode == 0, made.stderr
+    wheel = next(dist.glob("exabricks-*.whl"))
+    assert made.stdout.strip().splitlines()[-1] == str(wheel)
     venv = tmp_path / "venv"
     subprocess.run([sys.executable, "-m", "venv", str(venv)], check=True, timeout=300)
-    subprocess.run([str(venv / "bin" / "pip"), "install", "-q", f"{wheel}[cpu]"], check=True, timeout=1200)
+    house = os.environ.get("EXABRICKS_WHEELHOUSE")
+    offline = ["--no-index", "--find-links", house] if house else []
+    subprocess.run([str(venv / "bin" / "pip"), "install", "-q", *offline, f"{wheel}[cpu]"], check=True,
+                   timeout=1200)
     empty = tmp_path / "no-vendors"
     empty.mkdir()
     env = {k: v for k, v in os.environ.items() if not k.startswith(("OCL_ICD", "PYTHONPATH", "EXABRICKS_DEVICE"))}
@@ -124,6 +135,15 @@ def test_a_fresh_venv_without_root_renders_the_demo(tmp_path):
     assert devices.returncode == 0, devices.stderr
     assert "Intel's CPU runtime from PyPI" in devices.stdout.splitlines()[0], devices.stdout
     assert "Intel(R) OpenCL" in devices.stdout
+    # the embedded plume as the wheel installed it, from a folder outside the checkout
+    script = ("import exabricks as eb, pathlib; p = pathlib.Path(eb.__file__).parent / 'data/gerris-plume'; "
+              "assert not p.resolve().is_relative_to(pathlib.Path(sys.argv[1]).resolve()); "
+              "eb.render(eb.open(p / 'plume7-1.cells'), field='T', colormap='inferno', size=(64, 48))"
+              ".save('embedded.png')")
+    proc = subprocess.run([str(venv / "bin" / "python"), "-c", f"import sys; {script}", str(ROOT)],
+                          capture_output=True, text=True, env=env, timeout=900, cwd=tmp_path)
+    assert proc.returncode == 0, proc.stderr
+    assert_visible_png(tmp_path / "embedded.png")
     flags = ["--field", "T", "--size", 96, 72]
     out = tmp_path / "intel.exr"
     proc = subprocess.run([str(exe), "render", str(GERRIS), "-o", str(out), *map(str, flags)],

@@ -9,7 +9,8 @@ objects, saved as the file that opens the paragraph above them (docs/scene.md's
 `plume.json`); and the scripts and scene files of docs/examples/ (its notebooks:
 tests/docs/test_notebooks.py, every one of them). A document's examples run in order
 in one fresh folder, prepared as docs/python.md, "Running the examples", says (its
-setup block, with REPO this checkout): shell commands through bash, Python blocks in
+setup block, with REPO this checkout; CHECKOUT_DOCS, README's quick start, in a folder
+that looks like the checkout's root after `make demo`): shell commands through bash, Python blocks in
 one namespace in this process, and then every output they name (`-o`, `.save(...)`,
 `render_job(_, ...)`) must exist. The scene-file fragments of the documents (```json
 blocks that are not a whole object) are checked against the scene schema.
@@ -36,10 +37,15 @@ from pathlib import Path
 import pytest
 
 from helpers import ROOT
+from helpers.pictures import assert_visible_png
 
 DOCS = ("README.md", *sorted(p.relative_to(ROOT).as_posix() for p in (ROOT / "docs").glob("*.md")))
 EXAMPLES = ROOT / "docs" / "examples"
 SETUP_DOC = "docs/python.md"  # its ```sh block that sets REPO prepares every folder
+# Documents whose examples run from the checkout's root after `make demo`, as they say:
+# `.venv/bin/exabricks` and the data by its path in the checkout (a folder that links
+# the checkout's folders and the environment of this process as .venv).
+CHECKOUT_DOCS = ("README.md", "docs/first-picture.md")
 
 EXEMPT_DOCS = {
     "docs/gallery.md": "written by benchmarks/gallery.py (make gallery): each shot renders bench-data/gallery "
@@ -59,11 +65,13 @@ EXEMPT = [
      "targets, tests/workflows/test_workflows.py the pipelines)"),
     ("*", r"^(sbatch|srun|mpiexec) |workflows/slurm/", "command",
      "SLURM or MPI (tests/workflows/test_workflows.py with make test-slurm, tests/engine/test_mpi.py)"),
-    ("README.md", r"build_piece\.sbatch", "block", "joins what the sbatch array builds"),
-    ("README.md", r"\[cpu\]", "block",
-     "a new environment with Intel's CPU runtime (0.9 GB from PyPI): tests/device/test_runtime.py installs "
-     "it into a fresh venv with no system driver visible and renders the demo"),
-    ("README.md", r"--size 16384 16384", "command",
+    ("docs/commands.md", r"build_piece\.sbatch", "block", "joins what the sbatch array builds"),
+    ("docs/install.md", r"pip install", "block",
+     "a new environment from PyPI (Intel's CPU runtime is 0.9 GB): tests/device/test_runtime.py installs "
+     "the wheel that make wheel builds, with the cpu extra, into a fresh venv with no system driver visible "
+     "and renders the demo"),
+    ("README.md", r"exabricks view ", "command", "serves the viewer until interrupted (tests/viewer/test_view.py)"),
+    ("docs/commands.md", r"--size 16384 16384", "command",
      "a 16384² poster: a 4 GiB scratch file and CPU minutes (tests/engine/test_streaming.py draws posters in tiles)"),
     ("docs/view.md", r"^exabricks view ", "command", "serves the viewer until interrupted (tests/viewer/test_view.py)"),
     ("docs/time-series.md", r"plt00000", "block",
@@ -79,8 +87,8 @@ EXEMPT = [
 
 # (document, regular expression, reason): run by the slow variant of the document's test only
 SLOW = [
-    ("README.md", r"--spp 16 --progressive 10", "16 samples a pixel under a memory budget"),
-    ("README.md", r"--ao-samples 8", "ambient occlusion: 8 rays a sample"),
+    ("docs/commands.md", r"--spp 16 --progressive 10", "16 samples a pixel under a memory budget"),
+    ("docs/commands.md", r"--ao-samples 8", "ambient occlusion: 8 rays a sample"),
     ("docs/python.md", r"ao_samples=8|plume-scene\.json", "ambient occlusion, 4 samples a pixel"),
     ("docs/python.md", r"eb\.Renderer\(ds\)", "24 frames"),
     ("docs/python.md", r"^import yt", "yt's import and an Enzo dataset through it"),
@@ -91,8 +99,8 @@ SLOW = [
 
 PLACEHOLDER = re.compile(r"\b(INPUT|SOURCE|CELLS|FILE|NAME|STEP|DATASET|KEYFRAMES|BRICKS|REGIONS|BVH)\b(?!=)"
                          r"|\[--|…")
-COMMAND = re.compile(r"(exabricks|time exabricks|make|mpiexec|srun|sbatch|for \w+ in|mkdir|ln|python3?"
-                     r"|\S*/python3?|\S*\.sh|[A-Za-z_]\w*=\S*)(\s|$)")
+COMMAND = re.compile(r"(exabricks|\.venv/bin/exabricks|time exabricks|make|mpiexec|srun|sbatch|for \w+ in|mkdir"
+                     r"|ln|python3?|\S*/python3?|\S*\.sh|[A-Za-z_]\w*=\S*)(\s|$)")
 SHELL = {"sh", "bash", "console", "shell"}
 
 
@@ -240,11 +248,12 @@ def _env() -> dict:
     return {**os.environ, "PATH": f"{bin_dir}{os.pathsep}{os.environ.get('PATH', '')}"}
 
 
-def _bash(script: str, folder: Path, where: str) -> None:
+def _bash(script: str, folder: Path, where: str) -> str:
     proc = subprocess.run(["bash", "-e", "-c", script], cwd=folder, env=_env(), capture_output=True,
                           text=True, timeout=600)
     assert proc.returncode == 0, (f"{where}: exit status {proc.returncode}\n{script}\n"
                                   f"stdout: {proc.stdout[-2000:]}\nstderr: {proc.stderr[-4000:]}")
+    return proc.stdout
 
 
 def _setup_block() -> tuple[int, str]:
@@ -275,6 +284,20 @@ def _folder(prepared: Path, tmp_path: Path) -> Path:
     return folder
 
 
+def checkout_folder(tmp_path: Path) -> Path:
+    """A folder that looks like the checkout's root after `make demo` (CHECKOUT_DOCS):
+    the checkout's folders and files linked in, and this process's environment as
+    `.venv` (in a checkout after `make demo`, that is the checkout's .venv)."""
+    folder = tmp_path / "checkout"
+    folder.mkdir()
+    for entry in ROOT.iterdir():
+        if entry.name not in (".venv", ".git", "out", "site", "dist"):
+            (folder / entry.name).symlink_to(entry)
+    (folder / ".venv").symlink_to(Path(sys.prefix))
+    assert (folder / ".venv" / "bin" / "exabricks").exists(), f"no exabricks command in {sys.prefix}"
+    return folder
+
+
 def _docs_with_examples():
     # Every run is in the slow suite (CI runs it): together they take about a minute
     # on 2 cores, which `make test` cannot spare; the checks of the scene files and
@@ -285,6 +308,26 @@ def _docs_with_examples():
             yield pytest.param(doc, False, id=doc, marks=pytest.mark.slow)
         if any(slow(e) for e in run):
             yield pytest.param(doc, True, id=f"{doc}-slow", marks=pytest.mark.slow)
+
+
+def _quick_start(namespace: dict, folder: Path) -> None:
+    """README's quick start: what it says `info` prints, and its pictures."""
+    printed = "".join(namespace["__stdout__"])
+    assert "cells: 67,712" in printed and "levels: 5" in printed, printed
+    assert all(f"field {f}:" in printed for f in "PTUVW"), printed
+    for name in ("plume-T.png", "phi.png", "plume-T-python.png"):
+        assert_visible_png(folder / name)
+    import exabricks as eb
+
+    assert eb.Image.read(folder / "phi.png").rgba.shape[1] > 512  # annotated: the colour bar beside
+    assert namespace["ds"].fields == ("P", "T", "U", "V", "W")
+
+
+def _first_picture(namespace: dict, folder: Path) -> None:
+    printed = "".join(namespace["__stdout__"])
+    assert "exajet source" in printed and "cells: 67,712" in printed and "field T: [" in printed
+    for name in ("plume-auto.png", "plume-inferno.png", "plume-iso.png", "phi.png"):
+        assert_visible_png(folder / name)
 
 
 def _python_page(namespace: dict, folder: Path) -> None:
@@ -300,18 +343,19 @@ def _python_page(namespace: dict, folder: Path) -> None:
 
 
 # What a document's examples leave in their namespace, beyond running (the Python ones).
-CHECKS = {"docs/python.md": _python_page}
+CHECKS = {"docs/python.md": _python_page, "README.md": _quick_start, "docs/first-picture.md": _first_picture}
 
 
 @pytest.mark.parametrize("doc, with_slow", list(_docs_with_examples()))
-def test_the_examples_of_a_document_run_as_written(doc, with_slow, prepared, tmp_path, monkeypatch):
+def test_the_examples_of_a_document_run_as_written(doc, with_slow, request, tmp_path, monkeypatch):
     every = [e for e in examples(doc)[0] if not _is_setup(e)]
     run = [e for e in every if with_slow or not slow(e)]
     if any(e.kind == "python" and re.search(r"^\s*import yt\b", e.text, re.M) for e in run):
         pytest.importorskip("yt")
-    folder = _folder(prepared, tmp_path)
+    folder = (checkout_folder(tmp_path) if doc in CHECKOUT_DOCS
+              else _folder(request.getfixturevalue("prepared"), tmp_path))
     monkeypatch.chdir(folder)
-    namespace: dict = {"__name__": "__main__"}
+    namespace: dict = {"__name__": "__main__", "__stdout__": []}
     i = 0
     while i < len(run):
         example = run[i]
@@ -320,7 +364,7 @@ def test_the_examples_of_a_document_run_as_written(doc, with_slow, prepared, tmp
             while i + len(group) < len(run) and run[i + len(group)].kind == "sh" \
                     and run[i + len(group)].block == example.block:
                 group.append(run[i + len(group)])
-            _bash("\n".join(e.text for e in group), folder, example.where)
+            namespace["__stdout__"].append(_bash("\n".join(e.text for e in group), folder, example.where))
             i += len(group)
             continue
         if example.kind == "python":
