@@ -48,16 +48,16 @@ typedef struct {
 #endif
 } eb_frame;
 
-#ifdef EB_DOMAIN
 /* Data-parallel rendering (exabricks.engine.partition): a frame of one domain of a
- * k-d partition of space takes exactly the samples (and slice hits) at lattice
- * points inside the domain's half-open box, so that the domains' images,
- * composited in visibility order, hold every sample of the whole frame once. */
+ * k-d partition of space (P->domain, chosen per frame) takes exactly the samples
+ * (and slice hits) at lattice points inside the domain's half-open box, so that
+ * the domains' images, composited in visibility order, hold every sample of the
+ * whole frame once; a frame of the whole takes every point. */
 EB_INLINE int eb_in_domain(eb_frame *fr, float3 p)
 {
-    return all(p >= fr->P->domain_lower.xyz) && all(p < fr->P->domain_upper.xyz);
+    return !fr->P->domain
+        || (all(p >= fr->P->domain_lower.xyz) && all(p < fr->P->domain_upper.xyz));
 }
-#endif
 
 /* The reconstruction sums at lattice point p in region r. */
 EB_INLINE eb_basis_sums eb_sample_region(eb_frame *fr, int r, float3 p, const int grad)

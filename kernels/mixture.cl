@@ -1,7 +1,7 @@
 /* Instances whose boxes overlap (exabricks.engine.instances): each copy of the
  * dataset is a medium of its own, and where several copies cover a point their
  * extinctions add, as the volume layers of one point mix (medium.cl). Built
- * with -DEB_MIXTURE (and -DEB_DOMAIN; the copies' clipping, their object box
+ * with -DEB_MIXTURE (in a domain's frame, P->domain; the copies' clipping, their object box
  * included, is each copy's own: exabricks.engine.instances.copy_rows).
  *
  * One walk per ray in world distance t, which every copy's object space keeps
@@ -24,9 +24,6 @@
 #include "medium.cl"
 #include "surfaces.cl"
 
-#ifndef EB_DOMAIN
-#error "EB_MIXTURE goes with EB_DOMAIN"
-#endif
 
 /* One copy along the ray: its ray in lattice space, the world direction in its
  * object space (for shading), where its clipping (its box included) ends the

@@ -12,16 +12,12 @@
 #include "path.cl"
 #endif
 
-/* eb_render's domain arguments (-DEB_DOMAIN, a domain of a frame split by space:
+/* eb_render's domain argument (a domain of a frame split by space, P->domain:
  * frame.cl eb_in_domain): where use_front, the premultiplied RGBA of this sample
  * composited so far in front of the domain (one per pixel of the band), which
  * the domain's rays continue from (so that early ray termination carries
  * across domains; exabricks.engine.streaming). */
-#ifdef EB_DOMAIN
 #define EB_DOMAIN_ARGS , __global const float4 *front
-#else
-#define EB_DOMAIN_ARGS
-#endif
 
 /* Sample `sample_index` of P->spp of every pixel in rows row0 .. row0 + rows - 1
  * and columns col0 .. col0 + cols - 1 (band = (row0, rows, col0, cols)) of the
@@ -104,10 +100,8 @@ __kernel void eb_render(EB_PARAMS_ARG, int4 band, int sample_index,
     float t_depth;
     float4 c;
     float4 before = (float4)(0.0f);
-#ifdef EB_DOMAIN
     if (P->use_front)
         before = front[slot];
-#endif
     /* A constant shade argument lets the compiler drop the unused path. */
 #if defined(EB_PATH)
     c = eb_path(&fr, &ray, look_f, &n, &t_depth, level_samples);

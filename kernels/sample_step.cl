@@ -15,14 +15,10 @@
  * takes: every one, or in a domain's frame those at points inside the domain. */
 EB_INLINE int eb_next_sample(eb_frame *fr, eb_ray *ray, eb_intervals *it, float *tm, float *len)
 {
-#ifdef EB_DOMAIN
     while (eb_intervals_next(it, tm, len))
         if (eb_in_domain(fr, ray->org + *tm * ray->dir))
             return 1;
     return 0;
-#else
-    return eb_intervals_next(it, tm, len);
-#endif
 }
 
 /* One sample at tm (sub-interval length len) of region r, from its

@@ -112,10 +112,8 @@ EB_INLINE float eb_slices_start(eb_frame *fr, eb_ray *ray, float t0, float t1, e
         float t = dot(fr->surf.slice_point[k].xyz - ray->org_world, n) / along;
         if (!(t >= t0 && t <= t1))
             continue;
-#ifdef EB_DOMAIN
         if (!eb_in_domain(fr, ray->org + t * ray->dir))
             continue;  /* another domain's hit */
-#endif
         eb_hit_insert(st, t, k, EB_MAX_SLICES);
     }
     return eb_mesh_hits(fr, ray, t0, t1, st);

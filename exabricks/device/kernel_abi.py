@@ -76,6 +76,7 @@ PARAMS = (
     # what the frame holds
     ("n_layers", "int"), ("n_iso", "int"), ("n_slices", "int"), ("iso_tolerance", "float"),
     ("clip_box", "int"), ("n_clip_planes", "int"), ("use_front", "int"),
+    ("domain", "int"),  # a domain's frame: its samples only (kernels/frame.cl, eb_in_domain)
     # the dataset: counts, and offsets into its grouped buffers
     ("n_nodes", "int"), ("n_regions", "int"), ("n_bricks", "int"), ("n_tree_nodes", "int"),
     ("node_lower_at", "int"), ("node_upper_at", "int"),        # geometry (float)

@@ -405,11 +405,11 @@ class Renderer:
             **light_params(scene, s.finest_width_world),
             ao_samples=lighting.ao_samples, ao_distance=ao_distance, lod_scale=lod_scale,
             **path,
-            **(dict(domain_lower=self.domain[0], domain_upper=self.domain[1],
+            **(dict(domain=True, domain_lower=self.domain[0], domain_upper=self.domain[1],
                     use_front=has_front) if self.domain else {}))
         params = params if kernel_abi.params_by_value(surfaces) else up(q, params)
         fixed = [*args, *(up(q, a) for a in look), *mesh_args,
-                 *((front_buf,) if self.domain else ()), rgba_buf, depth_buf, samples_buf, level_buf]
+                 front_buf, rgba_buf, depth_buf, samples_buf, level_buf]
         return _Launch(kernel, params, fixed, band_rows, rgba_buf, front_buf, depth_buf, samples_buf,
                        np.empty(band_pixels, np.uint32), lod, level_buf, level_samples)
 

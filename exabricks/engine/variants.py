@@ -79,7 +79,8 @@ class Feature:
     chosen: Callable  # frame (a point of AXES) -> the value
     defines: Callable  # value -> the build defines that compile it in
     uncapped: Callable = lambda value: False  # whether NVIDIA's register cap spills with it
-    why: str = ""  # why it is compiled in (docs/design-kernels.md keeps the figures)
+    why: str = ""  # why it is compiled in, or not (docs/design-kernels.md keeps the figures)
+    compiled: bool = True  # False: chosen per frame in eb_params (its defines are none)
 
 
 def _flag(define):
@@ -98,8 +99,9 @@ FEATURES = (
     Feature("lod", lambda f: f.lod, _flag("EB_LOD"), uncapped=bool),
     Feature("packets", uses_packets, lambda on: (f"EB_PACKET={PACKET_WIDTH}",) if on else (),
             uncapped=bool, why="the CPU profile: 8 samples reconstructed at once"),
-    # overlapping instances are drawn as domains (kernels/mixture.cl)
-    Feature("domain", lambda f: f.domain or f.mixture, _flag("EB_DOMAIN")),
+    Feature("domain", lambda f: f.domain or f.mixture, lambda on: (), compiled=False,
+            why="a domain's frame takes its samples only (eb_params.domain): the test costs "
+            "no measurable time and no register"),
     Feature("mixture", lambda f: f.mixture, _flag("EB_MIXTURE"), uncapped=bool),
     Feature("integrator", lambda f: f.integrator,
             lambda i: {"headlight": (), "shadow": ("EB_SHADOW",), "path": ("EB_PATH",)}[i],
@@ -114,19 +116,20 @@ FEATURES = (
             or f.reconstruction == "nearest", _flag("EB_CENTRAL"), uncapped=bool),
 )
 
-Variant = make_dataclass("Variant", [(f.name, object) for f in FEATURES], frozen=True)
-Variant.__doc__ = "One render program: a value of every feature (FEATURES)."
+COMPILED = tuple(f for f in FEATURES if f.compiled)
+Variant = make_dataclass("Variant", [(f.name, object) for f in COMPILED], frozen=True)
+Variant.__doc__ = "One render program: a value of every compiled feature (FEATURES)."
 
 
 def _defines(self) -> tuple[str, ...]:
     """The build defines of this program."""
-    return tuple(d for f in FEATURES for d in f.defines(getattr(self, f.name)))
+    return tuple(d for f in COMPILED for d in f.defines(getattr(self, f.name)))
 
 
 def _capped(self) -> bool:
     """Whether NVIDIA's register cap (kernel_abi.NV_REGISTER_CAP) applies: none
     of its features' values spills under it (the offline gauge)."""
-    return not any(f.uncapped(getattr(self, f.name)) for f in FEATURES)
+    return not any(f.uncapped(getattr(self, f.name)) for f in COMPILED)
 
 
 def _label(self) -> str:
@@ -195,7 +198,7 @@ def program_variant(f) -> Variant:
     why = refusal(f)
     if why is not None:
         raise ExabricksError(why)
-    return Variant(**{feature.name: feature.chosen(f) for feature in FEATURES})
+    return Variant(**{feature.name: feature.chosen(f) for feature in COMPILED})
 
 
 def variant(**values) -> Variant:
