@@ -196,3 +196,25 @@ def test_warm_all_builds_every_declared_program():
     assert len(rows) == len(want)
     warmed = {defines for _, defines, _ in opencl.BUILDS if defines in want}
     assert warmed == want
+
+
+@pytest.mark.parametrize("integrator", ["headlight", "shadow"])
+def test_what_a_frame_changes_per_frame_builds_nothing(integrator):
+    """After one frame, another camera, transfer function, iso-value, seed, light
+    direction, exposure or size draws with the same program: no build."""
+    import exabricks as eb
+    from exabricks.device import opencl
+
+    ds = eb.open(GERRIS, fields=["T", "P"], cache=False)
+    base = dict(field="T", size=(16, 16), integrator=integrator, iso=[0.45], seed=1)
+    if integrator != "headlight":
+        base["light"] = (1, 0, 0)
+    eb.render(ds, **base)
+    built = len(opencl.BUILDS)
+    (lo, hi) = ds.bounds
+    for change in (dict(position=tuple(2 * h - l for l, h in zip(lo, hi)), look_at=ds.bounds[0]),
+                   dict(colormap="inferno", range=(0.0, 0.5)), dict(iso=[0.3]), dict(seed=7),
+                   dict(exposure=1.5), dict(size=(24, 12)),
+                   *([dict(light=(0, 1, 1))] if integrator != "headlight" else [])):
+        eb.render(ds, **{**base, **change})
+        assert len(opencl.BUILDS) == built, (change, opencl.BUILDS[built:])
