@@ -49,3 +49,25 @@ def plume_trio(tmp_path_factory):
     for path, obj in zip(paths, (bricks, regions, bvh)):
         schema.save(path, obj)
     return paths
+
+
+@pytest.fixture(scope="session", autouse=True)
+def builds_only_declared_programs():
+    """Every render program the tests of this process built is one the feature
+    table declares (exabricks.engine.variants.declared, the benchmarks' lookups
+    and walks included, for the field counts built): no program outside the
+    named set. Builds with a define of a test's own (Renderer._kernel's `extra`)
+    are the tests' probes of the kernels, not programs of a frame."""
+    yield
+    from exabricks.device import opencl
+    from exabricks.engine import variants
+
+    known = {x for kind in variants.DEVICE_KINDS for v in variants.declared(kind, benchmarks=True)
+             for x in v.defines if not x.startswith("EB_N_FIELDS=")}
+    builds = {defines for source, defines, _ in opencl.BUILDS if source == opencl.ENTRY_SOURCE}
+    ours = {d for d in builds if all(x in known or x.startswith("EB_N_FIELDS=") for x in d)}
+    counts = {int(x.split("=")[1]) for d in ours for x in d if x.startswith("EB_N_FIELDS=")}
+    declared = {v.defines for kind in variants.DEVICE_KINDS for n in counts
+                for v in variants.declared(kind, n, benchmarks=True)}
+    outside = ours - declared
+    assert not outside, f"programs outside the declared set: {sorted(outside)}"
