@@ -1,0 +1,60 @@
+"""How a frame's work is cut into waits on the device short enough for a signal
+to end the run within a second (docs/design.md, "Errors, hostile input, outputs
+and signals").
+
+Python runs a signal's handler only between bytecodes, so while the host waits
+for the device (the read-back of a band, `queue.finish()`) a SIGTERM waits too.
+The renderer draws a frame in bands of whole rows, and each band's samples per
+pixel in launches, one kernel launch per sample; it waits for the device after
+every few launches and checks for a signal there. `Pace` sizes both from the
+measured time of the last wait, so that each lasts about LAUNCH_SECONDS
+whatever the integrator, frame size and spp: a 64 x 64 frame of the path
+integrator at 4096 spp took 27 s to stop in bands of all their samples.
+
+The unit of work is a row-sample: one row of the band, one sample per pixel.
+Where a band of at least `tile` rows with all its samples fits in one wait,
+the band is drawn whole (the pacing of frames of a few samples, unchanged);
+else the band is as many rows as one sample's launch of them fits (large
+launches keep the device's cores busy) and its samples go in runs. Samples
+stay in order within each pixel, so the image is the same bit for bit however
+the work is cut.
+"""
+
+from __future__ import annotations
+
+# Seconds of device work between two checks for a signal: every wait's end
+# idles a core while the other finishes (2-5 % of a frame at 0.1 s,
+# docs/benchmarks-decisions.md, "Cell location and render bands").
+LAUNCH_SECONDS = 0.25
+# The next wait is at most this many times the last one's work: the first rows
+# (often empty sky) can be much cheaper than the rows below them.
+GROWTH = 4.0
+
+
+class Pace:
+    """Rows of each band and samples of each wait of a frame whose bands take
+    `samples` samples per pixel, at most `most_rows` rows (a multiple of
+    `tile`, the rows of a work-group) each."""
+
+    def __init__(self, samples: int, most_rows: int, tile: int):
+        self.samples = int(samples)
+        self.most_rows = int(most_rows)
+        self.tile = int(tile)
+        self.units = 4 * self.tile  # row-samples of the next wait: four tiles' rows of one sample
+
+    def rows(self, left: int) -> int:
+        """Rows of the next band, where `left` rows remain to be drawn."""
+        whole = self.units // self.samples if self.units >= self.tile * self.samples else self.units
+        rows = max(self.tile, whole // self.tile * self.tile)
+        return min(rows, self.most_rows, left)
+
+    def run(self, rows: int, left: int) -> int:
+        """Samples of the next wait on a band of `rows` rows, where `left` of its
+        samples remain."""
+        return max(1, min(left, self.units // rows))
+
+    def took(self, units: int, seconds: float) -> None:
+        """The wait that drew `units` row-samples took `seconds`: size the next one
+        towards LAUNCH_SECONDS."""
+        scale = GROWTH if seconds <= 0 else min(GROWTH, LAUNCH_SECONDS / seconds)
+        self.units = max(1, int(units * scale))
