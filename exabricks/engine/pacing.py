@@ -13,18 +13,21 @@ integrator at 4096 spp took 27 s to stop in bands of all their samples.
 
 The unit of work is a row-sample: one row of the band, one sample per pixel.
 Where a band of at least `tile` rows with all its samples fits in one wait,
-the band is drawn whole (the pacing of frames of a few samples, unchanged);
-else the band is as many rows as one sample's launch of them fits (large
-launches keep the device's cores busy) and its samples go in runs. Samples
-stay in order within each pixel, so the image is the same bit for bit however
-the work is cut.
+the band is drawn whole (after its first sample, below; a frame of one sample
+is paced as before); else the band is as many rows as one sample's launch of
+them fits (large launches keep the device's cores busy) and its samples go in
+runs. A band's first run is one sample: its rows may cost far more than the
+rows above them, and its time sizes the runs after it. Samples stay in order
+within each pixel, so the image is the same bit for bit however the work is
+cut.
 """
 
 from __future__ import annotations
 
-# Seconds of device work between two checks for a signal: every wait's end
-# idles a core while the other finishes (2-5 % of a frame at 0.1 s,
-# docs/benchmarks-decisions.md, "Cell location and render bands").
+# Seconds of device work between two checks for a signal. A band's end (and its
+# first sample's) idles a core while the other finishes (2-5 % of a frame at
+# 0.1 s bands, docs/benchmarks-decisions.md, "Cell location and render bands");
+# the runs between are queued ahead of the wait (Renderer._band).
 LAUNCH_SECONDS = 0.25
 # The next wait is at most this many times the last one's work: the first rows
 # (often empty sky) can be much cheaper than the rows below them.
@@ -48,10 +51,11 @@ class Pace:
         rows = max(self.tile, whole // self.tile * self.tile)
         return min(rows, self.most_rows, left)
 
-    def run(self, rows: int, left: int) -> int:
-        """Samples of the next wait on a band of `rows` rows, where `left` of its
-        samples remain."""
-        return max(1, min(left, self.units // rows))
+    def run(self, rows: int, done: int) -> int:
+        """Samples of the next wait on a band of `rows` rows of which `done` samples
+        are drawn. The first is one sample: these rows may cost far more than the
+        rows above them (sky, then the data), and its time sizes the rest."""
+        return 1 if not done else max(1, min(self.samples - done, self.units // rows))
 
     def took(self, units: int, seconds: float) -> None:
         """The wait that drew `units` row-samples took `seconds`: size the next one

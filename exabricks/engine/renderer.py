@@ -419,8 +419,8 @@ class Renderer:
     def _draw(self, frame: _Frame, launch: _Launch, sample, front, deadline) -> tuple[int, int, float]:
         """Draw `frame`'s spans in bands of rows into its host images, each band's
         samples in runs of launches that take about LAUNCH_SECONDS (pacing.Pace),
-        with a check for a signal after each: (rows drawn from the top, samples
-        taken, seconds)."""
+        with a check for a signal after each (_waited): (rows drawn from the top,
+        samples taken, seconds)."""
         q = self.dataset.queue
         q.finish()
         start = time.perf_counter()
@@ -436,25 +436,13 @@ class Renderer:
                     drawn = row0
                     break
                 rows = pace.rows(end - row0)
-                global_size = (-(-cols // TILE) * TILE, -(-rows // TILE) * TILE)
                 n = cols * rows
                 if front is not None:
                     opencl.write_to(q, launch.front_buf, front[row0:row0 + rows].reshape(n, 4))
                 if sample:  # the kernel adds samples after the first: start from 0
                     for buf, size in ((launch.rgba_buf, 16), (launch.samples_buf, 4)):
                         opencl.fill_zero(q, buf, n * size)
-                done = 0
-                while done < len(indices):
-                    count = pace.run(rows, len(indices) - done)
-                    run_start = time.perf_counter()
-                    for index in indices[done:done + count]:
-                        launch.kernel(q, global_size, (TILE, TILE), launch.params,
-                                      opencl.int4(frame.tile_row0 + row0, rows, frame.col0, cols),
-                                      np.int32(index), *launch.fixed)
-                    q.finish()
-                    pace.took(rows * count, time.perf_counter() - run_start)
-                    done += count
-                    interrupt.raise_pending()
+                self._band(frame, launch, pace, row0, rows, indices)
                 opencl.read_back(q, launch.rgba_buf, frame.rgba[row0:row0 + rows].reshape(n, 4))
                 opencl.read_back(q, launch.samples_buf, launch.samples[:n])
                 if frame.depth is not None:
@@ -464,6 +452,36 @@ class Renderer:
             if drawn < n_rows:
                 break
         return drawn, total, time.perf_counter() - start
+
+    def _band(self, frame: _Frame, launch: _Launch, pace: Pace, row0: int, rows: int, indices) -> None:
+        """Draw the samples `indices` of the `rows` rows from `row0` into the band's
+        buffers in runs (pace.run), checking for a signal after each (_waited).
+        The first run, one sample, is waited for alone: its time sizes the runs
+        after it. Each later run waits in the queue while the host waits for the
+        one before it, so that the device does not idle at a check."""
+        q, cols = self.dataset.queue, frame.cols
+        global_size = (-(-cols // TILE) * TILE, -(-rows // TILE) * TILE)
+        band = opencl.int4(frame.tile_row0 + row0, rows, frame.col0, cols)
+
+        def enqueue(run):
+            for index in run:
+                event = launch.kernel(q, global_size, (TILE, TILE), launch.params, band,
+                                      np.int32(index), *launch.fixed)
+            return event
+
+        done, since = 0, time.perf_counter()
+        waiting = None  # the run in the queue: (its last launch's event, its row-samples)
+        while done < len(indices):
+            count = pace.run(rows, done)
+            event = enqueue(indices[done:done + count])
+            if waiting is not None:
+                since = _waited(pace, *waiting, since)
+            waiting = (event, rows * count)
+            if not done:
+                since, waiting = _waited(pace, *waiting, since), None
+            done += count
+        if waiting is not None:
+            _waited(pace, *waiting, since)
 
     def _meshes(self, scene: Scene) -> tuple[tuple, dict]:
         """The mesh buffer of `scene` (kernels/render.cl `meshes`) and its eb_params:
@@ -534,6 +552,17 @@ class Renderer:
 # A frame is rendered in bands of whole rows (their samples paced by
 # pacing.Pace), and a band's device buffers never exceed BAND_BYTES.
 BAND_BYTES = 64 << 20
+
+
+def _waited(pace: Pace, event, units: int, since: float) -> float:
+    """Wait for the run of `units` row-samples whose last launch is `event` (the
+    device has drawn it since `since`), tell `pace` its time, raise a signal that
+    came meanwhile; the time it ended."""
+    event.wait()
+    now = time.perf_counter()
+    pace.took(units, now - since)
+    interrupt.raise_pending()
+    return now
 
 
 def _band_rows(device, width: int, height: int) -> int:
