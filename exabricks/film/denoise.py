@@ -59,7 +59,7 @@ def _stoppable(image: np.ndarray, hdr: bool) -> np.ndarray:
     an exception in this thread's wait (a signal's `Interrupted`) cancels between
     two layers before it is raised (module docstring)."""
     out = np.empty_like(image)
-    cancel = threading.Event()
+    cancel, finished = threading.Event(), threading.Event()
     failure: list = []
 
     def run():
@@ -67,14 +67,18 @@ def _stoppable(image: np.ndarray, hdr: bool) -> np.ndarray:
             _run(image, out, hdr, cancel)
         except BaseException as e:  # handed to the waiting thread
             failure.append(e)
+        finally:
+            finished.set()
 
-    worker = threading.Thread(target=run, name="exabricks-denoise", daemon=True)
-    worker.start()
+    threading.Thread(target=run, name="exabricks-denoise", daemon=True).start()
+    # An Event, not Thread.join: a join that an exception interrupts takes the
+    # thread for ended (Python 3.11's _wait_for_tstate_lock), and the second
+    # join would not wait for the cancelled call.
     try:
-        worker.join()
+        finished.wait()
     except BaseException:
         cancel.set()
-        worker.join()
+        finished.wait()
         raise
     if failure:
         raise failure[0]
