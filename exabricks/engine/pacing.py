@@ -29,8 +29,8 @@ from __future__ import annotations
 # 0.1 s bands, docs/benchmarks-decisions.md, "Cell location and render bands");
 # the runs between are queued ahead of the wait (Renderer._band).
 LAUNCH_SECONDS = 0.25
-# The next wait is at most this many times the last one's work: the first rows
-# (often empty sky) can be much cheaper than the rows below them.
+# A band is at most this many times the last band's work: the first rows (often
+# empty sky) can be much cheaper than the rows below them.
 GROWTH = 4.0
 
 
@@ -43,10 +43,17 @@ class Pace:
         self.samples = int(samples)
         self.most_rows = int(most_rows)
         self.tile = int(tile)
-        self.units = 4 * self.tile  # row-samples of the next wait: four tiles' rows of one sample
+        self.units = 4 * self.tile  # row-samples of the next band's first wait: four tiles' rows of one sample
+        self.cost = 0.0  # seconds per row-sample of the last wait
+        self.band = [0, 0.0]  # row-samples and seconds of the band so far
 
     def rows(self, left: int) -> int:
-        """Rows of the next band, where `left` rows remain to be drawn."""
+        """Rows of the next band, where `left` rows remain to be drawn: sized from
+        the last band's time towards LAUNCH_SECONDS, at most GROWTH times its work."""
+        units, seconds = self.band
+        if units:
+            scale = GROWTH if seconds <= 0 else min(GROWTH, LAUNCH_SECONDS / seconds)
+            self.units, self.band = max(1, int(units * scale)), [0, 0.0]
         whole = self.units // self.samples if self.units >= self.tile * self.samples else self.units
         rows = max(self.tile, whole // self.tile * self.tile)
         return min(rows, self.most_rows, left)
@@ -54,11 +61,16 @@ class Pace:
     def run(self, rows: int, done: int) -> int:
         """Samples of the next wait on a band of `rows` rows of which `done` samples
         are drawn. The first is one sample: these rows may cost far more than the
-        rows above them (sky, then the data), and its time sizes the rest."""
-        return 1 if not done else max(1, min(self.samples - done, self.units // rows))
+        rows above them (sky, then the data), and its time sizes the rest, at the
+        cost it measured (the same rows: no growth bound)."""
+        if not done:
+            return 1
+        fits = LAUNCH_SECONDS / self.cost / rows if self.cost > 0 else self.samples
+        return max(1, min(self.samples - done, int(fits)))
 
     def took(self, units: int, seconds: float) -> None:
-        """The wait that drew `units` row-samples took `seconds`: size the next one
-        towards LAUNCH_SECONDS."""
-        scale = GROWTH if seconds <= 0 else min(GROWTH, LAUNCH_SECONDS / seconds)
-        self.units = max(1, int(units * scale))
+        """A wait that drew `units` row-samples of the band took `seconds`."""
+        seconds = max(seconds, 0.0)
+        self.cost = seconds / units
+        self.band[0] += units
+        self.band[1] += seconds
