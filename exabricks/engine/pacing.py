@@ -3,13 +3,14 @@ to end the run within a second (docs/design.md, "Errors, hostile input, outputs
 and signals").
 
 Python runs a signal's handler only between bytecodes, so while the host waits
-for the device (the read-back of a band, `queue.finish()`) a SIGTERM waits too.
-The renderer draws a frame in bands of whole rows, and each band's samples per
-pixel in launches, one kernel launch per sample; it waits for the device after
-every few launches and checks for a signal there. `Pace` sizes both from the
-measured time of the last wait, so that each lasts about LAUNCH_SECONDS
-whatever the integrator, frame size and spp: a 64 x 64 frame of the path
-integrator at 4096 spp took 27 s to stop in bands of all their samples.
+for the device (a launch's event, the read-back of a band) a SIGTERM waits
+too. The renderer draws a frame in bands of whole rows, and each band's
+samples per pixel in launches, one kernel launch per sample; it waits for the
+device after every few launches and checks for a signal there. `Pace` sizes
+both from measured times (the last band's, and the band's first sample's), so
+that each wait lasts about LAUNCH_SECONDS whatever the integrator, frame size
+and spp: in bands of all their samples, a 64 x 64 frame of the path
+integrator at 4096 spp took 27 to 76 s to stop.
 
 The unit of work is a row-sample: one row of the band, one sample per pixel.
 Where a band of at least `tile` rows with all its samples fits in one wait,
