@@ -71,6 +71,7 @@ from . import instances
 from .device_data import DatasetScale, DeviceDataset
 from .look import frame_arrays
 from .majorants import frame_majorants
+from .pacing import Pace
 from .variants import LOOKUPS, TRAVERSALS, check_choice, frame, program_variant, uses_packets
 
 # Pixels per work-group side: 8 x 8 tiles keep neighbouring rays (which walk the
@@ -414,45 +415,71 @@ class Renderer:
                        np.empty(band_pixels, np.uint32), lod, level_buf, level_samples)
 
     def _draw(self, frame: _Frame, launch: _Launch, sample, front, deadline) -> tuple[int, int, float]:
-        """Draw `frame`'s spans in bands (BAND_SECONDS each) into its host images:
-        (rows drawn from the top, samples taken, seconds)."""
+        """Draw `frame`'s spans in bands of rows into its host images, each band's
+        samples in runs of launches that take about LAUNCH_SECONDS (pacing.Pace),
+        with a check for a signal after each (_waited): (rows drawn from the top,
+        samples taken, seconds)."""
         q = self.dataset.queue
         q.finish()
         start = time.perf_counter()
         total = 0
-        rows = FIRST_BAND
         drawn = n_rows = frame.n_rows
         cols = frame.cols
+        indices = range(frame.spp) if sample is None else (sample,)
+        pace = Pace(len(indices), launch.band_rows, TILE)
         for span0, span_rows in frame.spans:
             row0, end = span0, min(span0 + span_rows, n_rows)
             while row0 < end:
                 if deadline is not None and time.perf_counter() > deadline:
                     drawn = row0
                     break
-                rows = min(rows, launch.band_rows, end - row0)
-                band_start = time.perf_counter()
-                global_size = (-(-cols // TILE) * TILE, -(-rows // TILE) * TILE)
+                rows = pace.rows(end - row0)
                 n = cols * rows
                 if front is not None:
                     opencl.write_to(q, launch.front_buf, front[row0:row0 + rows].reshape(n, 4))
                 if sample:  # the kernel adds samples after the first: start from 0
                     for buf, size in ((launch.rgba_buf, 16), (launch.samples_buf, 4)):
                         opencl.fill_zero(q, buf, n * size)
-                for index in (range(frame.spp) if sample is None else (sample,)):
-                    launch.kernel(q, global_size, (TILE, TILE), launch.params,
-                                  opencl.int4(frame.tile_row0 + row0, rows, frame.col0, cols),
-                                  np.int32(index), *launch.fixed)
+                self._band(frame, launch, pace, row0, rows, indices)
                 opencl.read_back(q, launch.rgba_buf, frame.rgba[row0:row0 + rows].reshape(n, 4))
                 opencl.read_back(q, launch.samples_buf, launch.samples[:n])
                 if frame.depth is not None:
                     opencl.read_back(q, launch.depth_buf, frame.depth[row0:row0 + rows].reshape(n))
                 total += int(launch.samples[:n].sum(dtype=np.int64))
                 row0 += rows
-                rows = _next_band(rows, time.perf_counter() - band_start)
-                interrupt.raise_pending()
             if drawn < n_rows:
                 break
         return drawn, total, time.perf_counter() - start
+
+    def _band(self, frame: _Frame, launch: _Launch, pace: Pace, row0: int, rows: int, indices) -> None:
+        """Draw the samples `indices` of the `rows` rows from `row0` into the band's
+        buffers in runs (pace.run), checking for a signal after each (_waited).
+        The first run, one sample, is waited for alone: its time sizes the runs
+        after it. Each later run waits in the queue while the host waits for the
+        one before it, so that the device does not idle at a check."""
+        q, cols = self.dataset.queue, frame.cols
+        global_size = (-(-cols // TILE) * TILE, -(-rows // TILE) * TILE)
+        band = opencl.int4(frame.tile_row0 + row0, rows, frame.col0, cols)
+
+        def enqueue(run):
+            for index in run:
+                event = launch.kernel(q, global_size, (TILE, TILE), launch.params, band,
+                                      np.int32(index), *launch.fixed)
+            return event
+
+        done, since = 0, time.perf_counter()
+        waiting = None  # the run in the queue: (its last launch's event, its row-samples)
+        while done < len(indices):
+            count = pace.run(rows, done)
+            event = enqueue(indices[done:done + count])
+            if waiting is not None:
+                since = _waited(pace, *waiting, since)
+            waiting = (event, rows * count)
+            if not done:
+                since, waiting = _waited(pace, *waiting, since), None
+            done += count
+        if waiting is not None:
+            _waited(pace, *waiting, since)
 
     def _meshes(self, scene: Scene) -> tuple[tuple, dict]:
         """The mesh buffer of `scene` (kernels/render.cl `meshes`) and its eb_params:
@@ -520,14 +547,20 @@ class Renderer:
                 f"through the data, more than the {MAX_SAMPLES_PER_RAY:,} allowed: lower it")
 
 
-# A frame is rendered in bands of whole rows, each enqueue sized to take about
-# BAND_SECONDS (measured band after band, from a first band of FIRST_BAND rows),
-# so that SIGINT/SIGTERM end a run within a second and the device buffers stay
-# small; bands never exceed BAND_BYTES of device output buffers. Every band
-# boundary idles a core while the other finishes.
-BAND_SECONDS = 0.25
-FIRST_BAND = 4 * TILE
+# A frame is rendered in bands of whole rows (their samples paced by
+# pacing.Pace), and a band's device buffers never exceed BAND_BYTES.
 BAND_BYTES = 64 << 20
+
+
+def _waited(pace: Pace, event, units: int, since: float) -> float:
+    """Wait for the run of `units` row-samples whose last launch is `event` (the
+    device has drawn it since `since`), tell `pace` its time, raise a signal that
+    came meanwhile; the time it ended."""
+    event.wait()
+    now = time.perf_counter()
+    pace.took(units, now - since)
+    interrupt.raise_pending()
+    return now
 
 
 def _band_rows(device, width: int, height: int) -> int:
@@ -535,12 +568,6 @@ def _band_rows(device, width: int, height: int) -> int:
     largest = min(int(device.max_mem_alloc_size), BAND_BYTES)
     rows = max(TILE, largest // (16 * width) // TILE * TILE)
     return min(rows, -(-height // TILE) * TILE)
-
-
-def _next_band(rows: int, seconds: float) -> int:
-    """Rows of the next band: scaled towards BAND_SECONDS, at most 4x larger."""
-    scale = 4.0 if seconds <= 0 else min(4.0, BAND_SECONDS / seconds)
-    return max(TILE, int(rows * scale) // TILE * TILE)
 
 
 def _window(window, width: int, height: int) -> tuple[int, int, int, int]:
