@@ -25,6 +25,10 @@ cut.
 
 from __future__ import annotations
 
+import time
+
+from ..util import interrupt
+
 # Seconds of device work between two checks for a signal. A band's end (and its
 # first sample's) idles a core while the other finishes (2-5 % of a frame at
 # 0.1 s bands, docs/benchmarks-decisions.md, "Cell location and render bands");
@@ -75,3 +79,25 @@ class Pace:
         self.cost = seconds / units
         self.band[0] += units
         self.band[1] += seconds
+
+    def waited(self, event, units: int, since: float) -> float:
+        """Wait for the run of `units` row-samples whose last launch is `event` (the
+        device has drawn it since `since`), take its time, raise a signal that came
+        meanwhile (exabricks.util.interrupt); the time it ended."""
+        event.wait()
+        now = time.perf_counter()
+        self.took(units, now - since)
+        interrupt.raise_pending()
+        return now
+
+
+# A frame is rendered in bands of whole rows (their samples paced by Pace), and a
+# band's device buffers never exceed BAND_BYTES.
+BAND_BYTES = 64 << 20
+
+
+def band_rows(device, width: int, height: int, tile: int) -> int:
+    """Most rows of one band (a multiple of `tile`), from the buffer limits."""
+    largest = min(int(device.max_mem_alloc_size), BAND_BYTES)
+    rows = max(tile, largest // (16 * width) // tile * tile)
+    return min(rows, -(-height // tile) * tile)

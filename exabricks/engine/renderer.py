@@ -56,7 +56,6 @@ from dataclasses import dataclass, field as dataclass_field
 
 import numpy as np
 
-from ..util import interrupt
 from ..device import kernel_abi, opencl
 from .. import schema
 from ..util.constants import MAX_SAMPLES_PER_RAY
@@ -71,6 +70,7 @@ from . import instances
 from .device_data import DatasetScale, DeviceDataset
 from .look import frame_arrays
 from .majorants import frame_majorants
+from . import pacing
 from .pacing import Pace
 from .variants import LOOKUPS, TRAVERSALS, check_choice, frame, program_variant, uses_packets
 
@@ -365,7 +365,7 @@ class Renderer:
         """The kernel of `scene`'s frame, its eb_params and the buffers of one band."""
         s, cfg, lighting = self.dataset, scene.settings, scene.lighting
         q, up = s.queue, opencl.to_device
-        band_rows = _band_rows(s.device, frame.cols, frame.n_rows)
+        band_rows = pacing.band_rows(s.device, frame.cols, frame.n_rows, TILE)
         band_pixels = frame.cols * band_rows
         rgba_buf = opencl.empty_buffer(q, band_pixels * 16)
         front_buf = opencl.empty_buffer(q, band_pixels * 16 if has_front else 16)
@@ -417,7 +417,7 @@ class Renderer:
     def _draw(self, frame: _Frame, launch: _Launch, sample, front, deadline) -> tuple[int, int, float]:
         """Draw `frame`'s spans in bands of rows into its host images, each band's
         samples in runs of launches that take about LAUNCH_SECONDS (pacing.Pace),
-        with a check for a signal after each (_waited): (rows drawn from the top,
+        with a check for a signal after each (Pace.waited): (rows drawn from the top,
         samples taken, seconds)."""
         q = self.dataset.queue
         q.finish()
@@ -453,7 +453,7 @@ class Renderer:
 
     def _band(self, frame: _Frame, launch: _Launch, pace: Pace, row0: int, rows: int, indices) -> None:
         """Draw the samples `indices` of the `rows` rows from `row0` into the band's
-        buffers in runs (pace.run), checking for a signal after each (_waited).
+        buffers in runs (pace.run), checking for a signal after each (Pace.waited).
         The first run, one sample, is waited for alone: its time sizes the runs
         after it. Each later run waits in the queue while the host waits for the
         one before it, so that the device does not idle at a check."""
@@ -473,13 +473,13 @@ class Renderer:
             count = pace.run(rows, done)
             event = enqueue(indices[done:done + count])
             if waiting is not None:
-                since = _waited(pace, *waiting, since)
+                since = pace.waited(*waiting, since)
             waiting = (event, rows * count)
             if not done:
-                since, waiting = _waited(pace, *waiting, since), None
+                since, waiting = pace.waited(*waiting, since), None
             done += count
         if waiting is not None:
-            _waited(pace, *waiting, since)
+            pace.waited(*waiting, since)
 
     def _meshes(self, scene: Scene) -> tuple[tuple, dict]:
         """The mesh buffer of `scene` (kernels/render.cl `meshes`) and its eb_params:
@@ -545,29 +545,6 @@ class Renderer:
             raise ExabricksError(
                 f"a sampling rate of {sampling_rate:g} takes up to {bound:,.0f} samples on a ray "
                 f"through the data, more than the {MAX_SAMPLES_PER_RAY:,} allowed: lower it")
-
-
-# A frame is rendered in bands of whole rows (their samples paced by
-# pacing.Pace), and a band's device buffers never exceed BAND_BYTES.
-BAND_BYTES = 64 << 20
-
-
-def _waited(pace: Pace, event, units: int, since: float) -> float:
-    """Wait for the run of `units` row-samples whose last launch is `event` (the
-    device has drawn it since `since`), tell `pace` its time, raise a signal that
-    came meanwhile; the time it ended."""
-    event.wait()
-    now = time.perf_counter()
-    pace.took(units, now - since)
-    interrupt.raise_pending()
-    return now
-
-
-def _band_rows(device, width: int, height: int) -> int:
-    """Most rows of one band (a multiple of TILE), from the buffer limits."""
-    largest = min(int(device.max_mem_alloc_size), BAND_BYTES)
-    rows = max(TILE, largest // (16 * width) // TILE * TILE)
-    return min(rows, -(-height // TILE) * TILE)
 
 
 def _window(window, width: int, height: int) -> tuple[int, int, int, int]:
