@@ -29,10 +29,31 @@ def enabled(stream=None) -> bool:
     return stream.isatty() and os.environ.get("EXABRICKS_QUIET", "") in ("", "0")
 
 
+class _Bar(tqdm):
+    """A tqdm bar that is `current()` while it is open."""
+
+    def __init__(self, *args, **kw):
+        super().__init__(*args, **kw)
+        _OPEN.append(self)
+
+    def close(self):
+        if self in _OPEN:
+            _OPEN.remove(self)
+        super().close()
+
+
+_OPEN: list = []
+
+
 def bar(total=None, desc: str = "", unit: str = "it", disable: bool = False, **kw) -> tqdm:
     """A tqdm bar on stderr, disabled off a terminal, under -q, or by `disable`."""
-    return tqdm(total=total, desc=desc, unit=unit, disable=disable or not enabled(),
+    return _Bar(total=total, desc=desc, unit=unit, disable=disable or not enabled(),
                 file=sys.stderr, leave=False, dynamic_ncols=True, **kw)
+
+
+def current():
+    """The innermost bar open now, or None (what a wait inside a step is told to)."""
+    return _OPEN[-1] if _OPEN else None
 
 
 def announce_after() -> float:
