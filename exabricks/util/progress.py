@@ -30,11 +30,12 @@ def enabled(stream=None) -> bool:
 
 
 class _Bar(tqdm):
-    """A tqdm bar that is `current()` while it is open."""
+    """A tqdm bar that is `current()` while it is open and drawn."""
 
     def __init__(self, *args, **kw):
         super().__init__(*args, **kw)
-        _OPEN.append(self)
+        if not self.disable:
+            _OPEN.append(self)
 
     def close(self):
         if self in _OPEN:
