@@ -11,8 +11,9 @@ spills with it. `REFUSALS` are the combinations no program draws, each refused
 with one line before anything is built. From these alone come a frame's
 program (`program_variant`), its build defines (`Variant.defines`), the
 register cap (`Variant.capped`) and every program a frame can reach on a kind
-of device (`declared`), which `exabricks devices --warm all`, the kernel ABI
-test, the gauge and the benchmarks build.
+of device (`declared`), which `exabricks devices --warm all` builds, and a
+program per axis (`representatives`), which the kernel ABI test and the
+offline gauge build.
 """
 
 from __future__ import annotations
