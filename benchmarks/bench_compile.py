@@ -4,14 +4,15 @@
                                                 [--before DIR] [--write-docs]
 
 The renderer builds one OpenCL program per variant of a frame (kernels/render.cl
-with -D defines: sample packets or one sample at a time, surfaces, level of
-detail, the reconstruction, the cell-location lookup, the number of fields).
-PoCL compiles a program when it is built and its work-group function at the
-first enqueue, and caches both (POCL_CACHE_DIR, pyopencl's cache under
-XDG_CACHE_HOME), so a user pays this once per variant and machine: on the first
-render with iso-surfaces, say. For each variant a child process with empty caches
-(a fresh temporary directory for both) renders an 8x8 frame of a 64-cell,
-two-field dataset twice; the build is the first frame less the second.
+with the defines of the feature table, exabricks.engine.variants). PoCL compiles
+a program when it is built and its work-group function at the first enqueue,
+and caches both (POCL_CACHE_DIR, pyopencl's cache under XDG_CACHE_HOME), so a
+user pays this once per variant and machine: on the first render with
+iso-surfaces, say. The variants are a program per axis of the table on this
+machine's default device (variants.representative_frames), named by their
+defines; for each, a child process with empty caches (a fresh temporary
+directory for both) draws its frame of the embedded plume at 8x8 pixels twice
+(exabricks.warm.draw); the build is the first frame less the second.
 
 --before DIR also builds the kernel sources of DIR (another checkout's kernels/,
 with this checkout's host code) for a column before a kernel change, variant by
@@ -37,78 +38,42 @@ ROOT = Path(__file__).resolve().parents[1]
 
 SECTION = "Kernel builds"
 
-# name: (what the frame draws, Renderer keywords, scene keywords)
-VARIANTS = {
-    "volume": ("volume, one sample at a time (the GPU's path)", {"packets": False}, {}),
-    "volume-packets": ("volume, sample packets (the CPU default)", {"packets": True}, {}),
-    "surfaces": ("iso-surface in the volume, one sample at a time", {"packets": False},
-                 {"iso": True}),
-    "surfaces-packets": ("iso-surface in the volume, sample packets", {"packets": True},
-                         {"iso": True}),
-    "surfaces-2-fields": ("iso-surface coloured by a second field, sample packets",
-                          {"packets": True}, {"iso": True, "color_field": True}),
-    "lod": ("volume with level of detail (`--lod`), sample packets", {"packets": True},
-            {"lod": 3.0}),
-    "nearest": ("iso-surface in the volume, nearest-cell reconstruction", {},
-                {"iso": True, "reconstruction": "nearest"}),
-    "vertex": ("iso-surface in the volume, vertex reconstruction", {},
-               {"iso": True, "reconstruction": "vertex"}),
-    "cell-location": ("volume, cell-location lookup", {"lookup": "cell-location"}, {}),
-}
+def frames() -> dict:
+    """Variant label -> its frame (a point of variants.AXES) on the default device."""
+    from exabricks.device import opencl
+    from exabricks.engine import variants
+
+    kind = variants.device_kind(opencl.choose_device(None))
+    return {v.label: f for v, f in variants.representative_frames(kind).items()}
+
 
 NOTES = """
 *build* is the first frame less the second, in a process whose PoCL and pyopencl
 caches start empty: clBuildProgram (Clang and LLVM's optimisation of the program)
 plus PoCL's work-group function for the 8x8 work-groups at the first enqueue. A
-user pays it once per variant and machine; the caches keep it. The before column
-builds the kernels of e9aeb32 (`git worktree add /tmp/before-e9aeb32 e9aeb32`), with
-the same host code: there the rare surface paths were still inlined into every copy
-of the ray loop (docs/design-kernels.md, "Kernel builds and the host–kernel contract").
+user pays it once per variant and machine; the caches keep it. The programs are
+one per axis of the feature table (exabricks.engine.variants.representative_frames),
+each drawn from a frame of the embedded plume. `--before DIR` adds a column of
+another checkout's kernels: at e9aeb32, whose rare surface paths were inlined into
+every copy of the ray loop, a surfaces program took 175-262 s where it took 8-14 s
+after (docs/design-kernels.md, "Kernel builds and the host–kernel contract").
 """
 
 
 def child(name: str, kernels: str | None) -> None:
-    """Render the variant's 8x8 frame twice; print the two wall times."""
-    import numpy as np
-
+    """Draw the variant's 8x8 frame twice; print the two wall times."""
+    import exabricks as eb
     from exabricks.device import opencl
-    from exabricks import schema
-    from exabricks.picture.camera import default_camera
-    from exabricks.scene import IsoSurface, Scene, Settings, VolumeLayer
-    from exabricks.builders.bricks import build_bricks
-    from exabricks.builders.bvh import build_bvh
-    from exabricks.builders.regions import build_regions
-    from exabricks.engine.renderer import Renderer
-    from exabricks.picture.transfer_function import TransferFunction
+    from exabricks.warm import draw, embedded_dataset
 
     if kernels:
         opencl.kernel_dir = lambda: Path(kernels)
-    _, renderer_kw, scene_kw = VARIANTS[name]
-    g = np.stack(np.meshgrid(*[np.arange(4)] * 3, indexing="ij"), -1).reshape(-1, 3)
-    ramp = np.linspace(0, 1, len(g), dtype=np.float32)
-    cells = schema.Cells(fields=("a", "b"), origin_world=np.zeros(3), spacing_world=np.ones(3),
-                         lower_lattice=g.astype(np.int32), level=np.zeros(len(g), np.int8),
-                         values=np.stack([ramp, ramp[::-1]]))
-    bricks = build_bricks(cells)
-    regions = build_regions(bricks)
-    tf = TransferFunction.from_colormap("viridis", (0.0, 1.0), opacity=(0.0, 0.3))
-    iso = ()
-    if scene_kw.get("iso"):
-        color = {"color_field": "b", "colormap": tf} if scene_kw.get("color_field") else {}
-        iso = (IsoSurface("a", 0.5, opacity=0.6, **color),)
-    scene = Scene(camera=default_camera(*schema.world_bounds(bricks)),
-                  volumes=(VolumeLayer("a", tf),), isosurfaces=iso,
-                  settings=Settings(width=8, height=8, lod=scene_kw.get("lod", 0.0),
-                                    reconstruction=scene_kw.get("reconstruction", "basis")))
-    lookup = renderer_kw.get("lookup")
-    renderer = Renderer(bricks, regions, build_bvh(regions), fields=scene.fields(),
-                        packets=renderer_kw.get("packets"))
-    if lookup:
-        renderer = renderer.with_lookup(lookup)
+    axes = {k: v for k, v in vars(frames()[name]).items() if k not in ("kind", "n_fields")}
+    renderer = eb.Renderer(eb.open(embedded_dataset(), cache=False))
     walls = []
     for _ in range(2):
         start = time.perf_counter()
-        renderer.render_scene(scene)
+        draw(renderer, axes)
         walls.append(time.perf_counter() - start)
     print(*walls)
 
@@ -135,11 +100,11 @@ def main(argv=None) -> int:
     parser.add_argument("--before", type=Path, metavar="DIR",
                         help="also build the kernel sources of DIR (a column before a change)")
     args = parser.parse_args(argv)
-    names = benchdoc.chosen(args.only, list(VARIANTS))
+    names = benchdoc.chosen(args.only, list(frames()))
     rows = []
     for name in names:
         after = statistics.median(build_seconds(name, None) for _ in range(args.runs))
-        row = f"| `{name}` | {VARIANTS[name][0]} | "
+        row = f"| `{name}` | "
         if args.before:
             before = statistics.median(build_seconds(name, args.before) for _ in range(args.runs))
             row += f"{before:.1f} | {before / after:.1f} | "
@@ -153,8 +118,8 @@ def main(argv=None) -> int:
         "",
         f"- machine: {benchdoc.machine(opencl=True)}",
         "",
-        f"| variant | frame | {before_head}build s |",
-        "|---|---|" + "---:|" * (3 if args.before else 1),
+        f"| program (defines) | {before_head}build s |",
+        "|---|" + "---:|" * (3 if args.before else 1),
         *rows,
         NOTES,
     ])

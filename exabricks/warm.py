@@ -81,7 +81,7 @@ def warm(device=None, which: str = "first", on_frame=None) -> list[dict]:
         for what, axes in frames:
             start, built = time.perf_counter(), len(opencl.BUILDS)
             opencl.separate_compiles()
-            _draw(renderer, axes)
+            draw(renderer, axes)
             row = {"frame": what, "seconds": round(time.perf_counter() - start, 2),
                    "programs": len(opencl.BUILDS) - built}
             done.append(row)
@@ -91,7 +91,7 @@ def warm(device=None, which: str = "first", on_frame=None) -> list[dict]:
     return done
 
 
-def _draw(renderer, axes: dict) -> None:
+def draw(renderer, axes: dict) -> None:
     """An 8x8 frame of the embedded dataset whose program is that of `axes` (a
     point of variants.AXES): its scene from render's options, its renderer turned
     to the axes' lookup, domain (the whole lattice, one domain) or overlapping

@@ -235,10 +235,15 @@ def declared(kind: str, n_fields: int = 1, *, benchmarks: bool = False) -> tuple
 
 
 def representatives(kind: str, n_fields: int = 1) -> tuple[Variant, ...]:
-    """A program per value of each axis on a device of `kind`: a new user's frame,
-    that frame with one axis turned (BENCHMARK_AXES included), and each integrator
-    with surfaces; what the kernel ABI test, the gauge and the benchmarks build
-    where they cannot build all of `declared`."""
+    """The programs of `representative_frames`."""
+    return tuple(representative_frames(kind, n_fields))
+
+
+def representative_frames(kind: str, n_fields: int = 1) -> dict:
+    """A program per value of each axis on a device of `kind`, each with its frame:
+    a new user's frame, that frame with one axis turned (BENCHMARK_AXES included),
+    and each integrator with surfaces; what the kernel ABI test, the gauge and
+    the kernel-build benchmark build where they cannot build all of `declared`."""
     turned = [{}] + [{axis: value} for axis, values in AXES.items()
                      if axis not in ("kind", "n_fields") for value in values[1:]]
     turned += [{"integrator": i, "surfaces": True} for i in INTEGRATORS[1:]]
@@ -246,8 +251,8 @@ def representatives(kind: str, n_fields: int = 1) -> tuple[Variant, ...]:
     for given in turned:
         f = frame(kind=kind, n_fields=n_fields, **given)
         if refusal(f) is None:
-            out.setdefault(program_variant(f), None)
-    return tuple(out)
+            out.setdefault(program_variant(f), f)
+    return out
 
 
 def check_choice(what: str, value: str, choices) -> None:
