@@ -130,7 +130,7 @@ def main(argv=None) -> None:
         from .. import parallel
 
         if parallel.launched_rank() == 0:  # every rank parses the same command line
-            e.show()
+            click.echo(f"error: {usage_line(e)}", err=True)
         sys.exit(e.exit_code)
     except ExabricksError as e:
         if debug:
@@ -151,6 +151,17 @@ def main(argv=None) -> None:
             raise
         _fail(f"internal error: {type(e).__name__}: {e} (rerun with --debug for a traceback)")
     sys.exit(status if isinstance(status, int) else 0)
+
+
+def usage_line(e: click.ClickException) -> str:
+    """A usage error as one line: click's message (with its "Did you mean" hint)
+    and, for a command's usage, where its help is; click's own form takes three
+    lines (usage, "Try --help", the error)."""
+    message = one_line(e.format_message())
+    ctx = getattr(e, "ctx", None)
+    if isinstance(e, click.UsageError) and ctx is not None:
+        message += f" (see {ctx.command_path} --help)"
+    return message
 
 
 def signal_name(signum: int) -> str:

@@ -61,6 +61,6 @@ def test_the_command_line_denoises_whole_frames_and_records_it(cli, tmp_path):
     cli("render", GERRIS, "-o", out, *flags, "--denoise", check=0)
     assert read_image(out)[1]["scene"]["denoise"] is True  # the scene file it was drawn from
     proc = cli("render", GERRIS, "-o", tmp_path / "t.exr", *flags, "--denoise", "--tile", 16, 16)
-    assert proc.returncode == 2 and "Error: --denoise needs the whole frame, not --tile" in proc.stderr
+    assert proc.returncode == 2 and "error: --denoise needs the whole frame, not --tile" in proc.stderr
     assert "Traceback" not in proc.stderr
     assert not (tmp_path / "t.exr").exists()

@@ -172,7 +172,7 @@ def test_fps_must_lie_in_the_range_both_encoders_take(fps, suffix, tmp_path):
     paths = write_frames(tmp_path, n=1)
     proc = run_cli("movie", *paths, "-o", tmp_path / f"m{suffix}", "--fps", fps)
     assert proc.returncode == 2, proc.stderr
-    (error,) = [line for line in proc.stderr.splitlines() if line.startswith("Error:")]
+    (error,) = [line for line in proc.stderr.splitlines() if line.startswith("error:")]
     assert "--fps" in error and "[0.01, 1000]" in error and "Traceback" not in proc.stderr
     assert not (tmp_path / f"m{suffix}").exists()
 
