@@ -53,7 +53,8 @@ def unknown_format(path: str | Path) -> ExabricksError:
         shown = ", ".join(names) if len(names) <= 3 else f"{names[0]}, {names[1]}, ..., {names[-1]}"
         stem = os.path.commonprefix(names).rstrip("0123456789")
         glob = Path(path) / f"{stem}*" if stem else None
-        series = f", or every step with exabricks series {quoted(str(glob))}" if glob else ""
+        # a command to copy: the whole path, however long (the message names it anyway)
+        series = f", or every step with exabricks series '{glob}'" if glob else ""
         message = (f"{path} is a folder of {len(names)} AMReX plotfile{'s' if len(names) > 1 else ''} "
                    f"({shown}), not a plotfile: give one, e.g. {Path(path) / names[-1]}{series}")
     return ExabricksError(message)
