@@ -68,7 +68,7 @@ def child(name: str, kernels: str | None) -> None:
 
     if kernels:
         opencl.kernel_dir = lambda: Path(kernels)
-    axes = {k: v for k, v in vars(frames()[name]).items() if k not in ("kind", "n_fields")}
+    axes = vars(frames()[name])
     renderer = eb.Renderer(eb.open(embedded_dataset(), cache=False))
     walls = []
     for _ in range(2):

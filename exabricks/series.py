@@ -151,7 +151,7 @@ def render_series(series, directory, *, movie=None, fps: float = 10.0, suffix: s
     step before the frames: `range` and `position` with `look_at` save them."""
     from .util import progress
     from .api import Renderer
-    from .util.output import check_output, write_json
+    from .util.output import Inputs, check_output, write_json
     from .scene import scene_to_dict
     from .scene.build import default_field
     from .stages.movie import check_fps, make_movie, movie_format
@@ -178,16 +178,16 @@ def render_series(series, directory, *, movie=None, fps: float = 10.0, suffix: s
         field = options.get("field") or default_field(series.first.fields)
         options = {**options, "range": series.field_range(field)}
     frames = frame_paths(series.steps, directory, suffix)
+    steps = Inputs(series.steps)  # every step's files listed once for every output
     for out in [directory / "scene.json", *frames, *([movie] if movie is not None else [])]:
-        check_output(out, series.steps)
+        check_output(out, steps)
     scene = first.scene(**options)
     if not placed and not scene.instances:
         scene = scene.replace(camera=_framed_over(series, scene, options))
-    write_json(directory / "scene.json", scene_to_dict(scene), inputs=series.steps)
+    write_json(directory / "scene.json", scene_to_dict(scene), inputs=steps)
     with progress.bar(total=len(series), desc="series", unit="step") as bar:
         for i, dataset in enumerate(series):
             image = (first if i == 0 else Renderer(dataset, device=device)).render(scene)
-            image.inputs = (*image.inputs, *series.steps)
             image.save(frames[i])
             bar.update()
     if movie is not None:

@@ -55,8 +55,7 @@ def frames_of(which: str, kind: str) -> list[tuple[str, dict]]:
 
     if which == "first":
         return list(FIRST)
-    return [(v.label, {k: val for k, val in vars(f).items() if k not in ("kind", "n_fields")})
-            for v, f in variants.declared_frames(kind).items()]
+    return [(v.label, vars(f)) for v, f in variants.declared_frames(kind).items()]
 
 
 def warm(device=None, which: str = "first", on_frame=None) -> list[dict]:
@@ -93,7 +92,8 @@ def warm(device=None, which: str = "first", on_frame=None) -> list[dict]:
 
 def draw(renderer, axes: dict) -> None:
     """An 8x8 frame of the embedded dataset whose program is that of `axes` (a
-    point of variants.AXES): its scene from render's options, its renderer turned
+    point of variants.AXES, as a dict; its device kind and field count are the
+    renderer's): its scene from render's options, its renderer turned
     to the axes' lookup, domain (the whole lattice, one domain) or overlapping
     copies (a mirror through the middle)."""
     import copy

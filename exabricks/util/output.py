@@ -115,7 +115,7 @@ def _target_descriptor(target: Path) -> int | None:
     return int(target.name) if target.parent == _FD_DIR else None
 
 
-def _check_descriptor(path, fd: int, inputs: Iterable) -> None:
+def _check_descriptor(path, fd: int, inputs: Inputs) -> None:
     """Refuse descriptor `fd` (named by `path`) unless it is open for writing on
     something other than a directory or one of the `inputs`."""
     import fcntl
@@ -133,40 +133,59 @@ def _check_descriptor(path, fd: int, inputs: Iterable) -> None:
         _refuse_members(path, None, (st.st_dev, st.st_ino), inputs)
 
 
-def _refuse_members(path, target: Path | None, ident, inputs: Iterable) -> None:
+class Inputs:
+    """A command's inputs, each with the (device, inode) of every file it is made of
+    (exabricks.util.source_files), listed on first need and kept: a series checks
+    every frame against every step's files with one listing of each step."""
+
+    def __init__(self, inputs: Iterable = ()):
+        self.paths = tuple(Path(p) for p in inputs if p is not None)
+        self._files: dict = {}
+
+    def __iter__(self):
+        return iter(self.paths)
+
+    def files(self, inp: Path) -> dict:
+        """(device, inode) -> path of every file `inp` is made of that exists."""
+        if inp not in self._files:
+            found = {}
+            try:
+                members = source_files.members(inp) if inp.exists() else []
+            except (OSError, ExabricksError):
+                members = []
+            for _, member in members:
+                try:
+                    other = os.stat(member)
+                except OSError:
+                    continue
+                found.setdefault((other.st_dev, other.st_ino), member)
+            self._files[inp] = found
+        return self._files[inp]
+
+
+def _refuse_members(path, target: Path | None, ident, inputs: Inputs) -> None:
     """Refuse an output that is, or lies inside, any of `inputs` or any file one of
     them is made of (exabricks.util.source_files: a folder's every file, the
     siblings a reader reads), whatever the symbolic links on either side.
     `target`: the output's resolved path (None for a descriptor); `ident`: the
     (device, inode) of the file it names, where one exists."""
     for inp in inputs:
-        if inp is None:
-            continue
-        inp = Path(inp)
         if target is not None and _same_file(path, inp):
             raise ExabricksError(f"{path}: the output would overwrite the input {inp}")
         if target is not None and inp.is_dir() and target.is_relative_to(_resolved(inp)):
             raise ExabricksError(f"{path}: the output would land inside the input folder {inp}")
-        if ident is None:
-            continue
-        try:
-            found = source_files.members(inp) if inp.exists() else []
-        except (OSError, ExabricksError):
-            found = []
-        for _, member in found:
-            try:
-                other = os.stat(member)
-            except OSError:
-                continue
-            if (other.st_dev, other.st_ino) == ident:
-                what = f"the input {inp}" if member == inp else f"{member}, a file of the input {inp}"
-                raise ExabricksError(f"{path}: the output would overwrite {what}")
+        member = None if ident is None else inputs.files(inp).get(ident)
+        if member is not None:
+            what = f"the input {inp}" if member == inp else f"{member}, a file of the input {inp}"
+            raise ExabricksError(f"{path}: the output would overwrite {what}")
 
 
 def check_output(path, inputs: Iterable = ()) -> Path:
-    """Refuse an output `path` that cannot be written or that names an input;
-    returns the resolved path that will receive the output (for a descriptor,
+    """Refuse an output `path` that cannot be written or that names an input (of
+    `inputs`: paths, or an Inputs to check many outputs against); returns the
+    resolved path that will receive the output (for a descriptor,
     ``/proc/self/fd/N``)."""
+    inputs = inputs if isinstance(inputs, Inputs) else Inputs(inputs)
     text = os.fspath(path)
     if not text:
         raise ExabricksError("the output path is empty")
@@ -178,12 +197,6 @@ def check_output(path, inputs: Iterable = ()) -> Path:
         _check_descriptor(path, fd, inputs)
         return _FD_DIR / str(fd)
     target = _resolved(path)
-    try:
-        st = os.stat(target)
-        ident = (st.st_dev, st.st_ino)
-    except OSError:
-        ident = None
-    _refuse_members(path, target, ident, inputs)
     if len(os.fsencode(target.name)) > 255:
         raise ExabricksError(f"{path}: file name too long ({len(os.fsencode(target.name))} bytes, "
                              "at most 255)")
@@ -193,6 +206,7 @@ def check_output(path, inputs: Iterable = ()) -> Path:
         st = None
     except OSError as e:
         raise ExabricksError(f"{path}: cannot write the output: {_describe(e)}") from None
+    _refuse_members(path, target, None if st is None else (st.st_dev, st.st_ino), inputs)
     if st is not None and not (stat.S_ISREG(st.st_mode) or stat.S_ISCHR(st.st_mode)
                                or stat.S_ISFIFO(st.st_mode)):
         raise ExabricksError(f"{path}: cannot write the output there ({kind_of(st.st_mode)}; "
