@@ -537,18 +537,34 @@ def test_a_budgeted_frame_is_dropped_by_a_newer_change(budgeted, monkeypatch):
         assert len(drawn) == 1 and budgeted._domains[1].n_domains > 1, (spp, len(drawn))
 
 
-def cancelled_after(session, size, spp) -> float:
-    """Seconds from a newer change to the drop of a frame of `size` at `spp`
-    drawn for a second."""
+def cancelled_after(session, size, spp, monkeypatch) -> tuple[float, int, int]:
+    """A frame of `size` at `spp`, drawn for a second, then dropped by a newer
+    change: the seconds from the change to the drop (a figure to print), the
+    device launches begun after a look that saw the change, and the most samples (pixels x
+    samples per pixel) any launch drew between two looks for a change."""
+    from exabricks.engine.renderer import Renderer
     from exabricks.viewer.session import Cancelled
 
     scene = session.check({**session.doc, "size": list(size), "spp": spp})
     newer = threading.Event()
-    outcome = []
+    outcome, launches, looks = [], [], [False]
+    integrate = Renderer.integrate
+
+    def look():
+        looks.append(newer.is_set())
+        return looks[-1]
+
+    def spy(self, scene, *, window=None, sample=None, **options):
+        s = scene.settings
+        pixels = int(s.width) * int(s.height) if window is None else window[2] * window[3]
+        launches.append((looks[-1], pixels * (1 if sample is not None else int(s.spp))))
+        return integrate(self, scene, window=window, sample=sample, **options)
+
+    monkeypatch.setattr(Renderer, "integrate", spy)
 
     def draw():
         try:
-            session.draw("converged", scene, cancelled=newer.is_set)
+            session.draw("converged", scene, cancelled=look)
             outcome.append("drawn")
         except Cancelled:
             outcome.append(time.perf_counter())
@@ -558,34 +574,47 @@ def cancelled_after(session, size, spp) -> float:
     time.sleep(1.0)
     asked = time.perf_counter()
     newer.set()
-    thread.join(30)
+    thread.join(60)
+    monkeypatch.undo()
     assert not thread.is_alive() and outcome and outcome[0] != "drawn", outcome
-    return outcome[0] - asked
+    assert launches, "nothing was drawn before the change"
+    return outcome[0] - asked, sum(after for after, _ in launches), max(n for _, n in launches)
+
+
+# A frame is dropped at the first look after a newer change, and the looks are at
+# most TILE_SAMPLES samples apart: the work a change waits for is one launch's
+# (about 0.1-0.3 s on PoCL, 2 cores), whatever the frame's size. Wall-clock time is
+# printed, not asserted: on a loaded machine one launch can take longer.
+FRAMES = (((32768, 1 << 25 >> 15), 1), ((1024, 32), 1024))
 
 
 @pytest.mark.slow
-def test_the_largest_budgeted_frame_is_cancelled_within_a_second(cache):
+def test_the_largest_budgeted_frame_is_dropped_at_the_next_look(cache, monkeypatch):
     """Under a memory budget too: the largest frames one change may ask (under a
-    budget that holds their images) are dropped within a second of the newer change."""
+    budget that holds their images) are dropped before another launch once a newer
+    change comes, and no launch draws more than TILE_SAMPLES samples."""
     import exabricks as eb
-    from exabricks.viewer.session import MAX_SAMPLES, Session
+    from exabricks.viewer.session import MAX_SAMPLES, TILE_SAMPLES, Session
 
+    assert FRAMES[0][0][0] * FRAMES[0][0][1] == MAX_SAMPLES
     dataset = eb.open(GERRIS, cache=cache)
-    for budget, size, spp in ((3 << 30, (32768, MAX_SAMPLES // 32768), 1), (8 << 20, (1024, 32), 1024)):
+    for budget, (size, spp) in zip((3 << 30, 8 << 20), FRAMES):
         session = Session(dataset, options={"field": "T", "size": (64, 48)}, budget=budget)
-        took = cancelled_after(session, size, spp)
+        took, after, largest = cancelled_after(session, size, spp, monkeypatch)
         print(f"--memory-budget {session.budget >> 20}M, {size[0]}x{size[1]} at {spp} spp: "
-              f"cancelled {took * 1e3:.0f} ms after the newer change")
-        assert took < 1.0, took
+              f"cancelled {took * 1e3:.0f} ms after the newer change; launches of at most {largest} samples")
+        assert after == 0 and largest <= TILE_SAMPLES, (after, largest)
 
 
 @pytest.mark.slow
-def test_the_largest_frame_is_cancelled_within_a_second(session):
+def test_the_largest_frame_is_dropped_at_the_next_look(session, monkeypatch):
     """A frame of the largest size one change may ask, at the most samples, is
-    dropped within a second of the newer change."""
-    from exabricks.viewer.session import MAX_SAMPLES
+    dropped before another launch once a newer change comes, and no launch draws
+    more than TILE_SAMPLES samples."""
+    from exabricks.viewer.session import TILE_SAMPLES
 
-    for size, spp in (((32768, MAX_SAMPLES // 32768), 1), ((1024, 32), 1024)):
-        took = cancelled_after(session, size, spp)
-        print(f"{size[0]}x{size[1]} at {spp} spp: cancelled {took * 1e3:.0f} ms after the newer change")
-        assert took < 1.0, took
+    for size, spp in FRAMES:
+        took, after, largest = cancelled_after(session, size, spp, monkeypatch)
+        print(f"{size[0]}x{size[1]} at {spp} spp: cancelled {took * 1e3:.0f} ms after the newer change; "
+              f"launches of at most {largest} samples")
+        assert after == 0 and largest <= TILE_SAMPLES, (after, largest)
