@@ -54,6 +54,9 @@ EB_INLINE eb_bricks eb_bricks_of(eb_params_ref P, EB_DATASET_ARGS)
 {
     eb_bricks bricks = {brick_grid, (__global const int4 *)(brick_grid + P->n_bricks),
                         brick_offset, brick_values, P->field_stride,
+#ifndef EB_RECONSTRUCTION
+                        P->reconstruction,
+#endif
                         vertex_offset, vertex_values, P->vertex_stride,
                         mip_offset, mip_values, P->mip_stride};
     return bricks;

@@ -75,14 +75,12 @@ EB_INLINE eb_basis_sums eb_sample_region(eb_frame *fr, int r, float3 p, const in
 EB_INLINE eb_basis_sums eb_sample_region_at(eb_frame *fr, int r, float3 p, int level,
                                             const int grad)
 {
-#if defined(EB_LOD) && !defined(EB_CELL_LOCATION)
-    if (level > fr->regions.finest_level[r])
+#ifndef EB_CELL_LOCATION
+    if (EB_LOD_ON(fr->P) && level > fr->regions.finest_level[r])  /* coarser than the data here */
         return eb_reconstruct_lod(fr->bricks, fr->regions.brick_ids, fr->regions.brick_start[r],
                                   fr->regions.brick_start[r + 1], p, level, grad);
-    return eb_sample_region(fr, r, p, grad);
-#else
-    return eb_sample_region(fr, r, p, grad);
 #endif
+    return eb_sample_region(fr, r, p, grad);
 }
 
 /* The sums a sample of region r takes at lattice point p (level `level`): with
@@ -99,11 +97,11 @@ EB_INLINE eb_basis_sums eb_sample_shaded(eb_frame *fr, int r, float3 p, int leve
 EB_INLINE int eb_sample_level(eb_frame *fr, int r, float t)
 {
     int level = fr->regions.finest_level[r];
-#ifdef EB_LOD
-    float reach = t * fr->P->lod_scale;
-    if (reach >= 2.0f)
-        level = max(level, min((int)floor(log2(reach)), 30));
-#endif
+    if (EB_LOD_ON(fr->P)) {
+        float reach = t * fr->P->lod_scale;
+        if (reach >= 2.0f)
+            level = max(level, min((int)floor(log2(reach)), 30));
+    }
     return level;
 }
 

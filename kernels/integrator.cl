@@ -45,7 +45,8 @@ EB_PROFILED int eb_sample_interval(eb_frame *fr, eb_ray *ray, int r, int level, 
 /* Integrate region r over [t_in, t_out] into `st` (paper §4.2-4.3); returns 1
  * once the ray is opaque enough to stop (early ray termination). */
 EB_INLINE int eb_integrate_region(eb_frame *fr, eb_ray *ray, int r, float t_in, float t_out,
-                                  const int shade, eb_ray_state *st, eb_sample_batch *q)
+                                  const int shade, eb_ray_state *st, eb_sample_batch *q,
+                                  __global uint *level_samples)
 {
     /* Sampling rate and opacity correction follow the level actually used
      * (Kähler & Hege's per-level correction: dt scales with the cell width). */
@@ -56,7 +57,7 @@ EB_INLINE int eb_integrate_region(eb_frame *fr, eb_ray *ray, int r, float t_in, 
     uint samples_before = st->samples;
     int done = eb_sample_interval(fr, ray, r, level, t_in, t_out, dt, shade, st, q);
     /* Counted per region (its level is constant), not per sample. */
-    eb_level_samples_add(st, level, st->samples - samples_before);
+    eb_level_samples_add(level_samples, EB_LOD_ON(fr->P), level, st->samples - samples_before);
     return done;
 }
 
@@ -79,7 +80,6 @@ EB_INLINE float4 eb_integrate(eb_frame *fr, eb_ray *ray, const int shade,
     st.last_exit = 0.0f;
     st.n_slices = 0;
     st.next_slice = 0;
-    eb_level_samples_clear(&st);
     float2 keep = eb_clip_interval(fr->clip, ray->org_world, ray->dir_world, 0.0f);
     int done = !(keep.y > keep.x) || front.w >= fr->P->max_opacity;
     if (!done)  /* an opaque mesh ends the volume exactly where it is hit */
@@ -92,7 +92,7 @@ EB_INLINE float4 eb_integrate(eb_frame *fr, eb_ray *ray, const int shade,
     eb_batch_start(&batch);
     while (!done && (r = eb_walk_next(&w, fr->bvh, fr->regions, ray->org, ray->inv_dir,
                                       &t_in, &t_out)) >= 0)
-        done = eb_integrate_region(fr, ray, r, t_in, t_out, shade, &st, &batch);
+        done = eb_integrate_region(fr, ray, r, t_in, t_out, shade, &st, &batch, level_samples);
     if (!done)
         done = eb_batch_take(fr, ray, &batch, shade, &st);
     if (!done)
@@ -100,7 +100,6 @@ EB_INLINE float4 eb_integrate(eb_frame *fr, eb_ray *ray, const int shade,
     if (!done)  /* slices behind the last region */
         eb_surfaces_until(fr, ray, &st, EB_INF, st.prev, 0);
     *samples = st.samples;
-    eb_level_samples_flush(&st, level_samples);
     *depth = st.t_opaque < EB_INF ? st.t_opaque : st.t_depth;
     return (float4)(st.color, 1.0f - st.transmittance);
 }

@@ -202,7 +202,6 @@ EB_INLINE float4 eb_integrate_mixture(eb_frame *fr, eb_ray *ray, const int shade
     st.t_depth = EB_INF;
     st.t_opaque = EB_INF;
     st.samples = 0u;
-    eb_level_samples_clear(&st);
     eb_copy c[EB_MAX_COPIES];
     int n = min(fr->P->n_copies, EB_MAX_COPIES);
     float opaque = EB_INF;  /* the first opaque mesh hit of any copy */
@@ -324,7 +323,7 @@ EB_INLINE float4 eb_integrate_mixture(eb_frame *fr, eb_ray *ray, const int shade
             if (step.w > 0.0f)
                 done = eb_composite(&st, step.w, step.xyz, tm, fr->P->max_opacity);
         }
-        eb_level_samples_add(&st, level, st.samples - samples_before);
+        eb_level_samples_add(level_samples, EB_LOD_ON(fr->P), level, st.samples - samples_before);
         t = b;
         if (!done)
             done = eb_copies_advance(fr, c, n, &st, b);
@@ -337,7 +336,6 @@ EB_INLINE float4 eb_integrate_mixture(eb_frame *fr, eb_ray *ray, const int shade
     }
 #endif
     *samples = st.samples;
-    eb_level_samples_flush(&st, level_samples);
     *depth = st.t_opaque < EB_INF ? st.t_opaque : st.t_depth;
     return (float4)(st.color, 1.0f - st.transmittance);
 }

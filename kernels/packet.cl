@@ -15,7 +15,7 @@
  * host builds other reconstructions and the cell-location lookup without
  * EB_PACKET); bricks seen at a coarser level (--lod) take the one-sample path. */
 #pragma once
-#if defined(EB_CELL_LOCATION) || defined(EB_RECON_NEAREST) || defined(EB_RECON_VERTEX)
+#if defined(EB_CELL_LOCATION)
 #error "sample packets are for the basis reconstruction from the regions' lists"
 #endif
 #include "common.h"

@@ -146,9 +146,9 @@ EB_INLINE int eb_batch_interval(eb_frame *fr, eb_ray *ray, int r, int level, eb_
     while (eb_next_sample(fr, ray, it, &tm, &len))
         if (eb_batch_add(fr, q, r, level, tm, len) && eb_batch_take(fr, ray, q, shade, st))
             return 1;
-#if defined(EB_LOD)
-    return eb_batch_take(fr, ray, q, shade, st);
-#elif defined(EB_SURFACES)
+    if (EB_LOD_ON(fr->P))  /* a region's samples are counted at its level */
+        return eb_batch_take(fr, ray, q, shade, st);
+#if defined(EB_SURFACES)
     /* an iso-surface's brackets start at the next region's entry: its samples first */
     return fr->surf.n_iso > 0 ? eb_batch_take(fr, ray, q, shade, st) : 0;
 #else

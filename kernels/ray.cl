@@ -19,9 +19,6 @@ typedef struct {
     float t_depth;                 /* where the accumulated opacity first reached EB_DEPTH_OPACITY */
     float t_opaque;                /* the first opaque surface hit */
     uint samples;
-#ifdef EB_LOD
-    uint level_samples[EB_LOD_LEVELS];  /* reconstructions per level used */
-#endif
     /* iso crossings: the previous sample (field values at prev_t) */
     int prev_valid;
     float prev_t;
@@ -34,28 +31,11 @@ typedef struct {
     int n_slices, next_slice;
 } eb_ray_state;
 
-/* The samples per level of a --lod frame (-DEB_LOD; nothing otherwise):
- * cleared, counted per region, and added to the frame's counts at the end. */
-EB_INLINE void eb_level_samples_clear(eb_ray_state *st)
+/* The samples per level of a --lod frame (`lod`: EB_LOD_ON; nothing otherwise),
+ * added to the frame's counts (level_samples, one per level) region by region:
+ * no state a ray holds through its loop (per-ray counts spilled the GPU default). */
+EB_INLINE void eb_level_samples_add(__global uint *level_samples, int lod, int level, uint n)
 {
-#ifdef EB_LOD
-    for (int l = 0; l < EB_LOD_LEVELS; ++l)
-        st->level_samples[l] = 0u;
-#endif
-}
-
-EB_INLINE void eb_level_samples_add(eb_ray_state *st, int level, uint n)
-{
-#ifdef EB_LOD
-    st->level_samples[min(level, EB_LOD_LEVELS - 1)] += n;
-#endif
-}
-
-EB_INLINE void eb_level_samples_flush(eb_ray_state *st, __global uint *level_samples)
-{
-#ifdef EB_LOD
-    for (int l = 0; l < EB_LOD_LEVELS; ++l)
-        if (st->level_samples[l])
-            atomic_add(&level_samples[l], st->level_samples[l]);
-#endif
+    if (lod && n)
+        atomic_add(&level_samples[min(level, EB_LOD_LEVELS - 1)], n);
 }

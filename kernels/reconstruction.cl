@@ -1,8 +1,8 @@
 /* Reconstruction of the fields at a point from the bricks listed by one Active
  * Brick Region: the basis method (paper §3.2, eq. 1-2, default) with its
- * analytic gradient (paper §5.1.2), or, built with -DEB_RECON_NEAREST or
- * -DEB_RECON_VERTEX, the value of the containing leaf cell (Kähler & Abel) or
- * trilinear interpolation of stitched vertex values within the containing
+ * analytic gradient (paper §5.1.2), or, as the frame says (eb_reconstruction_of:
+ * EB_RECONSTRUCTION_NEAREST or _VERTEX), the value of the containing leaf cell
+ * (Kähler & Abel) or trilinear interpolation of stitched vertex values within the containing
  * brick (Kähler & Hege; exabricks.engine.vertex). All three return their
  * result as eb_basis_sums (weight 1 for the other two), so everything
  * downstream is the same.
@@ -31,7 +31,10 @@ typedef struct {
     __global const long *offset;
     __global const float *values;
     long field_stride;
-    /* -DEB_RECON_VERTEX: per brick (N.x+1)(N.y+1)(N.z+1) vertex values (x fastest)
+#ifndef EB_RECONSTRUCTION
+    int reconstruction;            /* EB_RECONSTRUCTION_*: eb_params.reconstruction */
+#endif
+    /* the vertex reconstruction: per brick (N.x+1)(N.y+1)(N.z+1) vertex values (x fastest)
      * from vertex_offset[b], fields vertex_stride apart. */
     __global const long *vertex_offset;
     __global const float *vertex_values;
@@ -216,19 +219,26 @@ EB_INLINE eb_basis_sums eb_reconstruct_lod(eb_bricks bricks, __global const int 
     return s;
 }
 
-/* Add brick b at lattice point p to `s` by the build's reconstruction; 1 when
+/* The frame's reconstruction (EB_RECONSTRUCTION_*): eb_params.reconstruction, or
+ * the build's (-DEB_RECONSTRUCTION: CPU programs, where the choice in the brick
+ * loop made the one-sample path 1.3 times slower; exabricks.engine.variants). */
+#ifdef EB_RECONSTRUCTION
+#define eb_reconstruction_of(bricks) EB_RECONSTRUCTION
+#else
+#define eb_reconstruction_of(bricks) ((bricks).reconstruction)
+#endif
+
+/* Add brick b at lattice point p to `s` by the frame's reconstruction; 1 when
  * the sums are final (nearest and vertex: the brick containing p was found). */
 EB_INLINE int eb_add_reconstruction(eb_bricks bricks, int b, float3 p, eb_basis_sums *s,
                                     const int want_gradient)
 {
-#if defined(EB_RECON_NEAREST)
-    return eb_nearest(bricks, b, p, s);
-#elif defined(EB_RECON_VERTEX)
-    return eb_vertex(bricks, b, p, s, want_gradient);
-#else
+    if (eb_reconstruction_of(bricks) == EB_RECONSTRUCTION_NEAREST)
+        return eb_nearest(bricks, b, p, s);
+    if (eb_reconstruction_of(bricks) == EB_RECONSTRUCTION_VERTEX)
+        return eb_vertex(bricks, b, p, s, want_gradient);
     eb_add_brick(bricks, b, p, s, want_gradient);
     return 0;
-#endif
 }
 
 /* Sums at lattice point p over the bricks brick_ids[begin:end] (one region's

@@ -266,6 +266,7 @@ EB_INLINE eb_surface eb_surface_at(eb_frame *fr, float3 p, float3 x, int j, int 
         int4 iso = fr->surf.iso[j];
         hit.n = eb_field_gradient_by(fr, &s, p, level, iso.x,
                                      EB_CENTRAL_NORMALS || fr->P->iso_gradient == EB_ISO_GRADIENT_CENTRAL
+                                         || fr->P->reconstruction == EB_RECONSTRUCTION_NEAREST
                                          ? EB_ISO_CENTRAL_STEP : 0.0f);
         hit.rgb = iso.y >= 0 ? eb_lookup(fr->look, iso.z, iso.w, value[iso.y]).xyz
                              : fr->surf.iso_color[j].xyz;

@@ -20,7 +20,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..util.constants import CENTRAL_STEP_CELLS, ISO_CENTRAL_STEP_CELLS, MAX_SAMPLES_PER_RAY, MAX_TREE_DEPTH
-from ..scene.modes import MAX_INSTANCES, MAX_ISOSURFACES, MAX_MESH_HITS, MAX_SLICES
+from ..scene.modes import MAX_INSTANCES, MAX_ISOSURFACES, MAX_MESH_HITS, MAX_SLICES, RECONSTRUCTIONS
 from ..scene.options import SCENE_OPTIONS
 
 # Samples a ray reconstructs at once on CPU devices (kernels/packet.cl): sixteen
@@ -77,6 +77,9 @@ PARAMS = (
     ("n_layers", "int"), ("n_iso", "int"), ("n_slices", "int"), ("iso_tolerance", "float"),
     ("clip_box", "int"), ("n_clip_planes", "int"), ("use_front", "int"),
     ("domain", "int"),  # a domain's frame: its samples only (kernels/frame.cl, eb_in_domain)
+    # features chosen per frame (exabricks.engine.variants, Feature.param): the
+    # reconstruction (EB_RECONSTRUCTION_*)
+    ("reconstruction", "int"),
     # the dataset: counts, and offsets into its grouped buffers
     ("n_nodes", "int"), ("n_regions", "int"), ("n_bricks", "int"), ("n_tree_nodes", "int"),
     ("node_lower_at", "int"), ("node_upper_at", "int"),        # geometry (float)
@@ -170,7 +173,8 @@ def option_params(scene) -> dict:
 def header() -> str:
     """The C text that every program starts with: EB_ABI, LIMITS, TUNABLES (unless
     defined by a build option), the values of the kernel-read choices
-    (EB_ISO_GRADIENT_CENTRAL) and the eb_params struct."""
+    (EB_ISO_GRADIENT_CENTRAL), the reconstructions' (EB_RECONSTRUCTION_NEAREST) and the
+    eb_params struct."""
     lines = ["/* exabricks.device.kernel_abi.header() */", "#define EB_ABI 1"]
     lines += [f"#define {name} {value}" for name, value in LIMITS.items()]
     for name, value in TUNABLES.items():
@@ -179,6 +183,7 @@ def header() -> str:
         if option.kernel and option.kind == "choice":
             lines += [f"#define EB_{option.name.upper()}_{choice.upper().replace('-', '_')} {i}"
                       for i, choice in enumerate(option.choices)]
+    lines += [f"#define EB_RECONSTRUCTION_{name.upper()} {i}" for i, name in enumerate(RECONSTRUCTIONS)]
     lines.append("typedef struct {")
     lines += [f"    {ctype} {name};" for name, ctype in PARAMS]
     lines.append("} eb_params;")

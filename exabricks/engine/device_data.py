@@ -21,7 +21,7 @@ from ..device import kernel_abi, opencl
 from .. import schema
 from ..util.errors import ExabricksError
 from .grouped import Grouped
-from .variants import device_kind, frame, program_variant
+from .variants import device_kind, frame, program_variant, run_time_params
 from .walk_links import walk_links
 
 
@@ -394,11 +394,11 @@ class DeviceDataset:
             return out
         q = self.queue
         local = 64
-        kernel = opencl.kernel(self.program_for(program_variant(frame(
-            kind=device_kind(self.device), n_fields=len(self.fields) or 1,
-            reconstruction=reconstruction))), "eb_probe")
+        point = frame(kind=device_kind(self.device), n_fields=len(self.fields) or 1,
+                      reconstruction=reconstruction)
+        kernel = opencl.kernel(self.program_for(program_variant(point)), "eb_probe")
         args, layout = self.dataset_args(reconstruction=reconstruction)
-        params = self.params(**layout)
+        params = self.params(**layout, **run_time_params(point))
         # In chunks, so that a signal can stop a large probe between enqueues.
         chunk = min(n, PROBE_CHUNK)
         values_buf = opencl.empty_buffer(q, 4 * chunk * n_fields)

@@ -72,7 +72,8 @@ from .look import frame_arrays
 from .majorants import frame_majorants
 from . import pacing
 from .pacing import Pace
-from .variants import LOOKUPS, TRAVERSALS, check_choice, frame, program_variant, uses_packets
+from .variants import (LOOKUPS, TRAVERSALS, check_choice, frame, program_variant, run_time_params,
+                       uses_packets)
 
 # Pixels per work-group side: 8 x 8 tiles keep neighbouring rays (which walk the
 # same regions and bricks) together on one core.
@@ -185,18 +186,22 @@ class Renderer:
         if lookup == "cell-location":
             self.dataset.location_args()  # built now: its time is not a frame's
 
-    def _kernel(self, surfaces: bool, reconstruction: str, lod: bool, extra=(),
-                integrator: str = "headlight", traversal: str = "retrace", central: bool = False,
-                occlusion: bool = False):
-        """eb_render built for this renderer and frame (exabricks.engine.variants), with
-        `extra` defines (tests)."""
-        variant = program_variant(frame(
-            kind="cpu" if self.packets else "gpu", n_fields=len(self.dataset.fields) or 1,
-            integrator=integrator, surfaces=surfaces, reconstruction=reconstruction, lod=lod,
-            gradient="central" if central else "analytic", lookup=self.lookup,
-            domain=self.domain is not None, mixture=self.copies is not None,
-            occlusion=occlusion, traversal=traversal))
-        return opencl.kernel(self.dataset.program_for(variant, extra), "eb_render")
+    def _point(self, scene: Scene, traversal: str):
+        """`scene`'s frame on this renderer: a point of the feature table
+        (exabricks.engine.variants.AXES)."""
+        lighting, cfg = scene.lighting, scene.settings
+        return frame(kind="cpu" if self.packets else "gpu", n_fields=len(self.dataset.fields) or 1,
+                     integrator=lighting.integrator,
+                     surfaces=bool(scene.isosurfaces or scene.slices or scene.meshes),
+                     reconstruction=cfg.reconstruction, lod=cfg.lod > 0, gradient=lighting.gradient,
+                     lookup=self.lookup, domain=self.domain is not None,
+                     mixture=self.copies is not None, occlusion=lighting.ao_samples > 0,
+                     traversal=traversal)
+
+    def _kernel(self, point, extra=()):
+        """eb_render of frame `point` (exabricks.engine.variants), with `extra`
+        defines (tests)."""
+        return opencl.kernel(self.dataset.program_for(program_variant(point), extra), "eb_render")
 
     def _packet_width(self, reconstruction: str, integrator: str = "headlight") -> int:
         """Samples reconstructed at once: PACKET_WIDTH for the basis reconstruction from
@@ -371,12 +376,9 @@ class Renderer:
         front_buf = opencl.empty_buffer(q, band_pixels * 16 if has_front else 16)
         depth_buf = opencl.empty_buffer(q, band_pixels * 4)
         samples_buf = opencl.empty_buffer(q, band_pixels * 4)
-        lod = cfg.lod > 0
-        integrator = lighting.integrator
-        surfaces = bool(scene.isosurfaces or scene.slices or scene.meshes)
-        kernel = self._kernel(surfaces, cfg.reconstruction, lod, integrator=integrator, traversal=traversal,
-                              central=lighting.gradient == "central",
-                              occlusion=lighting.ao_samples > 0)
+        point = self._point(scene, traversal)
+        lod, integrator, surfaces = point.lod, point.integrator, point.surfaces
+        kernel = self._kernel(point)
         level_samples = np.zeros(LOD_LEVELS, np.uint32)
         level_buf = opencl.to_device(q, level_samples, writable=True)
         # Pixels of a cell of width w at distance t: w / (t * 2 tan(fovy / 2) / H).
@@ -405,7 +407,7 @@ class Renderer:
             shading=integrator == "headlight" and lighting.shading != "none",
             **light_params(scene, s.finest_width_world),
             ao_samples=lighting.ao_samples, ao_distance=ao_distance, lod_scale=lod_scale,
-            **path,
+            **run_time_params(point), **path,
             **(dict(domain=True, domain_lower=self.domain[0], domain_upper=self.domain[1],
                     use_front=has_front) if self.domain else {}))
         params = params if kernel_abi.params_by_value(surfaces) else up(q, params)

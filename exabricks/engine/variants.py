@@ -5,9 +5,10 @@ A frame is a point of `AXES`: what its scene asks for (integrator, surfaces,
 reconstruction, level of detail, gradients) and what its renderer holds (the
 device kind, the brick lookup, a domain of a partition, overlapping
 instances). Each of `FEATURES` says how a frame chooses its value, which build
-defines that value compiles in (a program per combination; a feature without
-defines is chosen at run time, in eb_params) and whether NVIDIA's register cap
-spills with it. `REFUSALS` are the combinations no program draws, each refused
+defines that value compiles in (a program per combination; none where the frame
+chooses it in eb_params: PER_FRAME, or a feature not `compiled`), the eb_params
+member that carries it per frame (`param`, `run_time_params`) and whether
+NVIDIA's register cap spills with it. `REFUSALS` are the combinations no program draws, each refused
 with one line before anything is built. From these alone come a frame's
 program (`program_variant`), its build defines (`Variant.defines`), the
 register cap (`Variant.capped`) and every program a frame can reach on a kind
@@ -82,6 +83,14 @@ class Feature:
     uncapped: Callable = lambda value: False  # whether NVIDIA's register cap spills with it
     why: str = ""  # why it is compiled in, or not (docs/design-kernels.md keeps the figures)
     compiled: bool = True  # False: chosen per frame in eb_params (its defines are none)
+    # The eb_params member that carries the value per frame (a build whose define
+    # fixes the value reads the define instead), and its value for a frame.
+    param: str = ""
+    value: Callable = int  # frame -> the member's value
+
+
+# The value of a feature whose build leaves it to eb_params (Feature.param).
+PER_FRAME = "per frame"
 
 
 def _flag(define):
@@ -91,13 +100,19 @@ def _flag(define):
 FEATURES = (
     Feature("n_fields", lambda f: f.n_fields, lambda n: (f"EB_N_FIELDS={max(1, int(n))}",),
             why="private arrays of the fields' values and gradients"),
-    Feature("reconstruction", lambda f: f.reconstruction,
-            lambda r: {"basis": (), "nearest": ("EB_RECON_NEAREST",),
-                       "vertex": ("EB_RECON_VERTEX",)}[r]),
+    Feature("reconstruction", lambda f: f.reconstruction if f.kind == "cpu" else PER_FRAME,
+            lambda r: () if r == PER_FRAME else (f"EB_RECONSTRUCTION={RECONSTRUCTIONS.index(r)}",),
+            param="reconstruction", value=lambda f: RECONSTRUCTIONS.index(f.reconstruction),
+            why="compiled in on CPUs: chosen per frame, the vertex frame's one-sample path took "
+            "1.32 times as long on PoCL; per frame on GPUs (no register more)"),
     Feature("cell_location", lambda f: f.lookup == "cell-location", _flag("EB_CELL_LOCATION")),
     Feature("surfaces", lambda f: f.surfaces, _flag("EB_SURFACES"), uncapped=bool,
             why="26 blocks of surface code in the sample loop"),
-    Feature("lod", lambda f: f.lod, _flag("EB_LOD"), uncapped=bool),
+    Feature("lod", lambda f: f.lod if f.kind == "cpu" else PER_FRAME,
+            lambda on: () if on == PER_FRAME else (f"EB_LOD={int(on)}",),
+            why="compiled in on CPUs: chosen per frame, its branch per sample made the "
+            "one-sample path 1.1-1.3 times slower on PoCL; per frame on GPUs "
+            "(eb_params.lod_scale > 0; the GPU default keeps 96 registers, no spill)"),
     Feature("packets", uses_packets, lambda on: (f"EB_PACKET={PACKET_WIDTH}",) if on else (),
             uncapped=bool, why="the CPU profile: 8 samples reconstructed at once"),
     Feature("domain", lambda f: f.domain or f.mixture, lambda on: (), compiled=False,
@@ -112,9 +127,13 @@ FEATURES = (
             why="the CPU profile: a heap walk whose private queue GPUs cannot afford"),
     # Volume samples' normals from central differences: the headlight's shading reads
     # them (the shadow and path integrators light volume samples without normals),
-    # and nearest, piecewise constant, has no other.
-    Feature("central", lambda f: (f.gradient == "central" and f.integrator == "headlight")
-            or f.reconstruction == "nearest", _flag("EB_CENTRAL"), uncapped=bool),
+    # and nearest, piecewise constant, has no other (its iso-surfaces' normals are
+    # central differences under every integrator: kernels/surfaces.cl).
+    Feature("central", lambda f: f.integrator == "headlight"
+            and (f.gradient == "central" or f.reconstruction == "nearest"), _flag("EB_CENTRAL"),
+            uncapped=bool,
+            why="six point queries per shaded sample: chosen per frame they spill the GPU "
+            "default (436 B inline, 2.7 KB out of line)"),
 )
 
 COMPILED = tuple(f for f in FEATURES if f.compiled)
@@ -200,6 +219,11 @@ def program_variant(f) -> Variant:
     if why is not None:
         raise ExabricksError(why)
     return Variant(**{feature.name: feature.chosen(f) for feature in COMPILED})
+
+
+def run_time_params(f) -> dict:
+    """The eb_params members of frame `f`'s features (Feature.param)."""
+    return {feature.param: feature.value(f) for feature in FEATURES if feature.param}
 
 
 def variant(**values) -> Variant:

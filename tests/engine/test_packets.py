@@ -24,10 +24,13 @@ from helpers.frames import DATASETS, MODES, loaded, renderer, scene_for
 
 
 def assert_same_frame(packet, single, width=PACKET_WIDTH):
-    """Same samples and the same image up to rounding; `width`: the packets used (1
-    where the reconstruction or lookup has none: then the very same program runs)."""
+    """Same samples (per level too, under --lod) and the same image up to rounding;
+    `width`: the packets used (1 where the reconstruction or lookup has none: then
+    the same arithmetic runs, the CPU profile's with the reconstruction compiled in,
+    the GPU profile's with it chosen per frame)."""
     assert packet.stats["packet_width"] == width and single.stats["packet_width"] == 1
     assert packet.stats["samples"] == single.stats["samples"] > 0
+    assert packet.stats.get("samples_per_level") == single.stats.get("samples_per_level")
     if width == 1:
         np.testing.assert_array_equal(packet.rgba, single.rgba)
     a, b = packet.rgba, single.rgba

@@ -32,7 +32,11 @@ def scene(name: str):
 
 def use_build(renderer, define: str) -> None:
     """Make `renderer` render with its volume program built with one more define."""
-    kernel = renderer._kernel(False, "basis", False, extra=(define,), traversal="ordered")
+    from exabricks.engine.variants import frame
+
+    kernel = renderer._kernel(frame(kind="cpu" if renderer.packets else "gpu", traversal="ordered",
+                                    n_fields=len(renderer.dataset.fields) or 1),
+                              extra=(define,))
     renderer._kernel = lambda *args, **kwargs: kernel
 
 
