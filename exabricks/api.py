@@ -224,7 +224,20 @@ def probe(dataset, points, field: str | None = None, *, reconstruction: str = "b
 class Renderer:
     """A dataset kept on an OpenCL device for many frames: a new camera, transfer
     function or iso-value costs only the frame; a field not yet on the device is
-    uploaded with those already there."""
+    uploaded with those already there.
+
+    Parameters
+    ----------
+    dataset
+        A Dataset, or anything `open` takes (opened, and built if need be, here).
+    device
+        As `render`; the device is taken at the first frame, not here.
+
+    Raises
+    ------
+    ExabricksError
+        As `open`, for a dataset that cannot be opened.
+    """
 
     def __init__(self, dataset, *, device: str | None = None):
         self.dataset = open(dataset)
@@ -235,7 +248,29 @@ class Renderer:
     def scene(self, scene=None, **options) -> Scene:
         """The eb.Scene that `scene` and `options` describe over this dataset, with
         every default resolved (the camera that frames the data, the ranges of the
-        fields); `Scene.replace(...)` changes parts of it."""
+        fields); `Scene.replace(...)` changes parts of it.
+
+        Parameters
+        ----------
+        scene
+            As `render`: a scene file path, a dict in the scene-file format or an
+            eb.Scene (returned as it is when no option is given).
+        **options
+            The render flags by their keyword, `-` as `_`, and the scene file's keys,
+            overriding `scene` (docs/reference/scene-options.md).
+
+        Returns
+        -------
+        Scene
+            Nothing is drawn and nothing goes to the device.
+
+        Raises
+        ------
+        ExabricksError
+            The scene or an option's value is not valid for this dataset.
+        TypeError
+            An option that is no render flag (the message names those of `render_job`).
+        """
         from .scene import scene_from_options
 
         if isinstance(scene, Scene) and not options:
@@ -245,7 +280,30 @@ class Renderer:
                                   flags=flags)
 
     def render(self, scene=None, **options) -> Image:
-        """One frame (`render`'s scene and options) as an Image."""
+        """One frame (`render`'s scene and options) as an Image.
+
+        Parameters
+        ----------
+        scene
+            As `scene`.
+        **options
+            The render flags by their keyword, `-` as `_`, and the scene file's keys,
+            as `scene` (docs/reference/scene-options.md).
+
+        Returns
+        -------
+        Image
+            The frame, with its scene and metadata. The fields it reads are uploaded
+            with those already on the device, which stay there for the next frame.
+
+        Raises
+        ------
+        ExabricksError
+            The scene or an option is not valid, no OpenCL device matches `device`,
+            or the process runs under MPI (`render_job` draws with every rank).
+        TypeError
+            An option that is no render flag.
+        """
         from . import parallel
         from .stages.render import frame_metadata
 

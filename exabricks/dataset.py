@@ -25,7 +25,33 @@ log = logging.getLogger(__name__)
 class Dataset:
     """The three structures of one dataset. Those from files are loaded (mapped and
     checked) when first used; `paths` are the files, where there are any, which the
-    memory-budgeted and MPI renders read by parts."""
+    memory-budgeted and MPI renders read by parts.
+
+    Usually made by `eb.open` or `Dataset.from_files`.
+
+    Parameters
+    ----------
+    structures
+        (bricks, regions, bvh) built in memory (exabricks.structures.build), or None
+        to load them from `paths`.
+    paths
+        The three structure files (bricks, regions, bvh); with `structures`, the
+        files they were loaded from.
+    source
+        What the structures were built from (`describe`'s "built_from"), as `source`.
+    values
+        With `paths`: a values file of another step of the same cells (or a
+        schema.Values made in memory), drawn instead of the bricks' own.
+    lease
+        A cache entry's lease, held while the dataset is in use.
+
+    Raises
+    ------
+    ValueError
+        Neither `structures` nor `paths`.
+    ExabricksError
+        `values` without `paths`.
+    """
 
     def __init__(self, structures=None, *, paths=None, source: dict | None = None, values=None,
                  lease=None):
@@ -43,11 +69,41 @@ class Dataset:
     @classmethod
     def from_files(cls, bricks_path, regions_path, bvh_path, *, values=None) -> Dataset:
         """The dataset of three structure files; `values`: a values file of another
-        step of the same cells (exabricks values), drawn instead of the bricks' own."""
+        step of the same cells (exabricks values), drawn instead of the bricks' own.
+
+        Parameters
+        ----------
+        bricks_path
+            The bricks file.
+        regions_path
+            The regions file, built from those bricks.
+        bvh_path
+            The BVH file, built over those regions.
+        values
+            A values file, or None.
+
+        Returns
+        -------
+        Dataset
+            Nothing is read until the structures are first used.
+        """
         return cls(paths=(bricks_path, regions_path, bvh_path), values=values)
 
     def structures(self) -> tuple[schema.Bricks, schema.Regions, schema.Bvh]:
-        """(bricks, regions, bvh), loaded and checked as render loads them."""
+        """(bricks, regions, bvh), loaded and checked as render loads them.
+
+        Returns
+        -------
+        tuple
+            (schema.Bricks, schema.Regions, schema.Bvh): files are mapped, loaded at
+            the first call and kept; a values file's values replace the bricks' own.
+
+        Raises
+        ------
+        ExabricksError
+            A file fails its checks, the three were not built together, or the values
+            file was not made for these cells.
+        """
         if self._structures is None:
             from .engine.device_data import load_structures
 
@@ -56,7 +112,26 @@ class Dataset:
 
     def load(self, mode: str) -> tuple[schema.Bricks, schema.Regions, schema.Bvh]:
         """The structures as a memory-budgeted or an MPI render in `mode` reads them
-        (mapped, by parts: exabricks.parallel.load_for)."""
+        (mapped, by parts: exabricks.parallel.load_for).
+
+        Parameters
+        ----------
+        mode
+            "data": the bricks and regions mapped unchecked (a part reads its own
+            pages) and the BVH checked to go with them; anything else ("image"):
+            loaded as `structures` loads them. Only for a dataset with `paths`.
+
+        Returns
+        -------
+        tuple
+            (schema.Bricks, schema.Regions, schema.Bvh), with the values file's step
+            where there is one; loaded anew at each call.
+
+        Raises
+        ------
+        ExabricksError
+            As `structures`.
+        """
         from .parallel import load_for
 
         return self._step(*load_for(mode, *self.paths))
@@ -123,7 +198,15 @@ class Dataset:
 
     def describe(self) -> dict:
         """The image metadata's dataset: the three files (where there are), the source
-        (where built from one) and the inputs the bricks record."""
+        (where built from one) and the inputs the bricks record.
+
+        Returns
+        -------
+        dict
+            "bricks", "regions", "bvh" (paths, where there are files), "values" (a
+            values file's path), "built_from" (`source`, such as the path and the
+            ingest options) and "source" (the bricks' meta "inputs", [] when none).
+        """
         out = {}
         if self.paths is not None:
             out.update(zip(("bricks", "regions", "bvh"), map(str, self.paths)))

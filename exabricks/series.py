@@ -24,7 +24,20 @@ from .util.errors import ExabricksError, quoted
 
 class Series:
     """The steps of a time series, in natural order of their names; `series[i]`
-    and iteration give each step's Dataset (module docstring)."""
+    and iteration give each step's Dataset (module docstring).
+
+    Parameters
+    ----------
+    steps
+        The steps' paths, in their order (`open_series` finds them).
+    fields, cache, **ingest_options
+        As `eb.open`, for every step.
+
+    Raises
+    ------
+    ExabricksError
+        No step.
+    """
 
     def __init__(self, steps, *, fields=None, cache=None, **ingest_options):
         self.steps = tuple(Path(s) for s in steps)
@@ -82,7 +95,19 @@ class Series:
 
     @property
     def first(self) -> Dataset:
-        """The first step's dataset, whose structures serve every step on its hierarchy."""
+        """The first step's dataset, whose structures serve every step on its hierarchy.
+
+        Returns
+        -------
+        Dataset
+            Opened (built through the cache) at the first use, as `eb.open` with the
+            series' options, and kept.
+
+        Raises
+        ------
+        ExabricksError
+            As `eb.open`.
+        """
         if self._first is None:
             self._first = self._opened(self.steps[0])
         return self._first
@@ -94,7 +119,23 @@ class Series:
 
     def field_range(self, field: str) -> tuple[float, float]:
         """(min, max) of the finite values of `field` over every step: the colour
-        range that one movie of the series shares."""
+        range that one movie of the series shares.
+
+        Parameters
+        ----------
+        field
+            A field of every step.
+
+        Returns
+        -------
+        tuple of float
+            (min, max), computed once per field (every step is opened) and kept.
+
+        Raises
+        ------
+        ExabricksError
+            A step has no such field, or none of its values finite.
+        """
         if field not in self._ranges:
             from .picture.field_statistics import field_range
 
@@ -116,7 +157,25 @@ def open_series(steps, *, fields=None, cache=None, **ingest_options) -> Series:
     """The steps of a series: a glob pattern (`"run/plt*"`, matches in natural order
     of their names: plt10 after plt9), a path, or a list of them (each pattern's
     matches in that order), each step anything `eb.open` takes as a source, read
-    with the same `fields`, `cache` and ingest options."""
+    with the same `fields`, `cache` and ingest options.
+
+    Parameters
+    ----------
+    steps
+        A glob pattern, a path, or a list of them.
+    fields, cache, **ingest_options
+        As `eb.open`, for every step.
+
+    Returns
+    -------
+    Series
+        No step is opened yet.
+
+    Raises
+    ------
+    ExabricksError
+        A pattern matches nothing, or a path does not exist.
+    """
     from .stages.movie import natural_sorted
 
     found = []
@@ -148,7 +207,41 @@ def render_series(series, directory, *, movie=None, fps: float = 10.0, suffix: s
     the default view framing what is visible at any step. It is written as
     `directory/scene.json`: `exabricks render STEP --scene scene.json -o FRAME`
     draws each frame again. The range and the framing are passes over every
-    step before the frames: `range` and `position` with `look_at` save them."""
+    step before the frames: `range` and `position` with `look_at` save them.
+
+    Parameters
+    ----------
+    series
+        A Series, or what `open_series` takes (opened with its defaults).
+    directory
+        The folder of the frames and scene.json. Two steps of one name (run1/plt10,
+        run2/plt10) make every frame NNNN-STEPNAME, NNNN its place in the series.
+    movie
+        The movie's path, .mp4 or .gif (default: no movie).
+    fps
+        The movie's frames per second (0.01 to 1000).
+    suffix
+        The frames' format, ".png" or ".exr".
+    device
+        As `eb.render`.
+    **options
+        The render flags by their keyword, `-` as `_`, and the scene file's keys, as
+        `eb.render` takes them (docs/reference/scene-options.md).
+
+    Returns
+    -------
+    list of pathlib.Path
+        The frames, in the series' order.
+
+    Raises
+    ------
+    ExabricksError
+        `movie` or `fps` is not valid (before any frame is drawn); `directory` is
+        not a folder or cannot be made; an output would replace a step's file; a
+        step cannot be opened or drawn; an option is not valid.
+    TypeError
+        An option that is no render flag.
+    """
     from .util import progress
     from .api import Renderer
     from .util.output import Inputs, check_output, write_json

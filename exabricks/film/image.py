@@ -8,19 +8,27 @@ import numpy as np
 
 
 class Image:
-    """A rendered frame.
+    """A rendered frame. Each parameter is kept as the attribute of its name.
 
-    rgba:     (H, W, 4) float32, premultiplied colour and opacity, row 0 at the top
-              (docs/design-rendering.md, "Integration and images").
-    depth:    (H, W) float32 world distance to the first opaque hit (+inf: none), or
-              None when the frame was drawn without `depth=True`.
-    metadata: what the image file carries: software, camera, dataset, settings
-              (samples, ms, device), scene, transfer function.
-    scene:    the eb.Scene it was drawn with (None for an image read from a file).
-    facts:    what the source says of itself (simulation time, units;
-              exabricks.film.layout.facts_from_meta), for `annotated`.
-    inputs:   the files it was drawn from, which `save` never replaces
-              (exabricks.util.output).
+    Parameters
+    ----------
+    rgba
+        (H, W, 4) float32, premultiplied colour and opacity, row 0 at the top
+        (docs/design-rendering.md, "Integration and images").
+    depth
+        (H, W) float32 world distance to the first opaque hit (+inf: none), or
+        None when the frame was drawn without `depth=True`.
+    metadata
+        What the image file carries: software, camera, dataset, settings
+        (samples, ms, device), scene, transfer function (None: {}).
+    scene
+        The eb.Scene it was drawn with (None for an image read from a file).
+    facts
+        What the source says of itself (simulation time, units;
+        exabricks.film.layout.facts_from_meta), for `annotated`.
+    inputs
+        The files it was drawn from, which `save` never replaces
+        (exabricks.util.output); kept as a tuple.
     """
 
     def __init__(self, rgba: np.ndarray, depth: np.ndarray | None = None, metadata: dict | None = None,
@@ -34,7 +42,23 @@ class Image:
 
     @classmethod
     def read(cls, path: str | os.PathLike) -> Image:
-        """The image in an .exr or .png file that `render` wrote (depth from an .exr)."""
+        """The image in an .exr or .png file that `render` wrote (depth from an .exr).
+
+        Parameters
+        ----------
+        path
+            An .exr or .png file.
+
+        Returns
+        -------
+        Image
+            Its pixels (premultiplied) and metadata, with no scene and no facts.
+
+        Raises
+        ------
+        ExabricksError
+            Another suffix, or the file is missing or corrupt.
+        """
         from .image_io import read_depth, read_image
 
         rgba, metadata = read_image(path)
@@ -48,7 +72,26 @@ class Image:
     def save(self, path: str | os.PathLike, *, annotate: bool = False, title: str | None = None) -> None:
         """Write the frame as `render -o path` does: .exr (float RGBA, and Z with a
         depth) or .png (8-bit), with the metadata, atomically; `annotate` (a .png)
-        as `render --annotate [--title]` does."""
+        as `render --annotate [--title]` does.
+
+        Parameters
+        ----------
+        path
+            The file: .exr, or .png composited over the scene's background (black
+            for a fully transparent one) unless its settings are `transparent`; the
+            .png of an image read from a file keeps its alpha.
+        annotate
+            Write `annotated(title=title)` instead of the frame (.png only).
+        title
+            With `annotate`: the line above the frame.
+
+        Raises
+        ------
+        ExabricksError
+            `title` without `annotate`; `annotate` to other than a .png; a suffix
+            other than .exr or .png; a depth to a .png; `path` names one of
+            `inputs` or cannot be written; `annotated`'s errors.
+        """
         from pathlib import Path
 
         from ..util.errors import ExabricksError
@@ -68,7 +111,25 @@ class Image:
     def annotated(self, *, title: str | None = None) -> Image:
         """The picture with colour bars (the volume's with its opacity curve), field
         names and units, the simulation time, a scale bar and an axes triad beside
-        the frame (docs/annotate.md): an opaque Image, without depth."""
+        the frame (docs/annotate.md): an opaque Image, without depth.
+
+        Parameters
+        ----------
+        title
+            One line of text above the frame, in bold (stripped; None or blank: none).
+
+        Returns
+        -------
+        Image
+            The frame with the margins around it, and this image's metadata, scene,
+            facts and inputs.
+
+        Raises
+        ------
+        ExabricksError
+            The image has no scene (it was read from a file), or `title` is not
+            text or longer than one line holds (200 characters).
+        """
         from .annotate import annotate
         from ..util.errors import ExabricksError
         from .image_io import from_png_pixels
@@ -81,14 +142,28 @@ class Image:
                      inputs=self.inputs)
 
     def to_rgba8(self) -> np.ndarray:
-        """(H, W, 4) uint8, un-premultiplied, as the .png holds it."""
+        """(H, W, 4) uint8, un-premultiplied, as the .png holds it.
+
+        Returns
+        -------
+        numpy.ndarray
+            (H, W, 4) uint8, rounded; the frame's own alpha, over no background
+            (`shown` composites it).
+        """
         from .image_io import to_png_pixels
 
         return to_png_pixels(self.rgba)
 
     def shown(self) -> np.ndarray:
         """(H, W, 3) uint8: the frame over its scene's background made opaque (black
-        behind a transparent one, as yt shows a frame), as a notebook displays it."""
+        behind a transparent one, as yt shows a frame), as a notebook displays it.
+
+        Returns
+        -------
+        numpy.ndarray
+            (H, W, 3) uint8; opaque pixels as `to_rgba8` gives them (black behind an
+            image without a scene).
+        """
         from .layout import backdrop_color
         from .annotate import frame_pixels
 

@@ -184,6 +184,34 @@ class Settings:
 
 @dataclass(frozen=True)
 class Scene:
+    """The picture as one object (docs/scene.md), every default resolved: made by
+    `Renderer.scene` (or `scene_from_options`), frozen (`replace` makes a changed
+    copy). Positions and lengths in world units; colours and opacities in [0, 1].
+
+    Parameters
+    ----------
+    camera
+        The pinhole camera (exabricks.picture.camera.Camera).
+    volumes
+        Fields drawn as media, each with its transfer function (VolumeLayer).
+    isosurfaces
+        Iso-surfaces of the basis field (IsoSurface).
+    slices
+        Planes showing a field's colour map (Slice).
+    meshes
+        Triangle mesh files drawn with the data (MeshLayer).
+    instances
+        Copies of the data and the meshes (Instance), besides the identity.
+    clip
+        What is kept (default: everything).
+    lighting
+        Shading, gradients, ambient occlusion and the integrator (Lighting).
+    background
+        RGBA (default: transparent black).
+    settings
+        The render settings by their flag names (Settings).
+    """
+
     camera: Camera
     volumes: tuple[VolumeLayer, ...] = ()
     isosurfaces: tuple[IsoSurface, ...] = ()
@@ -197,7 +225,13 @@ class Scene:
 
     def fields(self) -> tuple[str, ...]:
         """Every field the frame reads, in first-use order (volumes, iso-surfaces
-        and their colour fields, slices): the only ones uploaded."""
+        and their colour fields, slices): the only ones uploaded.
+
+        Returns
+        -------
+        tuple of str
+            Each field once; the meshes' colour fields last.
+        """
         names = [v.field for v in self.volumes]
         for s in self.isosurfaces:
             names += [s.field] + ([s.color_field] if s.color_field else [])
@@ -206,10 +240,36 @@ class Scene:
         return tuple(dict.fromkeys(names))
 
     def replace(self, **changes) -> "Scene":
+        """A copy of the scene with some parts changed (dataclasses.replace).
+
+        Parameters
+        ----------
+        **changes
+            Parts by their name (`camera=...`, `settings=...`), each a whole new value.
+
+        Returns
+        -------
+        Scene
+            Not checked until it is drawn (`check`); this scene stays as it is.
+
+        Raises
+        ------
+        TypeError
+            A name that is no part of a Scene.
+        """
         return replace(self, **changes)
 
     def check(self) -> None:
-        """ExabricksError for a scene no renderer can draw (limits, unknown modes)."""
+        """ExabricksError for a scene no renderer can draw (limits, unknown modes).
+
+        Raises
+        ------
+        ExabricksError
+            More layers, iso-surfaces, slices, meshes, instances or clip planes than
+            a frame holds; a setting outside its option's bounds; a value, point,
+            normal, box, opacity or colour out of range; a colour field without a
+            colour map; lights and exposure that could carry a pixel beyond float32.
+        """
         lim = ((self.volumes, MAX_VOLUMES, "volume layers"),
                (self.isosurfaces, MAX_ISOSURFACES, "iso-surfaces"),
                (self.slices, MAX_SLICES, "slices"),

@@ -49,7 +49,42 @@ def view(dataset, scene=None, *, device: str | None = None, scene_out=None,
     """The progressive viewer of `dataset` (a Dataset, or anything eb.open takes) in
     the output cell, a widget; `scene` and `options` as for eb.render (the first
     picture is render's). `scene_out`: a file "Save scene" writes too. Needs
-    anywidget (pip install 'exabricks[notebook]')."""
+    anywidget (pip install 'exabricks[notebook]').
+
+    Parameters
+    ----------
+    dataset
+        A Dataset, or anything `eb.open` takes.
+    scene
+        A scene file path, a dict in the scene-file format, or an eb.Scene.
+    device
+        As `eb.render`.
+    scene_out
+        A regular file (or none yet) that "Save scene" writes besides the
+        download; never one of the dataset's files.
+    memory_budget
+        Bytes, or a size such as "512MiB" or "2G": each frame drawn within it, as
+        `render --memory-budget` draws it; only for a dataset with files (not one
+        opened with cache=False, nor a yt dataset).
+    **options
+        The render flags by their keyword, `-` as `_`, and the scene file's keys, as
+        `eb.render` takes them (docs/reference/scene-options.md).
+
+    Returns
+    -------
+    anywidget.AnyWidget
+        Shown by the cell; its `document` is the scene file's object of the view,
+        its `scene` the eb.Scene, and `close()` frees the device's copy for good.
+
+    Raises
+    ------
+    ExabricksError
+        anywidget is not installed; `scene_out` is not a regular file or names an
+        input; `memory_budget` is not a size or the dataset has no files; the scene
+        or an option is not valid.
+    TypeError
+        An option that is no render flag.
+    """
     from ..api import open as open_dataset
     from ..scene import Scene, scene_to_dict
     from ..util.sizes import parse_size
