@@ -187,8 +187,7 @@ class Renderer:
             self.dataset.location_args()  # built now: its time is not a frame's
 
     def _point(self, scene: Scene, traversal: str):
-        """`scene`'s frame on this renderer: a point of the feature table
-        (exabricks.engine.variants.AXES)."""
+        """`scene`'s frame here: a point of the feature table (variants.AXES)."""
         lighting, cfg = scene.lighting, scene.settings
         return frame(kind="cpu" if self.packets else "gpu", n_fields=len(self.dataset.fields) or 1,
                      integrator=lighting.integrator,
@@ -199,8 +198,7 @@ class Renderer:
                      traversal=traversal)
 
     def _kernel(self, point, extra=()):
-        """eb_render of frame `point` (exabricks.engine.variants), with `extra`
-        defines (tests)."""
+        """eb_render of frame `point` (exabricks.engine.variants), `extra` defines added."""
         return opencl.kernel(self.dataset.program_for(program_variant(point), extra), "eb_render")
 
     def _packet_width(self, reconstruction: str, integrator: str = "headlight") -> int:
