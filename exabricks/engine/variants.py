@@ -5,10 +5,10 @@ A frame is a point of `AXES`: what its scene asks for (integrator, surfaces,
 reconstruction, level of detail, gradients) and what its renderer holds (the
 device kind, the brick lookup, a domain of a partition, overlapping
 instances). Each of `FEATURES` says how a frame chooses its value, which build
-defines that value compiles in (a program per combination; none where the frame
-chooses it in eb_params: PER_FRAME, or a feature not `compiled`), the eb_params
-member that carries it per frame (`param`, `run_time_params`) and whether
-NVIDIA's register cap spills with it. `REFUSALS` are the combinations no program draws, each refused
+defines that value compiles in (a program per combination; none where the value
+is PER_FRAME: the frame chooses it in eb_params), the eb_params member that
+carries it per frame (`param`, `run_time_params`) and whether NVIDIA's register
+cap spills with it. `REFUSALS` are the combinations no program draws, each refused
 with one line before anything is built. From these alone come a frame's
 program (`program_variant`), its build defines (`Variant.defines`), the
 register cap (`Variant.capped`) and every program a frame can reach on a kind
@@ -78,18 +78,17 @@ class Feature:
     """One axis of the render program."""
 
     name: str
-    chosen: Callable  # frame (a point of AXES) -> the value
-    defines: Callable  # value -> the build defines that compile it in
+    chosen: Callable  # frame (a point of AXES) -> the value, or PER_FRAME
+    defines: Callable  # value (not PER_FRAME) -> the build defines that compile it in
     uncapped: Callable = lambda value: False  # whether NVIDIA's register cap spills with it
     why: str = ""  # why it is compiled in, or not (docs/design-kernels.md keeps the figures)
-    compiled: bool = True  # False: chosen per frame in eb_params (its defines are none)
     # The eb_params member that carries the value per frame (a build whose define
     # fixes the value reads the define instead), and its value for a frame.
     param: str = ""
     value: Callable = int  # frame -> the member's value
 
 
-# The value of a feature whose build leaves it to eb_params (Feature.param).
+# The value of a feature that no build compiles in: the frame chooses it in eb_params.
 PER_FRAME = "per frame"
 
 
@@ -101,7 +100,7 @@ FEATURES = (
     Feature("n_fields", lambda f: f.n_fields, lambda n: (f"EB_N_FIELDS={max(1, int(n))}",),
             why="private arrays of the fields' values and gradients"),
     Feature("reconstruction", lambda f: f.reconstruction if f.kind == "cpu" else PER_FRAME,
-            lambda r: () if r == PER_FRAME else (f"EB_RECONSTRUCTION={RECONSTRUCTIONS.index(r)}",),
+            lambda r: (f"EB_RECONSTRUCTION={RECONSTRUCTIONS.index(r)}",),
             param="reconstruction", value=lambda f: RECONSTRUCTIONS.index(f.reconstruction),
             why="compiled in on CPUs: chosen per frame, the vertex frame's one-sample path took "
             "1.32 times as long on PoCL; per frame on GPUs (no register more)"),
@@ -109,13 +108,13 @@ FEATURES = (
     Feature("surfaces", lambda f: f.surfaces, _flag("EB_SURFACES"), uncapped=bool,
             why="26 blocks of surface code in the sample loop"),
     Feature("lod", lambda f: f.lod if f.kind == "cpu" else PER_FRAME,
-            lambda on: () if on == PER_FRAME else (f"EB_LOD={int(on)}",),
+            lambda on: (f"EB_LOD={int(on)}",),
             why="compiled in on CPUs: chosen per frame, its branch per sample made the "
             "one-sample path 1.1-1.3 times slower on PoCL; per frame on GPUs "
             "(eb_params.lod_scale > 0; the GPU default keeps 96 registers, no spill)"),
     Feature("packets", uses_packets, lambda on: (f"EB_PACKET={PACKET_WIDTH}",) if on else (),
             uncapped=bool, why="the CPU profile: 8 samples reconstructed at once"),
-    Feature("domain", lambda f: f.domain or f.mixture, lambda on: (), compiled=False,
+    Feature("domain", lambda f: PER_FRAME, lambda on: (),
             why="a domain's frame takes its samples only (eb_params.domain): the test costs "
             "no measurable time and no register"),
     Feature("mixture", lambda f: f.mixture, _flag("EB_MIXTURE"), uncapped=bool),
@@ -136,20 +135,20 @@ FEATURES = (
             "default (436 B inline, 2.7 KB out of line)"),
 )
 
-COMPILED = tuple(f for f in FEATURES if f.compiled)
-Variant = make_dataclass("Variant", [(f.name, object) for f in COMPILED], frozen=True)
-Variant.__doc__ = "One render program: a value of every compiled feature (FEATURES)."
+Variant = make_dataclass("Variant", [(f.name, object) for f in FEATURES], frozen=True)
+Variant.__doc__ = "One render program: a value of every feature (FEATURES), or PER_FRAME."
 
 
 def _defines(self) -> tuple[str, ...]:
     """The build defines of this program."""
-    return tuple(d for f in COMPILED for d in f.defines(getattr(self, f.name)))
+    values = ((f, getattr(self, f.name)) for f in FEATURES)
+    return tuple(d for f, value in values if value != PER_FRAME for d in f.defines(value))
 
 
 def _capped(self) -> bool:
     """Whether NVIDIA's register cap (kernel_abi.NV_REGISTER_CAP) applies: none
     of its features' values spills under it (the offline gauge)."""
-    return not any(f.uncapped(getattr(self, f.name)) for f in COMPILED)
+    return not any(f.uncapped(getattr(self, f.name)) for f in FEATURES)
 
 
 def _label(self) -> str:
@@ -218,7 +217,7 @@ def program_variant(f) -> Variant:
     why = refusal(f)
     if why is not None:
         raise ExabricksError(why)
-    return Variant(**{feature.name: feature.chosen(f) for feature in COMPILED})
+    return Variant(**{feature.name: feature.chosen(f) for feature in FEATURES})
 
 
 def run_time_params(f) -> dict:
