@@ -27,11 +27,9 @@ import sys
 import tempfile
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[2]
+from sheet import AMREX, GERRIS, ROOT
+
 OUT = ROOT / "docs" / "images" / "mesh"
-sys.path.insert(0, str(ROOT / "tests"))
-sys.path.insert(0, str(ROOT))
-from conftest import AMREX, GERRIS  # noqa: E402
 
 
 def exabricks(*args) -> None:
@@ -53,7 +51,7 @@ def main() -> int:
                   "--look-at", 0.45, 0, 0.4, "--up", 0, 0, 1, "--size", 640, 480,
                   "-o", OUT / "amrex-mirrored.png")
         exabricks("render", AMREX, "--field", "phi", "--colormap", "viridis", "--opacity", "0,0.3",
-                  "--specular", 0.3, "--spp", 4, "--background", "1,1,1", "--mirror", "y", 0.3,
+                  "--spp", 4, "--background", "1,1,1", "--mirror", "y", 0.3,
                   "--position", 3.2, -2.6, 2.3, "--look-at", 0.45, 0.3, 0.4, "--up", 0, 0, 1,
                   "--size", 640, 480, "-o", OUT / "amrex-mixture.png")
         shell = Path(tmp) / "shell.ply"

@@ -14,9 +14,11 @@ import exabricks as eb
 
 ROOT = Path(__file__).resolve().parents[2]
 DATA = ROOT.parent / "shared" / "data"
+GERRIS = ROOT / "exabricks" / "data" / "gerris-plume" / "plume7-1.cells"
+AMREX = DATA / "amrex-advection3d" / "plt00020"
 DATASETS = (  # (source, field, open options)
-    (ROOT / "exabricks" / "data" / "gerris-plume" / "plume7-1.cells", "T", {}),
-    (DATA / "amrex-advection3d" / "plt00020", "phi", {}),
+    (GERRIS, "T", {}),
+    (AMREX, "phi", {}),
     (DATA / "athena-blast3d" / "Blast.out2.00001.athdf", "rho", {}),
     (DATA / "enzo-moving7" / "moving7_0010", "Density", {"format": "yt"}),
 )

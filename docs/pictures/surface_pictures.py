@@ -18,10 +18,9 @@ from pathlib import Path
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parents[2]
+from sheet import AMREX, GERRIS, ROOT
+
 OUT = ROOT / "docs" / "images" / "surface"
-sys.path.insert(0, str(ROOT / "tests"))
-from conftest import AMREX, GERRIS  # noqa: E402
 
 CASES = [("amrex-phi-1.2.png", AMREX, "phi", 1.2, ((0, 0, 0), (1, 1, 1)), (25, -35)),
          ("gerris-T-0.25.png", GERRIS, "T", 0.25, None, (22, -60))]
