@@ -225,7 +225,7 @@ class ParallelRenderer:
         stats.update(ms=1e3 * seconds, samples_per_second=stats["samples"] / seconds if seconds
                      else 0.0, mpi={"ranks": self.size, "mode": self.mode,
                                     **({"image_mode_for": self.reason} if self.reason else {})})
-        return RenderResult(develop(rgba, scene), depth, stats)
+        return RenderResult(develop(rgba, scene, stats), depth, stats)
 
     def _image(self, scene):
         cfg = scene.settings

@@ -261,7 +261,7 @@ class Renderer:
         if scene.settings.denoise:
             denoise.check()  # before the frame, not after
         result = self.integrate(scene, **options)
-        develop(result.rgba, scene)
+        develop(result.rgba, scene, result.stats)
         return result
 
     def integrate(self, scene: Scene, *, traversal: str | None = None, rows=None,

@@ -377,8 +377,9 @@ def render_steps(domains, scene, *, band=None, tile_width=None, deadline: float 
             done_domains = 0 if done_samples < spp else len(order)
         if done_samples < sample + 1:
             break
+    film = {}
     rgba, progress = _so_far(total, over, done_samples, done_domains, len(order), spp, scene,
-                             rows=drawn)
+                             rows=drawn, stats=film)
     if depth is None and cfg.depth:
         depth = np.full((rows, width), np.inf, np.float32)
     seconds = time.perf_counter() - start
@@ -387,7 +388,7 @@ def render_steps(domains, scene, *, band=None, tile_width=None, deadline: float 
     if not stats:
         stats = _settings(domains, order, scene)
     _frame_stats(stats, domains, samples, seconds, done_samples, progress)
-    return RenderResult(rgba, depth, stats)
+    return RenderResult(rgba, depth, {**stats, **film})
 
 
 def _frame_stats(stats: dict, domains, samples: int, seconds: float, done_samples: int,
@@ -473,7 +474,10 @@ def render_tiled(domains, scene, tile, put, *, deadline: float | None = None,
     domain that meets it front to back) and handed to `put(row0, rgba, depth)`
     top to bottom, so that only a band is ever in memory. `on_band(progress)`
     follows each band but the last; `deadline` stops after the band that passes
-    it. Returns the frame's stats (progress: rows [done, height])."""
+    it. Returns the frame's stats (progress: rows [done, height]). The automatic
+    exposure, which no band can meter alone, is metered first on a preview of
+    the whole frame (`metered_scene`)."""
+    scene, film = metered_scene(domains, scene)
     width, height = int(scene.settings.width), int(scene.settings.height)
     tile_w, tile_h = min(int(tile[0]), width), min(int(tile[1]), height)
     order = domains.order(scene)
@@ -501,8 +505,34 @@ def render_tiled(domains, scene, tile, put, *, deadline: float | None = None,
         stats = _settings(domains, domains.order(scene), scene)
     stats.update(samples=samples, ms=1e3 * seconds,
                  samples_per_second=samples / seconds if seconds > 0 else 0.0,
-                 tile=[tile_w, tile_h], progress=_tiled_progress(scene, domains, done))
+                 tile=[tile_w, tile_h], progress=_tiled_progress(scene, domains, done), **film)
     return stats
+
+
+# The longer side of the preview that metered_scene measures.
+PREVIEW_PIXELS = 256
+
+
+def metered_scene(domains, scene):
+    """(`scene` with its automatic exposure measured and made fixed, the film's
+    figures): where settings.auto_exposure is on, the stops metered on a preview
+    of the whole frame at most PREVIEW_PIXELS a side (one sample, no background)
+    are added to settings.exposure and the automatic exposure turned off, so
+    that the bands of a tiled frame share one exposure."""
+    from dataclasses import replace
+
+    from ..film.exposure import metered_stops
+
+    s = scene.settings
+    if not s.auto_exposure:
+        return scene, {}
+    shrink = min(1.0, PREVIEW_PIXELS / max(s.width, s.height))
+    preview = scene.replace(background=(0.0, 0.0, 0.0, 0.0), settings=replace(
+        s, width=max(1, round(s.width * shrink)), height=max(1, round(s.height * shrink)),
+        spp=1, exposure=0.0, auto_exposure=False, denoise=False, depth=False))
+    stops = metered_stops(render_steps(domains, preview).rgba)
+    fixed = replace(s, auto_exposure=False, exposure=float(s.exposure) + stops)
+    return scene.replace(settings=fixed), {"metered_exposure": stops}
 
 
 def _tiled_progress(scene, domains, done: int) -> dict:
@@ -518,9 +548,11 @@ def _settings(domains, order, scene) -> dict:
                                                         deadline=0.0).stats)
 
 
-def _so_far(total, over, samples_done, domains_done, n_domains, spp, scene, rows=None):
+def _so_far(total, over, samples_done, domains_done, n_domains, spp, scene, rows=None,
+            stats=None):
     """(image developed by the film, progress): the average of the samples done,
-    or while none is, the first sample's composite of the domains done."""
+    or while none is, the first sample's composite of the domains done; the
+    film's figures into `stats`."""
     if samples_done:
         rgba = total / np.float32(samples_done)
     elif over is not None:
@@ -532,4 +564,4 @@ def _so_far(total, over, samples_done, domains_done, n_domains, spp, scene, rows
                 "pieces": [n_domains if complete else domains_done, n_domains]}
     if not complete and rows is not None and 0 < rows < total.shape[0] and not samples_done:
         progress["rows"] = rows
-    return develop(rgba, scene), progress
+    return develop(rgba, scene, stats), progress

@@ -5,7 +5,8 @@ Every way of drawing a frame (resident, in tiles, streamed domain by domain
 under a memory budget, progressive, MPI in data or image mode, instanced)
 composites the premultiplied radiance (float32 RGBA) of all its domains,
 samples and tiles first (`Renderer.integrate` and the compositing that follows
-it), and then develops it here, once: the exposure, the optional denoiser
+it), and then develops it here, once: the exposure (the automatic one,
+exposure.py, measured on the composited frame, plus --exposure), the optional denoiser
 (denoise.py, whole frames only), then the background.  What is applied pixel by
 pixel is the same whether the frame is developed whole or a tile or band at a
 time.  The 8-bit encoding of a PNG (image_io.to_png_pixels)
@@ -18,14 +19,23 @@ from __future__ import annotations
 import numpy as np
 
 from .denoise import denoise
+from .exposure import metered_stops
 
 
-def develop(rgba: np.ndarray, scene) -> np.ndarray:
+def develop(rgba: np.ndarray, scene, stats: dict | None = None) -> np.ndarray:
     """`rgba` (premultiplied radiance, float32 (..., 4), composited over every
     domain and sample) developed in place for `scene` (exabricks.scene.Scene):
-    its colour scaled by 2**settings.exposure, denoised with settings.denoise (a
-    whole frame), then composited over the background.  Returns `rgba`."""
+    its colour scaled by 2**(the automatic exposure + settings.exposure), the
+    automatic exposure `metered_stops` of `rgba` where settings.auto_exposure
+    (else 0) and recorded in `stats` as "metered_exposure"; denoised with
+    settings.denoise (a whole frame), then composited over the background.
+    Returns `rgba`."""
     exposure = float(scene.settings.exposure)
+    if scene.settings.auto_exposure:
+        metered = metered_stops(rgba)
+        exposure += metered
+        if stats is not None:
+            stats["metered_exposure"] = metered
     if exposure:
         rgba[..., :3] *= np.float32(2.0 ** exposure)
     if scene.settings.denoise:

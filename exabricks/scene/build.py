@@ -408,10 +408,17 @@ def _background(file: SceneFile, f) -> tuple[float, float, float, float]:
     return rgba + (1.0,) if len(rgba) == 3 else rgba  # a colour given as RGB is opaque
 
 
-def _settings(file: SceneFile, f) -> Settings:
+def _settings(file: SceneFile, f, volumes) -> Settings:
+    """The settings; the automatic exposure, where neither the flags nor the file
+    say, is on where every volume layer's transfer function is the automatic one."""
+    from ..picture.auto_transfer import DEFAULT_NAME
+
     d = Settings()
     width, height = _pick(f, "size", file, ("size",), (d.width, d.height))
-    return Settings(width=int(width), height=int(height), **_declared("settings", file, f))
+    declared = _declared("settings", file, f)
+    declared.setdefault("auto_exposure", bool(volumes) and all(
+        v.transfer_function.name == DEFAULT_NAME for v in volumes))
+    return Settings(width=int(width), height=int(height), **declared)
 
 
 def scene_from_options(bricks, *, scene_path=None, camera_path=None, flags: dict | None = None) -> Scene:
@@ -437,7 +444,7 @@ def scene_from_options(bricks, *, scene_path=None, camera_path=None, flags: dict
     base = _field(bricks, base, base_at)
     instances = _instances(file, f)
     volumes = _volumes(bricks, file, f, base, base_at)
-    settings = _settings(file, f)
+    settings = _settings(file, f, volumes)
     scene = Scene(
         camera=_camera(bricks, file, camera_path, f, instances, volumes, settings.width / settings.height),
         volumes=volumes,

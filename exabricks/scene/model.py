@@ -179,6 +179,7 @@ class Settings:
     tf_lookup: str = "table"
     transparent: bool = False
     exposure: float = 0.0
+    auto_exposure: bool = False
     denoise: bool = False
 
 

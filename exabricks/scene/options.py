@@ -392,6 +392,11 @@ SCENE_OPTIONS = (
              "docs/design.md; default 0). Exact under every way of drawing a frame: tiles, "
              "--memory-budget, MPI, instances.", low=-24.0, high=24.0, metavar="STOPS",
              description="a number of stops in [-24, 24] (0: as integrated)"),
+    _setting("auto_exposure", "Bring the frame to the display's range as yt normalises its "
+             "images: the 99th percentile of the luminance over the data placed near white, "
+             "measured on the frame itself (the film, docs/scene.md \"Exposure\"; --exposure "
+             "adds to it). Default: on where every volume's transfer function is the automatic "
+             "one, off where you chose the colours and opacities.", kind="flag"),
     _setting("denoise", "Denoise the frame for a preview with Intel Open Image Denoise "
              "(pip install 'exabricks[denoise]'; whole frames, not --tile). Never for a reference "
              "image: the error is then the network's, not the integrator's (default off).",

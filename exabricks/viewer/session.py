@@ -323,7 +323,8 @@ class Session:
             stats = result.stats
         if cancelled():  # before the film's work (the denoiser's is a whole frame's)
             raise Cancelled
-        develop(rgba, scene)
+        stats = dict(stats)
+        develop(rgba, scene, stats)
         seconds = time.perf_counter() - started
         stats = {**stats, "width": width, "height": height, "samples": samples, "ms": 1e3 * seconds,
                  "samples_per_second": samples / seconds if seconds > 0 else 0.0}

@@ -83,7 +83,9 @@ def test_defaults(bricks):
     # The camera frames what the automatic function shows, from the three-quarter view.
     corners = visible_corners(bricks, "P", layer.transfer_function, axes=view_axes())
     assert scene.camera == framed_camera(corners)
-    assert scene.settings == Settings() and scene.lighting == Lighting() and scene.clip == Clip()
+    # The automatic picture is exposed automatically (exabricks.film.exposure).
+    assert scene.settings == Settings(auto_exposure=True)
+    assert scene.lighting == Lighting() and scene.clip == Clip()
     assert scene.isosurfaces == () and scene.slices == () and scene.background == (0, 0, 0, 0)
 
 
