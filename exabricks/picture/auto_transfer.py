@@ -11,14 +11,24 @@ It is made from the field's *volume-weighted* histogram on its scaled axis
    transparent.
 2. Opacity then grows with the fourth power of the distance from that band on
    the scaled axis (`RAMP_POWER`), on each side, to its largest value at the
-   field's extremes: what differs most from the surroundings shows most.
+   field's extremes: what differs most from the surroundings shows most. The
+   side that reaches less far is scaled by the square of its reach over the
+   other's: a few cells slightly below the ambient value (the corners of a
+   box around a dense core) stay clear, a void as deep as the shell around it
+   is high (a blast) shows as the shell does. On a log axis (a positive field
+   over decades: a density) only what lies above the ambient band shows: the
+   decades below it are tails and voids (a Gaussian blob's 37 decades of tails
+   would otherwise outshine the blob).
 3. The opacity's height is set so that the rays of the default view through
    the visible part cross an optical depth of at most about `TARGET_DEPTH`
    (all but the thickest tenth of them): the opacity (sigma x volume) of the
    cells summed over columns along the view (`column_depths`).
-4. The colours are `colormap` over the span of the scaled axis that holds all
-   but `COLOUR_TRIM` of that opacity at either end (or over the range given),
-   so that they spread over what is seen.
+4. The colours are `colormap` spread over the values by the share of that
+   opacity (volume x opacity) below each (`equalised_colours`, Chourasia and
+   Schulze's opacity-weighted histogram equalisation), so that every colour
+   covers as much of what is seen: nested shells and a core in distinct
+   colours, however many decades apart. Over a range given, the colours span
+   it evenly instead.
 
 The result is an ordinary piecewise-linear function of the data value
 (`TransferFunction.on_scale`), so every renderer, the scene file and the colour
@@ -32,8 +42,9 @@ import math
 import numpy as np
 
 from .field_statistics import field_range, opacity_columns, smallest_positive, volume_histogram
-from .scaling import default_threshold, resolve, scaled_range
-from .transfer_function import TransferFunction, strictly_increasing, widen_degenerate_range
+from .scaling import BRIGHT, default_threshold, resolve, scaled_range
+from .transfer_function import (TransferFunction, matplotlib_colormap, strictly_increasing,
+                                widen_degenerate_range)
 
 # Bins of the volume-weighted histogram over the scaled range.
 HISTOGRAM_BINS = 256
@@ -45,6 +56,8 @@ RAMP_POWER = 4.0
 RAMP_KNOTS = 17
 # Share of the opacity whose values lie below (above) the colour map's ends.
 COLOUR_TRIM = 0.005
+# Colours of the equalised colour map (the knots of its piecewise-linear function).
+COLOUR_KNOTS = 33
 # The optical depth of the DEPTH_QUANTILE of the default view's columns through
 # the visible part (column_depths, COLUMN_BINS across the data): the thickest
 # tenth of the visible part stays translucent enough to see into.
@@ -75,16 +88,25 @@ def ambient_band(histogram: np.ndarray) -> tuple[int, int]:
     return first, last
 
 
-def opacity_shape(axis_range, band, bins: int = HISTOGRAM_BINS) -> np.ndarray:
+def opacity_shape(axis_range, band, bins: int = HISTOGRAM_BINS, *, below: bool = True) -> np.ndarray:
     """Opacity knots ``[[s, r], ...]`` of the shape: 0 over the ambient band and
-    rising as the power RAMP_POWER of the distance from it to 1 at each end of
-    `axis_range` that lies beyond it (RAMP_KNOTS knots a side)."""
+    rising as the power RAMP_POWER of the distance from it to each end of
+    `axis_range` that lies beyond it (RAMP_KNOTS knots a side), there 1 on the
+    side that reaches further and (its reach / the other's)**2 on the other;
+    0 below the band unless `below`."""
     a, b = axis_range
     width = (b - a) / bins
     low, high = a + band[0] * width, a + (band[1] + 1) * width
+    if not below:
+        a = low
+    reach = max(low - a, b - high)
     t = np.linspace(0.0, 1.0, RAMP_KNOTS)
-    left = [(low - (low - a) * u, u ** RAMP_POWER) for u in t[::-1]] if low > a else [(low, 0.0)]
-    right = [(high + (b - high) * u, u ** RAMP_POWER) for u in t] if high < b else [(high, 0.0)]
+    top_left, top_right = ((low - a) / reach) ** 2 if reach > 0 else 0.0, \
+        ((b - high) / reach) ** 2 if reach > 0 else 0.0
+    left = [(low - (low - a) * u, top_left * u ** RAMP_POWER) for u in t[::-1]] \
+        if low > a else [(low, 0.0)]
+    right = [(high + (b - high) * u, top_right * u ** RAMP_POWER) for u in t] \
+        if high < b else [(high, 0.0)]
     return strictly_increasing(np.asarray(left + right, np.float64))
 
 
@@ -106,6 +128,28 @@ def _opacity_by_bin(histogram: np.ndarray, shape: np.ndarray, axis_range):
     return centres, histogram * np.interp(centres, shape[:, 0], shape[:, 1])
 
 
+def equalised_colours(colormap: str, histogram: np.ndarray, shape: np.ndarray,
+                      axis_range) -> TransferFunction:
+    """`colormap` over the scaled axis, each of COLOUR_KNOTS evenly spaced
+    colours at the value below which that share of the opacity (volume x
+    `shape`, all but COLOUR_TRIM at either end) lies: colours spread by what
+    is seen (module docstring, 4); evenly over `axis_range` where nothing is."""
+    a, b = axis_range
+    centres, weight = _opacity_by_bin(histogram, shape, axis_range)
+    if not weight.sum() > 0:
+        return TransferFunction.from_colormap(colormap, axis_range)
+    edges = np.linspace(a, b, len(histogram) + 1)
+    cumulative = np.concatenate([[0.0], np.cumsum(weight) / weight.sum()])
+    shares = np.linspace(COLOUR_TRIM, 1.0 - COLOUR_TRIM, COLOUR_KNOTS)
+    at = np.interp(shares, cumulative, edges)
+    colours = np.asarray(matplotlib_colormap(colormap)(np.linspace(0.0, 1.0, COLOUR_KNOTS)))[:, :3]
+    knots = strictly_increasing(np.column_stack([at, colours]))
+    if len(knots) < 2:
+        return TransferFunction.from_colormap(colormap, (min(a, at[0]), max(b, at[-1])))
+    alpha = np.array([[knots[0, 0], 1.0], [knots[-1, 0], 1.0]])
+    return TransferFunction(knots, alpha, DEFAULT_NAME)
+
+
 def visible_span(histogram: np.ndarray, shape: np.ndarray, axis_range) -> tuple[float, float]:
     """The span of the scaled axis that holds all but COLOUR_TRIM of the opacity
     (volume x shape) at each end: where the colours go."""
@@ -125,7 +169,12 @@ def field_axis(bricks, field: str, scale: str | None = None):
     positive value or None) of `field` for `scale` (None: auto; exabricks.picture.scaling)."""
     data_range = widen_degenerate_range(field_range(bricks, field))
     floor = smallest_positive(bricks, field) if data_range[0] <= 0 < data_range[1] else None
-    return resolve(scale, data_range, floor), default_threshold(data_range), data_range, floor
+    bright = None
+    if scale in (None, "auto"):
+        volume = volume_histogram(bricks, field, "linear", 1.0, data_range, round(1 / BRIGHT))
+        bright = float(volume[1:].sum() / volume.sum()) if volume.sum() > 0 else 0.0
+    return (resolve(scale, data_range, floor, bright), default_threshold(data_range), data_range,
+            floor)
 
 
 def _ambient_shape(bricks, field: str, scale, value_range):
@@ -135,7 +184,7 @@ def _ambient_shape(bricks, field: str, scale, value_range):
     axis = scaled_range(tuple(value_range) if value_range else data_range, scale, threshold, floor)
     histogram = volume_histogram(bricks, field, scale, threshold, axis, HISTOGRAM_BINS)
     band = ambient_band(histogram)
-    return scale, threshold, axis, histogram, band, opacity_shape(axis, band)
+    return scale, threshold, axis, histogram, band, opacity_shape(axis, band, below=scale != "log")
 
 
 def automatic_transfer_function(bricks, field: str, *, scale: str | None = None,
@@ -148,7 +197,8 @@ def automatic_transfer_function(bricks, field: str, *, scale: str | None = None,
     the world thickness alpha is the opacity of (default: the finest cell width).
     """
     scale, threshold, axis, histogram, _, shape = _ambient_shape(bricks, field, scale, value_range)
-    colours = TransferFunction.from_colormap(colormap, axis if value_range else visible_span(histogram, shape, axis))
+    colours = (TransferFunction.from_colormap(colormap, axis) if value_range
+               else equalised_colours(colormap, histogram, shape, axis))
     unit = TransferFunction(on_lattice(colours.rgb_points, axis), on_lattice(shape, axis),
                             DEFAULT_NAME).on_scale(scale, threshold)
     sigma = _sigma_for_depth(bricks, field, unit, unit_distance)

@@ -26,20 +26,31 @@ SCALES = ("auto", "linear", "log", "symlog")
 AUTO_LOG_DECADES = 2.0
 # symlog's linear threshold when none is given: this fraction of the largest |value|.
 SYMLOG_THRESHOLD = 1e-3
+# The share of the range (from its low end, linear) above which a value counts as
+# bright, and the share of the volume so bright that a linear axis shows it
+# (exabricks.picture.auto_transfer.field_axis measures it).
+BRIGHT = 0.01
+LOG_BRIGHT_SHARE = 0.01
 
 
-def resolve(scale: str | None, value_range, floor: float | None = None) -> str:
+def resolve(scale: str | None, value_range, floor: float | None = None,
+            bright_share: float | None = None) -> str:
     """The concrete scale ("linear", "log" or "symlog") of `scale` (None: auto)
     for a field whose finite values span `value_range` (low, high), `floor`
     its smallest positive value (a non-negative field with zeros, as a dark
-    matter density, is on a log scale when its positive values span decades)."""
+    matter density, is on a log scale when its positive values span decades).
+    `bright_share`: the share of the volume whose value lies above BRIGHT of
+    the range on a linear axis; where it exceeds LOG_BRIGHT_SHARE the structure
+    shows on a linear axis, and auto stays linear (a Gaussian blob, whose tails
+    span decades that a log axis would give most of its colours to)."""
     scale = scale or "auto"
     if scale not in SCALES:
         raise ExabricksError(f"unknown scale {scale!r} (one of {', '.join(SCALES)})")
     lo, hi = (float(v) for v in value_range)
     if scale == "auto":
         low = lo if lo > 0 else (floor if lo == 0 and floor else 0.0)
-        return "log" if low > 0 and hi / low > 10.0 ** AUTO_LOG_DECADES else "linear"
+        shows = bright_share is not None and bright_share > LOG_BRIGHT_SHARE
+        return "log" if low > 0 and hi / low > 10.0 ** AUTO_LOG_DECADES and not shows else "linear"
     if scale == "log" and not hi > 0:
         raise ExabricksError(f"--scale log: the field has no positive value (its range is "
                              f"[{lo:g}, {hi:g}]); use linear or symlog")

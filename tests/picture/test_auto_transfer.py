@@ -122,8 +122,10 @@ def test_the_automatic_transfer_function():
     hist = np.zeros(10)
     hist[[2, 3, 4]] = [0.04, 1.0, 0.06]
     assert ambient_band(hist) == (3, 4)
+    # bins 3 and 4 ambient: the low side reaches 0.3, the high side 0.5, which gets
+    # the full ramp; the low side (0.3 / 0.5)**2 of it
     shape = opacity_shape((0.0, 1.0), (3, 4), bins=10)
-    assert shape[0].tolist() == [0.0, 1.0] and shape[-1].tolist() == [1.0, 1.0]
+    assert shape[0].tolist() == [0.0, pytest.approx(0.36)] and shape[-1].tolist() == [1.0, 1.0]
     assert np.interp(0.4, shape[:, 0], shape[:, 1]) == 0.0
     iso = suggested_iso_value(bricks, "T")
     assert 0.2 < iso < 0.88  # inside the hot side, where T varies
