@@ -202,8 +202,9 @@ def render_series(series, directory, *, movie=None, fps: float = 10.0, suffix: s
 
     The scene is the first step's, with `options` (eb.render's), its colours over
     the series' range of the field (`Series.field_range`) unless `range` or a
-    transfer function is given, and one camera for every step, so that the
-    frames differ by the data alone: unless `position` and `look_at` are given,
+    transfer function is given, one exposure (the first frame's automatic
+    exposure, where the scene has one, made fixed), and one camera for every
+    step, so that the frames differ by the data alone: unless `position` and `look_at` are given,
     the default view framing what is visible at any step. It is written as
     `directory/scene.json`: `exabricks render STEP --scene scene.json -o FRAME`
     draws each frame again. The range and the framing are passes over every
@@ -277,10 +278,12 @@ def render_series(series, directory, *, movie=None, fps: float = 10.0, suffix: s
     scene = first.scene(**options)
     if not placed and not scene.instances:
         scene = scene.replace(camera=_framed_over(series, scene, options))
-    write_json(directory / "scene.json", scene_to_dict(scene), inputs=steps)
     with progress.bar(total=len(series), desc="series", unit="step") as bar:
         for i, dataset in enumerate(series):
             image = (first if i == 0 else Renderer(dataset, device=device)).render(scene)
+            if i == 0:  # one exposure for every frame: the first frame's, made fixed
+                scene = _exposure_fixed(scene, image)
+                write_json(directory / "scene.json", scene_to_dict(scene), inputs=steps)
             image.save(frames[i])
             bar.update()
     if movie is not None:
@@ -297,6 +300,19 @@ def frame_paths(steps, directory, suffix: str) -> list[Path]:
         width = max(4, len(str(len(names) - 1)))
         names = [f"{i:0{width}d}-{n}" for i, n in enumerate(names)]
     return [Path(directory) / (n + suffix) for n in names]
+
+
+def _exposure_fixed(scene, image):
+    """`scene` with the automatic exposure that the film metered on `image` (its
+    first frame) added to settings.exposure and turned off, so that every frame
+    of the series is exposed alike (the first frame's pixels unchanged)."""
+    from dataclasses import replace
+
+    s = scene.settings
+    if not s.auto_exposure:
+        return scene
+    metered = float(image.metadata["settings"].get("metered_exposure", 0.0))
+    return scene.replace(settings=replace(s, auto_exposure=False, exposure=s.exposure + metered))
 
 
 def _whole_view(dataset) -> dict:

@@ -100,7 +100,7 @@ def test_render_series_frames_are_the_command_lines(runs, tmp_path):
     fixed, _, cache = runs
     out = tmp_path / "frames"
     frames = eb.render_series(eb.open_series(str(fixed / "plt*"), cache=cache), out,
-                              movie=tmp_path / "phi.gif", size=(48, 32), scale="linear")
+                              movie=tmp_path / "phi.gif", size=(48, 32))
     assert [f.name for f in frames] == ["plt00000.png", "plt00010.png", "plt00020.png"]
     lo, hi = files_range(sorted(fixed.glob("plt*")), "phi")
     for frame, step in zip(frames, sorted(fixed.glob("plt*"))):
@@ -118,8 +118,34 @@ def test_render_series_frames_are_the_command_lines(runs, tmp_path):
     assert all(read_image(f)[1]["camera"] == first for f in frames)
     command = tmp_path / "command"  # the series command draws the same frames
     subprocess.run([sys.executable, "-m", "exabricks.cli.main", "series", fixed / "plt*", "-o", command,
-                    "--movie", command / "phi.mp4", "--size", "48", "32", "--scale", "linear",
-                    "--cache", cache], check=True)
+                    "--movie", command / "phi.mp4", "--size", "48", "32", "--cache", cache],
+                   check=True)
     for frame in frames:
         np.testing.assert_array_equal(read_image(command / frame.name)[0], read_image(frame)[0])
     assert (command / "phi.mp4").stat().st_size > 0
+
+
+@pytest.mark.slow
+def test_the_default_series_shows_the_travelling_blob(runs, tmp_path):
+    """docs/time-series.md's example as written (no scale, no range): every frame
+    is brightest where the blob is (its centre projected by the frame's camera),
+    not at the tails' corners, and one exposure serves every frame."""
+    from exabricks.picture.camera import Camera
+    from workflows.make_series import centre
+
+    fixed, _, cache = runs
+    frames = eb.render_series(eb.open_series(str(fixed / "plt*"), cache=cache), tmp_path / "f",
+                              field="phi", size=(64, 48))
+    scene = (tmp_path / "f" / "scene.json").read_text()
+    assert '"auto_exposure": false' in scene
+    for k, frame in enumerate(frames):
+        rgba, meta = read_image(frame)
+        camera = Camera.from_dict(meta["camera"])
+        origin, forward, du, dv = camera.frame(64, 48)
+        d = centre(k, 3) - origin
+        x = ((d @ du) / (du @ du) / (d @ forward) + 1) * 32
+        y = (1 - (d @ dv) / (dv @ dv) / (d @ forward)) * 24
+        lum = rgba[..., :3] @ np.array([0.2126, 0.7152, 0.0722])
+        row, col = np.unravel_index(np.argmax(lum), lum.shape)
+        assert abs(col + 0.5 - x) <= 4 and abs(row + 0.5 - y) <= 4, (k, row, col, x, y)
+        assert lum.max() > 0.5 and (lum > 0.05).mean() < 0.5
