@@ -16,7 +16,19 @@ and the PNG is measured by `picture_metrics`:
 - framing: the share of the frame's width and height (the larger) that the
   bounding box of the covered pixels spans;
 - isolated dark pixels: covered pixels darker than half the median of their
-  8 neighbours, per thousand covered pixels (speckle).
+  8 neighbours, per thousand covered pixels (speckle);
+- luminance: the standard deviation and the 99th percentile of the luminance
+  of covered pixels (issue 63 asks at least 0.08 and 0.6);
+- detail: the fine detail (mean absolute difference of the luminance from its
+  3 x 3 mean over covered pixels) over that of the same command with
+  `--shading none --spp 16` (noise and shading's edges; at most 2);
+- core: the share of covered pixels darker than the brightest pixel within
+  two pixels of the projection of the field's largest value (1: the densest
+  structure is the brightest; issue 63 asks that it show where it is).
+
+With --core DIR it also draws generated data: an AMReX plotfile (written
+into DIR) of a dense core spanning 6 decades and smaller than a pixel
+(`write_dense_core`).
 
 It prints a Markdown table (the one in docs/scene.md) and leaves the pictures
 in --out. With --yt DIR it also writes yt's `create_scene` default picture of
@@ -41,6 +53,9 @@ ROOT = Path(__file__).resolve().parents[1]
 SHARED = ROOT.parent / "shared" / "data"
 # Luminance above which a pixel counts as covered.
 COVERED = 0.03
+
+# The dense core's radius (world units, in a unit cube): 6 decades to the corners.
+CORE_RADIUS = 8.7e-4
 
 # name -> (source under ../shared/data, field flag)
 DATASETS = {
@@ -76,6 +91,85 @@ def picture_metrics(rgba8: np.ndarray) -> dict:
     return out
 
 
+def fine_detail(rgba8: np.ndarray) -> float:
+    """The mean absolute difference of the luminance from its 3 x 3 mean over the
+    covered pixels."""
+    lum = luminance(rgba8)
+    covered = lum > COVERED
+    if not covered.any():
+        return 0.0
+    h, w = lum.shape
+    padded = np.pad(lum, 1, mode="edge")
+    mean = sum(padded[1 + dy:h + 1 + dy, 1 + dx:w + 1 + dx] for dy in (-1, 0, 1)
+               for dx in (-1, 0, 1)) / 9.0
+    return float(np.abs(lum - mean)[covered].mean())
+
+
+def largest_value_at(source: Path, field: str) -> np.ndarray:
+    """World position (3,) of the centre of the cell holding the largest value
+    of `field` in `source`."""
+    import exabricks as eb
+
+    bricks = eb.open(str(source), fields=[field]).bricks
+    values = np.asarray(bricks.values[bricks.field_index(field)])
+    at = int(np.nanargmax(values))
+    brick = int(np.searchsorted(bricks.offset, at, side="right")) - 1
+    nx, ny, _ = (int(d) for d in bricks.dims[brick])
+    i = at - int(bricks.offset[brick])
+    cell = np.array([i % nx, (i // nx) % ny, i // (nx * ny)], np.float64)
+    width = float(1 << int(bricks.level[brick]))
+    lattice = np.asarray(bricks.lower_lattice[brick], np.float64) + (cell + 0.5) * width
+    return np.asarray(bricks.origin_world, np.float64) + lattice * np.asarray(bricks.spacing_world)
+
+
+def core_rank(rgba8: np.ndarray, png: Path, world: np.ndarray) -> float:
+    """The share of covered pixels darker than the brightest pixel within two
+    pixels of `world` projected by the camera recorded in `png`."""
+    import json
+
+    from PIL import Image
+
+    from exabricks.picture.camera import Camera
+
+    camera = Camera.from_dict(json.loads(Image.open(png).info["exabricks:camera"]))
+    h, w = rgba8.shape[:2]
+    origin, forward, du, dv = camera.frame(w, h)
+    d = world - origin
+    depth = d @ forward
+    x = ((d @ du) / (du @ du) / depth + 1.0) * 0.5 * w
+    y = (1.0 - (d @ dv) / (dv @ dv) / depth) * 0.5 * h
+    lum = luminance(rgba8)
+    covered = lum > COVERED
+    if depth <= 0 or not covered.any():
+        return 0.0
+    c, r = int(x), int(y)
+    near = lum[max(0, r - 2):max(0, r + 3), max(0, c - 2):max(0, c + 3)]
+    return float((lum[covered] < near.max()).mean()) if near.size else 0.0
+
+
+def write_dense_core(root: Path) -> Path:
+    """An AMReX plotfile `root` of one field, `density` = 1 / (1 + (r / R)^2), R =
+    CORE_RADIUS, around an off-centre point: 6 decades from the core (smaller
+    than a pixel of a 512-pixel frame) to the corners, on a 32^3 base grid and 5
+    levels of refinement nested around the core. `root` is kept where it exists."""
+    from benchmarks.amrex_plotfile import write_plotfile
+    from workflows.make_series import hierarchy
+
+    if root.exists():
+        return root
+    size, levels, core = 32, 5, np.array([0.43, 0.56, 0.47])
+
+    def data(level, glo, ghi):
+        dx = 1.0 / (size * 2 ** level)
+        x, y, z = ((np.arange(glo[a], ghi[a] + 1) + 0.5) * dx - core[a] for a in range(3))
+        r2 = x[None, None, :] ** 2 + y[None, :, None] ** 2 + z[:, None, None] ** 2
+        return (1.0 / (1.0 + r2 / CORE_RADIUS ** 2))[None]
+
+    write_plotfile(root, hierarchy(core, size, levels), [2] * levels, ["density"], data,
+                   base=size, keep=False)
+    return root
+
+
 def render_default(name: str, output: Path, *, data: Path = SHARED, extra=()) -> np.ndarray:
     """Render dataset `name` with no option but its field into `output` (.png);
     its RGBA pixels (H, W, 4) uint8."""
@@ -85,6 +179,25 @@ def render_default(name: str, output: Path, *, data: Path = SHARED, extra=()) ->
     subprocess.run([*exabricks_command(), "render", str(data / source), *field, *extra,
                     "-o", str(output)], check=True)
     return np.asarray(Image.open(output).convert("RGBA"))
+
+
+def measured(name: str, out: Path, data: Path = SHARED) -> dict:
+    """Every measure of the module docstring of dataset `name`'s default picture,
+    left in `out`/NAME.png (and NAME-flat.png, unshaded at 16 spp)."""
+    source, field = DATASETS[name]
+    png = out / f"{name}.png"
+    rgba8 = render_default(name, png, data=data)
+    flat = render_default(name, out / f"{name}-flat.png", data=data,
+                          extra=("--shading", "none", "--spp", "16"))
+    m = picture_metrics(rgba8)
+    lum = luminance(rgba8)
+    seen = lum[lum > COVERED]
+    m["std"] = float(seen.std()) if seen.size else 0.0
+    m["p99"] = float(np.quantile(seen, 0.99)) if seen.size else 0.0
+    m["detail"] = fine_detail(rgba8) / max(fine_detail(flat), 1e-9)
+    name_of_field = field[1] if field else "phi"
+    m["core"] = core_rank(rgba8, png, largest_value_at(data / source, name_of_field))
+    return m
 
 
 def yt_default(name: str, output: Path, *, data: Path = SHARED) -> float:
@@ -123,7 +236,15 @@ def main(argv=None) -> int:
     parser.add_argument("--out", type=Path, default=None, help="folder for the pictures")
     parser.add_argument("--yt", type=Path, default=None, metavar="DIR",
                         help="also write yt's create_scene default of each dataset here")
+    parser.add_argument("--core", type=Path, default=None, metavar="DIR",
+                        help="also draw the generated dense core (its plotfile written here)")
     args = parser.parse_args(argv)
+    data = {name: SHARED for name in DATASETS}
+    if args.core is not None:
+        args.core.mkdir(parents=True, exist_ok=True)
+        write_dense_core(args.core / "dense-core")
+        DATASETS["core"] = ("dense-core", ("--field", "density"))
+        data["core"] = args.core
     if args.yt is not None:
         args.yt.mkdir(parents=True, exist_ok=True)
         for name in DATASETS:
@@ -131,13 +252,15 @@ def main(argv=None) -> int:
             print(f"yt {name}: {seconds:.1f} s", file=sys.stderr)
     out = args.out or Path(tempfile.mkdtemp(prefix="first-picture-"))
     out.mkdir(parents=True, exist_ok=True)
-    print("| dataset | command | opaque | coverage | contrast | framing | isolated dark (‰) |")
-    print("|---|---|---|---|---|---|---|")
+    print("| dataset | command | opaque | coverage | framing | contrast | luminance σ | "
+          "luminance p99 | detail | core | isolated dark (‰) |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|")
     for name, (source, field) in DATASETS.items():
-        m = picture_metrics(render_default(name, out / f"{name}.png"))
+        m = measured(name, out, data[name])
         command = " ".join(["exabricks render", Path(source).name, *field, "-o x.png"])
         print(f"| {name} | `{command}` | {m['opaque']:.2f} | {m['coverage']:.2f} | "
-              f"{m['contrast']:.2f} | {m['framing']:.2f} | {m['isolated_dark']:.2f} |")
+              f"{m['framing']:.2f} | {m['contrast']:.2f} | {m['std']:.3f} | {m['p99']:.2f} | "
+              f"{m['detail']:.2f} | {m['core']:.3f} | {m['isolated_dark']:.2f} |")
     print(f"pictures in {out}", file=sys.stderr)
     return 0
 
