@@ -26,9 +26,9 @@ and the PNG is measured by `picture_metrics`:
   two pixels of the projection of the field's largest value (1: the densest
   structure is the brightest; issue 63 asks that it show where it is).
 
-With --core DIR it also draws generated data: an AMReX plotfile (written
-into DIR) of a dense core spanning 6 decades and smaller than a pixel
-(`write_dense_core`).
+With --core DIR it also draws generated data: workflows/make_dense_core.py's
+plotfile (written into DIR once) of a dense core spanning 6 decades and
+smaller than a pixel.
 
 It prints a Markdown table (the one in docs/scene.md) and leaves the pictures
 in --out. With --yt DIR it also writes yt's `create_scene` default picture of
@@ -48,14 +48,12 @@ from pathlib import Path
 import numpy as np
 
 from benchmarks.benchdoc import exabricks_command
+from workflows import make_dense_core
 
 ROOT = Path(__file__).resolve().parents[1]
 SHARED = ROOT.parent / "shared" / "data"
 # Luminance above which a pixel counts as covered.
 COVERED = 0.03
-
-# The dense core's radius (world units, in a unit cube): 6 decades to the corners.
-CORE_RADIUS = 8.7e-4
 
 # name -> (source under ../shared/data, field flag)
 DATASETS = {
@@ -147,29 +145,6 @@ def core_rank(rgba8: np.ndarray, png: Path, world: np.ndarray) -> float:
     return float((lum[covered] < near.max()).mean()) if near.size else 0.0
 
 
-def write_dense_core(root: Path) -> Path:
-    """An AMReX plotfile `root` of one field, `density` = 1 / (1 + (r / R)^2), R =
-    CORE_RADIUS, around an off-centre point: 6 decades from the core (smaller
-    than a pixel of a 512-pixel frame) to the corners, on a 32^3 base grid and 5
-    levels of refinement nested around the core. `root` is kept where it exists."""
-    from benchmarks.amrex_plotfile import write_plotfile
-    from workflows.make_series import hierarchy
-
-    if root.exists():
-        return root
-    size, levels, core = 32, 5, np.array([0.43, 0.56, 0.47])
-
-    def data(level, glo, ghi):
-        dx = 1.0 / (size * 2 ** level)
-        x, y, z = ((np.arange(glo[a], ghi[a] + 1) + 0.5) * dx - core[a] for a in range(3))
-        r2 = x[None, None, :] ** 2 + y[None, :, None] ** 2 + z[:, None, None] ** 2
-        return (1.0 / (1.0 + r2 / CORE_RADIUS ** 2))[None]
-
-    write_plotfile(root, hierarchy(core, size, levels), [2] * levels, ["density"], data,
-                   base=size, keep=False)
-    return root
-
-
 def render_default(name: str, output: Path, *, data: Path = SHARED, extra=()) -> np.ndarray:
     """Render dataset `name` with no option but its field into `output` (.png);
     its RGBA pixels (H, W, 4) uint8."""
@@ -242,7 +217,8 @@ def main(argv=None) -> int:
     data = {name: SHARED for name in DATASETS}
     if args.core is not None:
         args.core.mkdir(parents=True, exist_ok=True)
-        write_dense_core(args.core / "dense-core")
+        if not (args.core / "dense-core").exists():
+            make_dense_core.write(args.core / "dense-core")
         DATASETS["core"] = ("dense-core", ("--field", "density"))
         data["core"] = args.core
     if args.yt is not None:

@@ -56,6 +56,18 @@ RAMP_POWER = 4.0
 RAMP_KNOTS = 17
 # Share of the opacity whose values lie below (above) the colour map's ends.
 COLOUR_TRIM = 0.005
+# The opacity's layers: LAYERS bands at even shares of the opacity, each drawn
+# with LAYER_KNOTS knots, the opacity between them LAYER_FLOOR of the shape's,
+# their profile a raised cosine to the power LAYER_SHARPNESS.
+LAYERS = 5
+LAYER_KNOTS = 8
+LAYER_FLOOR = 0.3
+LAYER_SHARPNESS = 1.0
+# Samples per finest cell width of a region that a frame of only automatic transfer
+# functions takes by default (exabricks.scene.build): at the default 2 their layers
+# and colours alias into moire on the Gerris cap and the Enzo halo (fine detail
+# 3.3-6x that of 16 samples a pixel; 1.3-1.7x at 4; docs/scene.md).
+AUTOMATIC_SAMPLING_RATE = 4.0
 # Colours of the equalised colour map (the knots of its piecewise-linear function).
 COLOUR_KNOTS = 33
 # The optical depth of the DEPTH_QUANTILE of the default view's columns through
@@ -150,6 +162,27 @@ def equalised_colours(colormap: str, histogram: np.ndarray, shape: np.ndarray,
     return TransferFunction(knots, alpha, DEFAULT_NAME)
 
 
+def layered(shape: np.ndarray, histogram: np.ndarray, axis_range) -> np.ndarray:
+    """`shape` times LAYERS smooth layers, placed as the equalised colours are
+    (at even shares of the opacity): between two layers the opacity falls to
+    LAYER_FLOOR of the shape's, so that nested shells and fronts show as bands
+    of their own colour (yt's add_layers, placed by the histogram)."""
+    a, b = axis_range
+    centres, weight = _opacity_by_bin(histogram, shape, axis_range)
+    if not weight.sum() > 0:
+        return shape
+    edges = np.linspace(a, b, len(histogram) + 1)
+    cumulative = np.concatenate([[0.0], np.cumsum(weight) / weight.sum()])
+    shares = np.linspace(0.0, 1.0, LAYERS * LAYER_KNOTS + 1)
+    at = np.interp(shares, cumulative, edges)
+    wave = 0.5 - 0.5 * np.cos(2.0 * np.pi * LAYERS * shares)  # peaks at (k + 1/2) / LAYERS
+    modulation = LAYER_FLOOR + (1.0 - LAYER_FLOOR) * wave ** LAYER_SHARPNESS
+    xs = np.union1d(shape[:, 0], at)
+    keep = np.concatenate([[True], np.diff(at) > 0])
+    factor = np.interp(xs, at[keep], modulation[keep])
+    return strictly_increasing(np.column_stack([xs, np.interp(xs, shape[:, 0], shape[:, 1]) * factor]))
+
+
 def visible_span(histogram: np.ndarray, shape: np.ndarray, axis_range) -> tuple[float, float]:
     """The span of the scaled axis that holds all but COLOUR_TRIM of the opacity
     (volume x shape) at each end: where the colours go."""
@@ -199,6 +232,7 @@ def automatic_transfer_function(bricks, field: str, *, scale: str | None = None,
     scale, threshold, axis, histogram, _, shape = _ambient_shape(bricks, field, scale, value_range)
     colours = (TransferFunction.from_colormap(colormap, axis) if value_range
                else equalised_colours(colormap, histogram, shape, axis))
+    shape = layered(shape, histogram, axis)
     unit = TransferFunction(on_lattice(colours.rgb_points, axis), on_lattice(shape, axis),
                             DEFAULT_NAME).on_scale(scale, threshold)
     sigma = _sigma_for_depth(bricks, field, unit, unit_distance)

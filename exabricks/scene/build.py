@@ -409,15 +409,19 @@ def _background(file: SceneFile, f) -> tuple[float, float, float, float]:
 
 
 def _settings(file: SceneFile, f, volumes) -> Settings:
-    """The settings; the automatic exposure, where neither the flags nor the file
-    say, is on where every volume layer's transfer function is the automatic one."""
-    from ..picture.auto_transfer import DEFAULT_NAME
+    """The settings. Where every volume layer's transfer function is the
+    automatic one, and neither the flags nor the file say otherwise, the frame
+    is exposed automatically and sampled at AUTOMATIC_SAMPLING_RATE: its
+    layers and equalised colours change faster with the value than most
+    hand-made functions (docs/scene.md, "Defaults that show the data")."""
+    from ..picture.auto_transfer import AUTOMATIC_SAMPLING_RATE, DEFAULT_NAME
 
     d = Settings()
     width, height = _pick(f, "size", file, ("size",), (d.width, d.height))
     declared = _declared("settings", file, f)
-    declared.setdefault("auto_exposure", bool(volumes) and all(
-        v.transfer_function.name == DEFAULT_NAME for v in volumes))
+    if volumes and all(v.transfer_function.name == DEFAULT_NAME for v in volumes):
+        declared.setdefault("auto_exposure", True)
+        declared.setdefault("sampling_rate", AUTOMATIC_SAMPLING_RATE)
     return Settings(width=int(width), height=int(height), **declared)
 
 

@@ -413,7 +413,8 @@ SCENE_OPTIONS = (
              kind="int", low=0, high=2**32 - 1),
     _setting("jitter", "--no-jitter: no interleaved jitter (rho = 0.5): fully deterministic sample "
              "positions.", kind="flag", applies=("marched",)),
-    _setting("sampling_rate", "Samples per finest cell width of each region (default 2).",
+    _setting("sampling_rate", "Samples per finest cell width of each region (default 2; 4 "
+             "where every volume's transfer function is the automatic one).",
              **_POSITIVE),
     _setting("max_opacity", "Early ray termination threshold (default 0.98; 1 turns it off).",
              low=0.0, high=1.0, low_open=True, applies=("marched",)),

@@ -9,7 +9,7 @@ from pathlib import Path
 import pytest
 
 from exabricks import schema
-from exabricks.picture.auto_transfer import automatic_transfer_function
+from exabricks.picture.auto_transfer import AUTOMATIC_SAMPLING_RATE, automatic_transfer_function
 from exabricks.picture.camera import Camera
 from exabricks.picture.framing import framed_camera, view_axes, visible_corners
 from exabricks.util.errors import ExabricksError
@@ -83,8 +83,9 @@ def test_defaults(bricks):
     # The camera frames what the automatic function shows, from the three-quarter view.
     corners = visible_corners(bricks, "P", layer.transfer_function, axes=view_axes())
     assert scene.camera == framed_camera(corners)
-    # The automatic picture is exposed automatically (exabricks.film.exposure).
-    assert scene.settings == Settings(auto_exposure=True)
+    # The automatic picture is exposed automatically (exabricks.film.exposure) and
+    # sampled finely enough for its layers (auto_transfer.AUTOMATIC_SAMPLING_RATE).
+    assert scene.settings == Settings(auto_exposure=True, sampling_rate=AUTOMATIC_SAMPLING_RATE)
     assert scene.lighting == Lighting() and scene.clip == Clip()
     assert scene.isosurfaces == () and scene.slices == () and scene.background == (0, 0, 0, 0)
 

@@ -1,0 +1,98 @@
+"""The first picture (issue 63): the automatic transfer function's colours
+spread by opacity-weighted histogram equalisation and its layers placed the
+same way, the automatic scale that stays linear on a Gaussian blob, and the
+default picture of a dense core smaller than a pixel, which shows bright
+where the core is."""
+
+from __future__ import annotations
+
+import functools
+
+import numpy as np
+import pytest
+from PIL import Image
+
+import exabricks as eb
+from exabricks.picture import auto_transfer
+from exabricks.picture.auto_transfer import (COLOUR_KNOTS, COLOUR_TRIM, LAYERS, _ambient_shape,
+                                             automatic_transfer_function, equalised_colours, layered)
+from exabricks.picture.camera import Camera
+from exabricks.readers import read
+from workflows import make_dense_core, make_series
+
+from helpers import ENZO, build
+
+
+@functools.lru_cache(maxsize=1)
+def _enzo():
+    return build(read(str(ENZO), fields=["Density"])).bricks
+
+
+def _opacity_weight(bricks, field):
+    scale, threshold, axis, histogram, _, shape = _ambient_shape(bricks, field, None, None)
+    edges = np.linspace(*axis, len(histogram) + 1)
+    centres = 0.5 * (edges[1:] + edges[:-1])
+    return histogram * np.interp(centres, shape[:, 0], shape[:, 1]), edges, histogram, shape, axis
+
+
+def test_each_colour_covers_as_much_of_what_is_seen():
+    """Between two knots of the equalised colour map lies the same share of the
+    opacity-weighted volume, on Enzo's log axis where the top 2.5 decades (the
+    core) hold almost none of it."""
+    weight, edges, histogram, shape, axis = _opacity_weight(_enzo(), "Density")
+    colours = equalised_colours("viridis", histogram, shape, axis)
+    knots = colours.rgb_points[:, 0]
+    assert len(knots) == COLOUR_KNOTS
+    cumulative = np.concatenate([[0.0], np.cumsum(weight) / weight.sum()])
+    shares = np.diff(np.interp(knots, edges, cumulative))
+    np.testing.assert_allclose(shares, (1 - 2 * COLOUR_TRIM) / (COLOUR_KNOTS - 1), rtol=1e-6)
+    # the colours run from the colour map's first to its last
+    np.testing.assert_allclose(colours.rgb_points[[0, -1], 1:],
+                               [[0.267004, 0.004874, 0.329415], [0.993248, 0.906157, 0.143936]],
+                               atol=1e-6)
+
+
+def test_the_layers_are_bands_at_even_shares_of_the_opacity():
+    weight, edges, histogram, shape, axis = _opacity_weight(_enzo(), "Density")
+    bands = layered(shape, histogram, axis)
+    xs = np.linspace(*axis, 20001)
+    ratio = np.interp(xs, bands[:, 0], bands[:, 1]) / np.maximum(
+        np.interp(xs, shape[:, 0], shape[:, 1]), 1e-300)
+    on = np.interp(xs, shape[:, 0], shape[:, 1]) > 0
+    peaks = np.sum((ratio[1:-1] > ratio[:-2]) & (ratio[1:-1] >= ratio[2:]) & on[1:-1]
+                   & (ratio[1:-1] > 0.99))
+    assert peaks == LAYERS
+    assert ratio[on].min() == pytest.approx(auto_transfer.LAYER_FLOOR, abs=0.02)
+
+
+def test_a_gaussian_blob_stays_on_a_linear_axis(tmp_path):
+    """Its tails reach 1e-38, but 5.8 % of its volume lies above 1 % of its
+    range: on a log axis most colours would go to the tails."""
+    step = make_series.write_step(tmp_path, 0, 8, 16, 2)
+    bricks = eb.open(step, cache=tmp_path / "cache").bricks
+    tf = automatic_transfer_function(bricks, "phi")
+    assert tf.scale == "linear"
+    assert automatic_transfer_function(_enzo(), "Density").scale == "log"
+
+
+@pytest.mark.slow
+def test_the_default_picture_of_a_dense_core_shows_it(tmp_path):
+    """The default render of the generated core (6 decades, smaller than a
+    pixel): an opaque picture, near white at its brightest, whose brightest
+    pixels are at the core's projection (issue 63's "Done when")."""
+    source = make_dense_core.write(tmp_path / "core")
+    image = eb.render(eb.open(source, cache=tmp_path / "cache"), field="density", size=(160, 160))
+    image.save(tmp_path / "core.png")
+    rgba8 = np.asarray(Image.open(tmp_path / "core.png").convert("RGBA"))
+    lum = (rgba8[..., :3] / 255.0) @ np.array([0.2126, 0.7152, 0.0722])
+    seen = lum[lum > 0.03]
+    assert (rgba8[..., 3] == 255).all() and 0.03 < (lum > 0.03).mean() < 0.95
+    assert seen.std() >= 0.08 and np.quantile(seen, 0.99) >= 0.6
+    camera = Camera.from_dict(image.metadata["camera"])
+    origin, fwd, du, dv = camera.frame(160, 160)
+    d = make_dense_core.CORE - origin
+    col = ((d @ du) / (du @ du) / (d @ fwd) + 1) * 80
+    row = (1 - (d @ dv) / (dv @ dv) / (d @ fwd)) * 80
+    near = lum[int(row) - 2:int(row) + 3, int(col) - 2:int(col) + 3]
+    assert near.max() >= np.quantile(seen, 0.995)
+    assert image.scene.volumes[0].transfer_function.scale == "log"
