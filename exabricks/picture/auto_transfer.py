@@ -68,6 +68,10 @@ LAYER_SHARPNESS = 1.0
 # and colours alias into moire on the Gerris cap and the Enzo halo (fine detail
 # 3.3-6x that of 16 samples a pixel; 1.3-1.7x at 4; docs/scene.md).
 AUTOMATIC_SAMPLING_RATE = 4.0
+# Bins on each side over which the suggested iso-value's steepness is smoothed, and
+# the share of the scaled axis next to the ambient band it keeps away from.
+ISO_SMOOTHING = 4
+ISO_MARGIN = 0.05
 # Colours of the equalised colour map (the knots of its piecewise-linear function).
 COLOUR_KNOTS = 33
 # The optical depth of the DEPTH_QUANTILE of the default view's columns through
@@ -242,22 +246,30 @@ def automatic_transfer_function(bricks, field: str, *, scale: str | None = None,
 
 
 def suggested_iso_value(bricks, field: str, *, scale: str | None = None) -> float:
-    """An iso-value of `field` that shows a surface: on the side of the ambient
-    band (`ambient_band`) that reaches further on the scaled axis (the blast's
-    shell, the plume's hot core, the collapsed halo), the value that splits
-    that side's automatic opacity in half, in data units. Where the field has
-    no such side, the ambient value."""
+    """An iso-value of `field` whose surface is well defined: among the values
+    that the automatic opacity shows, at least ISO_MARGIN of the scaled axis
+    beyond the ambient band (`ambient_band`; its own noise makes ragged
+    surfaces), the one that the field crosses most steeply over the largest
+    area: the peak of `steepness_histogram` (area x steepness) smoothed over
+    ISO_SMOOTHING bins a side, so that neither a flat ridge (crossed nowhere
+    steeply) nor a level that many cells hold exactly (a plateau's own value)
+    is chosen; in data units. Where no such value is, the ambient value."""
+    from .field_statistics import steepness_histogram
     from .scaling import inverse
 
     scale, threshold, axis, histogram, band, shape = _ambient_shape(bricks, field, scale, None)
-    centres, weight = _opacity_by_bin(histogram, shape, axis)
-    below, above = weight[:band[0]], weight[band[1] + 1:]
-    upper = HISTOGRAM_BINS - 1 - band[1] >= band[0]
-    side, at = (above, centres[band[1] + 1:]) if upper else (below, centres[:band[0]])
-    if not side.sum() > 0:
+    a, b = axis
+    centres = a + (np.arange(HISTOGRAM_BINS) + 0.5) * (b - a) / HISTOGRAM_BINS
+    steep = steepness_histogram(bricks, field, scale, threshold, axis, HISTOGRAM_BINS)
+    kernel = np.hanning(2 * ISO_SMOOTHING + 3)[1:-1]
+    steep = np.convolve(steep, kernel / kernel.sum(), mode="same")
+    width = (b - a) / HISTOGRAM_BINS
+    low, high = a + band[0] * width, a + (band[1] + 1) * width
+    near = np.maximum(low - centres, centres - high) < ISO_MARGIN * (b - a)
+    steep[near | (np.interp(centres, shape[:, 0], shape[:, 1]) <= 0.0)] = 0.0  # or nothing seen
+    if not steep.max() > 0:
         return float(inverse(centres[band[0]], scale, threshold))
-    half = int(np.searchsorted(np.cumsum(side) / side.sum(), 0.5))
-    return float(inverse(at[min(half, len(at) - 1)], scale, threshold))
+    return float(inverse(centres[int(np.argmax(steep))], scale, threshold))
 
 
 def _sigma_for_depth(bricks, field: str, unit: TransferFunction, unit_distance) -> float:

@@ -96,3 +96,52 @@ def test_the_default_picture_of_a_dense_core_shows_it(tmp_path):
     near = lum[int(row) - 2:int(row) + 3, int(col) - 2:int(col) + 3]
     assert near.max() >= np.quantile(seen, 0.995)
     assert image.scene.volumes[0].transfer_function.scale == "log"
+
+
+def _steepness_reference(bricks, field, axis, bins):
+    """steepness_histogram by its definition in float64 NumPy (linear scale)."""
+    a, b = axis
+    out = np.zeros(bins + 1)
+    values = np.asarray(bricks.values[bricks.field_index(field)], np.float64)
+    for k in range(bricks.n_bricks):
+        nx, ny, nz = (int(d) for d in bricks.dims[k])
+        first = int(bricks.offset[k])
+        cube = values[first:first + nx * ny * nz].reshape(nz, ny, nx)
+        width = float(1 << int(bricks.level[k]))
+        for axis_index in (2, 1, 0):  # x, y, z neighbours
+            lo = np.take(cube, range(cube.shape[axis_index] - 1), axis=axis_index).ravel()
+            hi = np.take(cube, range(1, cube.shape[axis_index]), axis=axis_index).ravel()
+            s1, s2 = np.minimum(lo, hi), np.maximum(lo, hi)
+            keep = np.isfinite(s1) & np.isfinite(s2) & (s2 > s1)
+            s1, s2 = s1[keep], s2[keep]
+            k1 = np.where(s1 > a, np.minimum(((s1 - a) * bins / (b - a)).astype(int), bins - 1), 0)
+            k2 = np.where(s2 > a, np.minimum(((s2 - a) * bins / (b - a)).astype(int), bins - 1), 0)
+            np.add.at(out, k1, width * (s2 - s1))
+            np.add.at(out, k2 + 1, -width * (s2 - s1))
+    return np.cumsum(out[:-1])
+
+
+def test_the_steepness_histogram_against_its_definition():
+    from exabricks.picture.field_statistics import field_range, steepness_histogram
+
+    from helpers import GERRIS
+
+    bricks = build(read(str(GERRIS), fields=["T"])).bricks
+    axis = field_range(bricks, "T")
+    np.testing.assert_allclose(steepness_histogram(bricks, "T", "linear", 1.0, axis, 64),
+                               _steepness_reference(bricks, "T", axis, 64), rtol=1e-9, atol=1e-9)
+
+
+def test_the_suggested_iso_value_is_crossed_not_held():
+    """Not a level that many cells hold exactly (Enzo's top-hat at Density 1,
+    Athena++'s ambient rho 1), nor the top of a ridge, nor the ambient band's
+    noise: inside what the automatic function shows, with surfaces of their own."""
+    from exabricks.picture.auto_transfer import suggested_iso_value
+
+    bricks = _enzo()
+    iso = suggested_iso_value(bricks, "Density")
+    values = np.asarray(bricks.values[0])
+    assert 0.3 < iso < 0.95 and not np.any(values == np.float32(iso))
+    # cells on both sides of it: a surface, not the field's extreme
+    assert (values < iso).sum() > 1000 and (values > iso).sum() > 1000
+
