@@ -28,8 +28,8 @@ def main() -> None:
         subprocess.run([sys.executable, ROOT / "workflows" / "make_series.py", run, "--steps", "8",
                         "--fixed-hierarchy"], check=True, capture_output=True)
         series = eb.open_series(str(run / "plt*"), cache=Path(tmp) / "cache")
-        frames = eb.render_series(series, Path(tmp) / "frames", field="phi", scale="linear",
-                                  size=(160, 120), spp=4)
+        frames = eb.render_series(series, Path(tmp) / "frames", field="phi", size=(160, 120),
+                                  spp=4)
         images = [Image.open(f).convert("RGB") for f in frames]
         strip = Image.new("RGB", (160 * len(images), 120))
         for i, image in enumerate(images):
