@@ -204,8 +204,8 @@ def render_series(series, directory, *, movie=None, fps: float = 10.0, suffix: s
     the series' range of the field (`Series.field_range`) unless `range` or a
     transfer function is given, one exposure (the first frame's automatic
     exposure, where the scene has one, made fixed), and one camera for every
-    step, so that the frames differ by the data alone: unless `position` and `look_at` are given,
-    the default view framing what is visible at any step. It is written as
+    step, so that the frames differ by the data alone: unless `position` and
+    `look_at` are given, the default view framing what is visible at any step. It is written as
     `directory/scene.json`: `exabricks render STEP --scene scene.json -o FRAME`
     draws each frame again. The range and the framing are passes over every
     step before the frames: `range` and `position` with `look_at` save them.

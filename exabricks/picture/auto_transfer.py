@@ -29,6 +29,9 @@ It is made from the field's *volume-weighted* histogram on its scaled axis
    covers as much of what is seen: nested shells and a core in distinct
    colours, however many decades apart. Over a range given, the colours span
    it evenly instead.
+5. The opacity is drawn in LAYERS smooth bands at even shares of that same
+   opacity (`layered`; yt's add_layers, placed by the histogram), so that
+   nested shells and fronts show as bands of their own colour, with edges.
 
 The result is an ordinary piecewise-linear function of the data value
 (`TransferFunction.on_scale`), so every renderer, the scene file and the colour
@@ -66,7 +69,7 @@ LAYER_SHARPNESS = 1.0
 # Samples per finest cell width of a region that a frame of only automatic transfer
 # functions takes by default (exabricks.scene.build): at the default 2 their layers
 # and colours alias into moire on the Gerris cap and the Enzo halo (fine detail
-# 3.3-6x that of 16 samples a pixel; 1.3-1.7x at 4; docs/scene.md).
+# 3.3-6x that of 16 samples a pixel unshaded; 1.4-1.75x at 4; docs/scene.md).
 AUTOMATIC_SAMPLING_RATE = 4.0
 # Bins on each side over which the suggested iso-value's steepness is smoothed, and
 # the share of the scaled axis next to the ambient band it keeps away from.
@@ -144,6 +147,17 @@ def _opacity_by_bin(histogram: np.ndarray, shape: np.ndarray, axis_range):
     return centres, histogram * np.interp(centres, shape[:, 0], shape[:, 1])
 
 
+def _at_shares(shares: np.ndarray, histogram: np.ndarray, shape: np.ndarray, axis_range):
+    """The values on the scaled axis below which each of `shares` of the opacity
+    (volume x `shape`) lies; None where there is none."""
+    a, b = axis_range
+    _, weight = _opacity_by_bin(histogram, shape, axis_range)
+    if not weight.sum() > 0:
+        return None
+    cumulative = np.concatenate([[0.0], np.cumsum(weight) / weight.sum()])
+    return np.interp(shares, cumulative, np.linspace(a, b, len(histogram) + 1))
+
+
 def equalised_colours(colormap: str, histogram: np.ndarray, shape: np.ndarray,
                       axis_range) -> TransferFunction:
     """`colormap` over the scaled axis, each of COLOUR_KNOTS evenly spaced
@@ -151,13 +165,10 @@ def equalised_colours(colormap: str, histogram: np.ndarray, shape: np.ndarray,
     `shape`, all but COLOUR_TRIM at either end) lies: colours spread by what
     is seen (module docstring, 4); evenly over `axis_range` where nothing is."""
     a, b = axis_range
-    centres, weight = _opacity_by_bin(histogram, shape, axis_range)
-    if not weight.sum() > 0:
-        return TransferFunction.from_colormap(colormap, axis_range)
-    edges = np.linspace(a, b, len(histogram) + 1)
-    cumulative = np.concatenate([[0.0], np.cumsum(weight) / weight.sum()])
     shares = np.linspace(COLOUR_TRIM, 1.0 - COLOUR_TRIM, COLOUR_KNOTS)
-    at = np.interp(shares, cumulative, edges)
+    at = _at_shares(shares, histogram, shape, axis_range)
+    if at is None:
+        return TransferFunction.from_colormap(colormap, axis_range)
     colours = np.asarray(matplotlib_colormap(colormap)(np.linspace(0.0, 1.0, COLOUR_KNOTS)))[:, :3]
     knots = strictly_increasing(np.column_stack([at, colours]))
     if len(knots) < 2:
@@ -171,34 +182,16 @@ def layered(shape: np.ndarray, histogram: np.ndarray, axis_range) -> np.ndarray:
     (at even shares of the opacity): between two layers the opacity falls to
     LAYER_FLOOR of the shape's, so that nested shells and fronts show as bands
     of their own colour (yt's add_layers, placed by the histogram)."""
-    a, b = axis_range
-    centres, weight = _opacity_by_bin(histogram, shape, axis_range)
-    if not weight.sum() > 0:
-        return shape
-    edges = np.linspace(a, b, len(histogram) + 1)
-    cumulative = np.concatenate([[0.0], np.cumsum(weight) / weight.sum()])
     shares = np.linspace(0.0, 1.0, LAYERS * LAYER_KNOTS + 1)
-    at = np.interp(shares, cumulative, edges)
+    at = _at_shares(shares, histogram, shape, axis_range)
+    if at is None:
+        return shape
     wave = 0.5 - 0.5 * np.cos(2.0 * np.pi * LAYERS * shares)  # peaks at (k + 1/2) / LAYERS
     modulation = LAYER_FLOOR + (1.0 - LAYER_FLOOR) * wave ** LAYER_SHARPNESS
     xs = np.union1d(shape[:, 0], at)
     keep = np.concatenate([[True], np.diff(at) > 0])
     factor = np.interp(xs, at[keep], modulation[keep])
     return strictly_increasing(np.column_stack([xs, np.interp(xs, shape[:, 0], shape[:, 1]) * factor]))
-
-
-def visible_span(histogram: np.ndarray, shape: np.ndarray, axis_range) -> tuple[float, float]:
-    """The span of the scaled axis that holds all but COLOUR_TRIM of the opacity
-    (volume x shape) at each end: where the colours go."""
-    a, b = axis_range
-    centres, weight = _opacity_by_bin(histogram, shape, axis_range)
-    if not weight.sum() > 0:
-        return a, b
-    cumulative = np.cumsum(weight) / weight.sum()
-    lo = centres[int(np.searchsorted(cumulative, COLOUR_TRIM))]
-    hi = centres[min(int(np.searchsorted(cumulative, 1.0 - COLOUR_TRIM)), len(centres) - 1)]
-    half = 0.5 * (b - a) / len(histogram)
-    return (lo - half, hi + half) if hi > lo else (a, b)
 
 
 def field_axis(bricks, field: str, scale: str | None = None):
