@@ -100,7 +100,7 @@ S_TF = "--field rho --colormap magma --range 0.1 1.2 --opacity 0,0.02,0.15,0.4"
 # The first picture: each dataset with no option but its field (docs/scene.md, "Defaults").
 DEFAULT_FIELDS = {"gerris": "--field T", "athena": "--field rho", "amrex": "", "enzo": "--field Density"}
 # exabricks.picture.auto_transfer.suggested_iso_value of each (tests/picture/test_first_picture.py).
-SUGGESTED_ISO = {"gerris": 0.2281, "athena": 1.721, "amrex": 1.357, "enzo": 0.723}
+SUGGESTED_ISO = {"gerris": 0.2281, "athena": 1.721, "amrex": 1.357, "enzo": 0.786}
 
 
 def shots() -> list[Shot]:

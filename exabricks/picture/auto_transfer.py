@@ -2,7 +2,9 @@
 (docs/scene.md, "Defaults that show the data").
 
 It is made from the field's *volume-weighted* histogram on its scaled axis
-(exabricks.picture.scaling; log for a positive field spanning more than two decades):
+(exabricks.picture.scaling; log for a positive field spanning more than two decades),
+over the span that holds all but TAIL of the volume at either end
+(`volume_percentiles`), so that a few outlying cells cannot take the axis:
 
 1. The ambient value is the histogram's mode: the value that fills the most
    space (the quiet medium around a blast, the cold gas of a cosmology box, the
@@ -51,6 +53,11 @@ from .transfer_function import (TransferFunction, matplotlib_colormap, strictly_
 
 # Bins of the volume-weighted histogram over the scaled range.
 HISTOGRAM_BINS = 256
+# The share of the volume at either end of the field's range that the automatic
+# axis leaves out (values beyond take the colour and opacity of its ends), found
+# on a histogram of PERCENTILE_BINS bins.
+TAIL = 1e-6
+PERCENTILE_BINS = 4096
 # Bins next to the mode holding at least this share of its volume are ambient too.
 AMBIENT_SHOULDER = 0.05
 # The opacity's rise with the distance from the ambient band: a power of it, so that
@@ -207,11 +214,34 @@ def field_axis(bricks, field: str, scale: str | None = None):
             floor)
 
 
+def volume_percentiles(bricks, field: str, scale: str, threshold: float, axis_range):
+    """The span of the scaled axis `axis_range` that holds all but TAIL of the
+    volume at either end: an axis that a few outlying cells, or the far tails
+    of a distribution, cannot take. Found on a histogram of PERCENTILE_BINS
+    bins, then again on one over the span found (values beyond it in its end
+    bins), to 1/PERCENTILE_BINS of what the outliers leave."""
+    for _ in range(2):
+        a, b = axis_range
+        volume = volume_histogram(bricks, field, scale, threshold, axis_range, PERCENTILE_BINS)
+        if not volume.sum() > 0:
+            return axis_range
+        cumulative = np.cumsum(volume) / volume.sum()
+        width = (b - a) / PERCENTILE_BINS
+        lo = a + width * int(np.searchsorted(cumulative, TAIL, side="right"))
+        hi = min(b, a + width * (int(np.searchsorted(cumulative, 1.0 - TAIL)) + 1))
+        if not hi > lo:
+            return axis_range
+        axis_range = (lo, hi)
+    return axis_range
+
+
 def _ambient_shape(bricks, field: str, scale, value_range):
     """(scale, threshold, scaled axis, histogram, ambient band, opacity shape) of
-    `field` over `value_range` (None: its finite range)."""
+    `field` over `value_range` (None: its volume percentiles, `volume_percentiles`)."""
     scale, threshold, data_range, floor = field_axis(bricks, field, scale)
     axis = scaled_range(tuple(value_range) if value_range else data_range, scale, threshold, floor)
+    if not value_range:
+        axis = volume_percentiles(bricks, field, scale, threshold, axis)
     histogram = volume_histogram(bricks, field, scale, threshold, axis, HISTOGRAM_BINS)
     band = ambient_band(histogram)
     return scale, threshold, axis, histogram, band, opacity_shape(axis, band, below=scale != "log")

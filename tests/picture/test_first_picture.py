@@ -145,3 +145,21 @@ def test_the_suggested_iso_value_is_crossed_not_held():
     # cells on both sides of it: a surface, not the field's extreme
     assert (values < iso).sum() > 1000 and (values > iso).sum() > 1000
 
+
+
+def test_an_outlying_cell_does_not_take_the_axis():
+    """One cell of Gerris T set to 1000 (the field's range 0 to 0.88): the
+    automatic axis is its volume percentiles (auto_transfer.TAIL at either end),
+    so the plume keeps its colours and opacity, and the outlier takes the
+    colour and opacity of the axis's end."""
+    from helpers import GERRIS
+
+    bricks = build(read(str(GERRIS), fields=["T"])).bricks
+    values = np.array(bricks.values, copy=True)
+    values[0, int(np.argmax(values[0]))] = 1000.0
+    spiked = bricks.replace(values=values)
+    plain, tf = (automatic_transfer_function(b, "T") for b in (bricks, spiked))
+    assert tf.rgb_points[-1, 0] < 1.0 and tf.evaluate(0.8)[3] > 0.1
+    for v in (0.1, 0.3, 0.5, 0.8):
+        np.testing.assert_allclose(tf.evaluate(v), plain.evaluate(v), atol=0.02)
+    np.testing.assert_array_equal(tf.evaluate(1000.0), tf.evaluate(tf.alpha_points[-1, 0]))
