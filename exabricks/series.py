@@ -247,6 +247,7 @@ def render_series(series, directory, *, movie=None, fps: float = 10.0, suffix: s
     from .api import Renderer
     from .util.output import Inputs, check_output, write_json
     from .scene import scene_to_dict
+    from .film.exposure import fixed_exposure
     from .scene.build import default_field
     from .stages.movie import check_fps, make_movie, movie_format
 
@@ -282,7 +283,8 @@ def render_series(series, directory, *, movie=None, fps: float = 10.0, suffix: s
         for i, dataset in enumerate(series):
             image = (first if i == 0 else Renderer(dataset, device=device)).render(scene)
             if i == 0:  # one exposure for every frame: the first frame's, made fixed
-                scene = _exposure_fixed(scene, image)
+                if scene.settings.auto_exposure:
+                    scene = fixed_exposure(scene, image.metadata["settings"]["metered_exposure"])
                 write_json(directory / "scene.json", scene_to_dict(scene), inputs=steps)
             image.save(frames[i])
             bar.update()
@@ -300,19 +302,6 @@ def frame_paths(steps, directory, suffix: str) -> list[Path]:
         width = max(4, len(str(len(names) - 1)))
         names = [f"{i:0{width}d}-{n}" for i, n in enumerate(names)]
     return [Path(directory) / (n + suffix) for n in names]
-
-
-def _exposure_fixed(scene, image):
-    """`scene` with the automatic exposure that the film metered on `image` (its
-    first frame) added to settings.exposure and turned off, so that every frame
-    of the series is exposed alike (the first frame's pixels unchanged)."""
-    from dataclasses import replace
-
-    s = scene.settings
-    if not s.auto_exposure:
-        return scene
-    metered = float(image.metadata["settings"].get("metered_exposure", 0.0))
-    return scene.replace(settings=replace(s, auto_exposure=False, exposure=s.exposure + metered))
 
 
 def _whole_view(dataset) -> dict:

@@ -521,7 +521,7 @@ def metered_scene(domains, scene):
     that the bands of a tiled frame share one exposure."""
     from dataclasses import replace
 
-    from ..film.exposure import metered_stops
+    from ..film.exposure import fixed_exposure, metered_stops
 
     s = scene.settings
     if not s.auto_exposure:
@@ -531,8 +531,7 @@ def metered_scene(domains, scene):
         s, width=max(1, round(s.width * shrink)), height=max(1, round(s.height * shrink)),
         spp=1, exposure=0.0, auto_exposure=False, denoise=False, depth=False))
     stops = metered_stops(render_steps(domains, preview).rgba)
-    fixed = replace(s, auto_exposure=False, exposure=float(s.exposure) + stops)
-    return scene.replace(settings=fixed), {"metered_exposure": stops}
+    return fixed_exposure(scene, stops), {"metered_exposure": stops}
 
 
 def _tiled_progress(scene, domains, done: int) -> dict:

@@ -43,3 +43,13 @@ def metered_stops(rgba: np.ndarray) -> float:
     if not (level > 0.0 and math.isfinite(level)):
         return 0.0
     return float(np.clip(math.log2(TARGET_LUMINANCE / level), MIN_STOPS, MAX_STOPS))
+
+
+def fixed_exposure(scene, stops: float):
+    """`scene` with `stops` metered once added to settings.exposure and the
+    automatic exposure turned off: frames that must share one exposure (the
+    bands of a tiled frame, the frames of a series) develop with it alike."""
+    from dataclasses import replace
+
+    s = scene.settings
+    return scene.replace(settings=replace(s, auto_exposure=False, exposure=float(s.exposure) + stops))

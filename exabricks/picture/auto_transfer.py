@@ -171,15 +171,12 @@ def equalised_colours(colormap: str, histogram: np.ndarray, shape: np.ndarray,
     colours at the value below which that share of the opacity (volume x
     `shape`, all but COLOUR_TRIM at either end) lies: colours spread by what
     is seen (module docstring, 4); evenly over `axis_range` where nothing is."""
-    a, b = axis_range
     shares = np.linspace(COLOUR_TRIM, 1.0 - COLOUR_TRIM, COLOUR_KNOTS)
     at = _at_shares(shares, histogram, shape, axis_range)
-    if at is None:
-        return TransferFunction.from_colormap(colormap, axis_range)
     colours = np.asarray(matplotlib_colormap(colormap)(np.linspace(0.0, 1.0, COLOUR_KNOTS)))[:, :3]
-    knots = strictly_increasing(np.column_stack([at, colours]))
-    if len(knots) < 2:
-        return TransferFunction.from_colormap(colormap, (min(a, at[0]), max(b, at[-1])))
+    knots = None if at is None else strictly_increasing(np.column_stack([at, colours]))
+    if knots is None or len(knots) < 2:
+        return TransferFunction.from_colormap(colormap, axis_range)
     alpha = np.array([[knots[0, 0], 1.0], [knots[-1, 0], 1.0]])
     return TransferFunction(knots, alpha, DEFAULT_NAME)
 
