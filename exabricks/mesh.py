@@ -33,6 +33,9 @@ from .util.constants import MAX_COORDINATE, MAX_TREE_DEPTH
 from .util.errors import ExabricksError
 from .formats.memory import check_memory
 from .util.jsonfile import kind_of
+from .util import numba_compiles
+
+numba_compiles.announce()  # its first compile on a machine says so on a terminal
 
 log = logging.getLogger(__name__)
 

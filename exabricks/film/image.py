@@ -142,7 +142,8 @@ class Image:
                      inputs=self.inputs)
 
     def to_rgba8(self) -> np.ndarray:
-        """(H, W, 4) uint8, un-premultiplied, as the .png holds it.
+        """(H, W, 4) uint8, un-premultiplied: the frame with its own alpha, over no
+        background (the .png of a transparent scene; `shown` lays the background).
 
         Returns
         -------

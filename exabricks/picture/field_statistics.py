@@ -18,6 +18,9 @@ import numba
 import numpy as np
 
 from ..util.errors import ExabricksError
+from ..util import numba_compiles
+
+numba_compiles.announce()  # its first compile on a machine says so on a terminal
 
 # Scales by code in the jitted loops (exabricks.picture.scaling.SCALES less "auto").
 SCALE_CODES = {"linear": 0, "log": 1, "symlog": 2}

@@ -14,6 +14,9 @@ import numba
 import numpy as np
 
 from ..util.constants import LATTICE_DTYPE
+from ..util import numba_compiles
+
+numba_compiles.announce()  # its first compile on a machine says so on a terminal
 
 
 def box_volumes(lo: np.ndarray, hi: np.ndarray) -> np.ndarray:

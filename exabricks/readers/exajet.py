@@ -18,6 +18,9 @@ import numpy as np
 from ..util.constants import LATTICE_DTYPE, LEVEL_DTYPE, MAX_LEVEL, VALUE_DTYPE, WORLD_DTYPE
 from ..util.errors import ExabricksError
 from ..schema import Cells
+from ..util import numba_compiles
+
+numba_compiles.announce()  # its first compile on a machine says so on a terminal
 
 CELL_BYTES = 16  # four int32
 

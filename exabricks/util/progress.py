@@ -105,6 +105,8 @@ def waiting(message: str, *, after: float | None = None, since: float | None = N
     stream = sys.stderr if stream is None else stream
     done = threading.Event()
     thread = None
+    with _WAITS_LOCK:
+        _WAITS.append((message, wait))
     if enabled(stream):
 
         def draw():
@@ -131,6 +133,24 @@ def waiting(message: str, *, after: float | None = None, since: float | None = N
         yield wait
     finally:
         wait.seconds = time.perf_counter() - wait.since
+        with _WAITS_LOCK:
+            _WAITS.remove((message, wait))
         done.set()
         if thread is not None:
             thread.join()
+
+
+# The waits under way in this process, on or off a terminal (`waiting` adds and
+# removes them): what the viewer's page is told while its frame waits (`longest_wait`).
+_WAITS: list = []
+_WAITS_LOCK = threading.Lock()
+
+
+def longest_wait() -> tuple[str, float] | None:
+    """(message, seconds so far) of the oldest `waiting` block under way in this
+    process, in any thread, or None."""
+    with _WAITS_LOCK:
+        if not _WAITS:
+            return None
+        message, wait = min(_WAITS, key=lambda item: item[1].since)
+    return message, time.perf_counter() - wait.since

@@ -13,10 +13,15 @@ import stat
 import threading
 from pathlib import Path
 
+from ..util import progress
 from ..util.errors import ExabricksError, one_line
 from .session import Cancelled
 
 log = logging.getLogger(__name__)
+
+# How often a page whose frame waits (a kernel build, numba's first compile) is told
+# what it waits for ("status" messages; progress.longest_wait).
+STATUS_SECONDS = 0.5
 
 
 class Page:
@@ -54,7 +59,9 @@ class Page:
         while True:
             version, doc, moving, tag = self.version, self.doc, self.moving, self.tag
             try:
-                scene = await loop.run_in_executor(None, session.check, doc)
+                checked = loop.run_in_executor(None, session.check, doc)
+                await self._telling(checked)
+                scene = await checked
                 self.good = doc
                 layer = session.layer(scene)
                 size = [scene.settings.width, scene.settings.height]
@@ -67,7 +74,7 @@ class Page:
                     async with self.viewer.lock:
                         try:
                             frame = await _finished(loop.run_in_executor(None, _outcome, session.draw, stage,
-                                                                         staged, cancelled))
+                                                                         staged, cancelled), self._telling)
                         except Cancelled:
                             break
                     if version != self.version or self.ws.closed:
@@ -90,6 +97,17 @@ class Page:
                 return
             if version == self.version or self.ws.closed:
                 return
+
+    async def _telling(self, future) -> None:
+        """Return when `future` (a thread's) is done; meanwhile, every STATUS_SECONDS,
+        tell the page of a wait under way in this process that has taken longer
+        than a terminal waits before it says so (a "status" message)."""
+        while not (await asyncio.wait([future], timeout=STATUS_SECONDS))[0]:
+            wait = progress.longest_wait()
+            if wait is not None and wait[1] >= progress.announce_after() and not self.ws.closed:
+                message, seconds = wait
+                await self.ws.send_str(json.dumps({"type": "status",
+                                                   "line": f"{message} {seconds:.0f} s"}))
 
     async def receive(self, text: str) -> None:
         try:
@@ -174,12 +192,13 @@ def _outcome(function, *args):
         return None, e
 
 
-async def _finished(future):
+async def _finished(future, telling):
     """The result of a frame drawn in a thread (an `_outcome`), or its exception
-    raised. When the page goes away meanwhile, the drawing is waited for before the
-    cancel goes on, so that the lock on the device is not released while a thread
-    still draws."""
+    raised; `telling(future)` is awaited first (Page._telling). When the page goes
+    away meanwhile, the drawing is waited for before the cancel goes on, so that the
+    lock on the device is not released while a thread still draws."""
     try:
+        await telling(future)
         result, error = await asyncio.shield(future)
     except asyncio.CancelledError:
         await asyncio.wait([future])

@@ -34,6 +34,8 @@ Messages (JSON text; frames are PNG bytes, each after a "frame" message):
                     session.Session.layer)
                     {"type": "saved", "scene": {...}, "path": ...}
                     {"type": "error", "message": "..."}
+                    {"type": "status", "line": "..."}  (what a frame waits for: a kernel
+                    build, numba's first compile; every half second while it lasts)
 """
 
 from __future__ import annotations

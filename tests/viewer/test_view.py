@@ -127,6 +127,7 @@ def test_the_server_wants_its_token_its_host_and_its_origin(server):
 
 def test_frames_refine_and_bad_messages_get_an_error(server):
     got = ws_messages(server, until=lambda m: isinstance(m, dict) and m.get("stage") == "converged")
+    got = [m for m in got if not (isinstance(m, dict) and m["type"] == "status")]  # kernel builds
     init, frames = got[0], [m for m in got if isinstance(m, dict) and m["type"] == "frame"]
     assert init["type"] == "init" and set(init["fields"]) == {"P", "T", "U", "V", "W"}
     assert [f["stage"] for f in frames] == ["coarse", "full", "converged"]

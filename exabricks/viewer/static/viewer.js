@@ -71,6 +71,7 @@ function exabricksViewer(root, channel) {
         else if (msg.type === "frame") header = msg;
         else if (msg.type === "saved") saved(msg);
         else if (msg.type === "error") error(msg.message);
+        else if (msg.type === "status") waiting(msg.line);
       },
       binary: (blob) => {
         if (header) show(header, blob);
@@ -119,6 +120,12 @@ function exabricksViewer(root, channel) {
     $("status").dataset.stage = h.stage;
   }
 
+  // What the frame under way waits for (a kernel build: seconds, once per machine).
+  function waiting(line) {
+    $("status").textContent = line;
+    $("status").dataset.stage = "waiting";
+  }
+
   function error(message) {
     $("error").textContent = message;
     $("error").hidden = false;
@@ -133,6 +140,7 @@ function exabricksViewer(root, channel) {
     $("field").replaceChildren(...fields.map((f) => new Option(f, f)));
     $("colormap").replaceChildren(...msg.colormaps.map((c) => new Option(c, c)));
     fill();
+    if (!state.frame) waiting("drawing the first frame…");
   }
 
   // The first volume layer (the automatic one, as `render` draws it, where there is none).
