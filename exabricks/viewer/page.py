@@ -43,7 +43,10 @@ class Page:
     async def open(self) -> None:
         """A page has opened (a websocket, a view of the notebook widget): its "init"
         message, then the frames of the current scene."""
-        await self.ws.send_str(json.dumps(self.viewer.session.info()))
+        # in a thread: its suggested iso-values are numba's, compiled at a first run
+        info = asyncio.get_running_loop().run_in_executor(None, self.viewer.session.info)
+        await self._telling(info)
+        await self.ws.send_str(json.dumps(await info))
         self.want(self.viewer.session.doc, False)
 
     def want(self, doc: dict, moving: bool, tag=0) -> None:
@@ -94,6 +97,12 @@ class Page:
                 await self.error(str(e))
             except (ConnectionError, RuntimeError) as e:  # the page went away mid-send
                 log.debug("view: %s", e)
+                return
+            except Exception as e:  # a defect: said on the terminal and the page, not a hang
+                log.error("view: drawing a frame failed: %s: %s", type(e).__name__, one_line(str(e)),
+                          exc_info=log.isEnabledFor(logging.DEBUG))
+                await self.error(f"drawing the frame failed ({type(e).__name__}); the server log "
+                                 "has the rest")
                 return
             if version == self.version or self.ws.closed:
                 return

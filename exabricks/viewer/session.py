@@ -212,9 +212,10 @@ class Session:
     def info(self) -> dict:
         """What the page needs at the start: the document, the fields with their ranges,
         histograms and suggested iso-values (exabricks.picture.auto_transfer.suggested_iso_value:
-        "Add iso-surface" starts there), the colour maps, the data's bounds and the
-        device."""
+        "Add iso-surface" starts there), the colour maps, the integrators and the
+        data's bounds."""
         from ..picture.auto_transfer import suggested_iso_value
+        from ..scene.modes import INTEGRATORS
 
         bricks = self.renderer.dataset.bricks
         fields = {}
@@ -234,22 +235,21 @@ class Session:
                 fields[name]["iso"] = iso
         lo, hi = self.renderer.dataset.bounds
         return {"type": "init", "scene": self.doc, "fields": fields, "colormaps": list(COLORMAPS),
-                "bounds": [list(lo), list(hi)]}
+                "integrators": list(INTEGRATORS), "bounds": [list(lo), list(hi)]}
 
     def stages(self, scene, moving: bool = False) -> list[tuple[str, object]]:
         """(stage, scene) to draw, coarse to converged."""
         s = scene.settings
         w = max(min(COARSE_MIN, s.width), s.width // COARSE_FRACTION)
         h = max(1, round(s.height * w / s.width))
-        path = scene.lighting.integrator == "path"  # draws at full resolution only
         coarse = replace(s, width=w, height=h, spp=1, depth=False,
-                         lod=max(s.lod, MOVING_LOD) if moving and not path else s.lod)
+                         lod=max(s.lod, MOVING_LOD) if moving and _takes_lod(scene) else s.lod)
         out = [("coarse", scene.replace(settings=coarse))]
         if not moving:
             if s.spp > 1:
                 out.append(("full", scene.replace(settings=replace(s, spp=1, depth=False))))
             # a path-traced frame refines in sight: PATH_REFINE times the samples a stage
-            spp = PATH_REFINE
+            spp, path = PATH_REFINE, scene.lighting.integrator == "path"
             while path and spp < s.spp:
                 out.append((f"{spp} spp", scene.replace(settings=replace(s, spp=spp, depth=False))))
                 spp *= PATH_REFINE
@@ -356,6 +356,16 @@ class Session:
                                            where=tuple(map(str, paths[:2]))))
         result = render_steps(self._domains[1], scene, tile_width=tile_width, stop=stop)
         return Image(result.rgba, None, {"settings": result.stats}, scene=scene)
+
+
+def _takes_lod(scene) -> bool:
+    """Whether the scene's integrator and reconstruction draw with level of detail
+    (the feature table's refusals: the path integrator, and the nearest and vertex
+    reconstructions, draw at full resolution only)."""
+    from ..engine import variants
+
+    return variants.refusal(variants.frame(integrator=scene.lighting.integrator, lod=True,
+                                           reconstruction=scene.settings.reconstruction)) is None
 
 
 def page_document(scene, options: dict, source=None) -> dict:

@@ -81,3 +81,11 @@ def test_a_long_wait_is_told_to_the_page(monkeypatch):
 def test_a_short_wait_is_not(monkeypatch):
     sent = messages(0.3, monkeypatch)
     assert [m["type"] for m in sent if isinstance(m, dict)] == ["init", "frame"]
+
+
+def test_a_defect_in_a_draw_is_said_not_hung(monkeypatch, caplog):
+    monkeypatch.setattr(Session, "stages", lambda self, scene, moving=False: 1 / 0)
+    sent = messages(0.0, monkeypatch)
+    errors = [m["message"] for m in sent if isinstance(m, dict) and m["type"] == "error"]
+    assert errors == ["drawing the frame failed (ZeroDivisionError); the server log has the rest"]
+    assert "ZeroDivisionError" in caplog.text

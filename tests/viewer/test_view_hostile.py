@@ -17,6 +17,7 @@ import os
 import socket
 import threading
 import time
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -37,7 +38,7 @@ class StubSession:
         return {"type": "init", "scene": self.doc}
 
     def check(self, doc):
-        return doc
+        return SimpleNamespace(settings=SimpleNamespace(width=8, height=8))
 
     def layer(self, scene):
         return None

@@ -139,6 +139,7 @@ function exabricksViewer(root, channel) {
     const fields = Object.keys(msg.fields);
     $("field").replaceChildren(...fields.map((f) => new Option(f, f)));
     $("colormap").replaceChildren(...msg.colormaps.map((c) => new Option(c, c)));
+    $("integrator").replaceChildren(...msg.integrators.map((i) => new Option(i, i)));
     fill();
     if (!state.frame) waiting("drawing the first frame…");
   }
