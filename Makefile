@@ -94,8 +94,9 @@ WORKERS ?= 2
 
 # The fast suite (minutes): everything but the `slow` tests; each fuzzer runs a
 # few examples (EXABRICKS_FUZZ_EXAMPLES, default in tests/conftest.py).
+# The fast suite: every test under no marker (the fuzzers run in `make fuzz`).
 test: setup
-	$(PY) -m pytest -q -n $(WORKERS) --dist loadfile -m "not slow and not slurm and not gauge"
+	$(PY) -m pytest -q -n $(WORKERS) --dist loadfile -m "not slow and not slurm and not gauge and not fuzz"
 
 # Headless Chromium and its driver for the viewer's browser tests (tests/viewer/test_view.py).
 browser-deps:
