@@ -74,6 +74,7 @@ def _surfaces(field, second, lo, hi, value):
 VARIANTS = {
     "volume": (lambda f, s, lo, hi, v: {"volumes": [_volume(f)], "lighting": {"shading": "none"}},
                {}, False),
+    "shaded": (lambda f, s, lo, hi, v: {"volumes": [_volume(f)]}, {}, False),
     "shaded-single": (lambda f, s, lo, hi, v: {"volumes": [_volume(f)]},
                                      {"packets": False}, False),
     "nearest": (lambda f, s, lo, hi, v: {"volumes": [_volume(f)], "reconstruction": "nearest"},
