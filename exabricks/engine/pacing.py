@@ -27,7 +27,7 @@ from __future__ import annotations
 
 import time
 
-from ..util import interrupt
+from ..util import interrupt, progress
 
 # Seconds of device work between two checks for a signal. A band's end (and its
 # first sample's) idles a core while the other finishes (2-5 % of a frame at
@@ -83,11 +83,13 @@ class Pace:
     def waited(self, event, units: int, since: float) -> float:
         """Wait for the run of `units` row-samples whose last launch is `event` (the
         device has drawn it since `since`), take its time, raise a signal that came
-        meanwhile (exabricks.util.interrupt); the time it ended."""
+        meanwhile (exabricks.util.interrupt), redraw the progress bar on a terminal;
+        the time it ended."""
         event.wait()
         now = time.perf_counter()
         self.took(units, now - since)
         interrupt.raise_pending()
+        progress.tick()  # a long frame's bar keeps its clock going on a terminal
         return now
 
 

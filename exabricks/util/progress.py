@@ -57,6 +57,20 @@ def current():
     return _OPEN[-1] if _OPEN else None
 
 
+def tick() -> None:
+    """Redraw the innermost bar open (its elapsed time), at most every TICK_SECONDS:
+    what a long step calls between its parts, so that a frame of many seconds
+    does not sit silent at 0 %."""
+    shown = current()
+    now = time.perf_counter()
+    if shown is not None and now - _TICKED[0] >= TICK_SECONDS:
+        _TICKED[0] = now
+        shown.refresh()
+
+
+_TICKED = [0.0]
+
+
 def announce_after() -> float:
     """Seconds before a wait is announced: EXABRICKS_ANNOUNCE_AFTER, else ANNOUNCE_AFTER."""
     try:

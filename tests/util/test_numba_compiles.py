@@ -77,3 +77,4 @@ def test_off_a_terminal_a_compile_draws_nothing(monkeypatch):
         return 4 * x
 
     assert four_times(2) == 8 and terminal.getvalue() == ""
+
