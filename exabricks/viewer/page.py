@@ -44,9 +44,8 @@ class Page:
         """A page has opened (a websocket, a view of the notebook widget): its "init"
         message, then the frames of the current scene."""
         # in a thread: its suggested iso-values are numba's, compiled at a first run
-        info = asyncio.get_running_loop().run_in_executor(None, self.viewer.session.info)
-        await self._telling(info)
-        await self.ws.send_str(json.dumps(await info))
+        info = await self._told(asyncio.get_running_loop().run_in_executor(None, self.viewer.session.info))
+        await self.ws.send_str(json.dumps(info))
         self.want(self.viewer.session.doc, False)
 
     def want(self, doc: dict, moving: bool, tag=0) -> None:
@@ -62,9 +61,7 @@ class Page:
         while True:
             version, doc, moving, tag = self.version, self.doc, self.moving, self.tag
             try:
-                checked = loop.run_in_executor(None, session.check, doc)
-                await self._telling(checked)
-                scene = await checked
+                scene = await self._told(loop.run_in_executor(None, session.check, doc))
                 self.good = doc
                 layer = session.layer(scene)
                 size = [scene.settings.width, scene.settings.height]
@@ -77,7 +74,7 @@ class Page:
                     async with self.viewer.lock:
                         try:
                             frame = await _finished(loop.run_in_executor(None, _outcome, session.draw, stage,
-                                                                         staged, cancelled), self._telling)
+                                                                         staged, cancelled), self._told)
                         except Cancelled:
                             break
                     if version != self.version or self.ws.closed:
@@ -107,16 +104,18 @@ class Page:
             if version == self.version or self.ws.closed:
                 return
 
-    async def _telling(self, future) -> None:
-        """Return when `future` (a thread's) is done; meanwhile, every STATUS_SECONDS,
-        tell the page of a wait under way in this process that has taken longer
-        than a terminal waits before it says so (a "status" message)."""
+    async def _told(self, future):
+        """`future`'s result (a thread's); meanwhile, every STATUS_SECONDS, the page is
+        told of a wait under way in this process that has taken longer than a
+        terminal waits before it says so (a "status" message). A cancel leaves the
+        thread's future running."""
         while not (await asyncio.wait([future], timeout=STATUS_SECONDS))[0]:
             wait = progress.longest_wait()
             if wait is not None and wait[1] >= progress.announce_after() and not self.ws.closed:
                 message, seconds = wait
                 await self.ws.send_str(json.dumps({"type": "status",
                                                    "line": f"{message} {seconds:.0f} s"}))
+        return future.result()
 
     async def receive(self, text: str) -> None:
         try:
@@ -201,14 +200,13 @@ def _outcome(function, *args):
         return None, e
 
 
-async def _finished(future, telling):
+async def _finished(future, told):
     """The result of a frame drawn in a thread (an `_outcome`), or its exception
-    raised; `telling(future)` is awaited first (Page._telling). When the page goes
-    away meanwhile, the drawing is waited for before the cancel goes on, so that the
-    lock on the device is not released while a thread still draws."""
+    raised, awaited through `told` (Page._told). When the page goes away meanwhile,
+    the drawing is waited for before the cancel goes on, so that the lock on the
+    device is not released while a thread still draws."""
     try:
-        await telling(future)
-        result, error = await asyncio.shield(future)
+        result, error = await told(future)
     except asyncio.CancelledError:
         await asyncio.wait([future])
         raise
