@@ -22,7 +22,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import sys
 import tempfile
 from pathlib import Path
 
@@ -64,9 +63,8 @@ DONE = ("const s = {state}, f = s.frame; return f && f.stage === 'converged' && 
 
 
 def measure(dataset, runs: int) -> dict[str, list[float]]:
-    sys.path.insert(0, str(benchdoc.ROOT / "tests"))
-    from helpers.browser import chromium, wait_for
-    from helpers.jupyter import Lab
+    browser, jupyter = benchdoc.tests_module("helpers.browser"), benchdoc.tests_module("helpers.jupyter")
+    chromium, wait_for, Lab = browser.chromium, browser.wait_for, jupyter.Lab
 
     driver_gen = chromium()
     driver = next(driver_gen)

@@ -32,7 +32,6 @@ from __future__ import annotations
 
 import argparse
 import functools
-import sys
 import time
 from dataclasses import replace
 
@@ -46,9 +45,8 @@ TARGETS = (0.05, 0.02, 0.01)
 
 
 def scene_and_reference(size: int):
-    sys.path.insert(0, str(benchdoc.ROOT / "tests"))
-    import reference
-    from helpers.plume_core import plume_core
+    reference = benchdoc.tests_module("reference")
+    plume_core = benchdoc.tests_module("helpers.plume_core").plume_core
 
     from exabricks.scene import Lighting, Scene, Settings, VolumeLayer
 

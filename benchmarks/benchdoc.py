@@ -202,6 +202,23 @@ sys.exit(os.waitstatus_to_exitcode(status) & 255)
 """
 
 
+def tests_module(name: str):
+    """The module `name` of tests/ (`helpers`, `helpers.browser`, `reference`): the
+    harnesses and references the tests hold, for a benchmark that drives the same
+    parts. Imported by file, under its own name, without putting tests/ on sys.path."""
+    import importlib
+    import importlib.machinery
+    import importlib.util
+
+    top, _, _ = name.partition(".")
+    if top not in sys.modules:
+        spec = importlib.machinery.PathFinder.find_spec(top, [str(ROOT / "tests")])
+        module = importlib.util.module_from_spec(spec)
+        sys.modules[top] = module
+        spec.loader.exec_module(module)
+    return importlib.import_module(name)
+
+
 def run_child(args: list[str], cwd: Path = ROOT) -> tuple[float, float, int]:
     """Run `args` quietly; (wall s, CPU s, peak RSS bytes) of that command alone.
 
