@@ -6,7 +6,7 @@
  *   geometry  float:  BVH node and region boxes, (n, 3) lower and upper corners;
  *   links     int:    BVH (first, count) links, its leaf-order region ids, and
  *                     its nodes' parents and child orders (walk_links);
- *   flags     uchar:  node and region visibility (per frame), region finest level;
+ *   flags     uchar:  node and region visibility bits (per frame), region finest level;
  *   brick_grid float4: per brick its box (lower corner, 1 / width), then per
  *                     brick its dims (N.x, N.y, N.z, level) as int4;
  *   tree      4-byte words: the cell-location tree's corners, links and brick

@@ -85,13 +85,13 @@ EB_INLINE float4 eb_integrate(eb_frame *fr, eb_ray *ray, const int shade,
     if (!done)  /* an opaque mesh ends the volume exactly where it is hit */
         keep.y = fmin(keep.y, eb_slices_start(fr, ray, keep.x, keep.y, &st));
     eb_walk w;
-    eb_walk_start(&w, fr->bvh, ray->org, ray->inv_dir, keep.x, keep.y);
+    eb_walk_start(&w, fr->bvh, ray->org, ray->inv_dir, keep.x, keep.y, EB_SEEN_ANY);
     float t_in, t_out;
     int r;
     eb_sample_batch batch;
     eb_batch_start(&batch);
     while (!done && (r = eb_walk_next(&w, fr->bvh, fr->regions, ray->org, ray->inv_dir,
-                                      &t_in, &t_out)) >= 0)
+                                      &t_in, &t_out, EB_SEEN_ANY)) >= 0)
         done = eb_integrate_region(fr, ray, r, t_in, t_out, shade, &st, &batch, level_samples);
     if (!done)
         done = eb_batch_take(fr, ray, &batch, shade, &st);

@@ -45,7 +45,7 @@ typedef struct {
 EB_INLINE void eb_copy_find(eb_frame *fr, eb_copy *c, float t)
 {
     c->r = t < c->t_end ? eb_next_region(fr->bvh, fr->regions, c->org, c->inv_dir, t, c->t_end,
-                                         &c->t_in, &c->t_out)
+                                         &c->t_in, &c->t_out, EB_SEEN_ANY)
                         : -1;
     if (c->r >= 0)
         c->level = eb_sample_level(fr, c->r, c->t_in);

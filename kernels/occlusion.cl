@@ -88,14 +88,17 @@ EB_INLINE float eb_visibility(eb_frame *fr, float3 org_world, float3 dir_world,
     float3 org = eb_world_to_lattice(org_world, fr->P->origin_world.xyz, fr->P->inv_spacing.xyz);
     float3 dir = dir_world * fr->P->inv_spacing.xyz;
     float3 inv_dir = 1.0f / dir;
+    /* Without the medium only iso crossings dim the ray: the regions whose range
+     * brackets no iso-value are passed over (gaps, as between regions). */
+    const uchar want = medium ? EB_SEEN_ANY : EB_SEEN_ISO;
     eb_walk w;
-    eb_walk_start(&w, fr->bvh, org, inv_dir, t_min, t_max);
+    eb_walk_start(&w, fr->bvh, org, inv_dir, t_min, t_max, want);
     float t_in, t_out, last_exit = t_min;
     float prev[EB_N_FIELDS];
     int prev_valid = 0;
     int r;
     while (vis > EB_AO_CUTOFF && (r = eb_walk_next(&w, fr->bvh, fr->regions, org, inv_dir,
-                                                     &t_in, &t_out)) >= 0) {
+                                                     &t_in, &t_out, want)) >= 0) {
         if (!prev_valid || t_in > last_exit) {
             /* After a gap (or at the start): close the last bracket at the previous
              * exit, then start again from this region's entry. */

@@ -261,19 +261,18 @@ EB_INLINE float4 eb_path(eb_frame *fr, eb_ray *ray, __global const float *look_f
     for (int event = 0; event < P->bounces;) {
         float2 keep = eb_clip_interval(fr->clip, o, d, 0.0f);
         float3 albedo;
-        float end = keep.y;
+        float t = keep.y > keep.x ? eb_track(fr, &m, o, d, keep.x, keep.y, &rng, 0, &albedo, &count)
+                                  : EB_INF;
 #ifdef EB_SURFACES
+        /* Surfaces before the medium's collision (free paths are memoryless, so
+         * tracking the whole segment first is tracking up to the surface) */
         int sj, sk;
-        float ts = keep.y > keep.x ? eb_nearest_surface(fr, o, d, fmax(keep.x, skip), keep.y,
+        float ts = keep.y > keep.x ? eb_nearest_surface(fr, o, d, fmax(keep.x, skip), fmin(keep.y, t),
                                                         eb_uniform(&rng), &sj, &sk)
                                    : EB_INF;
-        end = fmin(end, ts);
         skip = 0.0f;
-#endif
-        float t = end > keep.x ? eb_track(fr, &m, o, d, keep.x, end, &rng, 0, &albedo, &count) : EB_INF;
-#ifdef EB_SURFACES
         eb_surface hit;
-        if (t == EB_INF && ts < EB_INF) {  /* a surface: met with probability a, else passed */
+        if (ts < t) {  /* a surface: met with probability a, else passed */
             float3 x = o + ts * d;
             hit = eb_surface_at(fr, eb_world_to_lattice(x, P->origin_world.xyz, P->inv_spacing.xyz),
                                 x, sj, sk);

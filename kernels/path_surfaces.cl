@@ -80,8 +80,10 @@ EB_INLINE float eb_nearest_surface(eb_frame *fr, float3 o, float3 d, float t0, f
         ray.org = eb_world_to_lattice(o, fr->P->origin_world.xyz, fr->P->inv_spacing.xyz);
         ray.dir = d * fr->P->inv_spacing.xyz;
         ray.inv_dir = 1.0f / ray.dir;
+        /* Only regions whose value range brackets an iso-value can hold a crossing
+         * (a skipped one is a gap: the bracket closes at the last exit). */
         eb_walk w;
-        eb_walk_start(&w, fr->bvh, ray.org, ray.inv_dir, t0, best);
+        eb_walk_start(&w, fr->bvh, ray.org, ray.inv_dir, t0, best, EB_SEEN_ISO);
         float t_in, t_out, last_exit = t0, prev_t = t0, tm, len;
         float prev[EB_N_FIELDS], value[EB_N_FIELDS];
         int prev_valid = 0, r, valid = 0;
@@ -108,7 +110,8 @@ EB_INLINE float eb_nearest_surface(eb_frame *fr, float3 o, float3 d, float t0, f
     prev_t = (t_b);                                                                      \
     for (int f = 0; f < EB_N_FIELDS; ++f)                                                \
         prev[f] = value[f];
-        while ((r = eb_walk_next(&w, fr->bvh, fr->regions, ray.org, ray.inv_dir, &t_in, &t_out)) >= 0) {
+        while ((r = eb_walk_next(&w, fr->bvh, fr->regions, ray.org, ray.inv_dir, &t_in, &t_out,
+                                 EB_SEEN_ISO)) >= 0) {
             if (t_in > last_exit || !prev_valid) {
                 if (prev_valid) {  /* close the bracket at the previous exit */
                     eb_basis_sums s = eb_evaluate(fr, ray.org + last_exit * ray.dir, 0);

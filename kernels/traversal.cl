@@ -15,9 +15,12 @@
  *    region means every node and region still queued starts behind it, so it
  *    is the next one. Goes on by re-tracing if the heap fills up.
  * Space skipping (paper §4.1): nodes and regions whose value range maps to zero
- * opacity under the current transfer function carry visible = 0 (computed on
- * the host per frame, so a new transfer function needs no BVH rebuild) and are
- * never entered.
+ * opacity under the current transfer function and brackets no iso-value carry
+ * visible = 0 (computed on the host per frame, so a new transfer function needs
+ * no BVH rebuild) and are never entered. The flags say which of the two it is
+ * (EB_SEEN_VOLUME, EB_SEEN_ISO), and a walk enters what its `want` bits name:
+ * a search for iso crossings alone (path_surfaces.cl, occlusion.cl without the
+ * medium) passes over the regions whose range brackets no iso-value.
  * Points (probe, central differences, the path integrator, cell location): one
  * descent (eb_descent) with a stack of at most a tree depth of node indices
  * (on PoCL the stackless walk's steps up made central differences 1.3 times
@@ -32,6 +35,12 @@
  * BVH, the regions and the cell-location tree are read in the layout their
  * files hold them (grouped by exabricks.engine.device_data, dataset.cl). */
 #define EB_CORNER(corners, i) vload3((i), (corners))
+
+/* The visibility flags' bits (exabricks.engine.device_data.SEEN_VOLUME, SEEN_ISO):
+ * some volume layer has opacity over the value range; it brackets an iso-value. */
+#define EB_SEEN_VOLUME 1
+#define EB_SEEN_ISO 2
+#define EB_SEEN_ANY (EB_SEEN_VOLUME | EB_SEEN_ISO)
 
 /* exabricks.schema.Bvh on the device: node boxes, (first, count) links, the
  * leaf-order region ids, and the per-frame visibility flags. */
@@ -98,7 +107,7 @@ EB_INLINE int eb_walk_up(eb_bvh bvh, int *node, float3 inv_dir)
  * query without a stack: near child first, and no node entered whose entry
  * lies behind the nearest region found so far. */
 inline int eb_next_region(eb_bvh bvh, eb_regions regions, float3 org, float3 inv_dir,
-                          float t_cur, float t_max, float *t_in, float *t_out)
+                          float t_cur, float t_max, float *t_in, float *t_out, uchar want)
 {
     int best = -1;
     float best_in = t_max, best_out = t_max;
@@ -113,14 +122,14 @@ inline int eb_next_region(eb_bvh bvh, eb_regions regions, float3 org, float3 inv
                                     org, inv_dir);
         float t_near = fmax(iv.x, t_cur);
         int2 link = bvh.link[node];
-        if (bvh.visible[node] && fmin(iv.y, t_max) > t_near && t_near < best_in) {
+        if ((bvh.visible[node] & want) && fmin(iv.y, t_max) > t_near && t_near < best_in) {
             if (link.y == 0) {
                 node = eb_near_child(bvh, node, link.x, inv_dir);
                 continue;
             }
             for (int i = link.x; i < link.x + link.y; ++i) {
                 int r = bvh.region_index[i];
-                if (!regions.visible[r])
+                if (!(regions.visible[r] & want))
                     continue;
                 float2 ir = eb_box_interval(EB_CORNER(regions.lower, r),
                                             EB_CORNER(regions.upper, r), org, inv_dir);
@@ -193,10 +202,10 @@ EB_INLINE int eb_queue_pop(eb_queue *q)
 
 /* Queue items: a node as its index, a region r as ~r (negative). */
 EB_INLINE void eb_queue_start(eb_queue *q, eb_bvh bvh, float3 org, float3 inv_dir,
-                              float t_min, float t_max)
+                              float t_min, float t_max, uchar want)
 {
     q->size = 0;
-    if (!bvh.visible[0])
+    if (!(bvh.visible[0] & want))
         return;
     float2 iv = eb_box_interval(EB_CORNER(bvh.lower, 0), EB_CORNER(bvh.upper, 0), org, inv_dir);
     float t0 = fmax(iv.x, t_min);
@@ -209,13 +218,13 @@ EB_INLINE void eb_queue_start(eb_queue *q, eb_bvh bvh, float3 org, float3 inv_di
  * t_cur (and before t_max). Returns 0 if the queue overflowed (the caller
  * must fall back). */
 EB_INLINE int eb_queue_expand(eb_queue *q, eb_bvh bvh, eb_regions regions, int node,
-                              float3 org, float3 inv_dir, float t_cur, float t_max)
+                              float3 org, float3 inv_dir, float t_cur, float t_max, uchar want)
 {
     int2 link = bvh.link[node];
     if (link.y > 0) {
         for (int i = link.x; i < link.x + link.y; ++i) {
             int r = bvh.region_index[i];
-            if (!regions.visible[r])
+            if (!(regions.visible[r] & want))
                 continue;
             float2 iv = eb_box_interval(EB_CORNER(regions.lower, r), EB_CORNER(regions.upper, r),
                                         org, inv_dir);
@@ -229,7 +238,7 @@ EB_INLINE int eb_queue_expand(eb_queue *q, eb_bvh bvh, eb_regions regions, int n
         return 1;
     }
     for (int c = link.x; c < link.x + 2; ++c) {
-        if (!bvh.visible[c])
+        if (!(bvh.visible[c] & want))
             continue;
         float2 iv = eb_box_interval(EB_CORNER(bvh.lower, c), EB_CORNER(bvh.upper, c), org, inv_dir);
         float t0 = fmax(iv.x, t_cur);
@@ -246,7 +255,8 @@ EB_INLINE int eb_queue_expand(eb_queue *q, eb_bvh bvh, eb_regions regions, int n
 
 /* The regions along a ray segment [t_min, t_max], front to back: the ordered
  * walk (-DEB_ORDERED), finishing with the re-trace walk from where it stopped
- * if its heap fills up, or the re-trace walk throughout. Every region is
+ * if its heap fills up, or the re-trace walk throughout. Every region whose
+ * visible bits meet `want` (the same at the start and every step) is
  * returned at most once, with its overlap [*t_in, *t_out] (t_in >= the
  * previous t_out). */
 typedef struct {
@@ -260,7 +270,7 @@ typedef struct {
 } eb_walk;
 
 EB_INLINE void eb_walk_start(eb_walk *w, eb_bvh bvh, float3 org, float3 inv_dir,
-                             float t_min, float t_max)
+                             float t_min, float t_max, uchar want)
 {
     w->t_cur = t_min;
     w->t_max = t_max;
@@ -268,19 +278,19 @@ EB_INLINE void eb_walk_start(eb_walk *w, eb_bvh bvh, float3 org, float3 inv_dir,
 #ifdef EB_ORDERED
     w->retrace = 0;
     w->pops = bvh.n_nodes + bvh.n_regions;
-    eb_queue_start(&w->q, bvh, org, inv_dir, t_min, t_max);
+    eb_queue_start(&w->q, bvh, org, inv_dir, t_min, t_max, want);
 #endif
 }
 
 EB_PROFILED int eb_walk_next(eb_walk *w, eb_bvh bvh, eb_regions regions, float3 org,
-                           float3 inv_dir, float *t_in, float *t_out)
+                           float3 inv_dir, float *t_in, float *t_out, uchar want)
 {
 #ifdef EB_ORDERED
     if (!w->retrace) {
         while (w->q.size > 0 && w->pops-- > 0) {
             int item = eb_queue_pop(&w->q);
             if (item >= 0) {
-                if (!eb_queue_expand(&w->q, bvh, regions, item, org, inv_dir, w->t_cur, w->t_max)) {
+                if (!eb_queue_expand(&w->q, bvh, regions, item, org, inv_dir, w->t_cur, w->t_max, want)) {
                     w->retrace = 1;  /* heap full: go on with the re-trace walk from t_cur */
                     break;
                 }
@@ -303,7 +313,7 @@ EB_PROFILED int eb_walk_next(eb_walk *w, eb_bvh bvh, eb_regions regions, float3 
 #endif
     if (w->visits-- <= 0)
         return -1;
-    int r = eb_next_region(bvh, regions, org, inv_dir, w->t_cur, w->t_max, t_in, t_out);
+    int r = eb_next_region(bvh, regions, org, inv_dir, w->t_cur, w->t_max, t_in, t_out, want);
     if (r >= 0)
         w->t_cur = *t_out;
     return r;

@@ -28,6 +28,9 @@ from .walk_links import walk_links
 # Points per enqueue of `DeviceDataset.probe_fields`: a fraction of a second on a CPU device.
 PROBE_CHUNK = 1 << 18
 
+# The visibility flags' bits (kernels/traversal.cl EB_SEEN_VOLUME, EB_SEEN_ISO).
+SEEN_VOLUME, SEEN_ISO = 1, 2
+
 
 def load_structures(bricks_path, regions_path, bvh_path):
     """The three structure files of one dataset for a DeviceDataset, each checked for
@@ -309,9 +312,10 @@ class DeviceDataset:
 
     def visibility(self, layers=(), isovalues=()):
         """Per node and per region (paper §4.1 space skipping, per frame, no
-        rebuild): 1 where some volume layer (field name, transfer function) has
-        a maximum alpha above 0 over the value range, or some iso-value (field
-        name, value) lies inside it; uint8 (M,), (R,)."""
+        rebuild), uint8 (M,), (R,) bits: SEEN_VOLUME where some volume layer
+        (field name, transfer function) has a maximum alpha above 0 over the
+        value range, SEEN_ISO where some iso-value (field name, value) lies inside
+        it (a search for iso crossings alone passes over the rest)."""
         out = []
         for ranges in (self.bvh.value_range, self.regions.value_range):
             seen = np.zeros(ranges.shape[0], np.uint8)
@@ -319,10 +323,10 @@ class DeviceDataset:
                 here = seen[start:start + part.shape[0]]
                 for name, tf in layers:
                     r = part[:, self.bricks.field_index(name)]
-                    here |= tf.any_alpha(r[:, 0], r[:, 1])
+                    here |= tf.any_alpha(r[:, 0], r[:, 1]) * np.uint8(SEEN_VOLUME)
                 for name, value in isovalues:
                     r = part[:, self.bricks.field_index(name)]
-                    here |= (r[:, 0] <= value) & (value <= r[:, 1])
+                    here |= ((r[:, 0] <= value) & (value <= r[:, 1])) * np.uint8(SEEN_ISO)
             out.append(seen)
         return tuple(out)
 
@@ -330,7 +334,7 @@ class DeviceDataset:
         """The flags buffer's contents: node visibility, region visibility (uint8,
         each given, or all visible) and the regions' finest levels."""
         n_nodes, n_regions = max(self.bvh.n_nodes, 1), max(self.regions.n_regions, 1)
-        out = np.ones(n_nodes + 2 * n_regions, np.uint8)
+        out = np.full(n_nodes + 2 * n_regions, SEEN_VOLUME | SEEN_ISO, np.uint8)
         if node_visible is not None:
             out[:self.bvh.n_nodes] = node_visible
         if region_visible is not None:

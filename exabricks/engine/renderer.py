@@ -349,7 +349,7 @@ class Renderer:
             "integrator": scene.lighting.integrator,
             "reconstruction": cfg.reconstruction,
             "device": self.device_name,
-            "visible_regions": int(region_vis.sum()), "regions": s.regions.n_regions,
+            "visible_regions": int(np.count_nonzero(region_vis)), "regions": s.regions.n_regions,
         }
         if scene.volumes:
             stats["field"] = scene.volumes[0].field

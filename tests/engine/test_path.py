@@ -243,6 +243,36 @@ def test_white_surfaces_in_a_white_medium_conserve_energy(device):
 
 
 @device_param
+def test_iso_crossings_are_searched_only_where_the_range_brackets_them(device, monkeypatch):
+    """A path looks for iso crossings only in the regions whose value range brackets
+    an iso-value (the SEEN_ISO bit). Searching every region the volume shows finds
+    the same surfaces: the frames agree but for the bisection of a crossing whose
+    bracket now closes at a region's exit (the same random numbers either way)."""
+    from helpers.plume_core import plume_core
+    from exabricks.engine import device_data
+
+    core = plume_core()
+    ramp = TransferFunction(np.array([[0.01, 0.9, 0.6, 0.3], [0.5, 1.0, 1.0, 1.0]]),
+                            np.array([[0.01, 0.0], [0.5, 0.2]]), "ramp")
+    scene = Scene(camera=core.camera, volumes=(VolumeLayer("T", ramp),),
+                  isosurfaces=(IsoSurface("T", 0.3, (0.9, 0.9, 0.9), 1.0),),
+                  lighting=Lighting(integrator="path", light_intensity=1.0, ambient=0.3, bounces=4),
+                  settings=Settings(width=24, height=24, unit_distance=core.unit, spp=2))
+    renderer = Renderer(core.built.bricks, core.built.regions, core.built.bvh, field="T", device=device)
+    _, regions = renderer.dataset.visibility([("T", ramp)], [("T", 0.3)])
+    assert 0 < np.count_nonzero(regions & device_data.SEEN_ISO) < np.count_nonzero(regions)
+    skipping = renderer.render_scene(scene).rgba
+    seen, every = device_data.DeviceDataset.visibility, device_data.SEEN_VOLUME | device_data.SEEN_ISO
+    monkeypatch.setattr(device_data.DeviceDataset, "visibility",  # every region searched, as before
+                        lambda self, layers=(), isovalues=(): tuple(np.where(v > 0, every, 0).astype(np.uint8)
+                                                                    for v in seen(self, layers, isovalues)))
+    searching = renderer.render_scene(scene).rgba
+    assert skipping[..., 3].mean() > 0.05
+    assert np.mean(np.all(skipping == searching, axis=-1)) > 0.99  # on PoCL: all of them
+    assert np.abs(skipping - searching).max() < 1e-3
+
+
+@device_param
 def test_the_samples_of_a_frame_are_its_spp(device):
     """--spp, --progressive and --time-limit draw sample after sample: the frame of
     spp 4 is the mean of its four samples, each drawn alone (to float rounding)."""
