@@ -18,7 +18,7 @@ from ..util.errors import ExabricksError, quoted
 from ..util.jsonfile import kind_of, not_regular
 from ..schema import Cells
 
-FORMATS = ("exajet", "amrex", "athena", "raw", "yt")
+FORMATS = ("exajet", "amrex", "athena", "ramses", "raw", "yt")
 
 # File names that yt's front ends own, checked before asking yt itself (importing yt
 # takes seconds).  FLASH: base_hdf5_plt_cnt_0100 / _chk_; Chombo: x.3d.hdf5.
@@ -32,9 +32,11 @@ def detect_format(path: str | Path, *, dims=None) -> str:
     """The format of `path` for ``--format auto``: one of FORMATS.
 
     A directory with ``Header`` and ``Level_0/`` is an AMReX plotfile; ``*.athdf``
-    is Athena++; ``*.cells`` is ExaJet; ``*.raw``/``*.bin`` is a raw volume (which
-    needs `dims`); an Enzo output (``NAME`` with a ``NAME.hierarchy`` sibling), a
-    FLASH or Chombo file, or anything else one of yt's front ends claims, is yt.
+    is Athena++; an ``output_NNNNN`` folder with ``info_NNNNN.txt`` (or that file,
+    beside ``amr_NNNNN.out*`` files) is RAMSES; ``*.cells`` is ExaJet;
+    ``*.raw``/``*.bin`` is a raw volume (which needs `dims`); an Enzo output (``NAME``
+    with a ``NAME.hierarchy`` sibling), a FLASH or Chombo file, or anything else one
+    of yt's front ends claims, is yt.
     """
     fmt = guess_format(path, dims=dims)
     if fmt is None:
@@ -96,6 +98,10 @@ def guess_format(path: str | Path, *, dims=None, ask_yt: bool = True) -> str | N
             if why is not None:
                 raise ExabricksError(f"{header}: the plotfile Header is {why}, not a regular file")
             return "amrex"
+        if _is_ramses(path):
+            return "ramses"
+    elif _is_ramses(path):
+        return "ramses"
     elif name.endswith(".athdf"):
         return "athena"
     elif name.endswith(".cells"):
@@ -110,6 +116,11 @@ def guess_format(path: str | Path, *, dims=None, ask_yt: bool = True) -> str | N
     if ask_yt and _safe_for_yt(path) and _yt_claims(path):
         return "yt"
     return None
+
+
+def _is_ramses(path: Path) -> bool:
+    from . import ramses
+    return ramses.is_output(path)
 
 
 def given_path(path) -> Path:
@@ -213,6 +224,9 @@ def field_names(path: str | Path, *, format: str, **options) -> list[str] | None
         return list(exajet.scalar_files(path))
     if format == "raw":
         return [options.get("name", "value")]
+    if format == "ramses":
+        from . import ramses
+        return ramses.field_names(path)
     return None
 
 

@@ -550,7 +550,7 @@ def test_detect_format_of_shared_datasets(tmp_path):
     assert detect_format(flash) == "yt"
     with pytest.raises(ExabricksError, match="no such file"):
         detect_format(tmp_path / "none.cells")
-    assert set(FORMATS) == {"exajet", "amrex", "athena", "raw", "yt"}
+    assert set(FORMATS) == {"exajet", "amrex", "athena", "ramses", "raw", "yt"}
 
 
 @pytest.mark.parametrize("name, path", [("amrex", AMREX), ("athena", ATHENA),
