@@ -9,10 +9,12 @@ import shutil
 
 import numpy as np
 import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
 
 from exabricks.util.errors import ExabricksError
 
-from helpers import analytic_amr, ramses_output
+from helpers import FUZZ_EXAMPLES, analytic_amr, ramses_output
 
 pytest.importorskip("yt")
 
@@ -173,3 +175,34 @@ def test_special_files_are_refused_not_opened(written, tmp_path):
     (big / path.name).write_bytes(b"ncpu = 2\n" + b" " * (2 << 20))
     with pytest.raises(ExabricksError, match="bytes: not a RAMSES info file"):
         ramses.read(big)
+
+
+@pytest.mark.fuzz
+@settings(max_examples=FUZZ_EXAMPLES, deadline=None,
+          suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(data=st.data())
+def test_damaged_outputs_are_refused_in_one_line(written, tmp_path_factory, data):
+    """One of the output's files truncated, or bytes of it overwritten (with random
+    bytes or an int32 aimed at a count): the reader reads it or refuses it with
+    ExabricksError (the CLI's one `error:` line), never another exception."""
+    from exabricks.readers import ramses
+
+    path, _ = written
+    copy = tmp_path_factory.mktemp("damaged") / "output_00001"
+    shutil.copytree(path.parent, copy)
+    victim = copy / data.draw(st.sampled_from(sorted(p.name for p in copy.iterdir())), label="file")
+    raw = bytearray(victim.read_bytes())
+    at = data.draw(st.integers(0, max(len(raw) - 4, 0)), label="at")
+    how = data.draw(st.sampled_from(["truncate", "bytes", "int32"]), label="how")
+    if how == "truncate":
+        raw = raw[:at]
+    elif how == "bytes":
+        raw[at:at + 4] = data.draw(st.binary(min_size=1, max_size=4), label="bytes")
+    else:
+        value = data.draw(st.sampled_from([-1, 0, 1, 7, 2**31 - 1, -(2**31), 10**6]), label="value")
+        raw[at & ~3:(at & ~3) + 4] = np.int32(value).tobytes()
+    victim.write_bytes(bytes(raw))
+    try:
+        ramses.read(copy)
+    except ExabricksError:
+        pass
