@@ -37,16 +37,16 @@ def value(name: str, centres, lo, hi) -> np.ndarray:
 CENTRE = np.array([0.41, 0.37, 0.55])
 
 
-def refined(lower, upper, lo, hi, level: int) -> np.ndarray:
+def refined(lower, upper, lo, hi, level: int, *, radius: float = 0.3) -> np.ndarray:
     """Whether each box [lower, upper) (N, 3) world, of refinement level `level` (0:
-    the coarsest), is refined: where it meets the ball of radius 0.3 / 2**level (in
-    units of the domain's x extent) about CENTRE, so every level is only partly
+    the coarsest), is refined: where it meets the ball of radius `radius` / 2**level
+    (in units of the domain's x extent) about CENTRE, so every level is only partly
     refined."""
     lo, hi = np.asarray(lo, np.float64), np.asarray(hi, np.float64)
     centre = lo + CENTRE * (hi - lo)
     nearest = np.clip(centre, np.asarray(lower, np.float64), np.asarray(upper, np.float64))
-    radius = 0.3 / 2 ** level * (hi[0] - lo[0])
-    return np.sum((nearest - centre) ** 2, axis=1) < radius ** 2
+    r = radius / 2 ** level * (hi[0] - lo[0])
+    return np.sum((nearest - centre) ** 2, axis=1) < r ** 2
 
 
 @dataclass(frozen=True)
