@@ -25,6 +25,7 @@ from .. import schema
 from ..util.constants import LATTICE_DTYPE, LEVEL_DTYPE, MAX_BRICK_WIDTH, OFFSET_DTYPE, VALUE_DTYPE
 from ..util.errors import ExabricksError
 from .cells import neighbour_overlap_keys, spread3, find_overlap
+from .radix_sort import sort_keys
 from ..formats.pieces import WHOLE, Piece, share_meta, task_range
 from .cell_tree import END, ID, LEVEL, START, build_subtree, build_subtrees, build_top, pack, run_nodes, take_columns
 from .piece_order import share_runs
@@ -391,8 +392,8 @@ def require_disjoint(bricks: schema.Bricks, ids: np.ndarray | None = None) -> No
     bits = max(int(((cmax - cmin) >> lmin).max()).bit_length(), 1)
     id_bits = max(int(n - 1).bit_length(), 1)
     if 3 * bits + id_bits <= 64:
-        keys = _brick_keys(lower, level, dims, offset, n_cells, cmin, lmin, np.uint64(id_bits))
-        keys.sort()
+        keys = sort_keys(_brick_keys(lower, level, dims, offset, n_cells, cmin, lmin, np.uint64(id_bits)),
+                         3 * bits + id_bits)
         a, b = neighbour_overlap_keys(keys, np.uint64(id_bits), level, lmin)
         pair = None if a < 0 else (int(a), int(b))
     else:

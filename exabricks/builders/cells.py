@@ -12,6 +12,7 @@ import numpy as np
 from ..util.constants import LATTICE_DTYPE, LEVEL_DTYPE, MAX_LEVEL, NAN_POLICIES, VALUE_DTYPE
 from ..util.errors import ExabricksError
 from ..schema import Cells, check_field_names, first_misaligned
+from .radix_sort import sort_keys
 
 
 def validate_cells(cells: Cells, *, source: str, nan_policy: str = "error") -> Cells:
@@ -129,10 +130,9 @@ def find_overlap(lower: np.ndarray, level: np.ndarray) -> tuple[int, int] | None
     bits = max(int(((cmax - cmin) >> lmin).max()).bit_length(), 1)
     index_bits = max(int(n - 1).bit_length(), 1)
     if 3 * bits + index_bits <= 64:
-        # Morton code and cell index packed in one uint64: np.sort of plain keys is
+        # Morton code and cell index packed in one uint64: sorting plain keys is
         # several times faster than np.argsort, and ties stay in index order.
-        keys = _packed_morton(lower, cmin, lmin, np.uint64(index_bits))
-        keys.sort()
+        keys = sort_keys(_packed_morton(lower, cmin, lmin, np.uint64(index_bits)), 3 * bits + index_bits)
         a, b = neighbour_overlap_keys(keys, np.uint64(index_bits), level, lmin)
     else:
         hi, lo = _morton96(lower, cmin, lmin)

@@ -45,13 +45,17 @@ import re
 from collections.abc import Sequence
 from pathlib import Path
 
+import numba
 import numpy as np
 
 from .. import schema
 from ..util.constants import LATTICE_DTYPE, LEVEL_DTYPE, MAX_LEVEL, VALUE_DTYPE, WORLD_DTYPE
 from ..util.errors import ExabricksError, quoted
 from ..util.jsonfile import not_regular
+from ..util import numba_compiles
 from . import _checks
+
+numba_compiles.announce()  # its first compile on a machine says so on a terminal
 
 INFO_RE = re.compile(r"^info_(\d{5,})\.txt$")
 OUTPUT_RE = re.compile(r"^output_(\d{5,})$")
@@ -170,16 +174,8 @@ def read(path: str | Path, *, fields: Sequence[str] | None = None) -> schema.Cel
     lattice = np.empty((n, 3), LATTICE_DTYPE)
     level = np.empty(n, LEVEL_DTYPE)
     at = 0
-    for (_, lv, q, mask), k in zip(groups, counts):
-        shift = finest - lv
-        level[at:at + k] = shift
-        for ind in range(8):  # by cell ind, then oct, as _read_hydro fills the values
-            cells = q[mask[:, ind]]
-            cells *= 2
-            cells += _OFFSETS[ind]
-            cells <<= shift
-            lattice[at:at + len(cells)] = cells
-            at += len(cells)
+    for _, lv, q, mask in groups:
+        at = _place_leaves(q, mask, finest - lv, _OFFSETS, lattice, level, at)
 
     wanted = [names.index(f) for f in fields]
     values = np.empty((len(fields), n), VALUE_DTYPE)
@@ -221,6 +217,21 @@ def _check_data_file(path: Path, ncpu: int, extra: str = "") -> None:
         raise ExabricksError(f"{path}: no such file: the output has ncpu = {ncpu}{extra}")
     if why is not None:
         raise ExabricksError(f"{path}: {why}, not a regular file")
+
+
+@numba.njit(cache=True)
+def _place_leaves(q, mask, shift, offsets, lattice, level, at):
+    """The leaf cells (mask (n, 8)) of octs at lattice q (n, 3) of their level, into
+    lattice[at:] and level[at:] (`shift` = the finest level minus theirs), by cell ind
+    and then oct, as _read_hydro fills the values; returns the next free row."""
+    for ind in range(8):
+        for i in range(q.shape[0]):
+            if mask[i, ind]:
+                for a in range(3):
+                    lattice[at, a] = (2 * q[i, a] + offsets[ind, a]) << shift
+                level[at] = shift
+                at += 1
+    return at
 
 
 # --- the info file and the descriptor -------------------------------------------------
