@@ -44,6 +44,12 @@ def _as_formula(cells, code):
     return cells.replace(fields=analytic_amr.FIELDS)
 
 
+def test_the_written_leaves_tile_the_domain_on_three_levels_or_more(output):
+    _, _, leaves = output
+    analytic_amr.assert_leaves_tile(leaves)
+    assert len(np.unique(leaves.width)) >= 3
+
+
 def test_read_detects_the_format_and_gives_the_leaves(output):
     from exabricks.readers import read
 

@@ -1,13 +1,12 @@
-"""A Chombo plotfile written in Chombo's own HDF5 layout (helpers.chombo_output), checked
-as Chombo writes it: the leaves tile the domain, the levels are properly nested (what
-yt and the other readers make of it: test_code_outputs.py)."""
+"""The Chombo plotfile of helpers.chombo_output, checked as Chombo writes it: its levels
+are properly nested (what yt and the other readers make of it: test_code_outputs.py)."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from helpers import analytic_amr, chombo_output
+from helpers import chombo_output
 
 h5py = pytest.importorskip("h5py")
 
@@ -15,12 +14,6 @@ h5py = pytest.importorskip("h5py")
 @pytest.fixture(scope="module")
 def plotfile(tmp_path_factory):
     return chombo_output.write(tmp_path_factory.mktemp("chombo"))
-
-
-def test_written_leaves_tile_the_domain(plotfile):
-    _, leaves = plotfile
-    analytic_amr.assert_leaves_tile(leaves)
-    assert len(np.unique(leaves.width)) >= 3
 
 
 def test_levels_are_properly_nested(plotfile):

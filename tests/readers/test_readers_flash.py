@@ -1,27 +1,11 @@
-"""A FLASH4 plotfile written in FLASH's own HDF5 layout (helpers.flash_output), checked
-as FLASH writes it: the leaves tile the domain, the block tree is balanced (what yt
-and the other readers make of it: test_code_outputs.py)."""
+"""The FLASH4 plotfile of helpers.flash_output, checked as FLASH writes it: its block
+tree is balanced (what yt and the other readers make of it: test_code_outputs.py)."""
 
 from __future__ import annotations
 
 import numpy as np
-import pytest
 
-from helpers import analytic_amr, flash_output
-
-pytest.importorskip("h5py")
-
-
-@pytest.fixture(scope="module")
-def plotfile(tmp_path_factory):
-    return flash_output.write(tmp_path_factory.mktemp("flash"))
-
-
-def test_written_leaves_tile_the_domain(plotfile):
-    _, leaves = plotfile
-    analytic_amr.assert_leaves_tile(leaves)
-    assert len(np.unique(leaves.width)) >= 3
-
+from helpers import flash_output
 
 def test_block_tree_is_paramesh_balanced():
     """PARAMESH never puts leaves two levels apart side by side (faces, edges, corners)."""
