@@ -100,8 +100,6 @@ def guess_format(path: str | Path, *, dims=None, ask_yt: bool = True) -> str | N
             return "amrex"
         if _is_ramses(path):
             return "ramses"
-    elif _is_ramses(path):
-        return "ramses"
     elif name.endswith(".athdf"):
         return "athena"
     elif name.endswith(".cells"):
@@ -110,6 +108,8 @@ def guess_format(path: str | Path, *, dims=None, ask_yt: bool = True) -> str | N
         if dims is None:
             raise ExabricksError(f"{path}: a raw volume needs its size: give --dims X Y Z")
         return "raw"
+    elif _is_ramses(path):  # after the suffixes: the reader's import is not free
+        return "ramses"
     enzo = bool(name) and path.with_name(name + ".hierarchy").is_file()  # "." has no name
     if enzo or any(p.search(name) for p in _YT_NAME_PATTERNS):
         return "yt"
