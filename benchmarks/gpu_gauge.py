@@ -39,7 +39,9 @@ BUDGETS = {
     # the reconstruction and --lod chosen per frame in it since issue 61
     ("N_FIELDS=1", "eb_render"): (96, 64, 0),
     ("N_FIELDS=1", "eb_probe"): (60, 264, 0),
-    ("N_FIELDS=1 RECONSTRUCTION=0 LOD=0 PACKET=8 ORDERED", "eb_render"): (255, 3216, 1048),
+    # (the CPU default, measured for NVIDIA: 3216 B stack and 1048 B spills before the
+    # per-pixel samples and depths shared one buffer, issue 62)
+    ("N_FIELDS=1 RECONSTRUCTION=0 LOD=0 PACKET=8 ORDERED", "eb_render"): (255, 3280, 1012),
     ("N_FIELDS=1 SURFACES", "eb_render"): (186, 2656, 0),  # 248 before issue 61's run-time choices
     ("N_FIELDS=1 CENTRAL", "eb_render"): (128, 416, 0),
     ("N_FIELDS=1 CELL_LOCATION", "eb_render"): (96, 528, 0),
@@ -50,8 +52,13 @@ BUDGETS = {
     # issue 52's shadow integrator: a shadow ray's walk inside the primary ray's,
     # uncapped (128 -> 152 registers with the reconstruction and --lod per frame, no
     # spill); with surfaces 255 registers and 16 B of spills before, 250 and none since
-    ("N_FIELDS=1 SHADOW", "eb_render"): (152, 560, 0),
-    ("N_FIELDS=1 SURFACES SHADOW", "eb_render"): (250, 3104, 0),
+    # issue 62's cached transmittance read per sample beside the traced shadow rays
+    # (chosen per frame): 152 -> 155 registers, with surfaces 250 -> 252 and 3104 ->
+    # 3120 B; its columns' kernel (kernels/light_volume.cl) apart
+    ("N_FIELDS=1 SHADOW", "eb_render"): (155, 560, 0),
+    ("N_FIELDS=1 SURFACES SHADOW", "eb_render"): (252, 3120, 0),
+    ("N_FIELDS=1 SHADOW", "eb_light_columns"): (96, 0, 0),
+    ("N_FIELDS=1 SURFACES SHADOW", "eb_light_columns"): (126, 0, 0),
     # the path integrator: no region walk (delta and ratio tracking through the
     # majorant grid, a BVH point query per tentative collision: its descent's stack)
     ("N_FIELDS=1 PATH", "eb_render"): (96, 264, 0),

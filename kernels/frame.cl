@@ -46,7 +46,20 @@ typedef struct {
 #ifdef EB_MIXTURE
     __global const float4 *copies;      /* overlapping instances (mixture.cl) */
 #endif
+#ifdef EB_SHADOW
+    __global const float *light;        /* cached transmittance toward the light (light_volume.cl) */
+#endif
 } eb_frame;
+
+/* The shadow programs' buffer of the cached transmittance (light_volume.cl), as
+ * the entries take it (EB_LIGHT_ARGS) and pass it on (EB_LIGHT). */
+#ifdef EB_SHADOW
+#define EB_LIGHT_ARGS , __global const float *light_volume
+#define EB_LIGHT , light_volume
+#else
+#define EB_LIGHT_ARGS
+#define EB_LIGHT
+#endif
 
 /* Data-parallel rendering (exabricks.engine.partition): a frame of one domain of a
  * k-d partition of space (P->domain, chosen per frame) takes exactly the samples

@@ -7,19 +7,26 @@
  * point toward the light: the volume layers' extinction and every iso-surface,
  * slice and mesh crossed, inside the clip region, integrated as a primary ray
  * is (occlusion.cl's eb_visibility: the same regions, steps and opacity
- * correction), so a dense shell shades what lies behind it. A volume sample
+ * correction), so a dense shell shades what lies behind it; by default the
+ * volume layers' part of T comes from a cache made once per light
+ * (light_volume.cl). A volume sample
  * scatters it isotropically (its colour times that light: the albedo is the
  * transfer function's colour); a surface hit takes it through Lambert's cosine
  * (and the Blinn-Phong specular term toward the light). */
 #pragma once
 #include "common.h"
 #include "occlusion.cl"
+#include "light_volume.cl"
 
 #ifdef EB_SHADOW
-/* Transmittance toward the light from world point p. */
+/* Transmittance toward the light from world point p: traced, or with the
+ * volume layers' part cached (light_dims.w, --shadow-rays cached:
+ * light_volume.cl) and the surfaces' traced. */
 EB_INLINE float eb_light_transmittance(eb_frame *fr, float3 p, float rho)
 {
-    return eb_visibility(fr, p, fr->P->light_dir.xyz, 0.0f, EB_INF, rho, 1);
+    int cached = fr->P->light_dims.w;
+    float t = eb_visibility(fr, p, fr->P->light_dir.xyz, 0.0f, EB_INF, rho, !cached);
+    return cached ? t * eb_light_cached(fr, p) : t;
 }
 
 /* The light that reaches a volume sample at world point p. */

@@ -84,6 +84,23 @@ __attribute__((noinline)) int eb_batch_take(eb_frame *fr, eb_ray *ray, eb_sample
             eb_packet_medium(fr, &ps, eb_vload(0, q->len), ray->dir_world, 1, &a, &cr_, &cg_, &cb_);
         else
             eb_packet_medium(fr, &ps, eb_vload(0, q->len), ray->dir_world, 0, &a, &cr_, &cg_, &cb_);
+#ifdef EB_SHADOW
+        /* the light that reaches each lane that shows (light.cl) */
+        eb_vstore(a, 0, ca);
+        eb_vstore(cr_, 0, cr);
+        eb_vstore(cg_, 0, cg);
+        eb_vstore(cb_, 0, cb);
+        for (int k = 0; k < m; ++k)
+            if (ca[k] > 0.0f) {
+                float3 l = eb_light(fr, ray->org_world + q->tm[k] * ray->dir_world, ray->rho);
+                cr[k] *= l.x;
+                cg[k] *= l.y;
+                cb[k] *= l.z;
+            }
+        cr_ = eb_vload(0, cr);
+        cg_ = eb_vload(0, cg);
+        cb_ = eb_vload(0, cb);
+#endif
 #ifndef EB_SURFACES
         return eb_packet_composite(st, a, cr_, cg_, cb_, q->tm, m, fr->P->max_opacity);
 #else

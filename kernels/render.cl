@@ -29,14 +29,16 @@
  * buffer needs no clearing).
  * Sub-pixel position: the pixel centre for spp == 1, else uniform from the
  * seeded hash. Interleaving offset rho: from the hash with jitter, else 0.5.
- * samples[pixel] and depth[pixel] collect the reconstruction count and the
- * smallest depth over the pixel's samples. */
+ * counts holds per pixel of the band the reconstruction count over its samples,
+ * then per pixel the smallest depth. */
 __kernel void eb_render(EB_PARAMS_ARG, int4 band, int sample_index,
                         EB_DATASET_ARGS, __global const float *look_f, __global const int *look_i,
-                        __global const float4 *meshes EB_DOMAIN_ARGS, __global float4 *rgba, __global float *depth,
-                        __global uint *samples, __global uint *level_samples)
+                        __global const float4 *meshes EB_LIGHT_ARGS EB_DOMAIN_ARGS, __global float4 *rgba,
+                        __global uint *counts, __global uint *level_samples)
 {
     EB_PARAMS_REF
+    __global uint *samples = counts;  /* then, after the band's pixels, their depths */
+    __global float *depth = (__global float *)(counts + band.y * band.w);
     int band_col = get_global_id(0), band_row = get_global_id(1);
     int col = band.z + band_col, row = band.x + band_row;
     int width = P->width, spp = P->spp;
@@ -46,38 +48,7 @@ __kernel void eb_render(EB_PARAMS_ARG, int4 band, int sample_index,
     /* seeds the hash: bands and tiles change nothing */
     uint pixel = (uint)row * (uint)width + (uint)col;
     uint slot = (uint)band_row * (uint)band.w + (uint)band_col;
-    __global const float4 *look_f4 = (__global const float4 *)look_f;
-    __global const int4 *layers = (__global const int4 *)(look_i + P->layers_at);
-    eb_frame fr = {
-        P, eb_bvh_of(P, EB_DATASET), eb_regions_of(P, EB_DATASET),
-#ifdef EB_CELL_LOCATION
-        {eb_bricks_of(P, EB_DATASET), eb_tree_of(P, EB_DATASET)},
-#else
-        eb_bricks_of(P, EB_DATASET),
-#endif
-        {look_f + P->tf_xs_at, look_f4 + P->tf_rgba_at / 4, look_i + P->buckets_at, layers,
-         P->n_layers, layers[0]},
-        {(__global const int4 *)(look_i + P->iso_at), look_f4 + P->iso_value_at / 4,
-         look_f4 + P->iso_color_at / 4, P->n_iso, (__global const int4 *)(look_i + P->slices_at),
-         look_f4 + P->slice_point_at / 4, look_f4 + P->slice_normal_at / 4, P->n_slices,
-         P->iso_tolerance},
-        {P->clip_box, P->clip_lower, P->clip_upper, look_f4 + P->clip_planes_at / 4,
-         P->n_clip_planes},
-    };
-
-    fr.look.gradient_scale = look_f4 + P->gradient_scale_at / 4;
-    fr.surf.mesh.tri = meshes + P->mesh_tris_at;
-    fr.surf.mesh.node = meshes + P->mesh_nodes_at;
-    fr.surf.mesh.normal = (__global const uint *)(meshes + P->mesh_normals_at);
-    fr.surf.mesh.color = look_f4 + P->mesh_colors_at / 4;
-    fr.surf.mesh.info = (__global const int4 *)(look_i + P->mesh_info_at);
-    fr.surf.mesh.n_meshes = P->n_meshes;
-    fr.look.tables = look_f4;
-    fr.look.table_at = look_i + P->tables_at;
-    fr.look.table0 = fr.look.table_at[0];
-#ifdef EB_MIXTURE
-    fr.copies = look_f4 + P->copies_at / 4;
-#endif
+#include "frame_of.inc"
 
     float jx = 0.5f, jy = 0.5f;
     if (spp > 1) {
@@ -125,6 +96,22 @@ __kernel void eb_render(EB_PARAMS_ARG, int4 band, int sample_index,
         depth[slot] = fmin(depth[slot], t_depth);
     }
 }
+
+#ifdef EB_SHADOW
+/* The shadow integrator's cached transmittance (light_volume.cl): columns (i, j0
+ * + j) of the light-space volume, i < light_dims.x, j < rows, into light_volume. */
+__kernel void eb_light_columns(EB_PARAMS_ARG, int j0, int rows, EB_DATASET_ARGS,
+                               __global const float *look_f, __global const int *look_i,
+                               __global const float4 *meshes, __global float *light_volume)
+{
+    EB_PARAMS_REF
+    int i = get_global_id(0), j = j0 + get_global_id(1);
+    if (i >= P->light_dims.x || get_global_id(1) >= rows || j >= P->light_dims.y)
+        return;
+#include "frame_of.inc"
+    eb_light_column(&fr, i, j, light_volume + ((size_t)j * P->light_dims.x + i) * P->light_dims.z);
+}
+#endif
 
 /* The reconstructed fields at n world points (x, y, z packed, float): field f
  * of point i in values[f * n + i]; NaN where no region contains the point or

@@ -61,6 +61,12 @@ PARAMS = (
     # the shadow integrator's light (kernels/light.cl): direction toward it (unit,
     # world), colour x intensity and, in w, the ambient term
     ("light_dir", "float4"), ("light_rgb", "float4"),
+    # its cached transmittance (kernels/light_volume.cl, exabricks.engine.light_volume):
+    # node (0, 0, 0) and, in w, 1 / the node spacing along the light; the axes across
+    # the light, each with 1 / its node spacing; the nodes per axis and, in w, whether
+    # the frame reads the cache
+    ("light_origin", "float4"), ("light_u", "float4"), ("light_v", "float4"),
+    ("light_dims", "int4"),
     # the path integrator's majorant grid (exabricks.engine.majorants): its lattice
     # corner and, in w, 1 / macrocell width; its macrocells per axis
     ("majorant_lower", "float4"), ("majorant_dims", "int4"),

@@ -66,8 +66,9 @@ from ..film.film import develop
 from ..mesh import mesh_set
 from ..picture.light import light_params
 from ..scene import Lighting, Scene, Settings, VolumeLayer
-from . import instances
+from . import instances, light_volume
 from .device_data import DatasetScale, DeviceDataset
+from .host_images import frame_window, host_image
 from .look import frame_arrays
 from .majorants import frame_majorants
 from . import pacing
@@ -129,9 +130,8 @@ class _Launch:
     band_rows: int
     rgba_buf: object
     front_buf: object
-    depth_buf: object
-    samples_buf: object
-    samples: np.ndarray
+    counts_buf: object  # per pixel of a band its samples, then its depth (kernels/render.cl)
+    counts: np.ndarray
     lod: bool
     level_buf: object
     level_samples: np.ndarray
@@ -177,6 +177,7 @@ class Renderer:
         self._mesh_upload = None  # (mesh files, device buffers, their eb_params)
         self._mesh_set = None
         self._whole = None  # _everywhere's
+        self._light = light_volume.Cache()  # the shadow integrator's transmittance toward the light
         self.copies = None  # overlapping instances (_mixture): float32 (n, rows, 4)
         self._macrocells = {}  # the path integrator's grid and value ranges (majorants.frame_majorants)
 
@@ -203,8 +204,8 @@ class Renderer:
 
     def _packet_width(self, reconstruction: str, integrator: str = "headlight") -> int:
         """Samples reconstructed at once: PACKET_WIDTH for the basis reconstruction from
-        the regions' lists on a renderer with packets, else 1 (and under the shadow
-        and path integrators, built one sample at a time)."""
+        the regions' lists on a renderer with packets, else 1 (and under the path
+        integrator, built one sample at a time)."""
         use = uses_packets(frame(kind="cpu" if self.packets else "gpu", lookup=self.lookup,
                                  reconstruction=reconstruction, integrator=integrator))
         return PACKET_WIDTH if use else 1
@@ -322,7 +323,7 @@ class Renderer:
         (cleared, or `front` where no row may be drawn) and the frame's stats."""
         cfg = scene.settings
         width, height, spp = int(cfg.width), int(cfg.height), int(cfg.spp)
-        col0, tile_row0, cols, n_rows = _window(window, width, height)
+        col0, tile_row0, cols, n_rows = frame_window(window, width, height)
         if window is not None and rows is not None:
             raise ExabricksError("a tile is rendered whole: no spans of rows in it")
         if front is not None and (self.domain is None or front.shape != (n_rows, cols, 4)):
@@ -353,8 +354,8 @@ class Renderer:
         }
         if scene.volumes:
             stats["field"] = scene.volumes[0].field
-        rgba = _host_image(cols, n_rows, 4, "the image")
-        depth = _host_image(cols, n_rows, 1, "the depth image")[..., 0] if cfg.depth else None
+        rgba = host_image(cols, n_rows, 4, "the image")
+        depth = host_image(cols, n_rows, 1, "the depth image")[..., 0] if cfg.depth else None
         spans = [(0, n_rows)] if rows is None else [(int(a), int(n)) for a, n in rows]
         nothing = s.empty or not (node_vis[0] or scene.slices or scene.meshes)
         if rows is not None or nothing or deadline is not None:  # rows not rendered
@@ -372,8 +373,7 @@ class Renderer:
         band_pixels = frame.cols * band_rows
         rgba_buf = opencl.empty_buffer(q, band_pixels * 16)
         front_buf = opencl.empty_buffer(q, band_pixels * 16 if has_front else 16)
-        depth_buf = opencl.empty_buffer(q, band_pixels * 4)
-        samples_buf = opencl.empty_buffer(q, band_pixels * 4)
+        counts_buf = opencl.empty_buffer(q, band_pixels * 8)
         point = self._point(scene, traversal)
         lod, integrator, surfaces = point.lod, point.integrator, point.surfaces
         kernel = self._kernel(point)
@@ -383,13 +383,13 @@ class Renderer:
         pixel_angle = 2.0 * math.tan(math.radians(scene.camera.fovy) / 2.0) / frame.height
         lod_scale = cfg.lod * pixel_angle / s.min_spacing_world if lod else 0.0
         ao_distance = lighting.ao_distance or AO_DISTANCE_CELLS * s.finest_width_world
-        args, layout = s.dataset_args(up(q, s.flags_for(frame.node_vis, frame.region_vis)),
-                                      cfg.reconstruction, lod, self.lookup == "cell-location")
+        flags = s.flags_for(frame.node_vis, frame.region_vis)
+        args, layout = s.dataset_args(up(q, flags), cfg.reconstruction, lod, self.lookup == "cell-location")
         path, mu = {}, None
         if integrator == "path":
             grid, mu = frame_majorants(scene, s, frame.stats["unit_distance"], self._macrocells)
             path, frame.stats["macrocells"] = grid.params(), list(grid.dims)
-        look, look_params, frame.stats["transfer_function_tables"] = frame_arrays(scene, s, self.copies, mu)
+        look_arrays, look_params, frame.stats["transfer_function_tables"] = frame_arrays(scene, s, self.copies, mu)
         mesh_args, mesh_params = self._meshes(scene)
         if scene.meshes:
             frame.stats["meshes"] = self._mesh_set.stats()
@@ -408,11 +408,15 @@ class Renderer:
             **run_time_params(point), **path,
             **(dict(domain=True, domain_lower=self.domain[0], domain_upper=self.domain[1],
                     use_front=has_front) if self.domain else {}))
-        params = params if kernel_abi.params_by_value(surfaces) else up(q, params)
-        fixed = [*args, *(up(q, a) for a in look), *mesh_args,
-                 front_buf, rgba_buf, depth_buf, samples_buf, level_buf]
-        return _Launch(kernel, params, fixed, band_rows, rgba_buf, front_buf, depth_buf, samples_buf,
-                       np.empty(band_pixels, np.uint32), lod, level_buf, level_samples)
+        look, by_value = [up(q, a) for a in look_arrays], kernel_abi.params_by_value(surfaces)
+        light = () if integrator != "shadow" else (self._light.buffer(
+            s, s.program_for(program_variant(point)), by_value, lighting.shadow_rays, params,
+            (*look_arrays, flags, frame.region_vis), [*args, *look, *mesh_args], frame.stats),)
+        params = params if by_value else up(q, params)
+        fixed = [*args, *look, *mesh_args, *light,
+                 front_buf, rgba_buf, counts_buf, level_buf]
+        return _Launch(kernel, params, fixed, band_rows, rgba_buf, front_buf, counts_buf,
+                       np.empty(2 * band_pixels, np.uint32), lod, level_buf, level_samples)
 
     def _draw(self, frame: _Frame, launch: _Launch, sample, front, deadline) -> tuple[int, int, float]:
         """Draw `frame`'s spans in bands of rows into its host images, each band's
@@ -438,14 +442,14 @@ class Renderer:
                 if front is not None:
                     opencl.write_to(q, launch.front_buf, front[row0:row0 + rows].reshape(n, 4))
                 if sample:  # the kernel adds samples after the first: start from 0
-                    for buf, size in ((launch.rgba_buf, 16), (launch.samples_buf, 4)):
+                    for buf, size in ((launch.rgba_buf, 16), (launch.counts_buf, 4)):
                         opencl.fill_zero(q, buf, n * size)
                 self._band(frame, launch, pace, row0, rows, indices)
                 opencl.read_back(q, launch.rgba_buf, frame.rgba[row0:row0 + rows].reshape(n, 4))
-                opencl.read_back(q, launch.samples_buf, launch.samples[:n])
+                opencl.read_back(q, launch.counts_buf, launch.counts[:2 * n])
                 if frame.depth is not None:
-                    opencl.read_back(q, launch.depth_buf, frame.depth[row0:row0 + rows].reshape(n))
-                total += int(launch.samples[:n].sum(dtype=np.int64))
+                    frame.depth[row0:row0 + rows] = launch.counts[n:2 * n].view(np.float32).reshape(rows, cols)
+                total += int(launch.counts[:n].sum(dtype=np.int64))
                 row0 += rows
             if drawn < n_rows:
                 break
@@ -545,29 +549,6 @@ class Renderer:
             raise ExabricksError(
                 f"a sampling rate of {sampling_rate:g} takes up to {bound:,.0f} samples on a ray "
                 f"through the data, more than the {MAX_SAMPLES_PER_RAY:,} allowed: lower it")
-
-
-def _window(window, width: int, height: int) -> tuple[int, int, int, int]:
-    """(first column, first row, columns, rows) of a tile of a width x height frame
-    (default: the whole frame)."""
-    if window is None:
-        return 0, 0, width, height
-    col0, row0, cols, rows = (int(v) for v in window)
-    if not (0 <= col0 and 0 <= row0 and cols >= 1 and rows >= 1 and col0 + cols <= width
-            and row0 + rows <= height):
-        raise ExabricksError(f"tile {cols}x{rows} at ({col0}, {row0}) is not inside the "
-                             f"{width}x{height} frame")
-    return col0, row0, cols, rows
-
-
-def _host_image(width: int, height: int, channels: int, what: str) -> np.ndarray:
-    """A float32 (height, width, channels) array, or one clear error if it cannot fit."""
-    nbytes = width * height * channels * 4
-    limit = schema.memory_limit()
-    if limit is not None and nbytes > limit:
-        raise ExabricksError(f"{what} of {width}x{height} needs {nbytes / 2**30:.1f} GiB, more "
-                             f"than the {limit / 2**30:.1f} GiB of memory available")
-    return np.empty((height, width, channels), np.float32)
 
 
 def render(bricks: schema.Bricks, regions: schema.Regions, bvh: schema.Bvh, *, camera,

@@ -68,9 +68,9 @@ def device_kind(device) -> str:
 
 def uses_packets(f) -> bool:
     """Sample packets: the basis reconstruction from the regions' lists under the
-    headlight, on CPUs (both give the same image)."""
+    headlight and the shadow integrator, on CPUs (both give the same image)."""
     return (f.kind == "cpu" and f.lookup == "regions" and f.reconstruction == "basis"
-            and f.integrator == "headlight")
+            and f.integrator != "path")
 
 
 @dataclass(frozen=True)

@@ -23,6 +23,7 @@ CONDITIONS = {
     "light": Condition("--integrator shadow or path",
                        lambda s: s.lighting.integrator in ("shadow", "path")),
     "path": Condition("--integrator path", lambda s: s.lighting.integrator == "path"),
+    "shadow": Condition("--integrator shadow", lambda s: s.lighting.integrator == "shadow"),
     "headlight": Condition("--integrator headlight",
                            lambda s: s.lighting.integrator == "headlight"),
     # The headlight's shading of the volume from its gradient.

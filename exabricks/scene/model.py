@@ -151,6 +151,9 @@ class Lighting:
     # the direction toward a directional light, world (None: the camera's key light,
     # above and to the left behind it), its colour and intensity, and the ambient term
     integrator: str = "headlight"
+    # its transmittance toward the light: "cached" once per light (exabricks.engine.light_volume)
+    # or "traced" by a shadow ray from every sample
+    shadow_rays: str = "cached"
     light: tuple[float, float, float] | None = None
     light_color: tuple[float, float, float] = (1.0, 1.0, 1.0)
     light_intensity: float = 0.8

@@ -8,6 +8,9 @@ SHADING_MODES = ("headlight", "none")
 # volume's shadows and an ambient term, or volumetric path tracing of the same
 # lights with multiple scattering.
 INTEGRATORS = ("headlight", "shadow", "path")
+# The shadow integrator's transmittance toward the light: cached once per light in
+# a light-space volume (exabricks.engine.light_volume), or traced from every sample.
+SHADOW_RAYS = ("cached", "traced")
 GRADIENTS = ("analytic", "central")
 # How a point's value comes from the cells (docs/design-rendering.md, "Reconstructions: basis, nearest,
 # vertex").

@@ -18,7 +18,7 @@ from ..util.errors import ExabricksError
 from ..util.jsonfile import not_regular
 from ..picture.scaling import SCALES
 from .modes import (AXES, GRADIENTS, INTEGRATORS, MAX_AO_SAMPLES, MAX_BOUNCES, RECONSTRUCTIONS,
-                    SHADING_MODES, TF_LOOKUPS)
+                    SHADING_MODES, SHADOW_RAYS, TF_LOOKUPS)
 
 
 @dataclass(frozen=True)
@@ -368,6 +368,12 @@ SCENE_OPTIONS = (
            "lights every sample, plus --ambient; path: volumetric path tracing of the volume "
            "layers and the surfaces under the same lights, with multiple scattering (--bounces, "
            "--anisotropy; converges with --spp).", kind="choice", choices=INTEGRATORS),
+    _light("shadow_rays", "With --integrator shadow: the volume's transmittance toward the light "
+           "cached once per light, transfer function and dataset, in a light-space volume that "
+           "every frame reads (cached, the default; iso-surfaces, slices and meshes keep their "
+           "exact shadow rays), or traced by a shadow ray from every sample (traced: the "
+           "reference, many times slower).", kind="choice", choices=SHADOW_RAYS,
+           applies=("shadow",)),
     _light("bounces", "With --integrator path: scattering events of a path at most (default 8; "
            "1: single scattering), with Russian roulette from the third.", _PATH, kind="int",
            low=1, high=MAX_BOUNCES, kernel=True, applies=("path",)),

@@ -56,7 +56,7 @@ def test_the_code_map_names_every_module_and_nothing_else():
 def test_the_kernel_table_names_every_kernel_file_and_nothing_else():
     named = {t for line in _section("### The kernels (`kernels/`)")[2:]
              for t in TICKED.findall(line.split("|")[1])}
-    files = {p.name for p in (ROOT / "kernels").iterdir() if p.suffix in (".cl", ".h")}
+    files = {p.name for p in (ROOT / "kernels").iterdir() if p.suffix in (".cl", ".h", ".inc")}
     assert named == files, (f"missing {sorted(files - named)}, stale {sorted(named - files)}")
 
 

@@ -74,14 +74,15 @@ def test_a_slab_lit_from_above_and_from_below_is_the_closed_form(device, light_a
 
 @device_param
 def test_ambient_light_alone_is_the_unlit_frame(device):
-    """With intensity 0 and ambient 1 the frame is the unlit one, bit for bit (drawn one
-    sample at a time, as the shadow integrator draws)."""
+    """With intensity 0 and ambient 1 the frame is the unlit one, bit for bit, drawn
+    one sample at a time and by sample packets alike."""
     built = slab()
     renderer = Renderer(built.bricks, built.regions, built.bvh, device=device)
-    plain = renderer.with_packets(False).render_scene(slab_scene(None, integrator="headlight").replace(
-        lighting=Lighting(shading="none")))
-    ambient_only = renderer.render_scene(slab_scene((0.3, -0.2, 1.0), ambient=1.0, intensity=0.0))
-    np.testing.assert_array_equal(ambient_only.rgba, plain.rgba)
+    for drawn in (renderer, renderer.with_packets(False)):
+        plain = drawn.render_scene(slab_scene(None, integrator="headlight").replace(
+            lighting=Lighting(shading="none")))
+        ambient_only = drawn.render_scene(slab_scene((0.3, -0.2, 1.0), ambient=1.0, intensity=0.0))
+        np.testing.assert_array_equal(ambient_only.rgba, plain.rgba)
 
 
 def test_the_key_light_is_above_and_to_the_left_behind_the_camera():
