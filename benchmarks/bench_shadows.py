@@ -43,7 +43,7 @@ def measure(dataset, runs: int, size: int) -> dict:
 
     def frame(kind):
         if kind == "built":
-            renderer._light.volume = None  # as after a change of light or transfer function
+            renderer.light_cache.volume = None  # as after a change of light or transfer function
         started = time.perf_counter()
         result = renderer.integrate(scenes["cached" if kind == "built" else kind])
         return time.perf_counter() - started, result

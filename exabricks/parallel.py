@@ -194,10 +194,12 @@ class ParallelRenderer:
         if self.mode == "image":
             self.renderer = Renderer(bricks, regions, bvh, fields=fields, device=device)
             return
+        from .engine import light_volume
         from .engine.partition import kd_partition
         from .engine.domains import domain_data, domain_options
 
         self.partition = kd_partition(bricks, regions, self.size)
+        self.world_box = schema.world_bounds(bricks)
         for whole in (bricks, regions):  # the partition read them all: only the domain now
             schema.release(whole)
         box = (self.partition.lower[self.rank], self.partition.upper[self.rank])
@@ -207,7 +209,8 @@ class ParallelRenderer:
             schema.release(whole)
         schema.trim_heap()
         self.renderer = Renderer(*domain, fields=fields, device=device, domain=box,
-                                 scale=DatasetScale.of(bricks, fields))
+                                 scale=DatasetScale.of(bricks, fields),
+                                 light=light_volume.Cache())  # the ranks sum their parts
 
     def render_scene(self, scene):
         from .engine.renderer import RenderResult
@@ -246,6 +249,20 @@ class ParallelRenderer:
                 depth[idx] = got[1]
         return rgba, depth, dict(result.stats)
 
+    def _light(self, scene) -> None:
+        """The shadow integrator's transmittance toward the light, every rank's
+        part summed (light_volume): over the box of the regions the frame shows
+        on any rank."""
+        from .engine import light_volume
+
+        data = self.renderer.dataset
+        light = self.renderer.light_cache
+        layers = [(v.field, v.transfer_function) for v in scene.volumes]
+        light.box = light_volume.union(self.comm.allgather(
+            light_volume.seen_box(data.regions, data.bricks.field_index, layers))) or self.world_box
+        made = agree(self.comm, self.renderer.light, scene)
+        light.sum_over(self.comm, data.queue, made)
+
     def _data(self, scene):
         from .engine.partition import composite, eye_lattice
 
@@ -256,6 +273,7 @@ class ParallelRenderer:
         mine = slabs[self.rank]
         own = np.zeros((mine[1] - mine[0], width, 4), np.float32)
         samples, stats = 0, {}
+        self._light(scene)
         for sample in range(spp):
             result = agree(self.comm, self.renderer.integrate, scene,
                            sample=sample if spp > 1 else None)

@@ -9,7 +9,9 @@
  * is (occlusion.cl's eb_visibility: the same regions, steps, opacity
  * correction and clip interval), and holds the optical depth of the volume
  * layers (-log2 of their transmittance) from the box's edge down to each of
- * its nodes, k fastest. A sample interpolates the optical depth along the four
+ * its nodes, k fastest, added to what the buffer holds: a domain of a partition
+ * (frame.cl, eb_in_domain) adds the optical depth of its own samples, and the
+ * domains' sum is the whole's. A sample interpolates the optical depth along the four
  * columns about it (linear in depth through a uniform medium, where the
  * transmittance is not), then their transmittances across the light; iso-surfaces, slices and
  * meshes, whose shadows are sharp, keep their exact shadow rays (light.cl). */
@@ -22,7 +24,7 @@
 
 #ifdef EB_SHADOW
 /* Column (i, j): the optical depth of the volume layers (-log2 of their
- * transmittance) at its nodes into out[k]. */
+ * transmittance) at its nodes, of the samples in the frame's domain, added to out[k]. */
 EB_INLINE void eb_light_column(eb_frame *fr, int i, int j, __global float *out)
 {
     eb_params_ref P = fr->P;
@@ -52,7 +54,7 @@ EB_INLINE void eb_light_column(eb_frame *fr, int i, int j, __global float *out)
             while (depth < depth_max && eb_intervals_next(&it, &tm, &len)) {
                 float a = 0.0f;
                 eb_basis_sums s = eb_sample_region(fr, r, org + tm * dir, 0);
-                if (s.weight > 0.0f) {
+                if (s.weight > 0.0f && eb_in_domain(fr, org + tm * dir)) {
                     float value[EB_N_FIELDS];
                     eb_fields(s, value);
                     a = eb_medium_step(fr, &s, org + tm * dir, 0, value, len, dir_world, 0).w;
@@ -61,13 +63,13 @@ EB_INLINE void eb_light_column(eb_frame *fr, int i, int j, __global float *out)
                  * nodes in it by the part of it before them */
                 float step = a < 1.0f ? -log2(1.0f - a) : depth_max;
                 for (; k < nw && (float)k * dw <= tm + 0.5f * len; ++k)
-                    out[k] = depth + step * clamp(((float)k * dw - (tm - 0.5f * len)) / len, 0.0f, 1.0f);
+                    out[k] += depth + step * clamp(((float)k * dw - (tm - 0.5f * len)) / len, 0.0f, 1.0f);
                 depth += step;
             }
         }
     }
     for (; k < nw; ++k)
-        out[k] = depth;
+        out[k] += depth;
 }
 
 /* The cached transmittance of the volume layers toward the light at world point

@@ -114,6 +114,12 @@ _C_TYPES = {"float4": (np.float32, (4,)), "int4": (np.int32, (4,)), "long": np.i
             "uint": np.uint32, "float": np.float32}
 
 
+def float4_box(box) -> tuple:
+    """A box (lower, upper) as two float4 members of eb_params take it (a domain's
+    domain_lower and domain_upper): two tuples, hashable."""
+    return tuple((*np.asarray(b, np.float64), 0.0) for b in box)
+
+
 def _dtype() -> np.dtype:
     """PARAMS as a numpy dtype laid out as C lays out eb_params: each member at the
     next multiple of its size, the whole a multiple of 16 bytes."""

@@ -26,6 +26,7 @@ the same samples (`render_mixture`, kernels/mixture.cl).
 from __future__ import annotations
 
 import time
+from dataclasses import replace
 from itertools import combinations
 
 import numpy as np
@@ -33,6 +34,7 @@ import numpy as np
 from ..picture.camera import Camera, box_corners
 from ..util.errors import ExabricksError
 from ..util.vectors import unit
+from . import light_volume
 from ..scene.model import Clip, Scene
 from ..scene.modes import MAX_CLIP_PLANES
 
@@ -99,8 +101,45 @@ def object_scene(scene: Scene, r: np.ndarray, t: np.ndarray, box) -> Scene:
     slices = tuple(s.__class__(*plane(s.point, s.normal), s.field, s.colormap, s.opacity)
                    for s in scene.slices)
     clip = Clip(None if cut is None else (tuple(cut[0]), tuple(cut[1])), tuple(planes))
+    lighting = scene.lighting
+    if lighting.light is not None:  # a direction in world space
+        lighting = replace(lighting, light=tuple(back @ np.asarray(lighting.light, np.float64)))
     return scene.replace(camera=ObjectCamera(scene.camera, r, t), slices=slices, clip=clip,
-                         instances=())
+                         lighting=lighting, instances=())
+
+
+def placement(scene):
+    """(r, t) of the instance whose frame in object space `scene` is (object_scene),
+    or None."""
+    camera = scene.camera
+    return (camera.r, camera.t) if isinstance(camera, ObjectCamera) else None
+
+
+def light(inner, scene: Scene, scenes, box, maps) -> None:
+    """Under the shadow integrator, the light's cached transmittance over every
+    instance (exabricks.engine.light_volume): one volume in world space, over the
+    copies of the regions that the frame's volume layers show (of `box`, where
+    none does), to which each instance (its frame in object space in `scenes`)
+    adds the optical depths of its own copy; the light crosses them all."""
+    lighting = scene.lighting
+    if lighting.integrator != "shadow":
+        return
+    if lighting.shadow_rays == "traced":
+        raise ExabricksError("--shadow-rays traced: a shadow ray does not cross instances "
+                             "(--mirror); the cached transmittance (the default) does")
+    data = inner.dataset
+    seen = light_volume.seen_box(data.regions, data.bricks.field_index,
+                                 [(v.field, v.transfer_function) for v in scene.volumes])
+    placed = np.concatenate(_placed(box if seen is None else seen, maps)[0])
+    cache = inner.light_cache
+    cache.box = (placed.min(axis=0), placed.max(axis=0))
+    parts = [light_volume.part(inner.domain, m) for m in maps]
+    for _ in range(2):  # a part made for another light comes again after the rest
+        for one in scenes:
+            inner.light(one)
+        if cache.holds(parts):
+            return
+    raise ExabricksError("the instances disagree on the light's transmittance")
 
 
 def object_box(lower, upper, mesh_bounds=None) -> np.ndarray:
@@ -233,6 +272,7 @@ def render(inner, scene: Scene, box, *, traversal, rows, window, sample, deadlin
                               sample=sample, deadline=deadline)
     order = visibility_order(box, maps, scene.camera.position)
     scenes = [object_scene(scene, r, t, box) for r, t in maps]
+    light(inner, scene, scenes, box, maps)
     spp = int(scene.settings.spp)
     samples = range(spp) if sample is None and spp > 1 else (sample,)
     total = depth = stats = drawn = None

@@ -274,8 +274,11 @@ def needs_image_mode(scene) -> str | None:
         return "depth output"
     if scene.settings.reconstruction == "vertex":
         return "the vertex reconstruction"
-    if scene.lighting.integrator == "shadow":  # a ray toward the light crosses every domain
-        return "shadow rays (--integrator shadow)"
+    lighting = scene.lighting
+    if lighting.integrator == "shadow" and lighting.shadow_rays == "traced":
+        return "shadow rays (--integrator shadow --shadow-rays traced)"  # toward the light
+    if lighting.integrator == "shadow" and scene.slices:  # their shadows are traced
+        return "slices' shadows (--integrator shadow)"
     if scene.lighting.integrator == "path":
         return "scattered paths (--integrator path)"
     return None

@@ -38,13 +38,12 @@ absorption. Conventions the design leaves open, chosen here:
   reading the region's brick list. Same samples, and the same bricks summed in
   the same order, so the same frame; only the speed differs. ``"regions"``
   (default) is the paper's method.
-* Sample packets: on CPU devices a ray reconstructs its next PACKET_WIDTH
-  samples at once in vector registers (kernels/packet.cl; in a volume frame
-  from up to three consecutive region visits), the
-  transfer function and opacity of one volume layer too; compositing stays in
-  order, so the image equals the one-sample path's up to float rounding.
-  ``Renderer(..., packets=False)`` (or `with_packets`) forces the one-sample
-  path, the one GPUs take.
+* Sample packets: on CPU devices a ray reconstructs its next PACKET_WIDTH samples at
+  once in vector registers (kernels/packet.cl; in a volume frame from up to three
+  consecutive region visits), the transfer function and opacity of one volume layer
+  too; compositing stays in order, so the image equals the one-sample path's up to
+  float rounding. ``Renderer(..., packets=False)`` (or `with_packets`) forces the
+  one-sample path, the one GPUs take.
 """
 
 from __future__ import annotations
@@ -52,7 +51,7 @@ from __future__ import annotations
 import copy
 import math
 import time
-from dataclasses import dataclass, field as dataclass_field
+from dataclasses import dataclass, field as dataclass_field, replace as dataclass_replace
 
 import numpy as np
 
@@ -73,8 +72,8 @@ from .look import frame_arrays
 from .majorants import frame_majorants
 from . import pacing
 from .pacing import Pace
-from .variants import (LOOKUPS, TRAVERSALS, check_choice, frame, program_variant, run_time_params,
-                       uses_packets)
+from .variants import (LOOKUPS, TRAVERSALS, check_choice, frame, program_variant,
+                       run_time_params, uses_packets)
 
 # Pixels per work-group side: 8 x 8 tiles keep neighbouring rays (which walk the
 # same regions and bricks) together on one core.
@@ -161,23 +160,23 @@ class Renderer:
     def __init__(self, bricks: schema.Bricks, regions: schema.Regions, bvh: schema.Bvh,
                  *, field: str | None = None, fields=None, device=None,
                  lookup: str = "regions", packets: bool | None = None,
-                 domain=None, scale: DatasetScale | None = None):
+                 domain=None, scale: DatasetScale | None = None, light=None):
         """`domain`: (lower, upper) lattice bounds of the half-open box of a domain of
         a k-d partition (exabricks.engine.partition) that these structures are
         the share of, `scale` the whole dataset's; frames then hold exactly the
-        samples inside the box (docs/design-scale.md, "Data-parallel rendering and MPI")."""
+        samples inside the box (docs/design-scale.md, "Data-parallel rendering and MPI").
+        `light`: the light_volume.Cache that the domains of one dataset share."""
         check_choice("brick lookup", lookup, LOOKUPS)
         self.dataset = DeviceDataset(bricks, regions, bvh, field=field, fields=fields, device=device,
                                  scale=scale)
-        self.domain = None if domain is None else \
-            tuple((*np.asarray(b, np.float64), 0.0) for b in domain)
+        self.domain = None if domain is None else kernel_abi.float4_box(domain)
         self._use(lookup)
         # Sample packets: on CPU devices unless asked otherwise (both give the same image).
         self.packets = opencl.is_cpu(self.dataset.device) if packets is None else bool(packets)
         self._mesh_upload = None  # (mesh files, device buffers, their eb_params)
         self._mesh_set = None
         self._whole = None  # _everywhere's
-        self._light = light_volume.Cache()  # the shadow integrator's transmittance toward the light
+        self.light_cache = light or light_volume.Cache()  # the shadow integrator's, toward the light
         self.copies = None  # overlapping instances (_mixture): float32 (n, rows, 4)
         self._macrocells = {}  # the path integrator's grid and value ranges (majorants.frame_majorants)
 
@@ -318,6 +317,22 @@ class Renderer:
                      samples_per_second=total / seconds if seconds > 0 else 0.0)
         return RenderResult(frame.rgba, frame.depth, stats)
 
+    def light(self, scene: Scene) -> dict | None:
+        """Have the shadow integrator's cached transmittance of `scene` hold this
+        renderer's part (a domain's or an instance's: light_volume.Cache), drawing
+        nothing: its stats ("light_volume"), or None where `scene` reads none."""
+        lighting = scene.lighting
+        if lighting.integrator != "shadow" or lighting.shadow_rays != "cached":
+            return None
+        if self.dataset.empty:  # its part is nothing, whatever the light
+            self.light_cache.empty.add(light_volume.part(self.domain, instances.placement(scene)))
+            return None
+        scene.check()
+        one = scene.replace(settings=dataclass_replace(scene.settings, width=1, height=1, spp=1))
+        frame = self._frame(one, self.traversal, None, None, None, None)
+        self._launch(one, frame, self.traversal, False)
+        return frame.stats["light_volume"]
+
     def _frame(self, scene: Scene, traversal: str, rows, window, front, deadline) -> _Frame:
         """What `integrate` draws of `scene`: the window, the spans, the host images
         (cleared, or `front` where no row may be drawn) and the frame's stats."""
@@ -409,9 +424,12 @@ class Renderer:
             **(dict(domain=True, domain_lower=self.domain[0], domain_upper=self.domain[1],
                     use_front=has_front) if self.domain else {}))
         look, by_value = [up(q, a) for a in look_arrays], kernel_abi.params_by_value(surfaces)
-        light = () if integrator != "shadow" else (self._light.buffer(
+        placement = instances.placement(scene)
+        light = () if integrator != "shadow" else (self.light_cache.buffer(
             s, s.program_for(program_variant(point)), by_value, lighting.shadow_rays, params,
-            (*look_arrays, flags, frame.region_vis), [*args, *look, *mesh_args], frame.stats),)
+            look_arrays, [(v.field, v.transfer_function) for v in scene.volumes],
+            [*args, *look, *mesh_args], frame.stats, part=light_volume.part(self.domain, placement),
+            placement=placement),)
         params = params if by_value else up(q, params)
         fixed = [*args, *look, *mesh_args, *light,
                  front_buf, rgba_buf, counts_buf, level_buf]
@@ -512,6 +530,7 @@ class Renderer:
         if self._whole is None:
             self._whole = copy.copy(self)
             self._whole.domain = instances.EVERYWHERE
+            self._whole.light_cache = light_volume.Cache()  # over every instance
         self._whole.lookup, self._whole.packets = self.lookup, self.packets
         return self._whole
 

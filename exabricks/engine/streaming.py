@@ -35,6 +35,7 @@ from collections import deque
 import numpy as np
 
 from ..device import opencl
+from ..device.kernel_abi import float4_box
 from .. import schema
 from ..formats.memory import mapping
 from ..util.errors import ExabricksError
@@ -44,45 +45,8 @@ from .partition import budget_partition, eye_lattice, mib, needs_image_mode
 from ..film.film import develop
 from .renderer import Renderer, RenderResult
 from .look import table_bytes
-
-# A domain's bytes (partition.domain_bytes) times this must fit the budget left
-# after the images: while a domain is made, its copies from the files, its
-# validation, the BVH builder and the upload take about as much again
-# (measured: docs/benchmarks-decisions.md, "Measurements behind design choices").
-SLACK = 2.5
-# Bytes per brick of the whole dataset that making a domain holds whatever its
-# size (partition.domain_data: a mask of the bricks listed and their renumbering).
-PER_BRICK = 5
-# A resident domain kept beside the one being made counts this many times its
-# bytes (partition.domain_bytes): what the estimate misses (about 4 % and 83 KiB
-# a domain on the thin shells) and the heap the makes leave behind. Counted
-# once, a 16 MiB budget's tiled frame of the thin shells peaked at the budget;
-# twice, within it (docs/benchmarks-scale.md, "Domains kept across samples, bands and
-# frames").
-HELD = 2
-# Copies of a frame's transfer-function lookup tables (look.table_bytes) while
-# a domain draws: the transfer function's own, the look's host array and its
-# device buffer. A log-scaled function's irregular knots take tables of up to
-# 1 MiB a layer.
-TABLE_COPIES = 3
-
-
-def image_bytes(scene, tile=None) -> int:
-    """Host bytes of the images a streamed frame keeps (the composite, the sum of
-    the samples, the domain's result and a copy offered to on_image): whole
-    frames, or bands of whole rows of a tile's height with `tile` (W, H)."""
-    width, height = int(scene.settings.width), int(scene.settings.height)
-    rows = height if tile is None else min(int(tile[1]), height)
-    return 4 * width * rows * 16
-
-
-def fixed_bytes(scene, n_bricks: int, tile=None) -> int:
-    """Host bytes a budgeted frame of `scene` holds whatever its domains: the
-    images (image_bytes), the transfer-function lookup tables while a domain
-    draws (TABLE_COPIES) and the indices over the dataset's `n_bricks` bricks
-    (PER_BRICK)."""
-    return image_bytes(scene, tile) + TABLE_COPIES * table_bytes(scene) + PER_BRICK * n_bricks
-
+from . import light_volume
+from .budget_bytes import HELD, SLACK, fixed_bytes, image_bytes, light_bytes
 
 class Resident:
     """The whole dataset as one resident domain (an exabricks.engine.renderer.Renderer)."""
@@ -120,6 +84,7 @@ class Budgeted:
         # where samples can be, in lattice units: the bricks' cells and half a
         # coarsest cell around them (the support of the basis reconstruction)
         lo, hi = (np.asarray(b, np.float64) for b in schema.world_bounds(bricks))
+        self.world_box = (lo, hi)
         margin = float(2.0 ** int(bricks.level.max())) if bricks.n_bricks else 0.0
         self.data_box = (eye_lattice(bricks, lo) - margin, eye_lattice(bricks, hi) + margin)
         schema.release(bricks)
@@ -150,7 +115,8 @@ class Budgeted:
         frame = image_bytes(scene, self.tile) // 4
         self.samples_per_read = int(min(scene.settings.spp, 1 + (self.budget // 4) // max(frame, 1)))
         self.tables = table_bytes(scene)
-        fixed = (fixed_bytes(scene, self.bricks.n_bricks, self.tile)
+        self.light_bytes = light_bytes(scene, self.budget)
+        fixed = (fixed_bytes(scene, self.bricks.n_bricks, self.tile, self.budget)
                  + (self.samples_per_read - 1) * frame + reads)
         # a domain being made takes SLACK times its bytes; one made on a thread while
         # the one before it draws (prefetch) takes that beside the one drawing
@@ -159,7 +125,8 @@ class Budgeted:
             raise ExabricksError(
                 f"a memory budget of {mib(self.budget)} leaves nothing for the data besides "
                 f"{mib(fixed)} of images, transfer-function tables, indices over the "
-                f"dataset's {self.bricks.n_bricks:,} bricks and reads from its files")
+                f"dataset's {self.bricks.n_bricks:,} bricks and reads from its files"
+                + (", and the light's cached transmittance" if self.light_bytes else ""))
         self.options, self.room, self.capacity = options, room, self.budget - fixed
         self._settle()
         self._cache.clear()
@@ -167,6 +134,8 @@ class Budgeted:
                                           where=self.where, grid_bytes=self.budget // 4,
                                           blocks=self.blocks, **options)
         self.n_domains = self.partition.n_domains
+        # the shadow integrator's transmittance, one for every domain (light_volume)
+        self.light = light_volume.Cache(max_bytes=self.light_bytes or 4 * light_volume.MAX_NODES)
         if self.n_domains > 1:
             reason = needs_image_mode(scene)
             if reason:
@@ -176,12 +145,35 @@ class Budgeted:
                     "raise the budget or leave them out")
 
     def order(self, scene) -> list[int]:
+        """The domains front to back for `scene`'s frame, every domain's part of its
+        cached transmittance toward the light made (`light`)."""
         if (domain_options(self.bricks, scene) != self.options or set(scene.fields()) - set(self.fields)
-                or table_bytes(scene) > self.tables):
+                or table_bytes(scene) > self.tables or light_bytes(scene, self.budget) > self.light_bytes):
             self.fields = scene.fields()
             self.scale = DatasetScale.of(self.bricks, self.fields)
             self._plan(scene)
-        return self.partition.visibility_order(eye_lattice(self.bricks, scene.camera.position))
+        order = self.partition.visibility_order(eye_lattice(self.bricks, scene.camera.position))
+        self.light_all(scene, order)
+        return order
+
+    def light_all(self, scene, order) -> None:
+        """Under the shadow integrator, have every domain add its part to the
+        transmittance toward the light that they share (light_volume), in `order`,
+        unless it holds them all already: the first domain finds whether the
+        light, the look or the clipping changed."""
+        lighting = scene.lighting
+        if self.n_domains == 1 or lighting.integrator != "shadow" or lighting.shadow_rays != "cached":
+            return
+        parts = [light_volume.part(float4_box((self.partition.lower[i], self.partition.upper[i])), None)
+                 for i in range(self.n_domains)]
+        layers = [(v.field, v.transfer_function) for v in scene.volumes]
+        self.light.box = light_volume.seen_box(self.regions, self.bricks.field_index, layers) \
+            or self.world_box
+        for index in order:
+            self.domain(index, scene).light(scene)
+            if self.light.holds(parts):
+                return
+        raise ExabricksError("the domains of a memory budget disagree on the light's transmittance")
 
     def footprint(self, index: int, scene):
         """Pixels (col0, row0, col1, row1) that domain `index` can draw (Camera.footprint)."""
@@ -229,7 +221,8 @@ class Budgeted:
         for whole in (self.bricks, self.regions):
             schema.release(whole)
         return Renderer(*data, fields=self.fields, device=self.device,
-                        domain=box if self.n_domains > 1 else None, scale=self.scale)
+                        domain=box if self.n_domains > 1 else None, scale=self.scale,
+                        light=self.light)
 
     def _prefetch(self) -> None:
         """Make the next domain expected, on a thread while the current one draws,

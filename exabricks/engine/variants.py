@@ -170,10 +170,13 @@ class Refusal:
 
 
 REFUSALS = (
-    Refusal(lambda f: f.integrator != "headlight" and (f.domain or f.mixture),
-            "--integrator {integrator}: a shadow ray needs the whole dataset in one piece; it does "
+    Refusal(lambda f: f.integrator == "path" and (f.domain or f.mixture),
+            "--integrator path: a scattered path needs the whole dataset in one piece; it does "
             "not work yet with --mirror (instances), --memory-budget or MPI data mode (MPI image "
             "mode works)"),
+    Refusal(lambda f: f.integrator == "shadow" and f.mixture,
+            "--integrator shadow: the light's transmittance does not cross instances that "
+            "overlap yet (--mirror through the data)"),
     Refusal(lambda f: f.integrator == "path" and (f.lod or f.reconstruction == "vertex"),
             "--integrator path draws the basis or nearest reconstruction at full resolution: "
             "--lod and the vertex reconstruction take --integrator shadow"),

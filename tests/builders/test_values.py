@@ -123,7 +123,7 @@ def test_render_with_values_equals_a_full_rebuild(series, tmp_path):
 def test_a_budget_and_probe_with_values_equal_a_full_rebuild(series, tmp_path):
     d = series
     # a memory budget streams the values file's pages by domains (a volume; 3M: the
-    # transfer function's table counts in the budget, streaming.fixed_bytes)
+    # transfer function's table counts in the budget, budget_bytes.fixed_bytes)
     volume = [*VIEW[:7], "--range", "0", "1.5"]
     proc = run_cli("-v", "render", *structures(d, 0), "--values", d / "v1.npz", "-o", tmp_path / "m.exr",
                    *volume, "--memory-budget", "3M", check=0)

@@ -12,9 +12,11 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
+from exabricks import schema
 from exabricks.engine import light_volume
 from exabricks.engine.renderer import Renderer
 from exabricks.scene import Clip
+from exabricks.util.errors import ExabricksError
 
 from helpers import AMREX, ATHENA, ENZO, GERRIS, device_param
 
@@ -87,7 +89,7 @@ def test_the_cache_is_made_once_per_light_transfer_function_and_clipping(device)
     assert not built(scene.replace(settings=replace(scene.settings, width=32, height=16, spp=2, seed=7)))
     reused = renderer.integrate(moved).rgba
     assert built(scene.replace(lighting=replace(scene.lighting, light=(0.0, 1.0, 0.2))))
-    renderer._light.volume = None  # made anew for the same light
+    renderer.light_cache.volume = None  # made anew for the same light
     np.testing.assert_array_equal(renderer.integrate(moved).rgba, reused)
     volume = scene.volumes[0]
     tf = volume.transfer_function
@@ -118,3 +120,86 @@ def test_the_volume_covers_the_box_as_the_light_sees_it(light):
             np.testing.assert_allclose(1.0 / inv, finest / light_volume.NODES_PER_CELL, rtol=0.3)
         else:
             assert np.prod(dims) > 0.8 * max_nodes
+
+
+# -- domains: a memory budget's, MPI data mode's (tests/engine/test_mpi.py) -------------
+
+# RMSE of the frames / their maximum: the domains' sum of optical depths against the
+# whole's, where the march of each stops on its own past T = 10^-3 (measured 2.5e-8
+# to 2.6e-5 at 128²).
+DOMAIN_TOLERANCE = 1e-4
+
+
+@device_param
+@pytest.mark.parametrize("name", ["gerris", pytest.param("amrex", marks=pytest.mark.slow),
+                                  pytest.param("athena", marks=pytest.mark.slow),
+                                  pytest.param("enzo", marks=pytest.mark.slow)])
+def test_the_domains_of_a_budget_add_up_to_the_whole_datasets_light(device, name):
+    """Under a memory budget of at least 8 domains, every domain adds its part to one
+    volume over the regions that the frame shows, and the frame is the in-memory one
+    with a volume of the same size (the budget's share: light_bytes)."""
+    from exabricks.engine.streaming import Budgeted, render_steps
+    from helpers.streaming import budget_for
+
+    whole, scene = renderer_and_scene(name, 48, device)
+    bricks, regions = whole.dataset.bricks, whole.dataset.regions
+    domains = Budgeted(bricks, regions, scene, budget_for(name, scene, 8), device=device)
+    assert domains.n_domains >= 8
+    got = render_steps(domains, scene)
+    assert got.stats["light_volume"]["bytes"] <= domains.light_bytes
+    same_size = Renderer(bricks, regions, whole.dataset.bvh, fields=whole.dataset.fields, device=device,
+                         light=light_volume.Cache(max_bytes=domains.light_bytes))
+    reference = same_size.render_scene(scene)
+    assert reference.stats["light_volume"]["nodes"] == got.stats["light_volume"]["nodes"]
+    assert rmse(got.rgba, reference.rgba) <= DOMAIN_TOLERANCE * reference.rgba.max()
+    reads = domains.reads
+    again = render_steps(domains, scene)  # the same light: no domain adds its part again
+    assert not again.stats["light_volume"]["built"] and domains.reads - reads <= domains.n_domains
+    np.testing.assert_array_equal(again.rgba, got.rgba)
+
+
+def mirrored_cells(cells):
+    """`cells` and their mirror image across the upper x face of their box, in one set."""
+    width = 1 << cells.level.astype(np.int64)
+    face = int((cells.lower_lattice[:, 0] + width).max())
+    lower = cells.lower_lattice.copy()
+    lower[:, 0] = 2 * face - lower[:, 0] - width
+    return replace(cells, lower_lattice=np.concatenate([cells.lower_lattice, lower]),
+                   level=np.concatenate([cells.level, cells.level]),
+                   values=np.concatenate([cells.values, cells.values], axis=1)), face
+
+
+@device_param
+def test_a_mirrored_copy_shadows_the_data_as_a_dataset_holding_both(device):
+    """`--mirror`: each copy adds the optical depths of its own to one volume in world
+    space, read in each copy's object space; lit from the copy's side, the frame is
+    the frame of one dataset that holds the data and its mirror image (measured
+    1.7e-5; each copy shadowing itself alone, 2.0e-3). A traced shadow ray would see
+    its own copy only: refused."""
+    from exabricks.readers import read
+    from exabricks.scene.model import Instance
+
+    from helpers import build
+
+    cells = read(GERRIS, fields=["T"])
+    both, face = mirrored_cells(cells)
+    plane = float(cells.origin_world[0] + cells.spacing_world[0] * face)
+    one, two = build(cells), build(both)
+    whole, scene = renderer_and_scene("gerris", 64, device, light=(1.0, 0.05, 0.1))
+    lo, hi = (np.asarray(b, np.float64) for b in schema.world_bounds(two.bricks))
+    centre, size = (lo + hi) / 2, float((hi - lo).max())
+    camera = replace(scene.camera, position=tuple(centre + size * np.array([0.3, -1.6, 0.7])),
+                     look_at=tuple(centre))
+    scene = scene.replace(camera=camera)
+    data = Renderer(one.bricks, one.regions, one.bvh, fields=("T",), device=device)
+    mirrored = data.integrate(scene.replace(instances=(Instance(mirror=("x", plane)),)))
+    assert mirrored.stats["instances"] == 2
+    doubled = Renderer(two.bricks, two.regions, two.bvh, fields=("T",), device=device)
+    want = doubled.integrate(scene)
+    error = rmse(mirrored.rgba, want.rgba)
+    unlit = doubled.integrate(scene.replace(lighting=replace(
+        scene.lighting, light_intensity=0.0, ambient=scene.lighting.ambient + scene.lighting.light_intensity)))
+    assert error <= 1e-4 and rmse(want.rgba, unlit.rgba) > 100 * error, (error, rmse(want.rgba, unlit.rgba))
+    with pytest.raises(ExabricksError, match="a shadow ray does not cross instances"):
+        data.integrate(scene.replace(instances=(Instance(mirror=("x", plane)),), lighting=replace(
+            scene.lighting, shadow_rays="traced")))

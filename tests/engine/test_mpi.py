@@ -51,6 +51,20 @@ def test_data_parallel_equals_one_process(request, dataset, n, cli, tmp_path):
     assert meta["settings"]["mpi"] == {"ranks": n, "mode": "data"}
 
 
+def test_shadows_in_data_mode_are_the_one_process_frame(gerris, cli, tmp_path):
+    """Each rank adds its domain's part of the light's cached transmittance, and the
+    ranks sum them (exabricks.engine.light_volume): the one-process frame, to where
+    each part's march stops on its own past T = 10^-3 (tests/engine/test_light_volume.py)."""
+    flags = [*FLAGS, "--integrator", "shadow"]
+    cli("render", *gerris, "-o", tmp_path / "one.exr", *flags, check=0)
+    proc = mpirun(2, "render", *gerris, "-o", tmp_path / "many.exr", *flags)
+    assert proc.returncode == 0, proc.stderr
+    (many, meta), (one, _) = read_image(tmp_path / "many.exr"), read_image(tmp_path / "one.exr")
+    assert meta["settings"]["mpi"] == {"ranks": 2, "mode": "data"}
+    assert one[..., 3].max() > 0.1
+    assert float(np.sqrt(np.mean((many - one) ** 2))) <= 1e-4 * float(np.abs(one).max())
+
+
 @pytest.mark.parametrize("mode", ["data", "image"])
 @pytest.mark.slow
 def test_exposure_under_mpi_is_the_one_process_frame(gerris, cli, tmp_path, mode):

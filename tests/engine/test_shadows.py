@@ -99,15 +99,20 @@ def test_the_key_light_is_above_and_to_the_left_behind_the_camera():
 
 @device_param
 def test_shadows_refuse_what_they_cannot_do_yet(device, tmp_path):
-    """Instances and data domains: one line saying so (not a wrong picture)."""
+    """Instances that overlap, and data domains where a shadow ray is traced
+    (--shadow-rays traced, and the shadows of slices): one line saying so (not a
+    wrong picture)."""
     import exabricks as eb
 
     ds = eb.open(GERRIS, cache=tmp_path / "cache")
-    with pytest.raises(ExabricksError, match="--integrator shadow: .*--mirror"):
-        eb.render(ds, integrator="shadow", mirror=("x", 0.0), size=(16, 16), device=device)
-    with pytest.raises(ExabricksError, match=r"shadow rays \(--integrator shadow\) need the whole dataset"):
-        eb.render_job(ds, tmp_path / "frame.png", integrator="shadow", memory_budget="2M",
-                      size=(16, 16), device=device)
+    with pytest.raises(ExabricksError, match="--integrator shadow: .*overlap.*--mirror"):
+        eb.render(ds, integrator="shadow", mirror=("x", 60.0), size=(16, 16), device=device)
+    a_slice = {"point": [64, 64, 64], "normal": [0, 0, 1], "field": "T"}
+    for options, what in (({"shadow_rays": "traced"}, r"shadow rays \(--integrator shadow --shadow-rays traced\)"),
+                          ({"slices": [a_slice]}, r"slices' shadows \(--integrator shadow\)")):
+        with pytest.raises(ExabricksError, match=what + " need the whole dataset"):
+            eb.render_job(ds, tmp_path / "frame.png", integrator="shadow", memory_budget="2M",
+                          size=(16, 16), device=device, **options)
     assert not (tmp_path / "frame.png").exists()
 
 

@@ -21,8 +21,8 @@ from exabricks.util.errors import ExabricksError
 from exabricks.film.image_io import read_image
 from exabricks.util.sizes import parse_size
 from exabricks.engine.renderer import Renderer
-from exabricks.engine.streaming import (HELD, SLACK, Budgeted, Resident, fixed_bytes, image_bytes,
-                                        render_steps)
+from exabricks.engine.budget_bytes import HELD, SLACK, fixed_bytes, image_bytes
+from exabricks.engine.streaming import Budgeted, Resident, render_steps
 
 from helpers import GERRIS, assert_one_error_line, peak_rss
 from helpers.mpi import files_of
@@ -513,7 +513,7 @@ def test_resident_domains_are_given_up_in_belady_order(monkeypatch):
             capacity=int(((resident - 1) * HELD + SLACK) * nbytes), n_domains=n, reads=0, prefetched=0,
             prefetch=False, _cache={}, _future=deque(), _cycle=[], _last=None, _pending=None,
             bricks=None, regions=None, fields=None, where=None, blocks=None, room=nbytes,
-            options={}, device=None, scale=None)
+            options={}, device=None, scale=None, light=None)
         sweep = [0, 1, 2, 3, 4, 5, 5, 5]  # a domain's tiles and samples in a row count once
         domains.expect(sweep * 2)
         asked = [i for _ in range(3) for i in sweep]  # two sweeps expected, and one more frame

@@ -5,7 +5,8 @@ from __future__ import annotations
 
 import numpy as np
 from exabricks.engine.domains import domain_plan, domain_bytes
-from exabricks.engine.streaming import (SLACK, fixed_bytes, render_tiled)
+from exabricks.engine.budget_bytes import LIGHT_SHARE, SLACK, fixed_bytes, light_bytes
+from exabricks.engine.streaming import render_tiled
 from helpers.frames import loaded
 
 
@@ -20,7 +21,9 @@ def budget_for(name, scene, domains: int) -> int:
     """A budget whose domains each hold at most 1/`domains` of the whole: at least
     that many domains."""
     n_bricks = loaded(name)[0].bricks.n_bricks
-    return int(fixed_bytes(scene, n_bricks) + SLACK * whole_bytes(name, scene) / domains) + 1
+    bare = fixed_bytes(scene, n_bricks) + SLACK * whole_bytes(name, scene) / domains
+    # and the cached transmittance's share of the budget (light_bytes), if any
+    return int(bare + light_bytes(scene, bare / (1.0 - LIGHT_SHARE))) + 1
 
 
 def same(a, b):
