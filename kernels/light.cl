@@ -25,6 +25,10 @@
 EB_INLINE float eb_light_transmittance(eb_frame *fr, float3 p, float rho)
 {
     int cached = fr->P->light_dims.w;
+#ifndef EB_SURFACES
+    if (cached)  /* no iso-surface, slice or mesh to cross: the volume's part is all */
+        return eb_light_cached(fr, p);
+#endif
     float t = eb_visibility(fr, p, fr->P->light_dir.xyz, 0.0f, EB_INF, rho, !cached);
     return cached ? t * eb_light_cached(fr, p) : t;
 }

@@ -93,4 +93,35 @@ EB_INLINE float eb_light_cached(eb_frame *fr, float3 p)
     float c01 = exp2(-mix(c[sy], c[sy + 1], fz)), c11 = exp2(-mix(c[sy + sx], c[sy + sx + 1], fz));
     return mix(mix(c00, c10, fx), mix(c01, c11, fx), fy);
 }
+
+#ifdef EB_PACKET
+#include "packet.cl"
+/* eb_light_cached at EB_PACKET world points (px, py, pz), one a lane: the same
+ * interpolation, its arithmetic and exp2 across the lanes at once. */
+EB_INLINE eb_vf eb_light_cached_packet(eb_frame *fr, eb_vf px, eb_vf py, eb_vf pz)
+{
+    eb_params_ref P = fr->P;
+    int4 n = P->light_dims;
+    eb_vf qx = px - P->light_origin.x, qy = py - P->light_origin.y, qz = pz - P->light_origin.z;
+    eb_vf x = (qx * P->light_u.x + qy * P->light_u.y + qz * P->light_u.z) * P->light_u.w;
+    eb_vf y = (qx * P->light_v.x + qy * P->light_v.y + qz * P->light_v.z) * P->light_v.w;
+    eb_vf z = -(qx * P->light_dir.x + qy * P->light_dir.y + qz * P->light_dir.z) * P->light_origin.w;
+    eb_vi in = (x >= 0.0f) & (y >= 0.0f) & (z >= 0.0f) & (x <= (float)(n.x - 1))
+               & (y <= (float)(n.y - 1));
+    x = clamp(x, 0.0f, (float)(n.x - 1));  /* lanes outside read node 0: set to 1 below */
+    y = clamp(y, 0.0f, (float)(n.y - 1));
+    z = clamp(z, 0.0f, (float)(n.z - 1));
+    eb_vi i = min(eb_convert_vi(x), n.x - 2), j = min(eb_convert_vi(y), n.y - 2);
+    eb_vi k = min(eb_convert_vi(z), n.z - 2);
+    eb_vf fx = x - eb_convert_vf(i), fy = y - eb_convert_vf(j), fz = z - eb_convert_vf(k);
+    int sx = n.z, sy = n.x * n.z;  /* at most MAX_NODES = 2^24: an int */
+    eb_vi c = j * sy + i * sx + k;
+    __global const float *v = fr->light;
+    eb_vf c00 = exp2(-mix(EB_GATHER(v, c), EB_GATHER(v, c + 1), fz));
+    eb_vf c10 = exp2(-mix(EB_GATHER(v, c + sx), EB_GATHER(v, c + sx + 1), fz));
+    eb_vf c01 = exp2(-mix(EB_GATHER(v, c + sy), EB_GATHER(v, c + sy + 1), fz));
+    eb_vf c11 = exp2(-mix(EB_GATHER(v, c + sy + sx), EB_GATHER(v, c + sy + sx + 1), fz));
+    return select((eb_vf)(1.0f), mix(mix(c00, c10, fx), mix(c01, c11, fx), fy), in);
+}
+#endif
 #endif

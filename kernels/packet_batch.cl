@@ -85,6 +85,17 @@ __attribute__((noinline)) int eb_batch_take(eb_frame *fr, eb_ray *ray, eb_sample
         else
             eb_packet_medium(fr, &ps, eb_vload(0, q->len), ray->dir_world, 0, &a, &cr_, &cg_, &cb_);
 #ifdef EB_SHADOW
+#ifndef EB_SURFACES
+        if (fr->P->light_dims.w) {  /* the volume's cached transmittance is all of it */
+            eb_vf T = eb_light_cached_packet(fr, ray->org_world.x + t * ray->dir_world.x,
+                                             ray->org_world.y + t * ray->dir_world.y,
+                                             ray->org_world.z + t * ray->dir_world.z);
+            cr_ *= fr->P->light_rgb.w + T * fr->P->light_rgb.x;
+            cg_ *= fr->P->light_rgb.w + T * fr->P->light_rgb.y;
+            cb_ *= fr->P->light_rgb.w + T * fr->P->light_rgb.z;
+            return eb_packet_composite(st, a, cr_, cg_, cb_, q->tm, m, fr->P->max_opacity);
+        }
+#endif
         /* the light that reaches each lane that shows (light.cl) */
         eb_vstore(a, 0, ca);
         eb_vstore(cr_, 0, cr);

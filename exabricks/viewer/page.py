@@ -15,7 +15,7 @@ from pathlib import Path
 
 from ..util import progress
 from ..util.errors import ExabricksError, one_line
-from .session import Cancelled
+from .session import Cancelled, key_light
 
 log = logging.getLogger(__name__)
 
@@ -63,7 +63,7 @@ class Page:
             try:
                 scene = await self._told(loop.run_in_executor(None, session.check, doc))
                 self.good = doc
-                layer = session.layer(scene)
+                layer, light = session.layer(scene), key_light(scene)
                 size = [scene.settings.width, scene.settings.height]
                 def cancelled(version=version):  # a newer change, or the page went away
                     return version != self.version or self.ws.closed
@@ -83,7 +83,7 @@ class Page:
                         "type": "frame", "stage": frame.stage, "width": frame.width,
                         "height": frame.height, "spp": frame.spp, "ms": round(frame.ms, 1),
                         "samples_per_second": frame.samples_per_second, "device": frame.device,
-                        "version": tag, "size": size, "layer": layer}))
+                        "version": tag, "size": size, "layer": layer, "key_light": light}))
                     await self.ws.send_bytes(frame.png)
                 else:
                     if version == self.version:

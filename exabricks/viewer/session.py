@@ -358,6 +358,20 @@ class Session:
         return Image(result.rgba, None, {"settings": result.stats}, scene=scene)
 
 
+def key_light(scene) -> list | None:
+    """The direction toward the camera's key light that `scene` is lit by, where
+    its integrator has a light and it names no direction: the page takes it as
+    the scene's own (docs/view.md, "Lights"), so that the light stays fixed in
+    the world as the camera moves and the shadow integrator's cached
+    transmittance is reused; None otherwise."""
+    from ..picture.light import light_direction
+
+    lighting = scene.lighting
+    if lighting.integrator == "headlight" or lighting.light is not None:
+        return None
+    return [float(x) for x in light_direction(scene)]
+
+
 def _takes_lod(scene) -> bool:
     """Whether the scene's integrator and reconstruction draw with level of detail
     (the feature table's refusals: the path integrator, and the nearest and vertex

@@ -11,6 +11,9 @@ from types import SimpleNamespace
 from exabricks.util import progress
 from exabricks.viewer import page
 
+# the lighting of a fake scene: the headlight (no key light for the page to take)
+UNLIT = SimpleNamespace(integrator="headlight", light=None)
+
 
 class Channel:
     """A page's channel that keeps what the server sends."""
@@ -40,7 +43,7 @@ class Session:
         return {"type": "init"}
 
     def check(self, doc):
-        return SimpleNamespace(settings=SimpleNamespace(width=8, height=8))
+        return SimpleNamespace(settings=SimpleNamespace(width=8, height=8), lighting=UNLIT)
 
     def layer(self, scene):
         return None

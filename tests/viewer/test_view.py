@@ -279,6 +279,35 @@ def test_the_page_in_a_browser(server, browser, tmp_path):
     assert not logs, logs
 
 
+def test_shadows_keep_the_first_key_light_as_the_camera_orbits(server, browser, tmp_path):
+    """Choosing the shadow integrator lights the frame by the camera's key light,
+    which the page then takes as the scene's own (docs/view.md, "Lights"): its
+    direction fills the light fields and stays while a drag orbits the camera, so
+    that the light's cached transmittance is reused; the saved scene renders the
+    viewer's frame."""
+    from selenium.webdriver.common.action_chains import ActionChains
+    from selenium.webdriver.common.by import By
+    from selenium.webdriver.support.ui import Select
+
+    browser.get(server.url)
+    frame = converged(browser)
+    Select(browser.find_element(By.ID, "integrator")).select_by_value("shadow")
+    frame = converged(browser, frame["version"])
+    toward = browser.execute_script("return window.exabricks.doc.lighting.light.direction")
+    assert np.isclose(np.linalg.norm(toward), 1.0, atol=1e-9)
+    shown = [float(browser.find_element(By.ID, f"light-{a}").get_attribute("value")) for a in "xyz"]
+    np.testing.assert_allclose(shown, toward, atol=1e-9)
+    ActionChains(browser).move_to_element(browser.find_element(By.ID, "view")).click_and_hold() \
+        .move_by_offset(60, 0).release().perform()
+    frame = converged(browser, frame["version"])
+    assert browser.execute_script("return window.exabricks.doc.lighting.light.direction") == toward
+    browser.find_element(By.ID, "save").click()
+    wait_for(browser, "return document.getElementById('saved').textContent")
+    saved = json.loads((tmp_path / "scene.json").read_text())
+    assert saved["lighting"]["integrator"] == "shadow" and saved["lighting"]["light"]["direction"] == toward
+    assert_renders(tmp_path / "scene.json", tmp_path, shown_png(browser))
+
+
 PAGE_BACKGROUND = (0x16, 0x18, 0x1D)  # viewer.css: body's background
 
 

@@ -26,6 +26,8 @@ from PIL import Image
 from helpers import GERRIS
 
 aiohttp = pytest.importorskip("aiohttp")
+# the lighting of a fake scene: the headlight (no key light for the page to take)
+UNLIT = SimpleNamespace(integrator="headlight", light=None)
 
 
 class StubSession:
@@ -38,7 +40,7 @@ class StubSession:
         return {"type": "init", "scene": self.doc}
 
     def check(self, doc):
-        return SimpleNamespace(settings=SimpleNamespace(width=8, height=8))
+        return SimpleNamespace(settings=SimpleNamespace(width=8, height=8), lighting=UNLIT)
 
     def layer(self, scene):
         return None
@@ -242,7 +244,8 @@ from exabricks.viewer.session import Cancelled
 class Drawing:
     doc = {}
     def info(self): return {"type": "init", "scene": self.doc}
-    def check(self, doc): return SimpleNamespace(settings=SimpleNamespace(width=8, height=8))
+    def check(self, doc): return SimpleNamespace(settings=SimpleNamespace(width=8, height=8),
+                                                 lighting=SimpleNamespace(integrator="headlight", light=None))
     def layer(self, scene): return None
     def stages(self, scene, moving=False): return [("converged", scene)]
     def draw(self, stage, scene, cancelled):

@@ -110,6 +110,12 @@ function exabricksViewer(root, channel) {
       state.latency.push({ version: h.version, stage: h.stage, ms: performance.now() - state.sent[1], drawn: h.ms });
       if (state.latency.length > 100) state.latency.shift();
     }
+    // the key light this frame was lit by becomes the scene's own: it stays fixed in
+    // the world as the camera moves (docs/view.md, "Lights")
+    if (h.key_light && !(state.doc.lighting.light || {}).direction) {
+      state.doc.lighting.light = { ...(state.doc.lighting.light || {}), direction: h.key_light };
+      AXES.forEach((a, i) => { $(`light-${a}`).value = h.key_light[i]; });
+    }
     if (h.layer) {
       state.layer = h.layer;
       if (!explicit(volume())) { drawOpacity(); rangeInputs(); }
