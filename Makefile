@@ -175,6 +175,10 @@ bench: setup
 	$(PY) -m benchmarks.bench_lane_fill --write-docs
 	@# pre-integrated transfer functions against the midpoint rule, float64, at equal sample counts
 	$(PY) -m benchmarks.bench_preintegration --picture docs/images/preintegration-peaks.png --write-docs
+	@# shadows: the cached transmittance against the headlight and traced shadow rays, under a budget, in the viewer
+	$(PY) -m benchmarks.bench_shadows --write-docs
+	$(PY) -m benchmarks.bench_shadow_domains --write-docs
+	$(PY) -m benchmarks.bench_view_shadows --write-docs
 
 # The thin shells at 204 M cells: every stage and budgeted renders, builders by
 # pieces, and MPI renders with 1, 2 and 4 ranks beside the 20.6 M-cell shells and
