@@ -15,8 +15,9 @@ Data split into domains (exabricks.engine.partition: a memory budget's, or MPI
 data mode's ranks) share one volume over the box of the regions that the
 frame's volume layers show in any of them (`seen_box`, `Cache.box`): each domain
 adds the optical depth of its own samples to every column (`Cache.buffer` with
-its `part`), and the sum is the whole's. The driver has every domain add its
-part before any frame reads the volume (streaming.Budgeted.order;
+its `part`), and the sum is the whole's. So do a frame's instances, each in its
+own object space (`placement`). The driver has every part added before any
+frame reads the volume (streaming.Budgeted.light_all; instances.light;
 parallel.ParallelRenderer, which sums the ranks' parts with MPI)."""
 
 from __future__ import annotations
