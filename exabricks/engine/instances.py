@@ -130,6 +130,8 @@ def light(inner, scene: Scene, scenes, box, maps) -> None:
     data = inner.dataset
     seen = light_volume.seen_box(data.regions, data.bricks.field_index,
                                  [(v.field, v.transfer_function) for v in scene.volumes])
+    if seen is None and box is None:  # nothing to cross
+        return
     placed = np.concatenate(_placed(box if seen is None else seen, maps)[0])
     cache = inner.light_cache
     cache.box = (placed.min(axis=0), placed.max(axis=0))
