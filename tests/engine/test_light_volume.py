@@ -131,6 +131,7 @@ DOMAIN_TOLERANCE = 1e-4
 
 
 @device_param
+@pytest.mark.slow  # 15 s on 2 cores: each of 16 domains read and its part added
 @pytest.mark.parametrize("name", ["gerris", pytest.param("amrex", marks=pytest.mark.slow),
                                   pytest.param("athena", marks=pytest.mark.slow),
                                   pytest.param("enzo", marks=pytest.mark.slow)])

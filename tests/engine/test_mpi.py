@@ -51,6 +51,7 @@ def test_data_parallel_equals_one_process(request, dataset, n, cli, tmp_path):
     assert meta["settings"]["mpi"] == {"ranks": n, "mode": "data"}
 
 
+@pytest.mark.slow  # 7 s: two ranks and one process
 def test_shadows_in_data_mode_are_the_one_process_frame(gerris, cli, tmp_path):
     """Each rank adds its domain's part of the light's cached transmittance, and the
     ranks sum them (exabricks.engine.light_volume): the one-process frame, to where
