@@ -257,9 +257,8 @@ class ParallelRenderer:
 
         data = self.renderer.dataset
         light = self.renderer.light_cache
-        layers = [(v.field, v.transfer_function) for v in scene.volumes]
         light.box = light_volume.union(self.comm.allgather(
-            light_volume.seen_box(data.regions, data.bricks.field_index, layers))) or self.world_box
+            light_volume.seen_box(data.regions, data.bricks.field_index, scene.volumes))) or self.world_box
         made = agree(self.comm, self.renderer.light, scene)
         light.sum_over(self.comm, data.queue, made)
 

@@ -56,7 +56,4 @@ def light_bytes(scene, budget: int) -> int:
     """The bytes of the shadow integrator's cached transmittance (light_volume)
     that a frame of `scene` under `budget` holds: a share of it (LIGHT_SHARE),
     at most the volume's own bound; 0 for frames that cache none."""
-    lighting = scene.lighting
-    if lighting.integrator != "shadow" or lighting.shadow_rays != "cached":
-        return 0
-    return int(min(4 * light_volume.MAX_NODES, budget * LIGHT_SHARE))
+    return int(min(4 * light_volume.MAX_NODES, budget * LIGHT_SHARE)) if light_volume.cached(scene) else 0

@@ -144,6 +144,24 @@ def value_exponent(magnitude: float) -> int:
     return 1 - math.frexp(magnitude)[1]  # magnitude = m 2**e, m in [0.5, 1)
 
 
+def seen_bits(ranges, field_index, layers=(), isovalues=()) -> np.ndarray:
+    """uint8 (M,) bits of M value ranges ((M, fields, 2): nodes' or regions'):
+    SEEN_VOLUME where some volume layer (field name, transfer function) has a
+    maximum alpha above 0 over the range, SEEN_ISO where some iso-value (field
+    name, value) lies inside it. `field_index`: a field's column. In steps
+    (schema.rows: small temporaries, a mapped array's pages handed back)."""
+    seen = np.zeros(ranges.shape[0], np.uint8)
+    for start, (part,) in schema.rows(ranges):
+        here = seen[start:start + part.shape[0]]
+        for name, tf in layers:
+            r = part[:, field_index(name)]
+            here |= tf.any_alpha(r[:, 0], r[:, 1]) * np.uint8(SEEN_VOLUME)
+        for name, value in isovalues:
+            r = part[:, field_index(name)]
+            here |= ((r[:, 0] <= value) & (value <= r[:, 1])) * np.uint8(SEEN_ISO)
+    return seen
+
+
 @dataclass(frozen=True)
 class DatasetScale:
     """What a dataset's frames are scaled by: its finest cell width (the default
@@ -316,19 +334,8 @@ class DeviceDataset:
         (field name, transfer function) has a maximum alpha above 0 over the
         value range, SEEN_ISO where some iso-value (field name, value) lies inside
         it (a search for iso crossings alone passes over the rest)."""
-        out = []
-        for ranges in (self.bvh.value_range, self.regions.value_range):
-            seen = np.zeros(ranges.shape[0], np.uint8)
-            for start, (part,) in schema.rows(ranges):  # steps: small temporaries
-                here = seen[start:start + part.shape[0]]
-                for name, tf in layers:
-                    r = part[:, self.bricks.field_index(name)]
-                    here |= tf.any_alpha(r[:, 0], r[:, 1]) * np.uint8(SEEN_VOLUME)
-                for name, value in isovalues:
-                    r = part[:, self.bricks.field_index(name)]
-                    here |= ((r[:, 0] <= value) & (value <= r[:, 1])) * np.uint8(SEEN_ISO)
-            out.append(seen)
-        return tuple(out)
+        return tuple(seen_bits(ranges, self.bricks.field_index, layers, isovalues)
+                     for ranges in (self.bvh.value_range, self.regions.value_range))
 
     def flags_for(self, node_visible, region_visible) -> np.ndarray:
         """The flags buffer's contents: node visibility, region visibility (uint8,

@@ -128,8 +128,7 @@ def light(inner, scene: Scene, scenes, box, maps) -> None:
         raise ExabricksError("--shadow-rays traced: a shadow ray does not cross instances "
                              "(--mirror); the cached transmittance (the default) does")
     data = inner.dataset
-    seen = light_volume.seen_box(data.regions, data.bricks.field_index,
-                                 [(v.field, v.transfer_function) for v in scene.volumes])
+    seen = light_volume.seen_box(data.regions, data.bricks.field_index, scene.volumes)
     if seen is None and box is None:  # nothing to cross
         return
     placed = np.concatenate(_placed(box if seen is None else seen, maps)[0])

@@ -32,6 +32,7 @@ import numpy as np
 from .. import schema
 from ..device import opencl
 from ..util.errors import ExabricksError
+from .device_data import SEEN_VOLUME, seen_bits
 
 # Nodes per finest cell width along each axis, where the box of the visible regions
 # holds no more than MAX_NODES of them (float32: 64 MiB), and at most MAX_AXIS
@@ -89,25 +90,34 @@ def geometry(lower, upper, light_dir, finest_width: float, max_nodes: int = MAX_
             "light_dims": (*(int(d) for d in dims), 1)}
 
 
-def seen_box(regions, field_index, layers):
-    """The world box (lower, upper) of the regions whose value range some volume
-    layer shows (`layers`: (field name, transfer function) pairs; `field_index`:
-    a field's column of the value ranges), or None where none does. In steps
-    over the regions (schema.rows), so that mapped ones stay unread."""
+def cached(scene) -> bool:
+    """Whether frames of `scene` read this cache: the shadow integrator's, its
+    transmittance not traced by a shadow ray from every sample."""
+    return scene.lighting.integrator == "shadow" and scene.lighting.shadow_rays == "cached"
+
+
+def box_of(regions, seen):
+    """The world box (lower, upper) of the regions where `seen` (per region, as
+    DeviceDataset.visibility gives it) has SEEN_VOLUME, or None where none has.
+    In steps over the regions (schema.rows), so that mapped ones stay unread."""
     lower, upper = np.full(3, np.inf), np.full(3, -np.inf)
-    for _, (ranges, lo, hi) in schema.rows(regions.value_range, regions.lower_lattice,
-                                           regions.upper_lattice):
-        seen = np.zeros(ranges.shape[0], bool)
-        for name, tf in layers:
-            r = ranges[:, field_index(name)]
-            seen |= tf.any_alpha(r[:, 0], r[:, 1])
-        if seen.any():
-            lower = np.minimum(lower, lo[seen].min(axis=0))
-            upper = np.maximum(upper, hi[seen].max(axis=0))
+    for start, (lo, hi) in schema.rows(regions.lower_lattice, regions.upper_lattice):
+        here = (seen[start:start + lo.shape[0]] & SEEN_VOLUME) != 0
+        if here.any():
+            lower = np.minimum(lower, lo[here].min(axis=0))
+            upper = np.maximum(upper, hi[here].max(axis=0))
     if not np.all(lower <= upper):
         return None
     return (regions.origin_world + regions.spacing_world * lower,
             regions.origin_world + regions.spacing_world * upper)
+
+
+def seen_box(regions, field_index, volumes):
+    """box_of the regions (`field_index`: a field's column of their value ranges)
+    that some of `volumes` (a scene's volume layers) shows: what a driver of
+    parts sets Cache.box to, from regions no DeviceDataset holds."""
+    layers = [(v.field, v.transfer_function) for v in volumes]
+    return box_of(regions, seen_bits(regions.value_range, field_index, layers))
 
 
 def union(boxes):
@@ -191,7 +201,7 @@ class Cache:
         self.volume = None
         self.empty = set()  # parts that hold no data: nothing to add, whatever the key
 
-    def buffer(self, dataset, program, by_value: bool, shadow_rays: str, params, look, layers,
+    def buffer(self, dataset, program, by_value: bool, shadow_rays: str, params, look, region_vis,
                fixed, stats: dict, part=None, placement=None):
         """The device buffer that eb_render reads for the frame of `params`
         (eb_params, whose light_* members this sets; `program` draws it, taking
@@ -202,15 +212,15 @@ class Cache:
         `placement`: (r, t) where the frame is an instance's, in its object
         space (exabricks.engine.instances: world = r @ object + t): the volume
         lies in world space, its nodes taken into object space. `look`: the
-        frame's look arrays; `layers`: its volume layers as (field name,
-        transfer function); `fixed`: eb_render's dataset, look and mesh buffers."""
+        frame's look arrays; `region_vis`: its regions' visibility
+        (DeviceDataset.visibility); `fixed`: eb_render's dataset, look and mesh
+        buffers."""
         stats["shadow_rays"] = shadow_rays
         if shadow_rays == "traced":
             params["light_dims"] = (2, 2, 2, 0)
             return opencl.empty_buffer(dataset.queue, 4)
         r, t = (np.eye(3), np.zeros(3)) if placement is None else placement
-        box = self.box or seen_box(dataset.regions, dataset.bricks.field_index, layers) \
-            or schema.world_bounds(dataset.bricks)
+        box = self.box or box_of(dataset.regions, region_vis) or schema.world_bounds(dataset.bricks)
         light = r @ params["light_dir"].reshape(-1)[:3].astype(np.float64)
         for name, value in geometry(*box, light, dataset.finest_width_world, self.max_bytes // 4).items():
             if name == "light_origin":

@@ -321,8 +321,7 @@ class Renderer:
         """Have the shadow integrator's cached transmittance of `scene` hold this
         renderer's part (a domain's or an instance's: light_volume.Cache), drawing
         nothing: its stats ("light_volume"), or None where `scene` reads none."""
-        lighting = scene.lighting
-        if lighting.integrator != "shadow" or lighting.shadow_rays != "cached":
+        if not light_volume.cached(scene):
             return None
         if self.dataset.empty:  # its part is nothing, whatever the light
             self.light_cache.empty.add(light_volume.part(self.domain, instances.placement(scene)))
@@ -427,9 +426,8 @@ class Renderer:
         placement = instances.placement(scene)
         light = () if integrator != "shadow" else (self.light_cache.buffer(
             s, s.program_for(program_variant(point)), by_value, lighting.shadow_rays, params,
-            look_arrays, [(v.field, v.transfer_function) for v in scene.volumes],
-            [*args, *look, *mesh_args], frame.stats, part=light_volume.part(self.domain, placement),
-            placement=placement),)
+            look_arrays, frame.region_vis, [*args, *look, *mesh_args], frame.stats,
+            part=light_volume.part(self.domain, placement), placement=placement),)
         params = params if by_value else up(q, params)
         fixed = [*args, *look, *mesh_args, *light,
                  front_buf, rgba_buf, counts_buf, level_buf]

@@ -161,13 +161,11 @@ class Budgeted:
         transmittance toward the light that they share (light_volume), in `order`,
         unless it holds them all already: the first domain finds whether the
         light, the look or the clipping changed."""
-        lighting = scene.lighting
-        if self.n_domains == 1 or lighting.integrator != "shadow" or lighting.shadow_rays != "cached":
+        if self.n_domains == 1 or not light_volume.cached(scene):
             return
         parts = [light_volume.part(float4_box((self.partition.lower[i], self.partition.upper[i])), None)
                  for i in range(self.n_domains)]
-        layers = [(v.field, v.transfer_function) for v in scene.volumes]
-        self.light.box = light_volume.seen_box(self.regions, self.bricks.field_index, layers) \
+        self.light.box = light_volume.seen_box(self.regions, self.bricks.field_index, scene.volumes) \
             or self.world_box
         for index in order:
             self.domain(index, scene).light(scene)
